@@ -1,0 +1,155 @@
+"""Load a scenario file into fully resolved, validated cells.
+
+This is the one entry point the rest of the runner uses: YAML (with positions) ->
+matrix expansion -> per-cell substitution -> typed `Scenario` per cell -> checks
+that span fields (expectation targets, names, matrix selectors).  Every problem
+in the file is collected and raised at once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import ValidationError
+
+from . import matrix as mx
+from .errors import Problem, ScenarioError, did_you_mean
+from .model import Scenario
+from .plan import PlannedThread, Settings, is_periodic, plan_scenario
+from .validate import problems_from
+from .yamlsource import Document, load_file
+
+
+@dataclass(frozen=True)
+class ResolvedCell:
+    """One cell: matrix values, the validated scenario, and a hash of its resolved spec."""
+
+    id: str
+    matrix: dict[str, mx.MatrixValue]
+    scenario: Scenario
+    spec_hash: str
+
+
+@dataclass
+class LoadedScenario:
+    """A scenario file, validated: its cells in run order and any warnings."""
+
+    path: str
+    name: str
+    cells: list[ResolvedCell]
+    warnings: list[Problem] = field(default_factory=list)
+
+    @property
+    def description(self) -> str:
+        return self.cells[0].scenario.description
+
+
+def spec_hash(scenario: Scenario) -> str:
+    """A short content hash of a resolved cell, to refuse comparing cells that differ."""
+    text = json.dumps(scenario.model_dump(mode="json", exclude={"description", "matrix", "expect"}), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def load_scenario(path: str) -> LoadedScenario:
+    """Read, validate and expand a scenario file; raise ScenarioError with all problems."""
+    return parse_scenario(load_file(path))
+
+
+def parse_scenario(doc: Document) -> LoadedScenario:
+    """Validate and expand an already loaded document (pure)."""
+    data = doc.data
+    if not isinstance(data, dict):
+        raise ScenarioError([doc.problem((), f"expected a scenario mapping (name, processes, ...), got {type(data).__name__}")])
+    problems: list[Problem] = []
+    warnings: list[Problem] = []
+    spec = mx.parse(doc, data.get("matrix"), problems)
+    mx.check_references(doc, data, spec, problems)
+    cells = mx.expand(doc, spec, problems, warnings) if not problems else []
+    if problems:
+        raise ScenarioError(problems + warnings)
+
+    default_name = os.path.splitext(os.path.basename(doc.file))[0]
+    found: dict[Problem, list[str]] = {}
+    resolved: list[ResolvedCell] = []
+    for cell in cells:
+        raw = mx.substitute(data, cell.values)
+        raw.setdefault("name", default_name)
+        cell_problems: list[Problem] = []
+        for path, expr in mx.unresolved(raw):
+            cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
+        try:
+            scenario = Scenario.model_validate(raw)
+        except ValidationError as exc:
+            cell_problems.extend(problems_from(exc, doc, raw, Scenario))
+        else:
+            cell_problems.extend(_cross_checks(doc, scenario, cells))
+            if not cell_problems:
+                resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, spec_hash(scenario)))
+        for problem in cell_problems:
+            found.setdefault(problem, []).append(cell.id)
+
+    for problem, where in found.items():
+        if len(cells) > 1 and len(where) < len(cells):
+            note = f" (in cell {where[0]})" if len(where) == 1 else f" (in {len(where)} of {len(cells)} cells: {'; '.join(where)})"
+            problem = Problem(problem.file, problem.line, problem.col, problem.path, problem.message + note)
+        problems.append(problem)
+    if problems:
+        raise ScenarioError(problems + warnings)
+    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
+
+
+def _cross_checks(doc: Document, scenario: Scenario, cells: list[mx.Cell]) -> list[Problem]:
+    """Checks that span several fields: unique names, expectation targets and selectors."""
+    out: list[Problem] = []
+    seen: set[str] = set()
+    for i, proc in enumerate(scenario.processes):
+        if proc.name in seen:
+            out.append(doc.problem(("processes", i, "name"), f"process name {proc.name!r} is used twice; use instances: N for copies"))
+        seen.add(proc.name)
+    planned = plan_scenario(scenario, Settings())
+    names: dict[str, list[str]] = {}
+    for t in planned:
+        names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
+    every = sorted({n for group in names.values() for n in group})
+    keys = sorted({k for c in cells for k in c.values})
+    for i, exp in enumerate(scenario.expect):
+        path: tuple[Any, ...] = ("expect", i)
+        targets = match_threads(planned, exp.thread)
+        proc, sep, thread = exp.thread.rpartition("/")
+        if sep and proc not in names:
+            out.append(doc.problem(path + ("thread",), f"no process named {proc!r}{did_you_mean(proc, names)}"))
+        elif not targets:
+            pool = names.get(proc, []) if sep else every
+            out.append(doc.problem(path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"))
+        elif exp.metric.needs_callbacks and not any(is_periodic(t.work) for t in targets):
+            out.append(doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work"))
+        for key, wanted in exp.cells.items():
+            if key not in keys:
+                known = ", ".join(keys) if keys else "none (there is no matrix)"
+                out.append(doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True))
+                continue
+            for value in wanted if isinstance(wanted, list) else [wanted]:
+                if not mx.select(cells, {key: value}):
+                    values = sorted({mx.format_value(c.values[key]) for c in cells if key in c.values})
+                    out.append(doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}"))
+    return out
+
+
+def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:
+    """Indexes of the scenario's expectations that apply to `cell`."""
+    values = cell.values if isinstance(cell, mx.Cell) else cell.matrix
+    probe = mx.Cell("x", values)
+    return [i for i, exp in enumerate(scenario.expect) if not exp.cells or mx.select([probe], exp.cells)]
+
+
+def match_threads(planned: list[PlannedThread], target: str) -> list[PlannedThread]:
+    """Threads an expectation's `thread` names: `name` or `process/name`; numbered threads match their base name.
+
+    Metrics measured per callback only apply to threads that run periodic work.
+    """
+    proc, sep, name = target.rpartition("/")
+    return [t for t in planned if (not sep or t.process == proc) and name in (t.name, t.spec_name)]

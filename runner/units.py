@@ -1,0 +1,154 @@
+"""Durations, sizes and CPU sets as users write them, and back again.
+
+Pure functions, no I/O.  Durations are integer nanoseconds, sizes integer bytes,
+CPU sets sorted tuples of CPU numbers: the internal units never change, only the
+way they are written does.  A bare number for a duration or a size is refused on
+purpose: `period: 500` is ambiguous (ms? us?) and a wrong guess silently turns a
+500 ms period into a 500 ns one.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+
+NS_PER = {
+    "ns": 1,
+    "us": 1_000,
+    "µs": 1_000,
+    "ms": 1_000_000,
+    "s": 1_000_000_000,
+    "m": 60_000_000_000,
+    "h": 3_600_000_000_000,
+}
+BYTES_PER = {
+    "B": 1,
+    "KiB": 1 << 10,
+    "MiB": 1 << 20,
+    "GiB": 1 << 30,
+    "TiB": 1 << 40,
+}
+_SI_SIZE_HINT = {"KB": "KiB", "kB": "KiB", "K": "KiB", "MB": "MiB", "M": "MiB", "GB": "GiB", "G": "GiB"}
+_QUANTITY = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?|\.[0-9]+)\s*([A-Za-zµ]+)\s*$")
+
+DURATION_EXPECTED = "a duration with a unit, such as 500ms, 200us, 1.5s or 10m"
+SIZE_EXPECTED = "a size with a unit, such as 50MiB, 200KiB or 0B"
+CPUS_EXPECTED = "CPUs as a list [0, 1], a range string '0-1,3', or a mask '0b1100' / '0x3'"
+
+
+class UnitError(ValueError):
+    """A value that does not parse as the quantity expected; the message says what is expected."""
+
+
+def parse_duration(value: object) -> int:
+    """Parse `500ms`, `200us`, `1.5s`, `10m` into integer nanoseconds."""
+    if isinstance(value, bool) or isinstance(value, (int, float)):
+        raise UnitError(f"bare number {value!r} has no unit; expected {DURATION_EXPECTED}")
+    if not isinstance(value, str):
+        raise UnitError(f"expected {DURATION_EXPECTED}, got {type(value).__name__}")
+    match = _QUANTITY.match(value)
+    if not match:
+        raise UnitError(f"cannot read {value!r}; expected {DURATION_EXPECTED}")
+    number, unit = match.groups()
+    if unit not in NS_PER:
+        hint = _did_you_mean(unit, NS_PER)
+        raise UnitError(f"unknown duration unit {unit!r}{hint}; expected one of ns, us, ms, s, m, h")
+    return round(float(number) * NS_PER[unit])
+
+
+def parse_size(value: object) -> int:
+    """Parse `50MiB`, `200KiB`, `0B` into integer bytes."""
+    if isinstance(value, bool) or isinstance(value, (int, float)):
+        raise UnitError(f"bare number {value!r} has no unit; expected {SIZE_EXPECTED}")
+    if not isinstance(value, str):
+        raise UnitError(f"expected {SIZE_EXPECTED}, got {type(value).__name__}")
+    match = _QUANTITY.match(value)
+    if not match:
+        raise UnitError(f"cannot read {value!r}; expected {SIZE_EXPECTED}")
+    number, unit = match.groups()
+    if unit not in BYTES_PER:
+        if unit in _SI_SIZE_HINT:
+            raise UnitError(
+                f"unit {unit!r} is ambiguous (1000 or 1024?); did you mean {_SI_SIZE_HINT[unit]!r}?"
+            )
+        hint = _did_you_mean(unit, BYTES_PER)
+        raise UnitError(f"unknown size unit {unit!r}{hint}; expected one of B, KiB, MiB, GiB, TiB")
+    return round(float(number) * BYTES_PER[unit])
+
+
+def parse_cpus(value: object) -> tuple[int, ...]:
+    """Parse a CPU set: a list of ints, a taskset-style `0-1,3`, or a mask `0b1100` / `0x3`."""
+    cpus: set[int] = set()
+    if isinstance(value, bool):
+        raise UnitError(f"expected {CPUS_EXPECTED}, got {value!r}")
+    if isinstance(value, int):
+        cpus.add(value)
+    elif isinstance(value, list):
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int):
+                raise UnitError(f"CPU list items must be integers, got {item!r}; expected {CPUS_EXPECTED}")
+            cpus.add(item)
+    elif isinstance(value, str):
+        text = value.strip().replace("_", "")
+        if re.fullmatch(r"0[bB][01]+", text) or re.fullmatch(r"0[xX][0-9a-fA-F]+", text):
+            mask = int(text, 0)
+            cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
+        elif re.fullmatch(r"\d+(-\d+)?(,\d+(-\d+)?)*", text):
+            for part in text.split(","):
+                low, _, high = part.partition("-")
+                first, last = int(low), int(high or low)
+                if last < first:
+                    raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")
+                cpus.update(range(first, last + 1))
+        else:
+            raise UnitError(f"cannot read CPUs {value!r}; expected {CPUS_EXPECTED}")
+    else:
+        raise UnitError(f"expected {CPUS_EXPECTED}, got {type(value).__name__}")
+    if not cpus:
+        raise UnitError("the CPU set is empty; name at least one CPU")
+    if min(cpus) < 0:
+        raise UnitError(f"CPU numbers start at 0, got {min(cpus)}")
+    if max(cpus) >= 8192:
+        raise UnitError(f"CPU {max(cpus)} is beyond what Linux supports (8192 CPUs)")
+    return tuple(sorted(cpus))
+
+
+def format_duration(ns: int) -> str:
+    """Write nanoseconds back in the largest unit that keeps the value exact (`100ms`, `1.5s`)."""
+    if ns == 0:
+        return "0s"
+    for unit in ("h", "m", "s", "ms", "us"):
+        scale = NS_PER[unit]
+        if ns % scale == 0:
+            return f"{ns // scale}{unit}"
+        if ns >= scale and (ns * 10) % scale == 0 and unit in ("s", "ms", "us"):
+            return f"{ns / scale:g}{unit}"
+    return f"{ns}ns"
+
+
+def format_size(nbytes: int) -> str:
+    """Write bytes back in the largest binary unit that keeps the value exact (`50MiB`)."""
+    for unit in ("TiB", "GiB", "MiB", "KiB"):
+        if nbytes and nbytes % BYTES_PER[unit] == 0:
+            return f"{nbytes // BYTES_PER[unit]}{unit}"
+    return f"{nbytes}B"
+
+
+def format_cpus(cpus: tuple[int, ...] | list[int] | frozenset[int] | set[int]) -> str:
+    """Write a CPU set taskset-style, runs folded: (0, 1, 2, 5) -> `0-2,5`."""
+    ordered = sorted(cpus)
+    parts: list[str] = []
+    start = prev = None
+    for cpu in ordered + [None]:  # type: ignore[operator]
+        if start is not None and (cpu is None or cpu != prev + 1):
+            parts.append(str(start) if start == prev else f"{start}-{prev}")
+            start = None
+        if cpu is not None and start is None:
+            start = cpu
+        prev = cpu
+    return ",".join(parts)
+
+
+def _did_you_mean(word: str, choices: object) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)  # type: ignore[arg-type]
+    return f" (did you mean {close[0]!r}?)" if close else ""
