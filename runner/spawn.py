@@ -1,0 +1,436 @@
+"""Run one cell for real: worker processes, background load, a common start, a hard deadline.
+
+The runner's Python code only orchestrates; measuring happens in the workers'
+native threads.  Deadlines are enforced by the native watchdog (an RT thread
+that needs no GIL), so a scenario that starves the runner's Python thread still
+cannot outlive its cell.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any, Callable, Optional
+
+from . import _probe, kernel, samples
+from .measure import check, figures
+from .model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
+from .plan import PlannedThread, Settings, is_periodic, plan_scenario
+from .pstable import ThreadRow
+from .results import CellResult, Status, ThreadResult, slug, worst, write_samples
+from .scenario import ResolvedCell, expectations_for, match_threads
+from .listing import describe_work
+
+READY_TIMEOUT_S = 20.0
+SETTLE_S = 0.1          # background load runs this long before the measured start
+START_MARGIN_S = 0.02   # time for every worker to receive `go` before the common start
+STOP_GRACE_S = 2.0
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM reached the runner."""
+
+
+@dataclass
+class CellOptions:
+    duration_ns: int
+    allow_degraded: bool
+    follow: Optional[Callable[[str], None]] = None
+    progress: Optional[Callable[[str], None]] = None
+
+
+def work_tuple(work: Work) -> tuple[int, int, int, bool, int, int]:
+    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns)."""
+    if isinstance(work, PeriodicWork):
+        return (_probe.WORK_PERIODIC, work.period, work.burn, work.burn_clock is BurnClock.WALL, work.alloc, work.offset)
+    if isinstance(work, SpinWork):
+        return (_probe.WORK_SPIN, 0, 0, False, 0, 0)
+    return (_probe.WORK_SLEEP, 0, 0, False, 0, 0)
+
+
+def _sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
+    if sched is None:
+        return None
+    return [sched.policy.kernel_id, sched.rt_priority, sched.nice]
+
+
+@dataclass
+class Worker:
+    """A worker process and what the runner knows of it."""
+
+    label: str
+    spec: dict[str, Any]
+    samples_path: str
+    nslots: int
+    capacity: int
+    planned: list[PlannedThread]
+    measured: bool
+    log_path: str
+    popen: Optional[subprocess.Popen[str]] = None
+    ready: Optional[dict[str, Any]] = None
+    done: bool = False
+    poller: Optional[samples.Poller] = None
+    seen: list[int] = field(default_factory=list)
+
+    @property
+    def pid(self) -> int:
+        assert self.popen is not None
+        return self.popen.pid
+
+    def start(self) -> None:
+        samples.create(self.samples_path, self.nslots, self.capacity)
+        log = open(self.log_path, "w")
+        self.popen = subprocess.Popen(
+            [sys.executable, "-m", "runner.worker"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
+            start_new_session=True, close_fds=True,
+        )
+        log.close()
+        assert self.popen.stdin is not None
+        self.popen.stdin.write(json.dumps(self.spec) + "\n")
+        self.popen.stdin.flush()
+
+    def send(self, line: str) -> None:
+        try:
+            assert self.popen is not None and self.popen.stdin is not None
+            self.popen.stdin.write(line + "\n")
+            self.popen.stdin.flush()
+        except (BrokenPipeError, OSError, ValueError):
+            pass
+
+    def signal(self, sig: int) -> None:
+        if self.popen is not None and self.popen.poll() is None:
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def exit_reason(self) -> Optional[str]:
+        """Why the worker ended badly, or None if it exited cleanly."""
+        assert self.popen is not None
+        code = self.popen.returncode
+        if code is None or code == 0 and self.done:
+            return None
+        if code < 0:
+            return f"{self.label} (pid {self.pid}) was killed by {signal.Signals(-code).name}"
+        tail = _tail(self.log_path)
+        return f"{self.label} (pid {self.pid}) exited with code {code}" + (f": {tail}" if tail else "")
+
+
+def _tail(path: str, lines: int = 3) -> str:
+    try:
+        with open(path) as handle:
+            text = handle.read().strip().splitlines()
+    except OSError:
+        return ""
+    return " | ".join(text[-lines:])
+
+
+def _capacity(threads: list[PlannedThread], duration_ns: int) -> int:
+    periods = [t.work.period for t in threads if isinstance(t.work, PeriodicWork)]
+    return max([16] + [duration_ns // p + 16 for p in periods])
+
+
+def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path: str, capacity: int) -> dict[str, Any]:
+    proc = next(p for p in scenario.processes if p.name == threads[0].process)
+    mem = proc.memory
+    return {
+        "comm": proc.name,
+        "samples": samples_path,
+        "capacity": capacity,
+        "all_cpus": kernel.online_cpus(),
+        "reset_on_fork": proc.reset_on_fork,
+        "memory": {"lock": mem.lock, "prealloc": mem.prealloc, "stack_size": mem.stack_size},
+        "main": {
+            "name": proc.main_name, "apply": proc.main.apply.value, "sched": _sched_json(proc.main.sched),
+            "cpus": list(proc.main.cpus) if proc.main.cpus else None, "work": work_tuple(proc.main.work),
+        },
+        "threads": [
+            {"name": spec_name, "explicit": not spec.inherit, "sched": _sched_json(spec.sched),
+             "cpus": list(spec.cpus) if spec.cpus else None, "work": work_tuple(spec.work)}
+            for spec in proc.threads for spec_name in spec.names()
+        ],
+    }
+
+
+def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
+    """Background hogs as workers: one spinning process each, or one process of spinning threads."""
+    out: list[Worker] = []
+    spin = work_tuple(SpinWork())
+    for h, hog in enumerate(scenario.background.hogs):
+        as_processes = hog.kind is HogKind.PROCESS
+        copies, threads = (hog.count, 0) if as_processes else (1, hog.count)
+        for i in range(copies):
+            path = os.path.join(folder, f"hog{h}-{i}.smp")
+            spec = {
+                "comm": hog.name, "samples": path, "capacity": 1, "all_cpus": kernel.online_cpus(), "memory": {},
+                "main": {"name": hog.name, "apply": "before_threads", "sched": _sched_json(hog.sched),
+                         "cpus": list(hog.cpus) if hog.cpus else None, "work": spin if as_processes else work_tuple(SleepWork())},
+                "threads": [{"name": hog.name, "work": spin} for _ in range(threads)],
+            }
+            out.append(Worker(f"hog {hog.name}[{i}]", spec, path, 1 + threads, 1, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
+    return out
+
+
+def _wait_ready(workers: list[Worker], deadline: float) -> Optional[str]:
+    """Read each worker's ready line; return a reason on failure."""
+    sel = selectors.DefaultSelector()
+    pending = {}
+    for w in workers:
+        assert w.popen is not None and w.popen.stdout is not None
+        sel.register(w.popen.stdout, selectors.EVENT_READ, w)
+        pending[w.popen.stdout] = w
+    try:
+        while pending:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
+            for key, _ in sel.select(timeout=min(left, 0.5)):
+                w = key.data
+                line = key.fileobj.readline()  # type: ignore[union-attr]
+                sel.unregister(key.fileobj)
+                del pending[key.fileobj]
+                if not line:
+                    w.popen.wait(timeout=5)
+                    return w.exit_reason() or f"{w.label} closed its output before getting ready"
+                msg = json.loads(line)
+                if not msg.get("ready"):
+                    return f"{w.label}: {msg.get('failed', 'could not get ready')}"
+                w.ready = msg
+    finally:
+        sel.close()
+    return None
+
+
+def _read_done(w: Worker) -> None:
+    assert w.popen is not None and w.popen.stdout is not None
+    try:
+        for line in w.popen.stdout:
+            if json.loads(line).get("done"):
+                w.done = True
+    except (ValueError, OSError):
+        pass
+
+
+def _degradation(requested: Settings, applied: Optional[Settings], errors: dict[str, int]) -> list[str]:
+    if applied is None:
+        return ["the thread was gone before its settings could be read back"]
+    out = []
+    why = {k: f" ({os.strerror(v)})" for k, v in errors.items() if v}
+    if (requested.policy, requested.priority) != (applied.policy, applied.priority):
+        out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
+    if requested.nice != applied.nice:
+        out.append(f"nice {requested.nice} requested, {applied.nice} applied{why.get('nice', '')}")
+    if requested.cpus != applied.cpus:
+        out.append(f"cpus {requested.cpus_label()} requested, {applied.cpus_label()} applied{why.get('cpus', '')}")
+    if errors.get("memory"):
+        out.append(f"memory lock failed ({os.strerror(errors['memory'])})")
+    return out
+
+
+def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
+    """Print new callbacks in the ros2-realtime-examples' log form."""
+    assert w.poller is not None
+    counts = w.poller.counts()
+    for t in w.planned:
+        if not is_periodic(t.work):
+            continue
+        while w.seen[t.index] < counts[t.index]:
+            s = w.poller.sample(t.index, w.seen[t.index])
+            w.seen[t.index] += 1
+            stamp = s.wake_ns + epoch_offset_ns
+            level = "WARN" if s.nivcsw else "INFO"
+            emit(f"[{level}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: Involuntary context switches: '{s.nivcsw}'")
+            if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
+                lvl = "WARN" if s.minflt or s.majflt else "INFO"
+                emit(f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
+
+
+def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any) -> CellResult:
+    """Run one cell and return its result; raises Interrupted after recording what finished."""
+    scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+    os.makedirs(folder, exist_ok=True)
+    began = time.monotonic()
+    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    planned = plan_scenario(scenario, start)
+    workers: list[Worker] = []
+    by_process: dict[tuple[str, int], list[PlannedThread]] = {}
+    for t in planned:
+        by_process.setdefault((t.process, t.instance), []).append(t)
+    for (proc, inst), threads in by_process.items():
+        cap = _capacity(threads, options.duration_ns)
+        path = os.path.join(folder, f"{proc}.{inst}.smp")
+        spec = _process_spec(threads, scenario, path, cap)
+        workers.append(Worker(f"process {proc}[{inst}]", spec, path, len(threads), cap, threads, True,
+                              os.path.join(folder, f"{proc}.{inst}.log")))
+    hogs = _hog_workers(scenario, folder)
+    commands: list[subprocess.Popen[bytes]] = []
+    result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, started_at=started_at)
+    table: list[ThreadRow] = []
+    interrupted = False
+    applied: dict[int, Optional[Settings]] = {}
+    reason = ""
+    first_wake = last_end = exit_time = None
+    try:
+        for w in workers + hogs:
+            w.start()
+        watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in workers + hogs])
+        reason = _wait_ready(workers + hogs, time.monotonic() + READY_TIMEOUT_S) or ""
+        if not reason:
+            every = kernel.online_cpus()
+            for w in workers:
+                assert w.ready is not None
+                for t, tid in zip(w.planned, w.ready["tids"]):
+                    try:
+                        applied[id(t)] = kernel.thread_settings(tid, every)
+                    except OSError:
+                        applied[id(t)] = None
+            for cmd in scenario.background.commands:
+                log = open(os.path.join(folder, f"command-{len(commands)}.log"), "w")
+                try:
+                    commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                                     start_new_session=True))
+                except OSError as exc:
+                    reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+                finally:
+                    log.close()
+        if not reason:
+            pids = [w.pid for w in workers + hogs] + [c.pid for c in commands]
+            now = time.monotonic_ns()
+            t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
+            t_end = t0 + options.duration_ns
+            periods = [t.work.period for t in planned if isinstance(t.work, PeriodicWork)]
+            grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
+            watchdog.arm(t_end + grace + int(1e9), pids)
+            for h in hogs:
+                h.send(f"go {now} {t_end + grace}")
+            for w in workers:
+                w.send(f"go {t0} {t_end}")
+                w.poller = samples.Poller(w.samples_path, w.nslots, w.capacity)
+                w.seen = [0] * w.nslots
+            epoch_offset = time.time_ns() - time.monotonic_ns()
+            snapshot_at = (t0 + options.duration_ns // 2) / 1e9
+            total_expected = sum(options.duration_ns // t.work.period for t in planned if isinstance(t.work, PeriodicWork))
+            while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
+                time.sleep(0.05 if options.follow else 0.2)
+                if not table and time.monotonic() >= snapshot_at:
+                    table = [row for w in workers for row in kernel.thread_rows(w.pid)]
+                if options.follow:
+                    for w in workers:
+                        _follow_lines(w, epoch_offset, options.follow)
+                if options.progress:
+                    done = sum(sum(w.poller.counts()) for w in workers)  # type: ignore[union-attr]
+                    left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
+                    options.progress(f"cell {cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
+            exit_time = time.monotonic_ns()
+            for w in workers:
+                if options.follow:
+                    _follow_lines(w, epoch_offset, options.follow)
+                _read_done(w)
+    except (KeyboardInterrupt, Interrupted):
+        interrupted = True
+        for w in workers:
+            w.signal(signal.SIGKILL)
+    finally:
+        for h in hogs:
+            h.signal(signal.SIGTERM)
+        for c in commands:
+            try:
+                os.killpg(c.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        stop_by = time.monotonic() + STOP_GRACE_S
+        for proc in [w.popen for w in workers + hogs if w.popen] + commands:
+            try:
+                proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        watchdog.disarm()
+        for w in workers:
+            if w.poller:
+                w.poller.close()
+
+    # ---- collect: everything below reads what the workers left behind
+    if not reason and not interrupted:
+        deaths = [r for w in workers if (r := w.exit_reason())]
+        if deaths:
+            reason = "; ".join(deaths)
+        if watchdog.fired:
+            reason = (reason + "; " if reason else "") + "the cell overran its deadline and was killed by the watchdog"
+    slots_out: list[tuple[str, samples.SlotData]] = []
+    verdict_targets: list[tuple[PlannedThread, Any]] = []
+    for w in workers:
+        slots = samples.read(w.samples_path, w.nslots, w.capacity)
+        errors = (w.ready or {}).get("errors", {})
+        for t, slot in zip(w.planned, slots):
+            fig = figures(slot, is_periodic(t.work))
+            if t.index == 0:
+                errs = dict(errors.get("main", {}))
+            else:
+                raw = (errors.get("threads") or [[0, 0, 0, 0]] * w.nslots)[t.index]
+                errs = {"sched": raw[0], "nice": raw[1], "cpus": raw[2]}
+            if errors.get("memory"):
+                errs["memory"] = errors["memory"].get("errno", 0)
+            app = applied.get(id(t))
+            degraded = _degradation(t.settings, app, errs) if w.ready else []
+            key = f"{t.process}[{t.instance}]/{t.name}" if t.index else f"{t.process}[{t.instance}]/{t.name} (main)"
+            slots_out.append((key, slot))
+            result.threads.append(ThreadResult(t.process, t.instance, t.index, t.name, w.pid if w.popen else 0,
+                                               slot.tid, describe_work(t.work), is_periodic(t.work), t.settings, app, degraded, fig))
+            verdict_targets.append((t, fig))
+            for s in slot.samples[:1]:
+                first_wake = s.wake_ns if first_wake is None else min(first_wake, s.wake_ns)
+            for s in slot.samples[-1:]:
+                last_end = s.end_ns if last_end is None else max(last_end, s.end_ns)
+    for i in expectations_for(scenario, cell):
+        exp = scenario.expect[i]
+        targets = {id(t) for t in match_threads([t for t, _ in verdict_targets], exp.thread)}
+        for t, fig in verdict_targets:
+            if id(t) in targets and (is_periodic(t.work) or not exp.metric.needs_callbacks):
+                label = f"{t.process}/{t.name}" + (f"[{t.instance}]" if len(by_process) > 1 and t.instance else "")
+                result.expectations.append(check(exp, label, fig))
+
+    sample_file = os.path.join(folder, "samples.csv.gz")
+    write_samples(sample_file, slots_out)
+    for w in workers + hogs:
+        try:
+            os.unlink(w.samples_path)
+        except OSError:
+            pass
+    result.samples_file = sample_file
+    result.thread_table = table
+    result.background = [{"kind": "hog", "name": h.spec["comm"], "pid": h.pid if h.popen else None} for h in hogs] + [
+        {"kind": "command", "argv": c.args, "pid": c.pid} for c in commands
+    ]
+    result.duration_s = round(time.monotonic() - began, 3)
+    began_ns = int(began * 1e9)
+    result.overhead_s = {
+        "start_to_first_callback": round((first_wake - began_ns) / 1e9, 4) if first_wake else None,
+        "last_callback_to_exit": round((exit_time - last_end) / 1e9, 4) if exit_time and last_end else None,
+    }
+    statuses = []
+    if interrupted:
+        statuses.append(Status.INTERRUPTED)
+        reason = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
+    if reason:
+        statuses.append(Status.ERROR if not interrupted else Status.INTERRUPTED)
+    if any(not v.passed for v in result.expectations):
+        statuses.append(Status.FAILED)
+    if any(t.degraded for t in result.threads):
+        statuses.append(Status.DEGRADED if options.allow_degraded else Status.ERROR)
+        if not options.allow_degraded and not reason:
+            reason = "settings were not applied as requested: " + "; ".join(
+                f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)
+    result.status = worst(statuses)
+    result.reason = reason
+    if interrupted:
+        raise Interrupted(result)
+    return result
