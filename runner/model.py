@@ -270,9 +270,8 @@ class ApplyWhen(str, enum.Enum):
 
 
 class MainThread(Strict):
-    """The process's main thread: its settings, when it applies them, and its work."""
+    """The process's main thread (named as the process): its settings, when it applies them, and its work."""
 
-    name: Optional[str] = Field(None, description="thread name; default: the process name")
     sched: Optional[Sched] = Field(None, description="scheduling settings of the main thread")
     cpus: Optional[CpuSet] = Field(None, description="CPU affinity of the main thread")
     apply: ApplyWhen = Field(
@@ -281,8 +280,6 @@ class MainThread(Strict):
         "after_threads: they keep the old settings (main_thread)",
     )
     work: Work = Field(default_factory=SleepWork, description="what the main thread runs after creating its threads")
-
-    _name = field_validator("name")(lambda cls, v: v if v is None else _check_comm(v))
 
 
 class ThreadSpec(Strict):
@@ -345,7 +342,8 @@ class ProcessSpec(Strict):
 
     @property
     def main_name(self) -> str:
-        return self.main.name or self.name
+        """The main thread's name is the process name: the kernel keeps one comm for both."""
+        return self.name
 
 
 # --------------------------------------------------------------------- background

@@ -395,7 +395,8 @@ def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOpti
         targets = {id(t) for t in match_threads([t for t, _ in verdict_targets], exp.thread)}
         for t, fig in verdict_targets:
             if id(t) in targets and (is_periodic(t.work) or not exp.metric.needs_callbacks):
-                label = f"{t.process}/{t.name}" + (f"[{t.instance}]" if len(by_process) > 1 and t.instance else "")
+                label = f"{t.process}[{t.instance}]/{t.name}" if len(by_process) > 1 else f"{t.process}/{t.name}"
+                label += " (main)" if t.index == 0 else f" #{t.index}"
                 result.expectations.append(check(exp, label, fig))
 
     sample_file = os.path.join(folder, "samples.csv.gz")

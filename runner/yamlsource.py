@@ -90,6 +90,9 @@ def load_text(text: str, file: str) -> Document:
         mark = exc.problem_mark or exc.context_mark
         line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
         what = " ".join(part for part in (exc.context, exc.problem) if part)
+        lines = text.splitlines()
+        if mark and mark.line < len(lines) and "${{" in lines[mark.line]:
+            what += "; inside [...] or {...} quote a ${{ matrix.X }} reference, or use block style"
         raise ScenarioError([Problem(file, line, col, "", f"invalid YAML: {what}")]) from None
     except yaml.YAMLError as exc:
         raise ScenarioError([Problem(file, 1, 1, "", f"invalid YAML: {exc}")]) from None
