@@ -14,12 +14,12 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import ValidationError
+from pydantic import TypeAdapter, ValidationError
 
 from . import matrix as mx
 from .errors import Problem, ScenarioError, did_you_mean
-from .model import Scenario
-from .plan import PlannedThread, Settings, is_periodic, plan_scenario
+from .model import Expectation, ProcessSpec, Scenario
+from .plan import PlannedThread, Settings, is_periodic, plan_process
 from .validate import problems_from
 from .yamlsource import Document, load_file
 
@@ -85,8 +85,9 @@ def parse_scenario(doc: Document) -> LoadedScenario:
             scenario = Scenario.model_validate(raw)
         except ValidationError as exc:
             cell_problems.extend(problems_from(exc, doc, raw, Scenario))
+            cell_problems.extend(_partial_cross_checks(doc, raw, cells))
         else:
-            cell_problems.extend(_cross_checks(doc, scenario, cells))
+            cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), cells))
             if not cell_problems:
                 resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, spec_hash(scenario)))
         for problem in cell_problems:
@@ -102,21 +103,37 @@ def parse_scenario(doc: Document) -> LoadedScenario:
     return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
 
 
-def _cross_checks(doc: Document, scenario: Scenario, cells: list[mx.Cell]) -> list[Problem]:
+def _partial_cross_checks(doc: Document, raw: dict[str, Any], cells: list[mx.Cell]) -> list[Problem]:
+    """Cross-field checks on the parts that did validate, so one bad field does not hide the rest."""
+    try:
+        processes = TypeAdapter(list[ProcessSpec]).validate_python(raw.get("processes"))
+    except ValidationError:
+        return []
+    expectations = []
+    for i, item in enumerate(raw.get("expect") or [] if isinstance(raw.get("expect"), list) else []):
+        try:
+            expectations.append((i, Expectation.model_validate(item)))
+        except ValidationError:
+            continue
+    return _cross_checks(doc, processes, expectations, cells)
+
+
+def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]],
+                  cells: list[mx.Cell]) -> list[Problem]:
     """Checks that span several fields: unique names, expectation targets and selectors."""
     out: list[Problem] = []
     seen: set[str] = set()
-    for i, proc in enumerate(scenario.processes):
+    for i, proc in enumerate(processes):
         if proc.name in seen:
             out.append(doc.problem(("processes", i, "name"), f"process name {proc.name!r} is used twice; use instances: N for copies"))
         seen.add(proc.name)
-    planned = plan_scenario(scenario, Settings())
+    planned = [t for proc in processes for t in plan_process(proc, Settings())]
     names: dict[str, list[str]] = {}
     for t in planned:
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
     every = sorted({n for group in names.values() for n in group})
     keys = sorted({k for c in cells for k in c.values})
-    for i, exp in enumerate(scenario.expect):
+    for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
         proc, sep, thread = exp.thread.rpartition("/")

@@ -26,6 +26,7 @@ MAX_BYTES = 1 << 20
 MAX_DEPTH = 48
 MAX_NODES = 100_000
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+_COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 _PLAIN_TYPES = (str, int, float, bool, type(None))
 
 
@@ -140,12 +141,15 @@ class _Builder:
         self.nodes += 1
         if self.nodes > MAX_NODES:
             if self.nodes == MAX_NODES + 1:
-                self._fail(node, path, f"document expands to more than {MAX_NODES} values (alias bomb?)")
+                self._fail(node, (), f"document expands to more than {MAX_NODES} values (alias bomb?)")
             return None
         if depth > MAX_DEPTH:
             self._fail(node, path, f"nesting is too deep; at most {MAX_DEPTH} levels")
             return None
         self.doc.marks.setdefault(path, self._mark(node))
+        if isinstance(node, (MappingNode, SequenceNode)) and node.tag not in _COLLECTION_TAGS:
+            self._fail(node, path, f"unsupported YAML tag {node.tag!r}; only plain data is allowed")
+            return None
         if isinstance(node, MappingNode):
             return self._mapping(node, path, depth)
         if isinstance(node, SequenceNode):

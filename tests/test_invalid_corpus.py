@@ -1,0 +1,60 @@
+"""Every invalid scenario of the corpus gives its line-numbered message, exit 2, no traceback."""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO, run_cli
+from runner.errors import ScenarioError
+from runner.scenario import load_scenario
+
+CORPUS = sorted(glob.glob(os.path.join(REPO, "tests", "invalid", "*.yaml")))
+
+
+def expectations(path: str) -> list[str]:
+    with open(path) as handle:
+        return [m.group(1) for line in handle if (m := re.match(r"# expect: (.*)$", line))]
+
+
+@pytest.mark.parametrize("path", CORPUS, ids=os.path.basename)
+def test_each_problem_is_reported_at_its_line(path):
+    wanted = expectations(path)
+    assert wanted, f"{path} has no '# expect:' line"
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    reported = [str(p) for p in caught.value.problems]
+    for expect in wanted:
+        prefix = f"{path}:{expect}"
+        assert any(r.startswith(prefix) for r in reported + [str(w) for w in []]) or any(
+            prefix in r for r in reported
+        ), f"missing {prefix!r}\nreported:\n" + "\n".join(reported)
+
+
+@pytest.mark.parametrize("path", CORPUS, ids=os.path.basename)
+def test_validate_exits_2_with_every_problem(path):
+    outcome = run_cli("validate", path)
+    assert outcome.code == 2
+    for expect in expectations(path):
+        assert f"{path}:{expect}" in outcome.err
+
+
+def test_no_traceback_in_a_real_process():
+    paths = CORPUS[:3]
+    proc = subprocess.run([sys.executable, "-m", "runner", "validate", *paths], capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.count(":") >= 3 * len(paths)
+
+
+def test_run_of_an_invalid_file_exits_2_without_starting_anything():
+    path = os.path.join(REPO, "tests", "invalid", "priority_range.yaml")
+    outcome = run_cli(path)
+    assert outcome.code == 2
+    assert "priority 100 is out of range" in outcome.err
+    assert outcome.out == ""

@@ -1,0 +1,102 @@
+"""Matrix expansion follows GitHub Actions strategy.matrix; references keep types."""
+
+from __future__ import annotations
+
+import pytest
+
+from runner import matrix as mx
+from runner.errors import ScenarioError
+from runner.scenario import parse_scenario
+from runner.yamlsource import load_text
+
+
+def expand(block: dict):
+    doc = load_text("x: 1\n", "f")
+    problems, warnings = [], []
+    spec = mx.parse(doc, block, problems)
+    cells = mx.expand(doc, spec, problems, warnings)
+    assert not problems, problems
+    return cells, warnings
+
+
+def test_product_in_declaration_order_with_readable_ids():
+    cells, _ = expand({"policy": ["fifo", "rr"], "priority": [10, 80]})
+    assert [c.id for c in cells] == ["policy=fifo,priority=10", "policy=fifo,priority=80",
+                                     "policy=rr,priority=10", "policy=rr,priority=80"]
+
+
+def test_exclude_removes_partial_matches_and_warns_when_dead():
+    cells, warnings = expand({"a": [1, 2], "b": ["x", "y"], "exclude": [{"a": 1}, {"b": "z"}]})
+    assert [c.id for c in cells] == ["a=2,b=x", "a=2,b=y"]
+    assert len(warnings) == 1 and "matches no cell" in str(warnings[0])
+
+
+def test_include_extends_matching_cells_and_adds_the_rest():
+    # GitHub's documented example: fruit x animal with include
+    cells, _ = expand({
+        "fruit": ["apple", "pear"], "animal": ["cat", "dog"],
+        "include": [{"color": "green"}, {"color": "pink", "animal": "cat"}, {"fruit": "apple", "shape": "circle"},
+                    {"fruit": "banana"}, {"fruit": "banana", "animal": "cat"}],
+    })
+    assert [c.values for c in cells] == [
+        {"fruit": "apple", "animal": "cat", "color": "pink", "shape": "circle"},
+        {"fruit": "apple", "animal": "dog", "color": "green", "shape": "circle"},
+        {"fruit": "pear", "animal": "cat", "color": "pink"},
+        {"fruit": "pear", "animal": "dog", "color": "green"},
+        {"fruit": "banana"},
+        {"fruit": "banana", "animal": "cat"},
+    ]
+
+
+def test_include_only_matrix():
+    cells, _ = expand({"include": [{"mode": "a"}, {"mode": "b", "n": 2}]})
+    assert [c.id for c in cells] == ["mode=a", "mode=b,n=2"]
+
+
+def test_no_matrix_is_one_default_cell():
+    cells, _ = expand(None)
+    assert [c.id for c in cells] == ["default"]
+
+
+def test_whole_references_keep_types_and_partial_ones_interpolate():
+    data = {"p": "${{ matrix.prio }}", "s": "fifo:${{ matrix.prio }}", "b": "${{matrix.on}}", "matrix": {"keep": "${{ matrix.prio }}"}}
+    out = mx.substitute(data, {"prio": 80, "on": True})
+    assert out == {"p": 80, "s": "fifo:80", "b": True, "matrix": {"keep": "${{ matrix.prio }}"}}
+
+
+SCENARIO = """\
+name: m
+matrix:
+  policy: [fifo, rr]
+  priority: [10, 80]
+  include:
+    - {policy: other, priority: 0}
+processes:
+  - name: app
+    main:
+      sched:
+        policy: ${{ matrix.policy }}
+        priority: ${{ matrix.priority }}
+      work: {kind: periodic, period: 10ms}
+expect:
+  - {thread: app, metric: involuntary.per_callback_mean, max: 0.5, cells: {policy: [fifo, rr]}}
+"""
+
+
+def test_cells_resolve_to_typed_scenarios():
+    loaded = parse_scenario(load_text(SCENARIO, "m.yaml"))
+    assert [c.id for c in loaded.cells][-1] == "policy=other,priority=0"
+    fifo80 = loaded.cells[1].scenario.processes[0].main.sched
+    assert (fifo80.policy.value, fifo80.priority) == ("fifo", 80)
+    assert len({c.spec_hash for c in loaded.cells}) == 5
+
+
+def test_cell_selector_values_must_exist():
+    bad = SCENARIO.replace("cells: {policy: [fifo, rr]}", "cells: {policy: [fifo, deadline]}")
+    with pytest.raises(ScenarioError, match="policy=deadline matches no cell"):
+        parse_scenario(load_text(bad, "m.yaml"))
+
+
+def test_select():
+    cells, _ = expand({"policy": ["fifo", "rr", "other"]})
+    assert [c.id for c in mx.select(cells, {"policy": ["fifo", "other"]})] == ["policy=fifo", "policy=other"]

@@ -1,0 +1,50 @@
+from __future__ import annotations
+
+import pytest
+
+from runner import units
+
+
+@pytest.mark.parametrize("text, ns", [("500ms", 500_000_000), ("200us", 200_000), ("1.5s", 1_500_000_000),
+                                      ("10m", 600_000_000_000), ("250 ns", 250), ("2h", 7_200_000_000_000)])
+def test_durations(text, ns):
+    assert units.parse_duration(text) == ns
+
+
+@pytest.mark.parametrize("value, message", [(500, "bare number 500 has no unit"), ("5 sec", "did you mean 's'"),
+                                            ("fast", "cannot read 'fast'"), (None, "got NoneType")])
+def test_bad_durations(value, message):
+    with pytest.raises(units.UnitError, match=message):
+        units.parse_duration(value)
+
+
+@pytest.mark.parametrize("text, nbytes", [("50MiB", 50 << 20), ("200KiB", 200 << 10), ("0B", 0), ("1.5GiB", 3 << 29)])
+def test_sizes(text, nbytes):
+    assert units.parse_size(text) == nbytes
+
+
+def test_sizes_refuse_bare_numbers_and_ambiguous_units():
+    with pytest.raises(units.UnitError, match="bare number"):
+        units.parse_size(50)
+    with pytest.raises(units.UnitError, match="did you mean 'MiB'"):
+        units.parse_size("50MB")
+
+
+@pytest.mark.parametrize("value, cpus", [([1, 0, 1], (0, 1)), ("0-1,3", (0, 1, 3)), ("0b1100", (2, 3)),
+                                         ("0x3", (0, 1)), (2, (2,)), ("1", (1,))])
+def test_cpus(value, cpus):
+    assert units.parse_cpus(value) == cpus
+
+
+@pytest.mark.parametrize("value", ["0b0", "3-1", [], "a-b", [True], -1])
+def test_bad_cpus(value):
+    with pytest.raises(units.UnitError):
+        units.parse_cpus(value)
+
+
+def test_round_trips():
+    for text in ("100ms", "40ms", "1.5s", "10m", "200us"):
+        assert units.format_duration(units.parse_duration(text)) == text
+    for text in ("50MiB", "200KiB", "0B", "3GiB"):
+        assert units.format_size(units.parse_size(text)) == text
+    assert units.format_cpus((0, 1, 2, 5, 7, 8)) == "0-2,5,7-8"

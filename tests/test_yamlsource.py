@@ -1,0 +1,49 @@
+from __future__ import annotations
+
+import pytest
+
+from runner.errors import ScenarioError
+from runner.yamlsource import load_text
+
+
+def test_positions_of_keys_and_values():
+    doc = load_text("a:\n  b: [1, 2]\n  c: x\n", "f.yaml")
+    assert doc.data == {"a": {"b": [1, 2], "c": "x"}}
+    assert doc.mark(("a", "b", 1)).line == 2
+    assert (doc.mark(("a", "c")).line, doc.mark(("a", "c")).col) == (3, 6)
+    assert (doc.mark(("a", "c"), key=True).line, doc.mark(("a", "c"), key=True).col) == (3, 3)
+
+
+def test_keys_stay_the_text_written():
+    assert load_text("on: 1\nno: 2\n", "f").data == {"on": 1, "no": 2}
+
+
+def test_duplicate_keys_are_errors_not_overwrites():
+    with pytest.raises(ScenarioError, match=r"f:3:1: b: duplicate key 'b' \(first at line 2\)"):
+        load_text("a: 1\nb: 2\nb: 3\n", "f")
+
+
+def test_merge_keys_and_aliases_work():
+    doc = load_text("base: &b {x: 1, y: 2}\nthing:\n  <<: *b\n  y: 3\n", "f")
+    assert doc.data["thing"] == {"x": 1, "y": 3}
+
+
+@pytest.mark.parametrize("text", ["a: !!python/name:os.system x\n", "a: !custom 3\n", "a: !!python/tuple [1]\n"])
+def test_object_tags_are_refused(text):
+    with pytest.raises(ScenarioError, match="unsupported YAML tag"):
+        load_text(text, "f")
+
+
+def test_timestamps_are_not_silently_dates():
+    with pytest.raises(ScenarioError, match="quote it"):
+        load_text("a: 2024-01-01\n", "f")
+
+
+def test_absurd_nesting_is_refused_quickly():
+    with pytest.raises(ScenarioError, match="nesting is too deep"):
+        load_text("a: " + "[" * 200 + "]" * 200 + "\n", "f")
+
+
+def test_empty_file():
+    with pytest.raises(ScenarioError, match="the file is empty"):
+        load_text("", "f")
