@@ -28,6 +28,7 @@ from .results import CellResult, Status, ThreadResult, slug, worst, write_sample
 from .scenario import ResolvedCell, expectations_for, match_threads
 from .listing import describe_work
 
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the runner this process imported
 READY_TIMEOUT_S = 20.0
 SETTLE_S = 0.1          # background load runs this long before the measured start
 START_MARGIN_S = 0.02   # time for every worker to receive `go` before the common start
@@ -88,9 +89,9 @@ class Worker:
         samples.create(self.samples_path, self.nslots, self.capacity)
         log = open(self.log_path, "w")
         self.popen = subprocess.Popen(
-            [sys.executable, "-m", "runner.worker"],
+            [sys.executable, "-s", "-m", "runner.worker"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
-            start_new_session=True, close_fds=True,
+            start_new_session=True, close_fds=True, cwd=PACKAGE_ROOT,
         )
         log.close()
         assert self.popen.stdin is not None
@@ -256,6 +257,7 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any) -> CellResult:
     """Run one cell and return its result; raises Interrupted after recording what finished."""
     scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+    folder = os.path.abspath(folder)
     os.makedirs(folder, exist_ok=True)
     began = time.monotonic()
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")

@@ -157,6 +157,8 @@ class _Builder:
         return self._scalar(node, path)
 
     def _scalar(self, node: ScalarNode, path: Path) -> Any:
+        if node.tag == "tag:yaml.org,2002:int" and node.value.lower().lstrip("+-").startswith(("0b", "0x")):
+            return node.value  # a CPU mask such as 0b1100 keeps its spelling; YAML would make it 12
         try:
             value = self.loader.construct_object(node, deep=True)
         except yaml.constructor.ConstructorError as exc:

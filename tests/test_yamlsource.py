@@ -47,3 +47,8 @@ def test_absurd_nesting_is_refused_quickly():
 def test_empty_file():
     with pytest.raises(ScenarioError, match="the file is empty"):
         load_text("", "f")
+
+
+def test_binary_and_hex_literals_keep_their_spelling():
+    # YAML 1.1 would read 0b1100 as 12, which as a CPU set means CPU 12, not CPUs 2 and 3
+    assert load_text("cpus: 0b1100\nm: 0x3\nn: 12\n", "f").data == {"cpus": "0b1100", "m": "0x3", "n": 12}

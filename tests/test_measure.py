@@ -1,0 +1,54 @@
+"""Figures and verdicts from recorded samples (pure)."""
+
+from __future__ import annotations
+
+from runner.measure import check, figures
+from runner.model import Expectation
+from runner.samples import Sample, SlotData
+from runner.stats import nearest_rank, summarize
+
+
+def slot(samples, finished=True):
+    return SlotData(tid=1, state="done" if finished else "running", count=len(samples), err_sched=0, err_nice=0,
+                    err_cpus=0, err_other=0, start_ru=(0, 0, 0, 0), end_ru=(7, 30, 12900, 0), loops=len(samples),
+                    missed=0, work_start_ns=0, work_end_ns=0, cpus_seen=(1,), samples=tuple(samples))
+
+
+def sample(i, lat_us, nivcsw, minflt=0):
+    due = i * 100_000_000
+    return Sample(due, due + lat_us * 1000, due + 40_000_000, 40_000_000, nivcsw, 0, minflt, 0, 1, 0, 0)
+
+
+def test_nearest_rank_is_an_observed_value():
+    values = list(range(1, 101))
+    assert nearest_rank(values, 0.5) == 50 and nearest_rank(values, 0.99) == 99 and nearest_rank(values, 0.999) == 100
+    assert summarize([]) is None
+
+
+def test_figures_of_a_callback_thread():
+    f = figures(slot([sample(0, 10, 0, 12800), sample(1, 20, 3), sample(2, 30, 4)]), periodic=True)
+    assert f.callbacks == 3
+    assert f.involuntary.total == 7 and f.involuntary.per_callback_mean == round(7 / 3, 4)
+    assert f.involuntary.per_callback_max == 4 and f.involuntary.callbacks_with_any == 2
+    assert f.latency_us == {"min": 10.0, "p50": 20.0, "p90": 30.0, "p99": 30.0, "p999": 30.0, "max": 30.0}
+    assert f.faults.minor_first_callback == 12800 and f.faults.minor_after_first == 0
+    assert f.cpus_seen == (0, 1)
+
+
+def test_an_unfinished_thread_counts_what_its_callbacks_recorded():
+    f = figures(slot([sample(0, 10, 2), sample(1, 10, 5)], finished=False), periodic=True)
+    assert f.involuntary.total == 7 and not f.complete
+
+
+def test_verdicts_carry_the_measured_value():
+    f = figures(slot([sample(0, 10, 0), sample(1, 500, 1)]), periodic=True)
+    ok = check(Expectation.model_validate({"thread": "t", "metric": "latency.p50", "max": "100us"}), "t", f)
+    bad = check(Expectation.model_validate({"thread": "t", "metric": "involuntary.per_callback_mean", "max": 0.1}), "t", f)
+    assert ok.passed and ok.measured == 10_000.0
+    assert not bad.passed and bad.measured == 0.5 and bad.limit == "<= 0.1"
+
+
+def test_a_thread_without_callbacks_cannot_pass_a_callback_check():
+    f = figures(slot([]), periodic=False)
+    v = check(Expectation.model_validate({"thread": "t", "metric": "latency.max", "max": "1ms"}), "t", f)
+    assert not v.passed and "not measured" in v.note

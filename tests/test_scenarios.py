@@ -1,0 +1,84 @@
+"""Every shipped scenario validates, lists, follows its seed example's settings, and satisfies the JSON Schema."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+
+import jsonschema
+import pytest
+
+from conftest import REPO, SCENARIOS, run_cli
+from runner.model import Policy
+from runner.plan import Settings, plan_scenario
+from runner.scenario import load_scenario
+from runner.schema import scenario_schema
+from runner.yamlsource import load_file
+
+SHIPPED = sorted(glob.glob(os.path.join(SCENARIOS, "*.yaml")))
+NAMES = {os.path.basename(p)[:-5] for p in SHIPPED}
+
+
+def test_every_example_of_the_issue_is_shipped():
+    assert {"fifo80", "rr80", "other", "middleware_threads", "spin_thread", "callback_group", "real_time_executor",
+            "cpu_affinity_main_thread", "cpu_affinity_middleware_threads", "cpu_affinity_mask", "memory_lock",
+            "policy_matrix"} <= NAMES
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
+def test_shipped_scenario_validates_and_lists(path):
+    loaded = load_scenario(path)
+    assert not loaded.warnings
+    assert "ros2-realtime-examples" in loaded.description or loaded.name == "policy_matrix"
+    outcome = run_cli(path, "--list")
+    assert outcome.code == 0, outcome.err
+    for cell in loaded.cells:
+        assert f"cell {cell.id}" in outcome.out
+    for cell in loaded.cells:
+        sc = cell.scenario
+        assert sc.duration == 10_000_000_000
+        periodic = [t for t in plan_scenario(sc, Settings()) if hasattr(t.work, "period")]
+        assert periodic, "a scenario without callbacks measures nothing"
+        for t in periodic:
+            assert t.work.period <= 200_000_000, "a 10s run must give at least 50 callbacks"
+            assert t.work.burn * 10 == t.work.period * 4, "the seed's proportion: burn 40% of the period"
+        for t in plan_scenario(sc, Settings()):
+            assert t.settings.cpus is None or max(t.settings.cpus) < 2, "must run on a 2-CPU machine"
+        assert sc.background.hogs, "contention is what makes SCHED_OTHER lose"
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
+def test_shipped_scenario_satisfies_the_schema(path):
+    jsonschema.validate(load_file(path).data, scenario_schema())
+
+
+def test_schema_file_in_the_repository_is_current():
+    with open(os.path.join(REPO, "runner.schema.json")) as handle:
+        assert json.load(handle) == scenario_schema(), "regenerate with: runner schema > runner.schema.json"
+
+
+def test_schema_command_prints_the_schema():
+    outcome = run_cli("schema")
+    assert outcome.code == 0 and json.loads(outcome.out)["title"] == "runner scenario"
+
+
+def test_schema_rejects_what_validation_rejects():
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"name": "x", "processes": [{"name": "a", "polcy": 1}]}, scenario_schema())
+
+
+def expected_rows(name: str) -> list[tuple[str, Policy, int]]:
+    sc = load_scenario(os.path.join(SCENARIOS, f"{name}.yaml")).cells[0].scenario
+    return [(t.name, t.settings.policy, t.settings.priority) for t in plan_scenario(sc, Settings())]
+
+
+def test_seed_inheritance_patterns_are_what_the_plan_says():
+    main = expected_rows("fifo80")
+    assert main[0][1:] == (Policy.FIFO, 80) and all(p is Policy.OTHER for _, p, _ in main[1:]) and len(main) == 10
+    assert expected_rows("rr80")[0][1:] == (Policy.RR, 80)
+    assert all(r[1:] == (Policy.FIFO, 80) for r in expected_rows("middleware_threads"))
+    spin = expected_rows("spin_thread")
+    assert len(spin) == 11 and spin[-1][1:] == (Policy.FIFO, 80) and all(p is Policy.OTHER for _, p, _ in spin[:-1])
+    assert [r[0] for r in expected_rows("real_time_executor") if r[1] is Policy.FIFO] == ["minimal_sub2"]
+    assert [r[0] for r in expected_rows("callback_group") if r[1] is Policy.FIFO] == ["rt_sub"]
