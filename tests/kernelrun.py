@@ -1,0 +1,75 @@
+"""Helpers for tests that run scenarios for real: start the runner, find its live workers, read results."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import runner
+from runner.kernel import find_pids, thread_rows
+
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(runner.__file__)))
+
+
+def can_use_rt() -> bool:
+    try:
+        param = os.sched_getparam(0)
+        policy = os.sched_getscheduler(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, policy, param)
+        return True
+    except OSError:
+        return False
+
+
+def env() -> dict[str, str]:
+    out = dict(os.environ)
+    out["PYTHONPATH"] = PACKAGE_ROOT
+    out.pop("GITHUB_STEP_SUMMARY", None)
+    return out
+
+
+def start_runner(*args: str, cwd: str, prefix: tuple[str, ...] = ()) -> subprocess.Popen[str]:
+    return subprocess.Popen([*prefix, sys.executable, "-m", "runner", *args], cwd=cwd, env=env(), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+
+
+def wait_for_threads(comm: str, count: int, timeout: float = 15.0) -> int:
+    """PID of the live process named `comm` once it has `count` threads."""
+    until = time.monotonic() + timeout
+    while time.monotonic() < until:
+        for pid in find_pids(comm):
+            if len(thread_rows(pid)) == count:
+                return pid
+        time.sleep(0.02)
+    raise AssertionError(f"no process {comm!r} with {count} threads within {timeout}s")
+
+
+def ps_table(pid: int) -> str:
+    return subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", str(pid)], capture_output=True, text=True, check=True).stdout
+
+
+@dataclass
+class Finished:
+    code: int
+    out: str
+    err: str
+    results: Optional[dict[str, Any]]
+
+
+def finish(proc: subprocess.Popen[str], out_dir: str, timeout: float = 60.0) -> Finished:
+    out, err = proc.communicate(timeout=timeout)
+    path = os.path.join(out_dir, "results.json")
+    results = json.load(open(path)) if os.path.exists(path) else None
+    return Finished(proc.returncode, out, err, results)
+
+
+def thread(results: dict[str, Any], name: str, cell: int = 0, index: Optional[int] = None) -> dict[str, Any]:
+    threads = [t for t in results["cells"][cell]["threads"] if t["name"] == name and (index is None or t["index"] == index)]
+    assert threads, f"no thread {name!r}"
+    return threads[0]

@@ -1,0 +1,197 @@
+"""The runner against the real kernel: the seed's thread tables, its effects, and the runner's safety.
+
+These spawn real processes with real scheduling settings for a few seconds each.
+The expected patterns are written out from the ros2-realtime-examples READMEs, and
+compared with what the kernel reports and with real `ps` output, not with the
+runner's own bookkeeping.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from conftest import SCENARIOS
+from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
+from runner.kernel import find_pids, pid_width, thread_rows
+from runner.pstable import render_ps
+
+pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+
+MW = ["minimal_schedul", "gc", "dq.builtins", "dq.user", "tev", "recv", "recvMC", "recvUC", "minimal_schedul"]
+TS, FF80, RR80 = ("-", "TS"), ("80", "FF"), ("80", "RR")
+
+# scenario -> (COMMAND, [(thread name, (RTPRIO, CLS))...] in creation order, CPUs every thread must stay in or None)
+SEED = {
+    "fifo80": ("minimal_schedul", [("minimal_schedul", FF80)] + [(n, TS) for n in MW], None),
+    "rr80": ("minimal_schedul", [("minimal_schedul", RR80)] + [(n, TS) for n in MW], None),
+    "other": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW], None),
+    "middleware_threads": ("minimal_schedul", [("minimal_schedul", FF80)] + [(n, FF80) for n in MW], None),
+    "spin_thread": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW] + [("spin_executor", FF80)], None),
+    "callback_group": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW] + [("rt_sub", FF80)], None),
+    "real_time_executor": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW]
+                           + [("minimal_sub1", TS), ("minimal_sub2", FF80)], None),
+    "cpu_affinity_main_thread": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], "main"),
+    "cpu_affinity_middleware_threads": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], (1,)),
+    "cpu_affinity_mask": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], (1,)),
+}
+
+
+@pytest.fixture(scope="module")
+def seed_runs(tmp_path_factory):
+    """Run every seed scenario once (3s each); while it runs, capture the runner's and ps's tables."""
+    runs = {}
+    for name, (comm, rows, _) in SEED.items():
+        out = str(tmp_path_factory.mktemp(name))
+        proc = start_runner(os.path.join(SCENARIOS, f"{name}.yaml"), "--duration", "3s", "--out", out, "--quiet", cwd=out)
+        try:
+            pid = wait_for_threads(comm, len(rows))
+            time.sleep(1.0)  # well inside the run: every setting applied, callbacks running
+            live = {"pid": pid, "rows": thread_rows(pid), "ps": ps_table(pid), "ours": render_ps(thread_rows(pid), pid_width=pid_width())}
+        except BaseException:
+            proc.kill()
+            raise
+        runs[name] = (live, finish(proc, out))
+    return runs
+
+
+@pytest.mark.parametrize("name", list(SEED))
+def test_seed_thread_table_pattern_from_the_kernel(seed_runs, name):
+    comm, expected, cpus = SEED[name]
+    live, done = seed_runs[name]
+    rows = live["rows"]
+    got = [(r.comm, ("-" if r.policy == 0 else str(r.rtprio), r.cls)) for r in rows]
+    assert got == expected
+    if cpus == "main":
+        assert rows[0].cpus == (1,) and rows[0].psr == 1
+        assert all(len(r.cpus) == os.cpu_count() for r in rows[1:]), "threads created before the pinning keep every CPU"
+    elif cpus:
+        assert all(r.cpus == cpus and r.psr in cpus for r in rows)
+    assert done.code in (0, 1), done.err
+    snapshot = done.results["cells"][0]["thread_table"]
+    assert [(r["comm"], r["cls"]) for r in snapshot] == [(c, cls) for c, (_, cls) in expected]
+
+
+@pytest.mark.parametrize("name", list(SEED))
+def test_runner_table_equals_real_ps_but_psr(seed_runs, name):
+    live, _ = seed_runs[name]
+    strip = lambda text: [line[:-4] for line in text.splitlines()]  # noqa: E731  PSR may change between reads
+    assert strip(live["ours"]) == strip(live["ps"])
+    assert live["ours"].splitlines()[0].endswith("COMMAND         RTPRIO CLS PSR")
+
+
+@pytest.mark.parametrize("name", list(SEED))
+def test_applied_settings_are_the_kernels_and_match_the_request(seed_runs, name):
+    live, done = seed_runs[name]
+    cell = done.results["cells"][0]
+    by_tid = {r.tid: r for r in live["rows"]}
+    for t in cell["threads"]:
+        row = by_tid[t["tid"]]
+        assert t["applied"]["policy"] == {0: "other", 1: "fifo", 2: "rr"}[row.policy]
+        assert t["applied"]["priority"] == row.rtprio
+        assert t["applied"] == t["requested"] and not t["degraded"]
+
+
+def test_headline_effect_other_loses_fifo_and_rr_do_not(seed_runs):
+    per_cb = {name: thread(seed_runs[name][1].results, "minimal_schedul", index=0)["involuntary"]["per_callback_mean"]
+              for name in ("other", "fifo80", "rr80")}
+    assert per_cb["other"] >= 2.0, per_cb
+    assert per_cb["fifo80"] <= 0.5 and per_cb["rr80"] <= 0.5, per_cb
+    assert per_cb["other"] >= 5 * max(per_cb["fifo80"], per_cb["rr80"], 0.1), per_cb
+    assert seed_runs["other"][1].code == 0 and seed_runs["fifo80"][1].code == 0  # their expectations hold
+
+
+def test_mixed_process_rt_thread_beats_its_sibling(seed_runs):
+    results = seed_runs["real_time_executor"][1].results
+    sub1 = thread(results, "minimal_sub1")["involuntary"]["per_callback_mean"]
+    sub2 = thread(results, "minimal_sub2")["involuntary"]["per_callback_mean"]
+    assert sub1 >= 2.0 and sub2 <= 0.5, (sub1, sub2)
+
+
+def test_memory_lock_faults(tmp_path):
+    proc = start_runner(os.path.join(SCENARIOS, "memory_lock.yaml"), "--duration", "2s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path))
+    done = finish(proc, str(tmp_path))
+    assert done.code == 0, done.out + done.err
+    cells = {c["matrix"]["memory"]: c for c in done.results["cells"]}
+    unlocked = thread({"cells": [cells["unlocked"]]}, "minimal_memory_", index=0)
+    per_callback = unlocked["faults"]["minor_after_first"] / (unlocked["callbacks"] - 1)
+    assert 12_000 <= per_callback <= 13_500, per_callback  # 50 MiB / 4 KiB = 12,800 pages
+    locked = thread({"cells": [cells["locked"]]}, "minimal_memory_", index=0)
+    assert locked["faults"]["minor_first_callback"] >= 12_000 and locked["faults"]["minor_after_first"] == 0
+    prealloc = thread({"cells": [cells["locked+prealloc"]]}, "minimal_memory_", index=0)
+    assert prealloc["faults"]["minor"] == 0 and prealloc["callbacks"] >= 10
+
+
+def _unprivileged_prefix() -> tuple[tuple[str, ...], str]:
+    """Run as nobody where it can reach this interpreter; else as root stripped of every capability."""
+    import sys
+
+    from kernelrun import env
+
+    probe = subprocess.run(["setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups", sys.executable, "-c",
+                            "import pydantic, yaml, psutil, runner._probe"], capture_output=True, env=env(), cwd="/")
+    if probe.returncode == 0:
+        return ("setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups"), "nobody"
+    return ("setpriv", "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
+            "--bounding-set=-all", "--inh-caps=-all", "--ambient-caps=-all"), "root without capabilities"
+
+
+def test_unprivileged_fifo_fails_before_starting_with_exit_3(tmp_path):
+    prefix, who = _unprivileged_prefix()
+    os.chmod(tmp_path, 0o777)
+    proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", str(tmp_path / "r"), cwd=str(tmp_path), prefix=prefix)
+    done = finish(proc, str(tmp_path / "r"))
+    assert done.code == 3, (who, done.err)
+    assert "SCHED_FIFO priority 80" in done.err and "limits.conf" in done.err and "setcap cap_sys_nice" in done.err
+    assert "Traceback" not in done.err
+    assert done.results is None and not find_pids("minimal_schedul")
+
+
+def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
+    prefix, who = _unprivileged_prefix()
+    os.chmod(tmp_path, 0o777)
+    out = str(tmp_path / "r")
+    proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", out, "--allow-degraded", "--quiet",
+                        cwd=str(tmp_path), prefix=prefix)
+    done = finish(proc, out)
+    assert done.code in (0, 1), (who, done.err)
+    cell = done.results["cells"][0]
+    assert cell["status"] in ("degraded", "failed")
+    main = thread(done.results, "minimal_schedul", index=0)
+    assert main["requested"]["policy"] == "fifo" and main["applied"]["policy"] == "other"
+    assert any("fifo:80 requested, other applied" in d for d in main["degraded"])
+    assert "DEGRADED" in done.out and main["callbacks"] >= 5
+
+
+def test_a_killed_worker_gives_an_error_cell_and_valid_results(tmp_path):
+    proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "4s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path))
+    pid = wait_for_threads("minimal_schedul", 10)
+    time.sleep(1.5)
+    os.kill(pid, signal.SIGKILL)
+    done = finish(proc, str(tmp_path))
+    assert done.code == 4, done.err
+    cell = done.results["cells"][0]
+    assert cell["status"] == "error" and "killed by SIGKILL" in cell["reason"]
+    assert done.results["status"] == "error"
+    main = thread(done.results, "minimal_schedul", index=0)
+    assert main["callbacks"] >= 5 and main["complete"] is False  # what finished before the kill is kept
+    assert not find_pids("hog") and not find_pids("minimal_schedul")
+
+
+def test_sigint_leaves_no_child_and_an_interrupted_results_file(tmp_path):
+    proc = start_runner(os.path.join(SCENARIOS, "policy_matrix.yaml"), "--duration", "3s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path))
+    wait_for_threads("minimal_schedul", 10)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    done = finish(proc, str(tmp_path))
+    assert done.code == 130, done.err
+    assert "Traceback" not in done.err
+    assert done.results["status"] == "interrupted"
+    assert [c["status"] for c in done.results["cells"]] == ["interrupted"]
+    assert thread(done.results, "minimal_schedul", index=0)["callbacks"] >= 5
+    time.sleep(0.2)
+    assert not find_pids("minimal_schedul") and not find_pids("hog")
