@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import sys
-import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Optional
@@ -116,7 +115,7 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
     progress = _Progress(not options.quiet)
     follow = (lambda line: (progress.clear(), print(line, flush=True))) if options.follow else None
     old_term = signal.signal(signal.SIGTERM, _raise_interrupt)
-    watchdog = _probe.Watchdog(99 if options.allow_priority_99 is False else 99)
+    watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
     statuses: list[Status] = []
     print(f"{loaded.name}: {len(cells)} cell{'s' if len(cells) != 1 else ''}, results in {results_path}", flush=True)
     try:

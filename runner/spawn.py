@@ -24,7 +24,7 @@ from .measure import check, figures
 from .model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
 from .plan import PlannedThread, Settings, is_periodic, plan_scenario
 from .pstable import ThreadRow
-from .results import CellResult, Status, ThreadResult, slug, worst, write_samples
+from .results import CellResult, Status, ThreadResult, worst, write_samples
 from .scenario import ResolvedCell, expectations_for, match_threads
 from .listing import describe_work
 
