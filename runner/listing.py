@@ -49,8 +49,9 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
     for hog in sc.background.hogs:
         sched = hog.sched.label() if hog.sched else "inherited"
         where = units.format_cpus(hog.cpus) if hog.cpus else "any CPU"
-        noun = "process" if hog.kind is HogKind.PROCESS else "thread"
-        lines.append(f"  background: {hog.count} busy {noun}{'es' if noun == 'process' and hog.count != 1 else 's' if hog.count != 1 else ''} {hog.name!r}, {sched}, {where}")
+        noun = {(True, True): "process", (True, False): "processes", (False, True): "thread", (False, False): "threads"}[
+            (hog.kind is HogKind.PROCESS, hog.count == 1)]
+        lines.append(f"  background: {hog.count} busy {noun} {hog.name!r}, {sched}, {where}")
     for cmd in sc.background.commands:
         lines.append(f"  background: command {cmd.argv!r}")
     for proc in sc.processes:
