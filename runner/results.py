@@ -16,11 +16,12 @@ import os
 import re
 import tempfile
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 from . import units
 from .errors import Problem, ScenarioError
-from .measure import Figures, Verdict
+from .measure import Faults, Figures, Involuntary, Verdict
+from .model import Metric, Policy
 from .plan import Settings
 from .pstable import ThreadRow
 from .samples import SlotData
@@ -54,6 +55,18 @@ def settings_json(settings: Optional[Settings]) -> Optional[dict[str, Any]]:
     }
 
 
+def settings_from_json(data: Optional[dict[str, Any]]) -> Optional[Settings]:
+    if data is None:
+        return None
+    cpus = None if data.get("cpus") in (None, "all") else units.parse_cpus(data["cpus"])
+    return Settings(Policy(data["policy"]), int(data["priority"]), int(data["nice"]), cpus)
+
+
+def thread_key(process: str, instance: int, index: int, name: str) -> str:
+    """A thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`."""
+    return f"{process}[{instance}]/{name}" + (" (main)" if index == 0 else f" #{index}")
+
+
 @dataclass
 class ThreadResult:
     """One measured thread: identity, requested vs applied settings, figures."""
@@ -71,9 +84,14 @@ class ThreadResult:
     degraded: list[str]
     figures: Figures
 
+    @property
+    def key(self) -> str:
+        return thread_key(self.process, self.instance, self.index, self.name)
+
     def to_json(self) -> dict[str, Any]:
         f = self.figures
         return {
+            "key": self.key,
             "process": self.process,
             "instance": self.instance,
             "index": self.index,
@@ -81,6 +99,7 @@ class ThreadResult:
             "pid": self.pid,
             "tid": self.tid,
             "work": self.work,
+            "periodic": self.periodic,
             "requested": settings_json(self.requested),
             "applied": settings_json(self.applied),
             "degraded": self.degraded,
@@ -106,6 +125,41 @@ class ThreadResult:
             "cpus_seen": list(f.cpus_seen),
         }
 
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "ThreadResult":
+        inv, faults = d["involuntary"], d["faults"]
+        figures = Figures(
+            callbacks=d["callbacks"],
+            missed=d["missed_releases"],
+            involuntary=Involuntary(inv["total"], inv["per_callback_mean"], inv["per_callback_max"], inv["callbacks_with_any"]),
+            voluntary_total=d["voluntary"]["total"],
+            latency_us=d["latency_us"],
+            callback_wall_us=d["callback_wall_us"],
+            faults=Faults(faults["minor"], faults["major"], faults["minor_first_callback"], faults["minor_after_first"],
+                          faults["minor_per_callback_max"]),
+            cpus_seen=tuple(d["cpus_seen"]),
+            complete=d["complete"],
+        )
+        requested = settings_from_json(d["requested"])
+        assert requested is not None
+        return cls(d["process"], d["instance"], d["index"], d["name"], d["pid"], d["tid"], d["work"], d["periodic"],
+                   requested, settings_from_json(d["applied"]), list(d["degraded"]), figures)
+
+
+def verdict_json(v: Verdict) -> dict[str, Any]:
+    """A verdict as stored: latencies in microseconds, counts as counted."""
+    measured = v.measured if v.measured is None or not v.metric.is_latency else round(v.measured / 1000.0, 3)
+    return {"thread": v.thread, "metric": v.metric.value, "limit": v.limit, "measured": measured,
+            "unit": "us" if v.metric.is_latency else "", "passed": v.passed, "note": v.note}
+
+
+def verdict_from_json(d: dict[str, Any]) -> Verdict:
+    metric = Metric(d["metric"])
+    measured = d["measured"]
+    if measured is not None and metric.is_latency:
+        measured = measured * 1000.0
+    return Verdict(d["thread"], metric, d["limit"], measured, d["passed"], d.get("note", ""))
+
 
 @dataclass
 class CellResult:
@@ -115,6 +169,7 @@ class CellResult:
     matrix: dict[str, Any]
     spec_hash: str
     status: Status
+    spec: dict[str, Any] = field(default_factory=dict)  # the resolved cell as hashed, to say what differs
     reason: str = ""
     started_at: str = ""
     duration_s: float = 0.0
@@ -124,13 +179,16 @@ class CellResult:
     expectations: list[Verdict] = field(default_factory=list)
     background: list[dict[str, Any]] = field(default_factory=list)
     overhead_s: dict[str, Optional[float]] = field(default_factory=dict)
-    samples_file: Optional[str] = None
+    samples_file: Optional[str] = None  # relative to the results file's folder
+    repeat: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {
             "id": self.id,
             "matrix": self.matrix,
             "spec_hash": self.spec_hash,
+            "spec": self.spec,
+            "repeat": self.repeat,
             "status": self.status.value,
             "reason": self.reason,
             "started_at": self.started_at,
@@ -138,16 +196,91 @@ class CellResult:
             "machine": self.machine,
             "thread_table": [row.to_json() for row in self.thread_table],
             "threads": [t.to_json() for t in self.threads],
-            "expectations": [
-                {"thread": v.thread, "metric": v.metric.value, "limit": v.limit,
-                 "measured": v.measured if v.measured is None or not v.metric.is_latency else round(v.measured / 1000.0, 3),
-                 "unit": "us" if v.metric.is_latency else "", "passed": v.passed, "note": v.note}
-                for v in self.expectations
-            ],
+            "expectations": [verdict_json(v) for v in self.expectations],
             "background": self.background,
             "overhead_s": self.overhead_s,
             "samples_file": self.samples_file,
         }
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "CellResult":
+        return cls(
+            id=d["id"], matrix=dict(d["matrix"]), spec_hash=d["spec_hash"], status=Status(d["status"]),
+            spec=dict(d.get("spec") or {}), reason=d.get("reason", ""), started_at=d.get("started_at", ""),
+            duration_s=d.get("duration_s", 0.0), machine=dict(d.get("machine") or {}),
+            thread_table=[ThreadRow.from_json(r) for r in d.get("thread_table", [])],
+            threads=[ThreadResult.from_json(t) for t in d.get("threads", [])],
+            expectations=[verdict_from_json(v) for v in d.get("expectations", [])],
+            background=list(d.get("background", [])), overhead_s=dict(d.get("overhead_s") or {}),
+            samples_file=d.get("samples_file"), repeat=d.get("repeat", 0),
+        )
+
+
+@dataclass
+class RunDocument:
+    """A whole results file: the run's facts and its cells, in the order they finished."""
+
+    scenario: dict[str, Any]
+    command: list[str]
+    started_at: str
+    machine: dict[str, Any]
+    permissions: dict[str, Any]
+    start_settings: dict[str, Any]
+    tool_version: str
+    finished_at: Optional[str] = None
+    status: str = "running"
+    cells: list[CellResult] = field(default_factory=list)
+    cell_ids: list[str] = field(default_factory=list)  # every cell this run was asked to run, in order
+    matrix_cells: list[str] = field(default_factory=list)  # every cell of the scenario, in expansion order
+    plan: dict[str, Any] = field(default_factory=dict)  # repeat, shuffle_seed, settle_s, cell globs: what --resume reuses
+    shard: Optional[str] = None  # "K/N" when this run is one part of a sharded matrix
+    merged_from: list[str] = field(default_factory=list)
+    folder: str = ""  # where the file was read from (not stored): samples paths are relative to it
+
+    @property
+    def name(self) -> str:
+        return str(self.scenario.get("name", "scenario"))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "schema": SCHEMA,
+            "tool": {"name": "runner", "version": self.tool_version},
+            "scenario": self.scenario,
+            "command": self.command,
+            "started_at": self.started_at,
+            "finished_at": self.finished_at,
+            "status": self.status,
+            "shard": self.shard,
+            "merged_from": self.merged_from,
+            "machine": self.machine,
+            "permissions": self.permissions,
+            "start_settings": self.start_settings,
+            "cell_ids": self.cell_ids,
+            "matrix_cells": self.matrix_cells,
+            "plan": self.plan,
+            "cells": [c.to_json() for c in self.cells],
+        }
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any], folder: str = "") -> "RunDocument":
+        return cls(
+            scenario=dict(d["scenario"]), command=list(d.get("command", [])), started_at=d.get("started_at", ""),
+            machine=dict(d.get("machine") or {}), permissions=dict(d.get("permissions") or {}),
+            start_settings=dict(d.get("start_settings") or {}), tool_version=d.get("tool", {}).get("version", "?"),
+            finished_at=d.get("finished_at"), status=d.get("status", "running"),
+            cells=[CellResult.from_json(c) for c in d.get("cells", [])],
+            cell_ids=list(d.get("cell_ids") or [c["id"] for c in d.get("cells", [])]),
+            matrix_cells=list(d.get("matrix_cells") or []), plan=dict(d.get("plan") or {}),
+            shard=d.get("shard"), merged_from=list(d.get("merged_from") or []), folder=folder,
+        )
+
+    def save(self, path: str) -> None:
+        write_atomic(path, json.dumps(self.to_json(), indent=2))
+
+    def samples_path(self, cell: CellResult) -> Optional[str]:
+        if not cell.samples_file:
+            return None
+        return os.path.join(self.folder, cell.samples_file)
 
 
 def slug(cell_id: str) -> str:
@@ -187,8 +320,13 @@ def write_samples(path: str, slots: list[tuple[str, SlotData]]) -> None:
     os.replace(tmp, path)
 
 
-def load(path: str) -> dict[str, Any]:
-    """Read a results document, refusing files that are not `runner.results/1`."""
+def load(path: str) -> RunDocument:
+    """Read a results document, refusing files that are not `runner.results/1`.
+
+    `path` may name the results file or the folder holding it.
+    """
+    if os.path.isdir(path):
+        path = os.path.join(path, "results.json")
     try:
         with open(path, encoding="utf-8") as handle:
             data = json.load(handle)
@@ -199,4 +337,35 @@ def load(path: str) -> dict[str, Any]:
     schema = data.get("schema") if isinstance(data, dict) else None
     if schema != SCHEMA:
         raise ScenarioError([Problem(path, 1, 1, "schema", f"expected a {SCHEMA} results file, got {schema!r}")])
-    return data
+    try:
+        return RunDocument.from_json(data, os.path.dirname(os.path.abspath(path)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"malformed results file: {type(exc).__name__} {exc}")]) from None
+
+
+@dataclass(frozen=True)
+class SampleRow:
+    """One callback of one thread, as stored in samples.csv.gz (times in ns)."""
+
+    seq: int
+    latency_ns: int
+    nivcsw: int
+    minflt: int
+    cpu: int
+
+
+def read_samples(path: str) -> dict[str, list[SampleRow]]:
+    """Per-callback samples of a cell by thread key; empty when the file is missing or unreadable."""
+    out: dict[str, list[SampleRow]] = {}
+    try:
+        with gzip.open(path, "rt", encoding="utf-8") as handle:
+            for row in _rows(handle):
+                out.setdefault(row[0], []).append(row[1])
+    except (OSError, EOFError, ValueError, KeyError):
+        return out
+    return out
+
+
+def _rows(handle: Any) -> Iterator[tuple[str, SampleRow]]:
+    for r in csv.DictReader(handle):
+        yield r["thread"], SampleRow(int(r["seq"]), int(r["latency_ns"]), int(r["nivcsw"]), int(r["minflt"]), int(r["cpu_end"]))

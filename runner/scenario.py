@@ -48,9 +48,14 @@ class LoadedScenario:
         return self.cells[0].scenario.description
 
 
+def spec_json(scenario: Scenario) -> dict[str, Any]:
+    """What defines a resolved cell's run: everything but its description, matrix and expectations."""
+    return scenario.model_dump(mode="json", exclude={"description", "matrix", "expect"})
+
+
 def spec_hash(scenario: Scenario) -> str:
     """A short content hash of a resolved cell, to refuse comparing cells that differ."""
-    text = json.dumps(scenario.model_dump(mode="json", exclude={"description", "matrix", "expect"}), sort_keys=True)
+    text = json.dumps(spec_json(scenario), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

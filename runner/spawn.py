@@ -24,8 +24,8 @@ from .measure import check, figures
 from .model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
 from .plan import PlannedThread, Settings, is_periodic, plan_scenario
 from .pstable import ThreadRow
-from .results import CellResult, Status, ThreadResult, worst, write_samples
-from .scenario import ResolvedCell, expectations_for, match_threads
+from .results import CellResult, Status, ThreadResult, thread_key, worst, write_samples
+from .scenario import ResolvedCell, expectations_for, match_threads, spec_json
 from .listing import describe_work
 
 PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the runner this process imported
@@ -274,7 +274,7 @@ def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOpti
                               os.path.join(folder, f"{proc}.{inst}.log")))
     hogs = _hog_workers(scenario, folder)
     commands: list[subprocess.Popen[bytes]] = []
-    result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, started_at=started_at)
+    result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, spec=spec_json(cell.scenario), started_at=started_at)
     table: list[ThreadRow] = []
     interrupted = False
     applied: dict[int, Optional[Settings]] = {}
@@ -383,8 +383,7 @@ def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOpti
                 errs["memory"] = errors["memory"].get("errno", 0)
             app = applied.get(id(t))
             degraded = _degradation(t.settings, app, errs) if w.ready else []
-            key = f"{t.process}[{t.instance}]/{t.name}" if t.index else f"{t.process}[{t.instance}]/{t.name} (main)"
-            slots_out.append((key, slot))
+            slots_out.append((thread_key(t.process, t.instance, t.index, t.name), slot))
             result.threads.append(ThreadResult(t.process, t.instance, t.index, t.name, w.pid if w.popen else 0,
                                                slot.tid, describe_work(t.work), is_periodic(t.work), t.settings, app, degraded, fig))
             verdict_targets.append((t, fig))
