@@ -1,0 +1,289 @@
+"""Compare a run with a baseline: align cells by id, check each figure against a threshold.  Pure, no I/O.
+
+A figure regresses when it grows past its threshold: relative (`+20%` of the
+baseline), absolute (`+0.5` switches, `+10us`), or both (then it must exceed
+both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  Repeated
+cells are compared by their median.  Cells whose resolved scenario differs are
+not comparable: the comparison is refused, naming each differing setting.
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Optional
+
+from . import units
+from .errors import Problem, ScenarioError, UsageError, did_you_mean
+from .results import CellResult, RunDocument, Status, ThreadResult
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A per-thread figure that can be compared: its words, unit and how to read it."""
+
+    name: str
+    words: str
+    unit: str  # "us" for latencies, "" for counts
+    value: Callable[[ThreadResult], Optional[float]]
+
+
+def _lat(q: str) -> Callable[[ThreadResult], Optional[float]]:
+    return lambda t: (t.figures.latency_us or {}).get(q)
+
+
+FIGURES: dict[str, Figure] = {f.name: f for f in (
+    Figure("latency.p50", "wake-up latency p50", "us", _lat("p50")),
+    Figure("latency.p99", "wake-up latency p99", "us", _lat("p99")),
+    Figure("latency.p999", "wake-up latency p99.9", "us", _lat("p999")),
+    Figure("latency.max", "wake-up latency max", "us", _lat("max")),
+    Figure("involuntary.per_callback_mean", "involuntary switches per callback", "",
+           lambda t: t.figures.involuntary.per_callback_mean),
+    Figure("involuntary.per_callback_max", "involuntary switches in one callback (max)", "",
+           lambda t: t.figures.involuntary.per_callback_max),
+    Figure("faults.minor_after_first", "minor page faults after the first callback", "",
+           lambda t: t.figures.faults.minor_after_first),
+    Figure("faults.major", "major page faults", "", lambda t: t.figures.faults.major),
+)}
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """How much a figure may grow over its baseline before it counts as a regression."""
+
+    figure: str
+    relative: Optional[float] = None  # 0.2 is +20%
+    absolute: Optional[float] = None  # in the figure's unit (µs for latencies)
+
+    def exceeded(self, base: float, new: float) -> bool:
+        delta = new - base
+        if self.relative is None and self.absolute is None:
+            return False
+        return ((self.relative is None or delta > self.relative * abs(base))
+                and (self.absolute is None or delta > self.absolute))
+
+    def describe(self) -> str:
+        unit = FIGURES[self.figure].unit
+        parts = []
+        if self.relative is not None:
+            parts.append(f"+{self.relative * 100:g}%")
+        if self.absolute is not None:
+            parts.append(f"+{_fmt(self.absolute, unit)}")
+        return " and ".join(parts) if parts else "off"
+
+
+DEFAULT_THRESHOLDS: tuple[Threshold, ...] = (
+    Threshold("latency.p99", relative=0.20, absolute=10.0),
+    Threshold("involuntary.per_callback_mean", absolute=0.5),
+    Threshold("faults.minor_after_first", relative=0.20, absolute=0.0),
+    Threshold("faults.major", absolute=0.0),
+)
+
+
+def parse_threshold(text: str) -> Threshold:
+    """`latency.p99=+20%`, `latency.p99=+20%,+10us`, `involuntary.per_callback_mean=+0.5`, `latency.max=off`."""
+    name, sep, spec = text.partition("=")
+    name = name.strip()
+    if not sep:
+        raise UsageError(f"runner: --threshold {text!r}: expected FIGURE=LIMIT, e.g. latency.p99=+20%")
+    if name not in FIGURES:
+        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, FIGURES)}; "
+                         f"known: {', '.join(FIGURES)}")
+    if spec.strip() == "off":
+        return Threshold(name)
+    relative = absolute = None
+    for part in spec.split(","):
+        part = part.strip().lstrip("+")
+        try:
+            if part.endswith("%"):
+                relative = float(part[:-1]) / 100.0
+            elif FIGURES[name].unit == "us":
+                absolute = units.parse_duration(part) / 1000.0
+            else:
+                absolute = float(part)
+        except (ValueError, units.UnitError):
+            raise UsageError(f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N"
+                             + (" with a unit (+10us)" if FIGURES[name].unit == "us" else "")) from None
+    return Threshold(name, relative, absolute)
+
+
+def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
+    """The defaults, with `overrides` replacing or adding figures."""
+    out = {t.figure: t for t in DEFAULT_THRESHOLDS}
+    out.update({t.figure: t for t in overrides})
+    return list(out.values())
+
+
+class Verdict:
+    REGRESSION = "regression"
+    BETTER = "better"
+    SAME = "within threshold"
+    NEW = "no baseline"
+    MISSING = "missing"
+
+
+@dataclass(frozen=True)
+class FigureChange:
+    cell: str
+    thread: str
+    figure: Figure
+    base: Optional[float]
+    new: Optional[float]
+    threshold: Threshold
+    verdict: str
+
+
+@dataclass(frozen=True)
+class CellChange:
+    cell: str
+    base_status: Optional[Status]
+    new_status: Optional[Status]
+    verdict: str
+    note: str = ""
+
+
+@dataclass
+class Comparison:
+    base: RunDocument
+    new: RunDocument
+    thresholds: list[Threshold]
+    cells: list[CellChange] = field(default_factory=list)
+    figures: list[FigureChange] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def regressions(self) -> int:
+        return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(
+            f.verdict == Verdict.REGRESSION for f in self.figures)
+
+    def regressed_cells(self) -> list[str]:
+        out = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
+        out += [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION and f.cell not in out]
+        return out
+
+
+def spec_differences(base: Any, new: Any, path: str = "") -> list[str]:
+    """Settings that differ between two resolved specs, as `key.path: base -> new`."""
+    if isinstance(base, dict) and isinstance(new, dict):
+        out = []
+        for key in list(base) + [k for k in new if k not in base]:
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in new:
+                out.append(f"{sub}: {_show(base[key])} in the baseline, absent now")
+            elif key not in base:
+                out.append(f"{sub}: absent in the baseline, {_show(new[key])} now")
+            else:
+                out.extend(spec_differences(base[key], new[key], sub))
+        return out
+    if isinstance(base, list) and isinstance(new, list) and len(base) == len(new):
+        return [d for i, (a, b) in enumerate(zip(base, new)) for d in spec_differences(a, b, f"{path}[{i}]")]
+    return [] if base == new else [f"{path}: {_show(base)} in the baseline, {_show(new)} now"]
+
+
+def _show(value: Any) -> str:
+    text = repr(value) if not isinstance(value, (dict, list)) else f"{type(value).__name__} of {len(value)}"
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _groups(doc: RunDocument) -> dict[str, list[CellResult]]:
+    out: dict[str, list[CellResult]] = {}
+    for cell in doc.cells:
+        out.setdefault(cell.id, []).append(cell)
+    return out
+
+
+def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
+    """Refuse cells with the same id but a different resolved scenario, naming what differs."""
+    b, n = _groups(base), _groups(new)
+    problems = []
+    for cell_id in [c for c in n if c in b]:
+        old, now = b[cell_id][0], n[cell_id][0]
+        if old.spec_hash == now.spec_hash:
+            continue
+        diffs = spec_differences(old.spec, now.spec) or ["the resolved scenario (no stored spec to say which setting)"]
+        problems.append(Problem(new_name, 1, 1, f"cells.{cell_id}",
+                                f"differs from the baseline ({base_name}): " + "; ".join(diffs[:8])
+                                + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else "")))
+    if problems:
+        raise ScenarioError(problems)
+
+
+def _median(values: list[Optional[float]]) -> Optional[float]:
+    present = [v for v in values if v is not None]
+    return statistics.median(present) if present else None
+
+
+_OK = (Status.PASSED, Status.DEGRADED)
+
+
+def compare(base: RunDocument, new: RunDocument, thresholds: Optional[list[Threshold]] = None,
+            base_name: str = "baseline", new_name: str = "new") -> Comparison:
+    """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
+    check_comparable(base, new, base_name, new_name)
+    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
+    b, n = _groups(base), _groups(new)
+    if base.machine.get("hostname") != new.machine.get("hostname") or base.machine.get("kernel") != new.machine.get("kernel"):
+        out.notes.append(f"The baseline ran on {base.machine.get('hostname', '?')} (kernel {base.machine.get('kernel', '?')}), "
+                         f"this run on {new.machine.get('hostname', '?')} (kernel {new.machine.get('kernel', '?')}).")
+    for cell_id in list(n) + [c for c in b if c not in n]:
+        if cell_id not in n:
+            out.cells.append(CellChange(cell_id, _status(b[cell_id]), None, Verdict.MISSING, "in the baseline, not run now"))
+            continue
+        if cell_id not in b:
+            out.cells.append(CellChange(cell_id, None, _status(n[cell_id]), Verdict.NEW, "not in the baseline"))
+            continue
+        old_status, new_status = _status(b[cell_id]), _status(n[cell_id])
+        worse = old_status in _OK and new_status not in _OK
+        out.cells.append(CellChange(cell_id, old_status, new_status, Verdict.REGRESSION if worse else Verdict.SAME,
+                                    f"{old_status.value} → {new_status.value}" if worse else ""))
+        out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
+    return out
+
+
+def _status(cells: list[CellResult]) -> Status:
+    order = list(Status)
+    return min((c.status for c in cells), key=order.index)
+
+
+def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
+    out = []
+    keys = [t.key for t in now[0].threads if t.periodic]
+    for key in keys:
+        for th in thresholds:
+            fig = FIGURES[th.figure]
+            base = _median([fig.value(t) for c in old for t in c.threads if t.key == key])
+            new = _median([fig.value(t) for c in now for t in c.threads if t.key == key])
+            if base is None and new is None:
+                continue
+            if base is None or new is None:
+                verdict = Verdict.NEW if base is None else Verdict.MISSING
+            elif th.exceeded(base, new):
+                verdict = Verdict.REGRESSION
+            elif th.exceeded(new, base):
+                verdict = Verdict.BETTER
+            else:
+                verdict = Verdict.SAME
+            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict))
+    return out
+
+
+def _fmt(value: Optional[float], unit: str) -> str:
+    if value is None:
+        return "–"
+    if unit == "us":
+        return f"{value:.1f} µs" if value < 1000 else f"{value / 1000:.2f} ms"
+    return f"{value:g}"
+
+
+def change_text(f: FigureChange) -> str:
+    if f.base is None or f.new is None:
+        return "–"
+    delta = f.new - f.base
+    text = ("+" if delta >= 0 else "−") + _fmt(abs(delta), f.figure.unit)
+    if f.base:
+        text += f" ({delta / abs(f.base) * 100:+.0f}%)"
+    return text
+
+
+def format_value(f: FigureChange, which: str) -> str:
+    return _fmt(f.base if which == "base" else f.new, f.figure.unit)

@@ -1,0 +1,560 @@
+"""The markdown report of a run: facts, findings, matrix summary, the seed's comparison view, per-cell tables.
+
+Pure: a results document in, markdown out (no file access).  The layout lives in
+`templates/report.md.j2`; this module turns results into rows of readable text
+(units everywhere, no raw field names) and the template arranges them.  Tables
+are GitHub-flavoured markdown from tabulate.
+"""
+
+from __future__ import annotations
+
+import re
+import statistics
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Iterable, Optional, Sequence
+
+import jinja2
+from tabulate import tabulate
+
+from . import units
+from .model import Policy
+from .plan import Settings
+from .pstable import render_ps
+from .results import CellResult, RunDocument, Status, ThreadResult
+
+if TYPE_CHECKING:
+    from .compare import Comparison
+
+MAX_SIDE_BY_SIDE = 12  # cells shown as columns in the comparison view; beyond that the summary table serves
+
+ICON = {Status.PASSED: "✅ passed", Status.DEGRADED: "⚠️ degraded", Status.FAILED: "❌ failed",
+        Status.ERROR: "💥 error", Status.INTERRUPTED: "⏸️ interrupted"}
+
+
+# ---------------------------------------------------------------- formatting
+
+
+def fmt_us(value: Optional[float]) -> str:
+    """A latency given in microseconds, in the unit that reads best: `56.6 µs`, `6.12 ms`, `1.20 s`."""
+    if value is None:
+        return "–"
+    if value < 1000:
+        return f"{value:.1f} µs" if value < 100 else f"{value:.0f} µs"
+    if value < 1_000_000:
+        return f"{value / 1000:.2f} ms"
+    return f"{value / 1_000_000:.2f} s"
+
+
+def fmt_mean(value: Optional[float]) -> str:
+    return "–" if value is None else ("0" if value == 0 else f"{value:.2f}")
+
+
+def fmt_int(value: Optional[int]) -> str:
+    return "–" if value is None else f"{value:,}"
+
+
+def fmt_bytes(value: Optional[int]) -> str:
+    if value is None:
+        return "–"
+    if value < 0:
+        return "unlimited"
+    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if value >= size:
+            return f"{value / size:.1f} {unit}".replace(".0 ", " ")
+    return f"{value} B"
+
+
+def policy_label(settings: Optional[Settings]) -> str:
+    """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`: how people say a thread's scheduling."""
+    if settings is None:
+        return "?"
+    text = settings.policy.name
+    if settings.policy.is_realtime:
+        text += f" {settings.priority}"
+    if settings.nice and settings.policy in (Policy.OTHER, Policy.BATCH):
+        text += f" nice {settings.nice}"
+    return text
+
+
+def md(text: object) -> str:
+    """Text safe inside a markdown table cell."""
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Optional[Sequence[str]] = None) -> str:
+    """A GitHub-flavoured markdown table."""
+    return tabulate([[md(c) for c in r] for r in rows], headers=[md(h) for h in headers], tablefmt="github",
+                    disable_numparse=True, colalign=align)
+
+
+# ---------------------------------------------------------------- findings
+
+
+def thread_label(t: ThreadResult, single_instance: bool = True) -> str:
+    """`process/name (main)`, with `[instance]` only when a process runs more than once."""
+    proc = t.process if single_instance else f"{t.process}[{t.instance}]"
+    return f"{proc}/{t.name}" + (" (main)" if t.index == 0 else f" #{t.index}")
+
+
+def thread_labels(cells: Sequence[CellResult]) -> dict[str, str]:
+    multi = {t.process for c in cells for t in c.threads if t.instance > 0}
+    return {t.key: thread_label(t, t.process not in multi) for c in cells for t in c.threads}
+
+
+def first_runs(cells: Sequence[CellResult]) -> list[CellResult]:
+    """Each cell once (its first run), in order."""
+    out: dict[str, CellResult] = {}
+    for cell in cells:
+        out.setdefault(cell.id, cell)
+    return list(out.values())
+
+
+def periodic_threads(cell: CellResult) -> list[ThreadResult]:
+    return [t for t in cell.threads if t.periodic]
+
+
+def thread_finding(t: ThreadResult, label: str) -> str:
+    """One sentence of what a periodic thread measured, e.g. `at FIFO 80: 0 involuntary switches in 98 callbacks`."""
+    f = t.figures
+    inv = f.involuntary
+    lat = (f.latency_us or {}).get("p99")
+    where = f"**{label}** at {policy_label(t.applied)}"
+    if not f.callbacks:
+        return f"{where}: no callback ran"
+    if not inv.total:
+        what = f"0 involuntary switches in {f.callbacks:,} callbacks"
+    else:
+        what = (f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
+                f"({inv.callbacks_with_any:,} of {f.callbacks:,} callbacks preempted)")
+    return f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}"
+
+
+def cell_finding(cell: CellResult, labels: dict[str, str]) -> str:
+    threads = periodic_threads(cell)
+    if cell.status is Status.ERROR and not any(t.figures.callbacks for t in threads):
+        return f"No measurement: {cell.reason or 'the cell did not run'}."
+    if not threads:
+        return "No thread runs periodic work, so there are no per-callback figures; see the switch counts below."
+    return "; ".join(thread_finding(t, labels[t.key]) for t in threads) + "."
+
+
+def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[str]:
+    """Per periodic thread seen in several cells: its figures in each cell, most preempted first."""
+    out = []
+    for key, entries in _by_thread(cells).items():
+        if len(entries) < 2:
+            continue
+        ranked = sorted(entries, key=lambda ct: -(ct[1].figures.involuntary.per_callback_mean or 0.0))
+        parts = []
+        for cell, t in ranked:
+            f = t.figures
+            inv = "no callback" if not f.callbacks else (
+                f"0 involuntary switches in {f.callbacks:,} callbacks" if not f.involuntary.total
+                else f"{fmt_mean(f.involuntary.per_callback_mean)} per callback")
+            parts.append(f"{policy_label(t.applied)} ({cell.id}): {inv}, p99 {fmt_us((f.latency_us or {}).get('p99'))}")
+        out.append(f"**{labels[key]}**, involuntary context switches and wake-up latency: " + "; ".join(parts) + ".")
+    return out
+
+
+def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, ThreadResult]]]:
+    out: dict[str, list[tuple[CellResult, ThreadResult]]] = {}
+    for cell in cells:
+        for t in periodic_threads(cell):
+            out.setdefault(t.key, []).append((cell, t))
+    return out
+
+
+# ---------------------------------------------------------------- tables
+
+
+@dataclass(frozen=True)
+class Table:
+    headers: list[str]
+    rows: list[list[str]]
+    align: Optional[list[str]] = None
+
+    def render(self) -> str:
+        return table(self.headers, self.rows, self.align)
+
+
+SWITCH_HEADERS = ["Thread", "Scheduling", "CPU", "Callbacks", "Involuntary / callback (mean)", "Involuntary / callback (max)",
+                  "Callbacks preempted", "Involuntary (total)", "Voluntary (total)", "Wake-up p50", "Wake-up p99",
+                  "Wake-up max", "Minor faults (1st callback / after)", "Major faults"]
+
+
+def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
+    """Per thread: switch counts, wake-up latency and page faults, with units."""
+    rows = []
+    for t in cell.threads:
+        f = t.figures
+        lat = f.latency_us or {}
+        faults = (f"{fmt_int(f.faults.minor_first_callback)} / {fmt_int(f.faults.minor_after_first)}"
+                  if t.periodic else f"{fmt_int(f.faults.minor)} (total)")
+        rows.append([
+            labels[t.key] + ("" if f.complete else " (did not finish)"),
+            policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
+            units.format_cpus(f.cpus_seen) or "–",
+            fmt_int(f.callbacks) if t.periodic else "–",
+            fmt_mean(f.involuntary.per_callback_mean),
+            fmt_int(f.involuntary.per_callback_max),
+            fmt_int(f.involuntary.callbacks_with_any),
+            fmt_int(f.involuntary.total),
+            fmt_int(f.voluntary_total),
+            fmt_us(lat.get("p50")), fmt_us(lat.get("p99")), fmt_us(lat.get("max")),
+            faults,
+            fmt_int(f.faults.major),
+        ])
+    return Table(SWITCH_HEADERS, rows, ["left", "left"] + ["right"] * (len(SWITCH_HEADERS) - 2))
+
+
+def verdict_table(cell: CellResult) -> Optional[Table]:
+    if not cell.expectations:
+        return None
+    rows = []
+    for v in cell.expectations:
+        measured = "not measured" if v.measured is None else (
+            fmt_us(v.measured / 1000.0) if v.metric.is_latency else f"{v.measured:g}")
+        rows.append(["✅ pass" if v.passed else "❌ FAIL", v.thread, METRIC_WORDS.get(v.metric.value, v.metric.value),
+                     v.limit, measured + (f" ({v.note})" if v.note else "")])
+    return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows)
+
+
+METRIC_WORDS = {
+    "callbacks": "callbacks run",
+    "involuntary.total": "involuntary switches (total)",
+    "involuntary.per_callback_mean": "involuntary switches per callback (mean)",
+    "involuntary.per_callback_max": "involuntary switches per callback (max)",
+    "involuntary.callbacks_with_any": "callbacks with an involuntary switch",
+    "voluntary.total": "voluntary switches (total)",
+    "latency.min": "wake-up latency min",
+    "latency.p50": "wake-up latency p50",
+    "latency.p90": "wake-up latency p90",
+    "latency.p99": "wake-up latency p99",
+    "latency.p999": "wake-up latency p99.9",
+    "latency.max": "wake-up latency max",
+    "faults.minor": "minor page faults",
+    "faults.major": "major page faults",
+    "faults.minor_after_first": "minor page faults after the first callback",
+}
+
+
+def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
+    """One row per cell: status, the worst periodic thread's key figures, expectations met."""
+    rows = []
+    for cell in cells:
+        threads = periodic_threads(cell)
+        worst_inv = max(threads, key=lambda t: t.figures.involuntary.per_callback_mean or 0.0, default=None)
+        p99s = [(t.figures.latency_us or {}).get("p99") for t in threads]
+        p99 = max((p for p in p99s if p is not None), default=None)
+        passed = sum(v.passed for v in cell.expectations)
+        rows.append([
+            f"[{section_title(cell, repeated)[5:]}](#{anchor(cell, repeated)})",
+            ICON[cell.status],
+            ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
+            fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
+            fmt_mean(worst_inv.figures.involuntary.per_callback_mean) if worst_inv else "–",
+            fmt_us(p99),
+            f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
+            f"{cell.duration_s:.1f} s",
+        ])
+    return Table(["Cell", "Status", "Scheduling (periodic threads)", "Callbacks", "Involuntary / callback (worst thread)",
+                  "Wake-up p99 (worst thread)", "Expectations met", "Duration"], rows,
+                 ["left", "left", "left", "right", "right", "right", "right", "right"])
+
+
+def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -> Table:
+    """The seed's comparison: one thread, one column per cell (other vs fifo vs rr)."""
+    def row(name: str, value: Any) -> list[str]:
+        return [name] + [value(t) for _, t in entries]
+
+    def lat(q: str) -> Any:
+        return lambda t: fmt_us((t.figures.latency_us or {}).get(q))
+
+    rows = [
+        row("Scheduling (read back from the kernel)", lambda t: policy_label(t.applied)),
+        row("CPUs it ran on", lambda t: units.format_cpus(t.figures.cpus_seen) or "–"),
+        row("Callbacks", lambda t: fmt_int(t.figures.callbacks)),
+        row("Involuntary switches per callback (mean)", lambda t: fmt_mean(t.figures.involuntary.per_callback_mean)),
+        row("Involuntary switches per callback (max)", lambda t: fmt_int(t.figures.involuntary.per_callback_max)),
+        row("Callbacks preempted at least once", lambda t: fmt_int(t.figures.involuntary.callbacks_with_any)),
+        row("Voluntary switches (total)", lambda t: fmt_int(t.figures.voluntary_total)),
+        row("Wake-up latency p50", lat("p50")),
+        row("Wake-up latency p99", lat("p99")),
+        row("Wake-up latency max", lat("max")),
+        row("Minor page faults after the first callback", lambda t: fmt_int(t.figures.faults.minor_after_first)),
+    ]
+    return Table(["Figure"] + [cell.id for cell, _ in entries], rows, ["left"] + ["right"] * len(entries))
+
+
+def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Optional[Table]:
+    """For repeated cells: each periodic thread's key figures as median (min – max) over the repeats."""
+    groups: dict[tuple[str, str], list[ThreadResult]] = {}
+    for cell in cells:
+        for t in periodic_threads(cell):
+            groups.setdefault((cell.id, t.key), []).append(t)
+    if not any(len(ts) > 1 for ts in groups.values()):
+        return None
+
+    def spread(values: list[Optional[float]], fmt: Any) -> str:
+        present = sorted(v for v in values if v is not None)
+        if not present:
+            return "–"
+        mid = statistics.median(present)
+        return fmt(mid) if len(present) == 1 else f"{fmt(mid)} ({fmt(present[0])} – {fmt(present[-1])})"
+
+    rows = []
+    for (cell_id, key), ts in groups.items():
+        rows.append([cell_id, labels[key], str(len(ts)),
+                     spread([t.figures.involuntary.per_callback_mean for t in ts], fmt_mean),
+                     spread([(t.figures.latency_us or {}).get("p50") for t in ts], fmt_us),
+                     spread([(t.figures.latency_us or {}).get("p99") for t in ts], fmt_us),
+                     spread([(t.figures.latency_us or {}).get("max") for t in ts], fmt_us)])
+    return Table(["Cell", "Thread", "Repeats", "Involuntary / callback", "Wake-up p50", "Wake-up p99", "Wake-up max"], rows,
+                 ["left", "left", "right", "right", "right", "right", "right"])
+
+
+def section_title(cell: CellResult, repeated: bool) -> str:
+    return f"Cell {cell.id}" + (f" (repeat {cell.repeat + 1})" if repeated else "")
+
+
+def anchor(cell: CellResult, repeated: bool = False) -> str:
+    """The GitHub heading anchor of a cell's section (`## Cell <id>`)."""
+    text = section_title(cell, repeated).lower()
+    return "".join(ch for ch in text.replace(" ", "-") if ch.isalnum() or ch in "-_")
+
+
+# ---------------------------------------------------------------- facts
+
+
+def facts(doc: RunDocument) -> Table:
+    """The run's facts: what a reader needs to trust or compare its numbers."""
+    m, p = doc.machine, doc.permissions
+    throttle = m.get("rt_throttling") or {}
+    if throttle.get("enabled"):
+        runtime, period = throttle.get("runtime_us") or 0, throttle.get("period_us") or 1
+        rt = f"on: RT threads may use {runtime / 1000:g} ms of every {period / 1000:g} ms ({100 * runtime / period:.0f}%)"
+    else:
+        rt = "off (an RT busy loop can starve a CPU)"
+    preempt = "**yes**" if m.get("preempt_rt") else f"no ({m.get('preempt', 'unknown')})"
+    caps = ", ".join(f"{name} {'yes' if p.get(key) else 'no'}" for name, key in (("CAP_SYS_NICE", "cap_sys_nice"), ("CAP_IPC_LOCK", "cap_ipc_lock")))
+    perms = (f"{p.get('user', '?')} (uid {p.get('uid', '?')}): {caps}, RLIMIT_RTPRIO {p.get('rlimit_rtprio', '?')}, "
+             f"RLIMIT_MEMLOCK {fmt_bytes(p.get('rlimit_memlock'))}")
+    if p.get("missing"):
+        perms += "; **missing:** " + "; ".join(p["missing"])
+    counts: dict[Status, int] = {}
+    for cell in doc.cells:
+        counts[cell.status] = counts.get(cell.status, 0) + 1
+    outcome = ", ".join(f"{n} {s.value}" for s, n in sorted(counts.items(), key=lambda kv: list(Status).index(kv[0])))
+    missing = len([c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}])
+    rows = [
+        ["Scenario", f"{doc.name} (`{doc.scenario.get('path', '?')}`)"],
+        ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
+        ["Host", f"{m.get('hostname', '?')}, {m.get('arch', '?')}, CPUs {m.get('cpus_online', '?')} online"
+                 f" ({m.get('cpus_allowed', '?')} usable), isolated CPUs: {m.get('isolated_cpus') or 'none'},"
+                 f" memory {fmt_bytes(m.get('memory_total_bytes'))}"],
+        ["Kernel", f"{m.get('kernel', '?')} `{m.get('kernel_version', '')}`"],
+        ["PREEMPT_RT", preempt],
+        ["RT throttling", rt],
+        ["CPU frequency governor", ", ".join(m.get("cpufreq_governors") or []) or "not exposed"],
+        ["Permissions", perms],
+        ["Tool", f"runner {doc.tool_version}, Python {m.get('python', '?')}"],
+        ["Command", f"`{' '.join(doc.command)}`"],
+        ["Result", f"**{doc.status}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run ({outcome or 'none'})"
+                   + (f", {missing} not run" if missing else "")],
+    ]
+    hosts: dict[str, int] = {}
+    for cell in doc.cells:
+        name = str(cell.machine.get("hostname", "?"))
+        hosts[name] = hosts.get(name, 0) + 1
+    if len(hosts) > 1:
+        rows.insert(3, ["Hosts", ", ".join(f"{h} ({n} cell{'s' if n != 1 else ''})" for h, n in hosts.items())])
+    if doc.shard:
+        rows.append(["Shard", doc.shard])
+    if doc.merged_from:
+        rows.append(["Merged from", ", ".join(f"`{p}`" for p in doc.merged_from)])
+    return Table(["Fact", "Value"], rows)
+
+
+def _when(stamp: Optional[str]) -> str:
+    return (stamp or "?").replace("T", " ").replace("+00:00", " UTC")
+
+
+# ---------------------------------------------------------------- the report
+
+
+@dataclass(frozen=True)
+class Plot:
+    title: str
+    path: str  # relative to the report
+
+
+@dataclass
+class CellSection:
+    cell: CellResult
+    title: str
+    anchor: str
+    icon: str
+    finding: str
+    ps: str
+    switches: Table
+    verdicts: Optional[Table]
+    degraded: list[str]
+    load: str
+
+
+@dataclass
+class ThreadView:
+    label: str
+    side_by_side: Optional[Table]
+    plots: list[Plot]
+    cells: int
+
+
+@dataclass
+class ReportModel:
+    title: str
+    description: str
+    facts: Table
+    findings: list[str]
+    summary: Optional[Table]
+    spread: Optional[Table]
+    threads: list[ThreadView]
+    sections: list[CellSection]
+    comparison: Optional[str] = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _load_line(cell: CellResult) -> str:
+    hogs = [b for b in cell.background if b.get("kind") == "hog"]
+    commands = [b for b in cell.background if b.get("kind") == "command"]
+    parts = []
+    if hogs:
+        parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
+    parts += [f"`{' '.join(c.get('argv', []))}`" for c in commands]
+    return ", ".join(parts) or "none"
+
+
+def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, comparison: Optional[str] = None,
+          pid_width: int = 5) -> ReportModel:
+    """Everything the template shows, as text and tables; `plots` maps a thread key to its plot files."""
+    plots = plots or {}
+    order = {cell_id: i for i, cell_id in enumerate(doc.matrix_cells)}
+    cells = sorted(doc.cells, key=lambda c: (order.get(c.id, len(order)), c.repeat))  # matrix order, not run order
+    labels = thread_labels(cells)
+    repeated = any(c.repeat for c in cells)
+    firsts = first_runs(cells)
+    matrix = len(firsts) > 1
+    threads = []
+    for key, entries in _by_thread(firsts).items():
+        shown = entries[:MAX_SIDE_BY_SIDE]
+        threads.append(ThreadView(labels[key], side_by_side(key, shown) if matrix else None, plots.get(key, []), len(entries)))
+    sections = [
+        CellSection(
+            cell=cell, title=section_title(cell, repeated), anchor=anchor(cell, repeated), icon=ICON[cell.status], finding=cell_finding(cell, labels),
+            ps=render_ps(cell.thread_table, pid_width=pid_width) if cell.thread_table else "",
+            switches=switch_table(cell, labels), verdicts=verdict_table(cell),
+            degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
+            load=_load_line(cell),
+        )
+        for cell in cells
+    ]
+    findings = matrix_finding(firsts, labels) if matrix else []
+    if not findings:
+        findings = [f"{cell.id}: {cell_finding(cell, labels)}" if matrix else cell_finding(cell, labels) for cell in firsts]
+    if repeated:
+        findings.append("Cells ran more than once: the side-by-side view and these findings show each cell's first run; "
+                        "the spread table shows every repeat.")
+    notes = []
+    if any(len(v.side_by_side.rows[0]) - 1 < v.cells for v in threads if v.side_by_side):
+        notes.append(f"The side-by-side view shows the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
+    return ReportModel(
+        title=f"{doc.name}: scheduling report",
+        description=str(doc.scenario.get("description") or ""),
+        facts=facts(doc), findings=findings, summary=summary_table(cells, repeated) if len(cells) > 1 else None,
+        spread=spread_table(cells, labels),
+        threads=threads, sections=sections, comparison=comparison, notes=notes,
+    )
+
+
+_ENV: Optional[jinja2.Environment] = None
+
+
+def environment() -> jinja2.Environment:
+    """The template environment (templates ship inside the package)."""
+    global _ENV
+    if _ENV is None:
+        _ENV = jinja2.Environment(loader=jinja2.PackageLoader("runner", "templates"), autoescape=False,
+                                  trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
+                                  undefined=jinja2.StrictUndefined)
+    return _ENV
+
+
+def render(model: ReportModel) -> str:
+    """The report as markdown."""
+    return re.sub(r"\n{3,}", "\n\n", environment().get_template("report.md.j2").render(r=model))
+
+
+def render_run(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, comparison: Optional[str] = None,
+               pid_width: int = 5) -> str:
+    return render(build(doc, plots, comparison, pid_width))
+
+
+# ---------------------------------------------------------------- comparison with a baseline
+
+VERDICT_ICON = {"regression": "❌ regression", "better": "🟢 better", "within threshold": "✅ within threshold",
+                "no baseline": "🆕 no baseline", "missing": "➖ missing"}
+
+
+@dataclass
+class ComparisonModel:
+    headline: str
+    facts: Table
+    regressions: Optional[Table]
+    cells: Table
+    figures: Optional[Table]
+    notes: list[str]
+
+
+def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> ComparisonModel:
+    """What the comparison section shows: a headline, regressions first, then every figure compared."""
+    from .compare import FIGURES, change_text, format_value
+
+    FIGURE_WORDS = {name: f.words for name, f in FIGURES.items()}
+
+    labels = thread_labels(cmp.base.cells + cmp.new.cells)
+    regressed = cmp.regressed_cells()
+    total = len({c.cell for c in cmp.cells})
+    headline = (f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
+                f"cell{'s' if total != 1 else ''}: {', '.join(regressed)}" if regressed
+                else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline.")
+    facts = Table(["", "Baseline", "This run"], [
+        ["Results", f"`{base_name}`", f"`{new_name}`"],
+        ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],
+        ["Host, kernel", f"{cmp.base.machine.get('hostname', '?')}, {cmp.base.machine.get('kernel', '?')}",
+         f"{cmp.new.machine.get('hostname', '?')}, {cmp.new.machine.get('kernel', '?')}"],
+    ])
+    notes = ["Regression thresholds: " + "; ".join(f"{FIGURE_WORDS.get(t.figure, t.figure)} {t.describe()}" for t in cmp.thresholds)
+             + "."] + list(cmp.notes)
+
+    def figure_rows(items: Iterable[Any]) -> list[list[str]]:
+        return [[f.cell, labels.get(f.thread, f.thread), f.figure.words, format_value(f, "base"), format_value(f, "new"),
+                 change_text(f), f.threshold.describe(), VERDICT_ICON[f.verdict]] for f in items]
+
+    headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Threshold", "Verdict"]
+    bad = [f for f in cmp.figures if f.verdict == "regression"]
+    status_rows = [[c.cell, c.base_status.value if c.base_status else "–", c.new_status.value if c.new_status else "–",
+                    VERDICT_ICON["regression" if c.cell in regressed else c.verdict] + (f" ({c.note})" if c.note else "")]
+                   for c in cmp.cells]
+    return ComparisonModel(
+        headline=headline, facts=facts,
+        regressions=Table(headers, figure_rows(bad)) if bad else None,
+        cells=Table(["Cell", "Baseline status", "Status now", "Verdict"], status_rows),
+        figures=Table(headers, figure_rows(cmp.figures)) if cmp.figures else None,
+        notes=notes,
+    )
+
+
+def render_comparison(cmp: "Comparison", base_name: str, new_name: str) -> str:
+    """The comparison as a markdown section (`## Comparison with the baseline`)."""
+    text = environment().get_template("compare.md.j2").render(c=build_comparison(cmp, base_name, new_name))
+    return re.sub(r"\n{3,}", "\n\n", text).strip("\n") + "\n"
