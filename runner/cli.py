@@ -14,19 +14,27 @@ from typing import Callable, Sequence
 from . import __version__
 from .errors import ExitCode, RunnerError, ScenarioError, UsageError
 
-COMMANDS = ("run", "validate", "schema", "ps", "report", "compare")
+COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
 _TOP_HELP = """\
-usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix)
+usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
        runner schema                       print the JSON Schema of the scenario format
        runner ps PID|NAME                  ps-style thread table of a live process
+       runner report RESULTS [-o FILE]     re-render the markdown report (and plots) of a run
+       runner compare BASE NEW             compare two runs; exit 1 on a regression
+       runner merge DIR... --out DIR       combine shard results into one results file and report
        runner --version
 
 Run `runner run --help` for the run options (SCENARIO.yaml is short for `runner run SCENARIO.yaml`).
+RESULTS, BASE and NEW are results.json files or the folders holding them.
 
-exit codes: 0 ok, 1 an expectation failed, 2 invalid input, 3 missing permission,
-            4 run error (worker crash, timeout), 130 interrupted
+exit codes: 0 ok, 1 an expectation failed or a regression against the baseline, 2 invalid input,
+            3 missing permission, 4 run error (worker crash, timeout), 130 interrupted
 """
+
+_THRESHOLD_HELP = ("regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%%,+10us or involuntary.per_callback_mean=+0.5 "
+                   "or latency.p99=off (repeatable; defaults: latency.p99 +20%% and +10us, involuntary.per_callback_mean "
+                   "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)")
 
 
 def _run_parser() -> argparse.ArgumentParser:
@@ -39,7 +47,18 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--follow", action="store_true", help="print a line per callback, as the ros2-realtime-examples do")
     p.add_argument("--allow-degraded", action="store_true", help="run even without the rights to apply every setting; mark affected threads degraded")
     p.add_argument("--allow-priority-99", action="store_true", help="allow scenario threads at RT priority 99 (above the runner's watchdog)")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    m = p.add_argument_group("matrix runs")
+    m.add_argument("--repeat", type=int, default=1, metavar="N", help="run every cell N times; the report gives the spread")
+    m.add_argument("--shuffle", nargs="?", const="random", metavar="SEED", help="run cells in a random order (a SEED repeats an order)")
+    m.add_argument("--settle", metavar="D", help="pause between cells (default 500ms)")
+    m.add_argument("--shard", metavar="K/N", help="run the K-th of N disjoint parts of the matrix (for CI matrix jobs)")
+    m.add_argument("--resume", metavar="DIR", help="finish the interrupted run in DIR; finished cells are not run again")
+    r = p.add_argument_group("report")
+    r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
+    r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    r.add_argument("--no-report", action="store_true", help="write results.json only")
+    r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
     return p
 
 
@@ -59,10 +78,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "validate": _cmd_validate,
         "schema": _cmd_schema,
         "ps": _cmd_ps,
+        "report": _cmd_report,
+        "compare": _cmd_compare,
+        "merge": _cmd_merge,
     }
-    if command not in handlers:
-        print(f"runner: '{command}' is not available in this version", file=sys.stderr)
-        return ExitCode.INVALID_INPUT
     try:
         return handlers[command](rest)
     except RunnerError as exc:
@@ -142,3 +161,71 @@ def _cmd_run(argv: list[str]) -> int:
 
     options = RunOptions.from_namespace(ns, env=dict(os.environ))
     return run_scenario(loaded, options)
+
+
+def _cmd_report(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="runner report", description="Re-render the markdown report of a run from its results, without re-running.")
+    p.add_argument("results", metavar="RESULTS", help="results.json or the folder holding it")
+    p.add_argument("-o", "--output", metavar="FILE", help="report file (default: report.md beside the results); - for stdout")
+    p.add_argument("--baseline", metavar="RESULTS", help="add a comparison with an earlier run")
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    ns = p.parse_args(argv)
+    from .compare import parse_threshold, thresholds_with
+    from .publish import comparison_text, write_report
+    from .report import render_run
+    from .results import load
+
+    doc = load(ns.results)
+    section, regressions = None, 0
+    if ns.baseline:
+        section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    if ns.output == "-":
+        sys.stdout.write(render_run(doc, None, section))
+    else:
+        target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, "report.md")
+        path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
+        print(f"report: {path}")
+    return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
+
+
+def _cmd_compare(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="runner compare", description="Compare a run with a baseline, cell by cell; exit 1 on a regression.")
+    p.add_argument("base", metavar="BASE", help="the baseline: results.json or its folder")
+    p.add_argument("new", metavar="NEW", help="the run to check: results.json or its folder")
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
+    ns = p.parse_args(argv)
+    from .compare import parse_threshold, thresholds_with
+    from .publish import append_step_summary, comparison_text
+    from .results import load, write_atomic
+
+    section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    sys.stdout.write(section)
+    if ns.output:
+        write_atomic(ns.output, section)
+    append_step_summary(section, dict(os.environ))
+    return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
+
+
+def _cmd_merge(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="runner merge", description="Combine shard results of one scenario into one results file and report.")
+    p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
+    p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    ns = p.parse_args(argv)
+    from .compare import parse_threshold, thresholds_with
+    from .merge import merge
+    from .publish import finish
+    from .session import exit_code
+
+    doc = merge(ns.inputs, ns.out)
+    missing = [c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}]
+    if missing:
+        print(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}", file=sys.stderr)
+    print(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
+    thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
+    regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
+    return int(exit_code([c.status for c in doc.cells], regressions))

@@ -1,25 +1,36 @@
-"""Run a scenario: permissions, output folder, one cell after another, results, exit code."""
+"""Run a scenario: permissions, output folder, one cell after another, results, report, exit code.
+
+Cells run one at a time (they compete for the CPUs), each repeat a cell of its
+own, with a settle pause between them.  results.json is rewritten atomically
+after every cell, so `--resume DIR` can finish an interrupted run and a SIGKILL
+loses at most the cell in flight.
+"""
 
 from __future__ import annotations
 
 import argparse
 import fnmatch
-import json
 import os
+import random
 import signal
 import sys
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
 from . import __version__, _probe, kernel, units
-from .errors import ExitCode, UsageError
+from .compare import Threshold, parse_threshold, thresholds_with
+from .errors import ExitCode, Problem, ScenarioError, UsageError
 from .machine import machine_info
 from .preflight import check as preflight
-from .results import SCHEMA, CellResult, Status, slug, worst, write_atomic
-from .scenario import LoadedScenario
+from .results import CellResult, RunDocument, Status, load, slug, worst
+from .runorder import Shard, Unit, plan_units
+from .scenario import LoadedScenario, ResolvedCell
 from .spawn import CellOptions, Interrupted, run_cell
 from .terminal import render_cell
+
+DEFAULT_SETTLE_NS = 500_000_000
 
 
 @dataclass
@@ -32,48 +43,106 @@ class RunOptions:
     allow_priority_99: bool
     quiet: bool
     command: list[str]
+    repeat: int = 1
+    shuffle_seed: Optional[int] = None
+    settle_ns: int = DEFAULT_SETTLE_NS
+    shard: Optional[Shard] = None
+    resume: Optional[str] = None
+    baseline: Optional[str] = None
+    thresholds: list[Threshold] = field(default_factory=list)
+    report: bool = True
+    plots: bool = True
+    live: bool = True  # a live progress line (a terminal, not CI)
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> "RunOptions":
-        duration = None
-        if ns.duration:
+        duration = _duration(ns.duration, "--duration", 100_000_000) if ns.duration else None
+        settle = _duration(ns.settle, "--settle", 0) if ns.settle is not None else DEFAULT_SETTLE_NS
+        if ns.repeat < 1:
+            raise UsageError("runner: --repeat must be at least 1")
+        seed = None
+        if ns.shuffle is not None:
             try:
-                duration = units.parse_duration(ns.duration)
-            except units.UnitError as exc:
-                raise UsageError(f"runner: --duration: {exc}") from None
-            if duration < 100_000_000:
-                raise UsageError("runner: --duration must be at least 100ms")
+                seed = int(ns.shuffle) if ns.shuffle != "random" else random.SystemRandom().randrange(1 << 31)
+            except ValueError:
+                raise UsageError(f"runner: --shuffle {ns.shuffle!r}: expected a seed (an integer) or 'random'") from None
+        if ns.resume and ns.out:
+            raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
+        in_ci = env.get("CI", "") not in ("", "0", "false")
         return cls(duration, ns.cell, ns.out, ns.follow, ns.allow_degraded, ns.allow_priority_99,
-                   ns.quiet or env.get("CI", "") not in ("", "0", "false"), ["runner"] + sys.argv[1:])
+                   ns.quiet, ["runner"] + sys.argv[1:], repeat=ns.repeat, shuffle_seed=seed, settle_ns=settle,
+                   shard=Shard.parse(ns.shard) if ns.shard else None, resume=ns.resume, baseline=ns.baseline,
+                   thresholds=thresholds_with(parse_threshold(t) for t in ns.threshold),
+                   report=not ns.no_report, plots=not ns.no_plots, live=not (ns.quiet or in_ci))
 
 
-def exit_code(statuses: list[Status]) -> ExitCode:
-    """The one place a run's outcome becomes an exit code."""
+def _duration(text: str, option: str, minimum: int) -> int:
+    if text.strip() == "0" and minimum == 0:
+        return 0
+    try:
+        value = units.parse_duration(text)
+    except units.UnitError as exc:
+        raise UsageError(f"runner: {option}: {exc}") from None
+    if value < minimum:
+        raise UsageError(f"runner: {option} must be at least {units.format_duration(minimum)}")
+    return value
+
+
+def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
+    """The one place a run's outcome becomes an exit code (README, 'Exit codes')."""
     status = worst(statuses)
-    return {
+    code = {
         Status.PASSED: ExitCode.OK,
         Status.DEGRADED: ExitCode.OK,
         Status.FAILED: ExitCode.EXPECTATION_FAILED,
         Status.ERROR: ExitCode.RUN_ERROR,
         Status.INTERRUPTED: ExitCode.INTERRUPTED,
     }[status]
+    if regressions and code == ExitCode.OK:
+        return ExitCode.EXPECTATION_FAILED
+    return code
 
 
-class _Progress:
-    """A live line on a terminal; nothing in logs (CI), where per-cell summaries suffice."""
+class Progress:
+    """Cells done / total, ETA and the current cell: a live line on a terminal, plain lines in logs."""
 
-    def __init__(self, enabled: bool):
-        self.enabled = enabled and sys.stderr.isatty()
+    def __init__(self, total: int, settle_s: float, live: bool, quiet: bool):
+        self.total, self.settle_s = total, settle_s
+        self.live = live and sys.stderr.isatty()
+        self.quiet = quiet
+        self.done = 0
+        self.spent: list[float] = []
         self.width = 0
+        self.head = ""
 
-    def __call__(self, text: str) -> None:
-        if self.enabled:
+    def eta(self, planned_s: float) -> str:
+        left = self.total - self.done
+        per = sum(self.spent) / len(self.spent) if self.spent else planned_s + 1.0
+        seconds = int(left * (per + self.settle_s))
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+
+    def start(self, unit: Unit, repeats: int, planned_s: float) -> None:
+        rep = f" (repeat {unit.repeat + 1}/{repeats})" if repeats > 1 else ""
+        self.head = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}, ETA {self.eta(planned_s)}"
+        if self.live:
+            self.line(self.head)
+        elif not self.quiet:
+            print(f"runner: {self.head}", file=sys.stderr, flush=True)
+
+    def line(self, text: str) -> None:
+        if self.live:
+            text = text if text.startswith("[") else f"{self.head.split(',')[0]}: {text}"
             sys.stderr.write("\r" + text.ljust(self.width))
             sys.stderr.flush()
             self.width = len(text)
 
+    def finish(self, seconds: float) -> None:
+        self.done += 1
+        self.spent.append(seconds)
+        self.clear()
+
     def clear(self) -> None:
-        if self.enabled and self.width:
+        if self.live and self.width:
             sys.stderr.write("\r" + " " * self.width + "\r")
             sys.stderr.flush()
             self.width = 0
@@ -83,59 +152,118 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise Interrupted(None)
 
 
-def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
-    """Run every selected cell of `loaded`; write results after each; return the exit code."""
-    cells = [c for c in loaded.cells if not options.cells or any(fnmatch.fnmatchcase(c.id, g) for g in options.cells)]
-    if not cells:
+def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCell]:
+    """The cells this run owns: its shard of the matrix, then those matching --cell."""
+    ids = [c.id for c in loaded.cells]
+    if options.shard:
+        ids = options.shard.take(ids)
+    chosen = [c for c in loaded.cells if c.id in ids and (not options.cells or any(fnmatch.fnmatchcase(c.id, g) for g in options.cells))]
+    if not chosen and options.cells:
         raise UsageError(f"runner: no cell matches {', '.join(options.cells)}; cells: {', '.join(c.id for c in loaded.cells)}")
+    return chosen
+
+
+def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Any, start: Any) -> RunDocument:
+    return RunDocument(
+        scenario={"name": loaded.name, "path": loaded.path, "description": loaded.description},
+        command=options.command, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        machine=machine_info(), permissions=perms.to_json(),
+        start_settings={"policy": start.policy.value, "priority": start.priority, "nice": start.nice},
+        tool_version=__version__, cell_ids=[c.id for c in cells], matrix_cells=[c.id for c in loaded.cells],
+        plan={"repeat": options.repeat, "shuffle_seed": options.shuffle_seed,
+              "settle_s": options.settle_ns / 1e9, "cells": options.cells,
+              "duration_ns": options.duration_ns},
+        shard=str(options.shard) if options.shard else None,
+    )
+
+
+def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocument:
+    """The interrupted run in --resume DIR, checked against the scenario as it is now."""
+    assert options.resume
+    path = os.path.join(options.resume, "results.json")
+    doc = load(path)
+    problems = []
+    if doc.name != loaded.name:
+        problems.append(Problem(path, 1, 1, "scenario.name", f"is {doc.name!r}, but {loaded.path} is {loaded.name!r}"))
+    by_id = {c.id: c for c in loaded.cells}
+    for cell in doc.cells:
+        now = by_id.get(cell.id)
+        if now is None:
+            problems.append(Problem(path, 1, 1, f"cells.{cell.id}", f"is no longer a cell of {loaded.path}"))
+        elif now.spec_hash != cell.spec_hash:
+            problems.append(Problem(path, 1, 1, f"cells.{cell.id}", f"{loaded.path} changed since this cell ran; "
+                                    "start a new run instead of resuming"))
+    if problems:
+        raise ScenarioError(problems)
+    doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED]  # redo what was cut short
+    plan = doc.plan
+    options.repeat = int(plan.get("repeat", 1))
+    options.shuffle_seed = plan.get("shuffle_seed")
+    options.settle_ns = int(float(plan.get("settle_s", options.settle_ns / 1e9)) * 1e9)
+    options.cells = list(plan.get("cells") or [])
+    options.duration_ns = options.duration_ns or plan.get("duration_ns")
+    options.shard = Shard.parse(doc.shard) if doc.shard else None
+    doc.status, doc.finished_at = "running", None
+    doc.command = options.command
+    return doc
+
+
+def _cell_folder(folder: str, unit: Unit, repeats: int) -> str:
+    base = os.path.join(folder, "cells", slug(unit.cell))
+    return base if repeats == 1 else os.path.join(base, f"repeat-{unit.repeat + 1}")
+
+
+def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
+    """Run the selected cells of `loaded`; write results after each and a report at the end; return the exit code."""
+    doc = _resumed_document(loaded, options) if options.resume else None
+    cells = select_cells(loaded, options)
+    by_id = {c.id: c for c in cells}
     start = kernel.current_settings()
     perms = preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
     for problem in perms.missing:
         print(f"runner: warning: {problem}; running degraded", file=sys.stderr)
-
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    folder = options.out or os.path.join("reports", loaded.name, stamp)
-    os.makedirs(folder, exist_ok=True)
+    if doc is None:
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        folder = options.out or os.path.join("reports", loaded.name, stamp)
+        os.makedirs(folder, exist_ok=True)
+        doc = _new_document(loaded, options, cells, perms, start)
+    else:
+        folder = options.resume or ""
+    doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
-    machine = machine_info()
-    doc: dict[str, Any] = {
-        "schema": SCHEMA,
-        "tool": {"name": "runner", "version": __version__},
-        "scenario": {"name": loaded.name, "path": loaded.path, "description": loaded.description},
-        "command": options.command,
-        "started_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "finished_at": None,
-        "status": "running",
-        "machine": machine,
-        "permissions": perms.to_json(),
-        "start_settings": {"policy": start.policy.value, "priority": start.priority, "nice": start.nice},
-        "cells": [],
-    }
-    write_atomic(results_path, json.dumps(doc, indent=2))
-    progress = _Progress(not options.quiet)
+    doc.save(results_path)
+
+    units_left = plan_units([c.id for c in cells], options.repeat, options.shuffle_seed,
+                            [(c.id, c.repeat) for c in doc.cells])
+    statuses = [c.status for c in doc.cells]
+    progress = Progress(len(units_left), options.settle_ns / 1e9, options.live, options.quiet)
     follow = (lambda line: (progress.clear(), print(line, flush=True))) if options.follow else None
     old_term = signal.signal(signal.SIGTERM, _raise_interrupt)
     watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
-    statuses: list[Status] = []
-    print(f"{loaded.name}: {len(cells)} cell{'s' if len(cells) != 1 else ''}, results in {results_path}", flush=True)
+    skipped = f", {len(doc.cells)} already done" if doc.cells else ""
+    print(f"{loaded.name}: {len(units_left)} cell run{'s' if len(units_left) != 1 else ''}{skipped}, results in {results_path}",
+          flush=True)
     try:
-        for cell in cells:
+        for n, unit in enumerate(units_left):
+            if n and options.settle_ns:
+                time.sleep(options.settle_ns / 1e9)
+            cell = by_id[unit.cell]
             duration = options.duration_ns or cell.scenario.duration
-            cell_options = CellOptions(duration, options.allow_degraded, follow, progress if not options.follow else None)
+            progress.start(unit, options.repeat, duration / 1e9)
+            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None)
             interrupted = False
+            began = time.monotonic()
             try:
-                result = run_cell(cell, os.path.join(folder, "cells", slug(cell.id)), start, cell_options, watchdog)
+                result = run_cell(cell, _cell_folder(folder, unit, options.repeat), start, cell_options, watchdog)
             except Interrupted as exc:
                 if not isinstance(exc.args[0], CellResult):
                     raise
                 result, interrupted = exc.args[0], True
-            result.machine = machine
-            progress.clear()
+            progress.finish(time.monotonic() - began)
+            _record(doc, result, unit, results_path)
             sys.stdout.write(render_cell(result, kernel.pid_width()))
             sys.stdout.flush()
             statuses.append(result.status)
-            doc["cells"].append(result.to_json())
-            write_atomic(results_path, json.dumps(doc, indent=2))
             if interrupted:
                 break
     except (KeyboardInterrupt, Interrupted):
@@ -144,9 +272,21 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
         progress.clear()
         watchdog.close()
         signal.signal(signal.SIGTERM, old_term)
-        doc["finished_at"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        doc["status"] = worst(statuses).value
-        write_atomic(results_path, json.dumps(doc, indent=2))
-    code = exit_code(statuses)
+        doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        doc.status = worst(statuses).value
+        doc.save(results_path)
+    from .publish import finish
+
+    regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))
     print(f"{loaded.name}: {worst(statuses).value}; results: {results_path}", flush=True)
-    return int(code)
+    return int(exit_code(statuses, regressions))
+
+
+def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str) -> None:
+    """Add a finished cell to the document and save it at once."""
+    result.machine = doc.machine
+    result.repeat = unit.repeat
+    if result.samples_file and os.path.isabs(result.samples_file):
+        result.samples_file = os.path.relpath(result.samples_file, doc.folder)
+    doc.cells.append(result)
+    doc.save(results_path)
