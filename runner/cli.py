@@ -130,7 +130,8 @@ def _cmd_schema(argv: list[str]) -> int:
 
 def _cmd_ps(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="runner ps", description="Thread table of live processes, as ps -L -o tid,comm,rtprio,cls,psr prints it.")
-    p.add_argument("target", help="a PID, or a process name (COMMAND, as ps -C selects)")
+    p.add_argument("target", help="a PID, or a process name: every thread of the processes whose COMMAND it is "
+                                  "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)")
     p.add_argument("-o", "--columns", default="tid,comm,rtprio,cls,psr", help="columns: tid,comm,rtprio,cls,psr,ni,pri,cpus,nvcsw,nivcsw")
     ns = p.parse_args(argv)
     from .kernel import find_pids, pid_width, thread_rows

@@ -90,13 +90,18 @@ def thread_rows(pid: int) -> list[ThreadRow]:
 
 
 def find_pids(name: str) -> list[int]:
-    """PIDs whose COMMAND (comm) is `name`, as `ps -C name` selects them."""
+    """Live PIDs whose COMMAND (comm) is `name`, as `ps -C name` selects them; zombies are dead, so left out."""
     out = []
     for entry in os.listdir("/proc"):
         if entry.isdigit():
             try:
-                if _read(f"/proc/{entry}/comm").rstrip("\n") == name:
+                if _read(f"/proc/{entry}/comm").rstrip("\n") == name and not _zombie(entry):
                     out.append(int(entry))
             except OSError:
                 continue
     return sorted(out)
+
+
+def _zombie(pid: str) -> bool:
+    stat = _read(f"/proc/{pid}/stat")
+    return stat[stat.rfind(")") + 2:][:1] in ("Z", "X")

@@ -92,6 +92,7 @@ class Worker:
             [sys.executable, "-s", "-m", "runner.worker"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
             start_new_session=True, close_fds=True, cwd=PACKAGE_ROOT,
+            env={**os.environ, "RUNNER_PARENT_PID": str(os.getpid())},
         )
         log.close()
         assert self.popen.stdin is not None

@@ -108,6 +108,8 @@ def run(spec: dict[str, Any]) -> int:
 
 def main() -> int:
     _probe.set_pdeathsig(signal.SIGKILL)  # no worker outlives the runner
+    if os.environ.get("RUNNER_PARENT_PID") not in (None, str(os.getppid())):
+        return 3  # the runner died before the line above took effect
     _probe.install_stop_handler()
     line = sys.stdin.readline()
     if not line:

@@ -11,12 +11,13 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 
 import pytest
 
 from conftest import SCENARIOS
-from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
+from kernelrun import can_use_rt, env, finish, ps_table, start_runner, thread, wait_for_threads
 from runner.kernel import find_pids, pid_width, thread_rows
 from runner.pstable import render_ps
 
@@ -51,12 +52,36 @@ def seed_runs(tmp_path_factory):
         try:
             pid = wait_for_threads(comm, len(rows))
             time.sleep(1.0)  # well inside the run: every setting applied, callbacks running
-            live = {"pid": pid, "rows": thread_rows(pid), "ps": ps_table(pid), "ours": render_ps(thread_rows(pid), pid_width=pid_width())}
+            live = {"pid": pid, "rows": thread_rows(pid), "ps": ps_table(pid), "ours": render_ps(thread_rows(pid), pid_width=pid_width()),
+                    "cli_pid": _runner_ps(str(pid)), "cli_name": _runner_ps(comm),
+                    # procps 3 (the seed's) `ps -C NAME -L` listed every thread of the processes named NAME; procps 4
+                    # selects threads by their own name, so select the processes by PID, as runner ps NAME does
+                    "ps_name": subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", ",".join(map(str, find_pids(comm)))],
+                                              capture_output=True, text=True, check=True).stdout}
         except BaseException:
             proc.kill()
             raise
         runs[name] = (live, finish(proc, out))
     return runs
+
+
+def strip(text: str) -> list[str]:
+    """The table's lines without the PSR column, which may change between two reads."""
+    return [line[:-4] for line in text.splitlines()]
+
+
+def _runner_ps(target: str) -> str:
+    done = subprocess.run([sys.executable, "-m", "runner", "ps", target], capture_output=True, text=True, env=env(), check=True)
+    return done.stdout
+
+
+@pytest.mark.parametrize("name", ["fifo80", "rr80", "other", "middleware_threads", "real_time_executor", "cpu_affinity_mask"])
+def test_runner_ps_command_equals_real_ps_but_psr(seed_runs, name):
+    """`runner ps PID` and `runner ps NAME` print what `ps -L -o tid,comm,rtprio,cls,psr` prints (PSR may move)."""
+    live, _ = seed_runs[name]
+    assert strip(live["cli_pid"]) == strip(live["ps"])
+    assert strip(live["cli_name"]) == strip(live["ps_name"])
+    assert live["cli_pid"].splitlines()[0] == live["ps"].splitlines()[0]  # the header byte for byte
 
 
 @pytest.mark.parametrize("name", list(SEED))
@@ -79,7 +104,6 @@ def test_seed_thread_table_pattern_from_the_kernel(seed_runs, name):
 @pytest.mark.parametrize("name", list(SEED))
 def test_runner_table_equals_real_ps_but_psr(seed_runs, name):
     live, _ = seed_runs[name]
-    strip = lambda text: [line[:-4] for line in text.splitlines()]  # noqa: E731  PSR may change between reads
     assert strip(live["ours"]) == strip(live["ps"])
     assert live["ours"].splitlines()[0].endswith("COMMAND         RTPRIO CLS PSR")
 

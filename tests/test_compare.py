@@ -1,0 +1,152 @@
+"""`runner compare` and --baseline: thresholds, alignment by cell id, refusals, exit codes."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+
+from conftest import run_cli
+from reportdata import MATRIX, main_thread, matrix, with_figures
+from runner import compare as cmp
+from runner.errors import ScenarioError, UsageError
+from runner.results import Status
+
+
+def save(doc, folder) -> str:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = str(folder / "results.json")
+    doc.save(path)
+    return path
+
+
+def test_identical_runs_pass(tmp_path):
+    done = run_cli("compare", MATRIX, MATRIX)
+    assert done.code == 0, done.err
+    assert "No regression in 5 cells" in done.out
+
+
+def test_synthetic_latency_regression_is_flagged_with_exit_1(tmp_path):
+    base = matrix()
+    p99 = main_thread(base.cells[1]).figures.latency_us["p99"]
+    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=p99 * 1.5 + 20), tmp_path / "new")
+    done = run_cli("compare", MATRIX, new)
+    assert done.code == 1
+    assert "1 regression** in 1 of 5 cells: policy=fifo,priority=80" in done.out
+    regressions = done.out.split("### Regressions")[1].split("###")[0]
+    assert "policy=fifo,priority=80" in regressions and "wake-up latency p99" in regressions
+
+
+def test_involuntary_regression_and_its_threshold_override(tmp_path):
+    new = save(with_figures(matrix(), "policy=rr,priority=80", invol_mean=1.0), tmp_path / "new")
+    assert run_cli("compare", MATRIX, new).code == 1
+    assert run_cli("compare", MATRIX, new, "--threshold", "involuntary.per_callback_mean=+2").code == 0
+    assert run_cli("compare", MATRIX, new, "--threshold", "involuntary.per_callback_mean=off").code == 0
+
+
+def test_small_latency_wobble_is_under_the_noise_floor():
+    base = matrix()
+    p99 = main_thread(base.cells[0]).figures.latency_us["p99"]
+    result = cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 9.0))  # > 20% only if p99 < 45 us
+    assert result.regressions == 0
+
+
+def test_improvement_is_reported_as_better_not_regression():
+    base = matrix()
+    other = base.cells[-1]
+    result = cmp.compare(base, with_figures(base, other.id, invol_mean=0.0))
+    verdicts = {(f.cell, f.figure.name): f.verdict for f in result.figures}
+    assert verdicts[(other.id, "involuntary.per_callback_mean")] == cmp.Verdict.BETTER
+    assert result.regressions == 0
+
+
+def test_a_cell_that_now_fails_is_a_regression():
+    base = matrix()
+    new = copy.deepcopy(base)
+    new.cells[2].status = Status.ERROR
+    result = cmp.compare(base, new)
+    assert result.regressed_cells() == [base.cells[2].id]
+
+
+def test_missing_and_new_cells_are_reported_not_failed():
+    base = matrix()
+    new = copy.deepcopy(base)
+    new.cells = new.cells[1:]
+    result = cmp.compare(base, new)
+    assert result.regressions == 0
+    assert [c.verdict for c in result.cells if c.cell == base.cells[0].id] == [cmp.Verdict.MISSING]
+    assert [c.verdict for c in cmp.compare(new, base).cells if c.cell == base.cells[0].id] == [cmp.Verdict.NEW]
+
+
+def test_repeats_are_compared_by_their_median():
+    base = matrix()
+    new = copy.deepcopy(base)
+    spiky = with_figures(base, base.cells[0].id, latency_p99=50_000.0).cells[0]
+    again = copy.deepcopy(base.cells[0])
+    for c, r in ((new.cells[0], 0), (spiky, 1), (again, 2)):
+        c.repeat = r
+    new.cells += [spiky, again]
+    assert cmp.compare(base, new).regressions == 0  # one spike in three repeats is not a regression
+
+
+def test_cells_whose_scenario_differs_are_refused_naming_the_setting(tmp_path):
+    new = matrix()
+    cell = new.cells[1]
+    cell.spec["processes"][0]["main"]["sched"]["priority"] = 70
+    cell.spec_hash = "0000000000000000"
+    path = save(new, tmp_path / "new")
+    done = run_cli("compare", MATRIX, path)
+    assert done.code == 2
+    assert "cells.policy=fifo,priority=80: differs from the baseline" in done.err
+    assert "processes[0].main.sched.priority: 80 in the baseline, 70 now" in done.err
+    assert "Traceback" not in done.err
+
+
+def test_spec_differences_lists_every_changed_leaf():
+    base = {"a": {"b": 1, "c": [1, 2]}, "d": "x"}
+    new = {"a": {"b": 2, "c": [1, 3]}, "e": True}
+    assert cmp.spec_differences(base, new) == [
+        "a.b: 1 in the baseline, 2 now", "a.c[1]: 2 in the baseline, 3 now",
+        "d: 'x' in the baseline, absent now", "e: absent in the baseline, True now"]
+
+
+@pytest.mark.parametrize("text, relative, absolute", [
+    ("latency.p99=+20%", 0.2, None), ("latency.p99=+20%,+10us", 0.2, 10.0), ("latency.max=+1ms", None, 1000.0),
+    ("involuntary.per_callback_mean=+0.5", None, 0.5), ("latency.p99=off", None, None)])
+def test_threshold_syntax(text, relative, absolute):
+    t = cmp.parse_threshold(text)
+    assert (t.relative, t.absolute) == (relative, absolute)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("latency.p9=+20%", "did you mean 'latency.p99'"), ("latency.p99", "expected FIGURE=LIMIT"),
+    ("latency.p99=+10", "with a unit"), ("involuntary.per_callback_mean=lots", "is not a limit")])
+def test_threshold_errors_say_what_is_expected(text, message):
+    with pytest.raises(UsageError, match=message.replace("(", r"\(")):
+        cmp.parse_threshold(text)
+
+
+def test_compare_appends_to_the_github_step_summary(tmp_path, monkeypatch):
+    summary = tmp_path / "summary.md"
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(summary))
+    assert run_cli("compare", MATRIX, MATRIX).code == 0
+    assert summary.read_text().startswith("## Comparison with the baseline")
+
+
+def test_compare_refuses_a_results_file_of_another_schema(tmp_path):
+    bad = tmp_path / "results.json"
+    bad.write_text(json.dumps({"schema": "runner.results/0"}))
+    done = run_cli("compare", MATRIX, str(bad))
+    assert done.code == 2 and "expected a runner.results/1 results file" in done.err
+
+
+def test_refusal_is_a_scenario_error_with_every_cell():
+    base = matrix()
+    new = copy.deepcopy(base)
+    for cell in new.cells[:2]:
+        cell.spec_hash = "x"
+        cell.spec = {**cell.spec, "duration": 1}
+    with pytest.raises(ScenarioError) as err:
+        cmp.compare(base, new)
+    assert len(err.value.problems) == 2

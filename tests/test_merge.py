@@ -1,0 +1,88 @@
+"""`runner merge`: shards become one results file and one report; mixed inputs are refused."""
+
+from __future__ import annotations
+
+import copy
+import os
+
+from conftest import run_cli
+from reportdata import MATRIX, matrix
+from runner.results import Status, load
+
+
+def split(tmp_path, parts):
+    """Write the recorded matrix as shards: parts is a list of cell index lists."""
+    out = []
+    full = matrix()
+    for n, idx in enumerate(parts):
+        doc = copy.deepcopy(full)
+        doc.cells = [doc.cells[i] for i in idx]
+        doc.shard = f"{n + 1}/{len(parts)}"
+        folder = tmp_path / f"shard-{n + 1}"
+        folder.mkdir()
+        for cell in doc.cells:  # carry the samples over, as a CI artifact would
+            src = os.path.join(MATRIX, cell.samples_file)
+            dst = folder / cell.samples_file
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            dst.write_bytes(open(src, "rb").read())
+        doc.save(str(folder / "results.json"))
+        out.append(str(folder))
+    return out
+
+
+def test_merged_shards_equal_the_full_run(tmp_path):
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots")
+    assert done.code == 0, done.err
+    merged, full = load(str(tmp_path / "merged")), matrix()
+    assert [c.id for c in merged.cells] == [c.id for c in full.cells]  # matrix order, not shard order
+    assert [c.to_json()["threads"] for c in merged.cells] == [c.to_json()["threads"] for c in full.cells]
+    assert merged.merged_from == [os.path.join(s, "results.json") for s in shards]
+    for cell in merged.cells:
+        assert os.path.exists(merged.samples_path(cell))  # the merged folder stands on its own
+    report = (tmp_path / "merged" / "report.md").read_text()
+    assert "## Matrix summary" in report and "| Merged from" in report
+
+
+def test_a_missing_shard_is_a_warning_and_the_report_says_so(tmp_path):
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    done = run_cli("merge", shards[0], "--out", str(tmp_path / "merged"), "--no-plots")
+    assert done.code == 0
+    assert "2 cell(s) of the matrix are in no input: policy=fifo,priority=80, policy=rr,priority=80" in done.err
+    assert ", 2 not run" in (tmp_path / "merged" / "report.md").read_text()
+
+
+def test_duplicate_cells_are_refused(tmp_path):
+    shards = split(tmp_path, [[0, 1], [1, 2]])
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"))
+    assert done.code == 2
+    assert "cells.policy=fifo,priority=80: cell is also in" in done.err
+    assert not (tmp_path / "merged" / "results.json").exists()
+
+
+def merge_edited(tmp_path, parts, edit, *extra):
+    """Split the recorded run into shards, let `edit` change the last shard's document, merge them."""
+    shards = split(tmp_path, parts)
+    doc = load(shards[-1])
+    edit(doc)
+    doc.save(os.path.join(shards[-1], "results.json"))
+    return run_cli("merge", *shards, "--out", str(tmp_path / "merged"), *extra)
+
+
+def test_mixed_scenarios_are_refused(tmp_path):
+    done = merge_edited(tmp_path, [[0], [1]], lambda doc: doc.scenario.update(name="other_scenario"))
+    assert done.code == 2 and "is 'other_scenario', but" in done.err
+
+
+def test_mixed_specs_are_refused(tmp_path):
+    def edit(doc):
+        doc.cells[0].spec_hash = "ffffffffffffffff"
+        doc.cells[0].repeat = 1  # not a duplicate run: a second repeat, but of a different spec
+
+    done = merge_edited(tmp_path, [[0], [0]], edit)
+    assert done.code == 2 and "ran a different scenario spec than in" in done.err
+
+
+def test_merge_exit_code_follows_the_cells(tmp_path):
+    done = merge_edited(tmp_path, [[0], [1]], lambda doc: setattr(doc.cells[0], "status", Status.FAILED), "--no-plots")
+    assert done.code == 1

@@ -1,0 +1,181 @@
+"""The markdown report and its plots, rendered from recorded results: golden files, table structure, units."""
+
+from __future__ import annotations
+
+import copy
+import os
+import xml.etree.ElementTree as ET
+
+import pytest
+from markdown_it import MarkdownIt
+
+from conftest import run_cli
+from reportdata import DATA, MATRIX, matrix, memory
+from runner import report
+from runner.publish import append_step_summary, write_report
+
+GOLDEN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "golden")
+
+
+def golden(name: str, text: str) -> None:
+    """Compare with tests/golden/NAME; UPDATE_GOLDEN=1 rewrites it (review the diff before committing)."""
+    path = os.path.join(GOLDEN, name)
+    if os.environ.get("UPDATE_GOLDEN") == "1":
+        with open(path, "w", encoding="utf-8") as handle:
+            handle.write(text)
+    with open(path, encoding="utf-8") as handle:
+        assert text == handle.read(), f"{name} changed; rerun with UPDATE_GOLDEN=1 if intended"
+
+
+def tables(markdown: str) -> list[list[list[str]]]:
+    """Every table in `markdown` as rows of cell texts, parsed by a CommonMark+GFM parser."""
+    tokens = MarkdownIt("commonmark").enable("table").parse(markdown)
+    out: list[list[list[str]]] = []
+    row: list[str] | None = None
+    for tok in tokens:
+        if tok.type == "table_open":
+            out.append([])
+        elif tok.type == "tr_open":
+            row = []
+        elif tok.type == "inline" and row is not None:
+            row.append(tok.content)
+        elif tok.type == "tr_close":
+            out[-1].append(row or [])
+            row = None
+    return out
+
+
+def test_matrix_report_matches_golden_file():
+    golden("policy_matrix.md", report.render_run(matrix()))
+
+
+def test_memory_lock_report_matches_golden_file():
+    golden("memory_lock.md", report.render_run(memory()))
+
+
+def test_every_table_parses_as_a_table_with_even_rows():
+    text = report.render_run(matrix())
+    found = tables(text)
+    # facts, summary, side-by-side, then per cell: switch counts and expectations
+    assert len(found) == 3 + 5 * 2
+    for t in found:
+        assert len(t) >= 2 and len({len(r) for r in t}) == 1, t[0]
+
+
+def test_report_shows_the_headline_effect_in_words_and_units():
+    text = report.render_run(matrix())
+    side = next(t for t in tables(text) if t[0][0] == "Figure")
+    header = side[0]
+    row = {r[0]: r for r in side}
+    other = header.index("policy=other,priority=0")
+    fifo = header.index("policy=fifo,priority=80")
+    assert float(row["Involuntary switches per callback (mean)"][other]) > 1.0
+    assert row["Involuntary switches per callback (mean)"][fifo] == "0"
+    assert row["Scheduling (read back from the kernel)"][fifo] == "FIFO 80"
+    assert all(cell.endswith(("µs", "ms")) for cell in row["Wake-up latency p99"][1:])
+    for raw in ("per_callback_mean", "latency_us", "minor_after_first", "nivcsw"):
+        assert raw not in text  # readable by someone who only read the seed
+    assert "0 involuntary switches in 10 callbacks" in text
+
+
+def test_ps_table_in_the_report_is_the_procps_layout():
+    text = report.render_run(matrix())
+    block = text.split("```text\n", 1)[1].split("```", 1)[0]
+    lines = block.splitlines()
+    assert lines[0] == "  TID COMMAND         RTPRIO CLS PSR"
+    assert lines[1].split()[2:4] == ["10", "FF"]
+    assert all(line.split()[2:4] == ["-", "TS"] for line in lines[2:])
+
+
+def test_single_cell_report_has_no_matrix_sections():
+    doc = matrix()
+    doc.cells = doc.cells[:1]
+    text = report.render_run(doc)
+    assert "## Matrix summary" not in text and "across cells" not in text
+    assert "**minimal_schedul/minimal_schedul (main)** at FIFO 10" in text
+
+
+def test_repeats_get_a_spread_table_and_their_own_sections():
+    doc = matrix()
+    again = copy.deepcopy(doc.cells)
+    for cell in again:
+        cell.repeat = 1
+    doc.cells += again
+    text = report.render_run(doc)
+    assert "## Spread across repeats" in text
+    assert "## Cell policy=other,priority=0 (repeat 2)" in text
+    assert "(#cell-policyotherpriority0-repeat-2)" in text
+
+
+def test_plots_are_valid_svg_with_every_cell_overlaid(tmp_path):
+    doc = matrix()
+    path = write_report(doc, str(tmp_path))
+    text = open(path, encoding="utf-8").read()
+    svgs = sorted(os.listdir(tmp_path / "plots"))
+    assert svgs == ["minimal_schedul-minimal_schedul-main.involuntary.svg", "minimal_schedul-minimal_schedul-main.latency.svg"]
+    for name in svgs:
+        root = ET.parse(tmp_path / "plots" / name).getroot()
+        assert root.tag.endswith("svg")
+        assert f"(plots/{name})" in text
+        body = (tmp_path / "plots" / name).read_text()
+        for cell in doc.cells:
+            assert cell.id in body  # legend entry per cell (svg.fonttype none keeps text as text)
+
+
+def test_plots_are_deterministic(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder in (a, b):
+        folder.mkdir()
+        write_report(matrix(), str(folder))
+    for name in os.listdir(a / "plots"):
+        assert (a / "plots" / name).read_bytes() == (b / "plots" / name).read_bytes()
+
+
+def test_report_command_re_renders_without_running(tmp_path):
+    import shutil
+
+    shutil.copytree(MATRIX, tmp_path / "run")
+    done = run_cli("report", str(tmp_path / "run"))
+    assert done.code == 0, done.err
+    assert (tmp_path / "run" / "report.md").read_text() == report.render_run(
+        matrix(), {k: v for k, v in _plots(tmp_path / "run").items()})
+    out = run_cli("report", os.path.join(MATRIX, "results.json"), "-o", "-")
+    assert out.code == 0 and out.out == report.render_run(matrix())
+
+
+def _plots(folder):  # the plot links write_report made, rebuilt from the files
+    from runner.report import Plot
+
+    names = sorted(os.listdir(folder / "plots"))
+    key = matrix().cells[0].threads[0].key
+    return {key: [Plot("wake-up latency histogram", f"plots/{names[1]}"),
+                  Plot("involuntary context switches per callback", f"plots/{names[0]}")]}
+
+
+def test_report_of_a_file_that_is_not_results_is_a_user_error(tmp_path):
+    bad = tmp_path / "results.json"
+    bad.write_text('{"schema": "something/else"}')
+    done = run_cli("report", str(bad))
+    assert done.code == 2 and "expected a runner.results/1 results file" in done.err and "Traceback" not in done.err
+    bad.write_text("{not json")
+    done = run_cli("report", str(bad))
+    assert done.code == 2 and f"{bad}:1:2: not valid JSON" in done.err
+
+
+def test_step_summary_is_appended_without_plot_links(tmp_path):
+    summary = tmp_path / "summary.md"
+    summary.write_text("earlier step\n")
+    text = "# r\n\n![plot](plots/x.svg)\n\n| a |\n|---|\n| 1 |\n"
+    assert append_step_summary(text, {"GITHUB_STEP_SUMMARY": str(summary)}) == str(summary)
+    assert summary.read_text() == "earlier step\n# r\n\n\n| a |\n|---|\n| 1 |\n\n"
+    assert append_step_summary(text, {}) is None
+
+
+@pytest.mark.parametrize("value, text", [(None, "–"), (6.04, "6.0 µs"), (56.58, "56.6 µs"), (142.0, "142 µs"),
+                                         (6122.1, "6.12 ms"), (2_500_000.0, "2.50 s")])
+def test_latency_units(value, text):
+    assert report.fmt_us(value) == text
+
+
+def test_fixture_data_is_where_the_tests_expect_it():
+    assert os.path.isdir(os.path.join(DATA, "policy_matrix", "cells"))
