@@ -126,7 +126,9 @@ def thread_finding(t: ThreadResult, label: str) -> str:
     else:
         what = (f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
                 f"({inv.callbacks_with_any:,} of {f.callbacks:,} callbacks preempted)")
-    return f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}"
+    faults = f.faults.minor_after_first
+    tail = f", {faults:,} minor page faults after the first callback" if faults else ""
+    return f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}{tail}"
 
 
 def cell_finding(cell: CellResult, labels: dict[str, str]) -> str:
@@ -139,21 +141,53 @@ def cell_finding(cell: CellResult, labels: dict[str, str]) -> str:
 
 
 def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[str]:
-    """Per periodic thread seen in several cells: its figures in each cell, most preempted first."""
+    """Per periodic thread seen in several cells, one sentence: its figures per policy, most preempted first.
+
+    e.g. `at OTHER 8.94 involuntary switches per callback (98 of 99 callbacks preempted), wake-up p99 7.43 ms;
+    at FIFO 10, 80: 0 per callback, p99 96.3 µs – 117 µs`.
+    """
     out = []
     for key, entries in _by_thread(cells).items():
         if len(entries) < 2:
             continue
-        ranked = sorted(entries, key=lambda ct: -(ct[1].figures.involuntary.per_callback_mean or 0.0))
-        parts = []
-        for cell, t in ranked:
-            f = t.figures
-            inv = "no callback" if not f.callbacks else (
-                f"0 involuntary switches in {f.callbacks:,} callbacks" if not f.involuntary.total
-                else f"{fmt_mean(f.involuntary.per_callback_mean)} per callback")
-            parts.append(f"{policy_label(t.applied)} ({cell.id}): {inv}, p99 {fmt_us((f.latency_us or {}).get('p99'))}")
-        out.append(f"**{labels[key]}**, involuntary context switches and wake-up latency: " + "; ".join(parts) + ".")
+        groups: dict[str, list[ThreadResult]] = {}
+        for _, t in entries:
+            groups.setdefault(t.applied.policy.name if t.applied else "?", []).append(t)
+        ranked = sorted(groups.items(), key=lambda kv: -max(t.figures.involuntary.per_callback_mean or 0.0 for t in kv[1]))
+        out.append(f"**{labels[key]}**: " + "; ".join(_group_finding(name, ts) for name, ts in ranked) + ".")
+        faults = [t.figures.faults.minor_after_first for _, t in entries]
+        if len(set(faults)) > 1:
+            out.append(f"**{labels[key]}**, minor page faults after the first callback: "
+                       + "; ".join(f"{fmt_int(n)} ({cell.id})" for (cell, _), n in zip(entries, faults)) + ".")
     return out
+
+
+def _span(values: list[Optional[float]], fmt: Any) -> str:
+    present = sorted(v for v in values if v is not None)
+    if not present:
+        return "–"
+    low, high = fmt(present[0]), fmt(present[-1])
+    return low if low == high else f"{low} – {high}"
+
+
+def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
+    """One policy's cells of a thread: its switches and wake-up p99, as a single figure or a range."""
+    prios = sorted({t.applied.priority for t in threads if t.applied and t.applied.policy.is_realtime})
+    where = f"at {policy}" + (f" {', '.join(map(str, prios))}" if prios else "")
+    if len(threads) > 1 and not prios:
+        where += f" ({len(threads)} cells)"
+    p99 = _span([(t.figures.latency_us or {}).get("p99") for t in threads], fmt_us)
+    if len(threads) == 1:
+        f = threads[0].figures
+        inv = f.involuntary
+        if not f.callbacks:
+            return f"{where}: no callback ran"
+        what = (f"0 involuntary switches in {f.callbacks:,} callbacks" if not inv.total else
+                f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
+                f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)")
+        return f"{where}: {what}, wake-up p99 {p99}"
+    inv_span = _span([t.figures.involuntary.per_callback_mean for t in threads], fmt_mean)
+    return f"{where}: {inv_span} involuntary switches per callback, wake-up p99 {p99}"
 
 
 def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, ThreadResult]]]:
