@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterable, Optional
 
 from . import units
 from .errors import Problem, ScenarioError, UsageError, did_you_mean
+from .fmt import fmt_figure
 from .results import CellResult, RunDocument, Status, ThreadResult
 
 
@@ -68,7 +69,7 @@ class Threshold:
         if self.relative is not None:
             parts.append(f"+{self.relative * 100:g}%")
         if self.absolute is not None:
-            parts.append(f"+{_fmt(self.absolute, unit)}")
+            parts.append(f"+{fmt_figure(self.absolute, unit)}")
         return " and ".join(parts) if parts else "off"
 
 
@@ -265,25 +266,3 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
                 verdict = Verdict.SAME
             out.append(FigureChange(cell_id, key, fig, base, new, th, verdict))
     return out
-
-
-def _fmt(value: Optional[float], unit: str) -> str:
-    if value is None:
-        return "–"
-    if unit == "us":
-        return f"{value:.1f} µs" if value < 1000 else f"{value / 1000:.2f} ms"
-    return f"{value:g}"
-
-
-def change_text(f: FigureChange) -> str:
-    if f.base is None or f.new is None:
-        return "–"
-    delta = f.new - f.base
-    text = ("+" if delta >= 0 else "−") + _fmt(abs(delta), f.figure.unit)
-    if f.base:
-        text += f" ({delta / abs(f.base) * 100:+.0f}%)"
-    return text
-
-
-def format_value(f: FigureChange, which: str) -> str:
-    return _fmt(f.base if which == "base" else f.new, f.figure.unit)

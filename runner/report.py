@@ -17,13 +17,14 @@ import jinja2
 from tabulate import tabulate
 
 from . import units
+from .fmt import fmt_bytes, fmt_figure, fmt_int, fmt_mean, fmt_us
 from .model import Policy
 from .plan import Settings
 from .pstable import render_ps
 from .results import CellResult, RunDocument, Status, ThreadResult
 
 if TYPE_CHECKING:
-    from .compare import Comparison
+    from .compare import Comparison, FigureChange
 
 MAX_SIDE_BY_SIDE = 12  # cells shown as columns in the comparison view; beyond that the summary table serves
 
@@ -32,36 +33,6 @@ ICON = {Status.PASSED: "✅ passed", Status.DEGRADED: "⚠️ degraded", Status.
 
 
 # ---------------------------------------------------------------- formatting
-
-
-def fmt_us(value: Optional[float]) -> str:
-    """A latency given in microseconds, in the unit that reads best: `56.6 µs`, `6.12 ms`, `1.20 s`."""
-    if value is None:
-        return "–"
-    if value < 1000:
-        return f"{value:.1f} µs" if value < 100 else f"{value:.0f} µs"
-    if value < 1_000_000:
-        return f"{value / 1000:.2f} ms"
-    return f"{value / 1_000_000:.2f} s"
-
-
-def fmt_mean(value: Optional[float]) -> str:
-    return "–" if value is None else ("0" if value == 0 else f"{value:.2f}")
-
-
-def fmt_int(value: Optional[int]) -> str:
-    return "–" if value is None else f"{value:,}"
-
-
-def fmt_bytes(value: Optional[int]) -> str:
-    if value is None:
-        return "–"
-    if value < 0:
-        return "unlimited"
-    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
-        if value >= size:
-            return f"{value / size:.1f} {unit}".replace(".0 ", " ")
-    return f"{value} B"
 
 
 def policy_label(settings: Optional[Settings]) -> str:
@@ -551,7 +522,7 @@ class ComparisonModel:
 
 def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> ComparisonModel:
     """What the comparison section shows: a headline, regressions first, then every figure compared."""
-    from .compare import FIGURES, change_text, format_value
+    from .compare import FIGURES
 
     FIGURE_WORDS = {name: f.words for name, f in FIGURES.items()}
 
@@ -586,6 +557,21 @@ def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Compar
         figures=Table(headers, figure_rows(cmp.figures)) if cmp.figures else None,
         notes=notes,
     )
+
+
+def change_text(f: "FigureChange") -> str:
+    """`+200 µs (+200%)`: how much a compared figure moved."""
+    if f.base is None or f.new is None:
+        return "–"
+    delta = f.new - f.base
+    text = ("+" if delta >= 0 else "−") + fmt_figure(abs(delta), f.figure.unit)
+    if f.base:
+        text += f" ({delta / abs(f.base) * 100:+.0f}%)"
+    return text
+
+
+def format_value(f: "FigureChange", which: str) -> str:
+    return fmt_figure(f.base if which == "base" else f.new, f.figure.unit)
 
 
 def render_comparison(cmp: "Comparison", base_name: str, new_name: str) -> str:

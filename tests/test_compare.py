@@ -150,3 +150,13 @@ def test_refusal_is_a_scenario_error_with_every_cell():
     with pytest.raises(ScenarioError) as err:
         cmp.compare(base, new)
     assert len(err.value.problems) == 2
+
+
+def test_comparison_section_matches_golden_file():
+    from test_report import golden
+
+    from runner.report import render_comparison
+
+    base = matrix()
+    new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400.0), "policy=other,priority=0", invol_mean=4.0)
+    golden("comparison.md", render_comparison(cmp.compare(base, new), "base/results.json", "new/results.json"))
