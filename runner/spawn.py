@@ -257,183 +257,213 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any) -> CellResult:
     """Run one cell and return its result; raises Interrupted after recording what finished."""
-    scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
-    folder = os.path.abspath(folder)
-    os.makedirs(folder, exist_ok=True)
-    began = time.monotonic()
-    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    planned = plan_scenario(scenario, start)
-    workers: list[Worker] = []
-    by_process: dict[tuple[str, int], list[PlannedThread]] = {}
-    for t in planned:
-        by_process.setdefault((t.process, t.instance), []).append(t)
-    for (proc, inst), threads in by_process.items():
-        cap = _capacity(threads, options.duration_ns)
-        path = os.path.join(folder, f"{proc}.{inst}.smp")
-        spec = _process_spec(threads, scenario, path, cap)
-        workers.append(Worker(f"process {proc}[{inst}]", spec, path, len(threads), cap, threads, True,
-                              os.path.join(folder, f"{proc}.{inst}.log")))
-    hogs = _hog_workers(scenario, folder)
-    commands: list[subprocess.Popen[bytes]] = []
-    result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, spec=spec_json(cell.scenario), started_at=started_at)
-    table: list[ThreadRow] = []
-    interrupted = False
-    applied: dict[int, Optional[Settings]] = {}
-    reason = ""
-    first_wake = last_end = exit_time = None
+    run = _CellRun(cell, os.path.abspath(folder), start, options, watchdog)
     try:
-        for w in workers + hogs:
-            w.start()
-        watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in workers + hogs])
-        reason = _wait_ready(workers + hogs, time.monotonic() + READY_TIMEOUT_S) or ""
-        if not reason:
-            every = kernel.online_cpus()
-            for w in workers:
-                assert w.ready is not None
-                for t, tid in zip(w.planned, w.ready["tids"]):
-                    try:
-                        applied[id(t)] = kernel.thread_settings(tid, every)
-                    except OSError:
-                        applied[id(t)] = None
-            for cmd in scenario.background.commands:
-                log = open(os.path.join(folder, f"command-{len(commands)}.log"), "w")
-                try:
-                    commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                                     start_new_session=True))
-                except OSError as exc:
-                    reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
-                finally:
-                    log.close()
-        if not reason:
-            pids = [w.pid for w in workers + hogs] + [c.pid for c in commands]
-            now = time.monotonic_ns()
-            t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
-            t_end = t0 + options.duration_ns
-            periods = [t.work.period for t in planned if isinstance(t.work, PeriodicWork)]
-            grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
-            watchdog.arm(t_end + grace + int(1e9), pids)
-            for h in hogs:
-                h.send(f"go {now} {t_end + grace}")
-            for w in workers:
-                w.send(f"go {t0} {t_end}")
-                w.poller = samples.Poller(w.samples_path, w.nslots, w.capacity)
-                w.seen = [0] * w.nslots
-            epoch_offset = time.time_ns() - time.monotonic_ns()
-            snapshot_at = (t0 + options.duration_ns // 2) / 1e9
-            total_expected = sum(options.duration_ns // t.work.period for t in planned if isinstance(t.work, PeriodicWork))
-            while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
-                time.sleep(0.05 if options.follow else 0.2)
-                if not table and time.monotonic() >= snapshot_at:
-                    table = [row for w in workers for row in kernel.thread_rows(w.pid)]
-                if options.follow:
-                    for w in workers:
-                        _follow_lines(w, epoch_offset, options.follow)
-                if options.progress:
-                    done = sum(sum(w.poller.counts()) for w in workers)  # type: ignore[union-attr]
-                    left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
-                    options.progress(f"cell {cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
-            exit_time = time.monotonic_ns()
-            for w in workers:
-                if options.follow:
-                    _follow_lines(w, epoch_offset, options.follow)
-                _read_done(w)
+        run.start()
+        if not run.reason:
+            run.supervise()
     except (KeyboardInterrupt, Interrupted):
-        interrupted = True
-        for w in workers:
+        run.interrupted = True
+        for w in run.workers:
             w.signal(signal.SIGKILL)
     finally:
+        run.stop()
+    result = run.collect()
+    if run.interrupted:
+        raise Interrupted(result)
+    return result
+
+
+class _CellRun:
+    """One cell's processes from start to collection: start, supervise, stop, collect, in that order."""
+
+    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any):
+        self.cell, self.folder, self.options, self.watchdog = cell, folder, options, watchdog
+        self.scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        os.makedirs(folder, exist_ok=True)
+        self.began = time.monotonic()
+        self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.planned = plan_scenario(self.scenario, start)
+        self.by_process: dict[tuple[str, int], list[PlannedThread]] = {}
+        for t in self.planned:
+            self.by_process.setdefault((t.process, t.instance), []).append(t)
+        self.workers: list[Worker] = []
+        for (proc, inst), threads in self.by_process.items():
+            cap = _capacity(threads, options.duration_ns)
+            path = os.path.join(folder, f"{proc}.{inst}.smp")
+            self.workers.append(Worker(f"process {proc}[{inst}]", _process_spec(threads, self.scenario, path, cap), path,
+                                       len(threads), cap, threads, True, os.path.join(folder, f"{proc}.{inst}.log")))
+        self.hogs = _hog_workers(self.scenario, folder)
+        self.commands: list[subprocess.Popen[bytes]] = []
+        self.table: list[ThreadRow] = []
+        self.applied: dict[int, Optional[Settings]] = {}
+        self.reason = ""
+        self.interrupted = False
+        self.exit_time: Optional[int] = None
+
+    def start(self) -> None:
+        """Start every process; once all are ready, read back each thread's settings and start background commands."""
+        everyone = self.workers + self.hogs
+        for w in everyone:
+            w.start()
+        self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
+        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S) or ""
+        if self.reason:
+            return
+        every = kernel.online_cpus()
+        for w in self.workers:
+            assert w.ready is not None
+            for t, tid in zip(w.planned, w.ready["tids"]):
+                try:
+                    self.applied[id(t)] = kernel.thread_settings(tid, every)
+                except OSError:
+                    self.applied[id(t)] = None
+        for cmd in self.scenario.background.commands:
+            log = open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w")
+            try:
+                self.commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                                      start_new_session=True))
+            except OSError as exc:
+                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+            finally:
+                log.close()
+
+    def supervise(self) -> None:
+        """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
+        options, workers, hogs = self.options, self.workers, self.hogs
+        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands]
+        now = time.monotonic_ns()
+        t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
+        t_end = t0 + options.duration_ns
+        periods = [t.work.period for t in self.planned if isinstance(t.work, PeriodicWork)]
+        grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
+        self.watchdog.arm(t_end + grace + int(1e9), pids)
         for h in hogs:
+            h.send(f"go {now} {t_end + grace}")
+        for w in workers:
+            w.send(f"go {t0} {t_end}")
+            w.poller = samples.Poller(w.samples_path, w.nslots, w.capacity)
+            w.seen = [0] * w.nslots
+        epoch_offset = time.time_ns() - time.monotonic_ns()
+        snapshot_at = (t0 + options.duration_ns // 2) / 1e9
+        total_expected = sum(options.duration_ns // t.work.period for t in self.planned if isinstance(t.work, PeriodicWork))
+        while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
+            time.sleep(0.05 if options.follow else 0.2)
+            if not self.table and time.monotonic() >= snapshot_at:
+                self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
+            if options.follow:
+                for w in workers:
+                    _follow_lines(w, epoch_offset, options.follow)
+            if options.progress:
+                done = sum(sum(w.poller.counts()) for w in workers)  # type: ignore[union-attr]
+                left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
+                options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
+        self.exit_time = time.monotonic_ns()
+        for w in workers:
+            if options.follow:
+                _follow_lines(w, epoch_offset, options.follow)
+            _read_done(w)
+
+    def stop(self) -> None:
+        """Stop the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
+        for h in self.hogs:
             h.signal(signal.SIGTERM)
-        for c in commands:
+        for c in self.commands:
             try:
                 os.killpg(c.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
         stop_by = time.monotonic() + STOP_GRACE_S
-        for proc in [w.popen for w in workers + hogs if w.popen] + commands:
+        for proc in [w.popen for w in self.workers + self.hogs if w.popen] + self.commands:
             try:
                 proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-        watchdog.disarm()
-        for w in workers:
+        self.watchdog.disarm()
+        for w in self.workers:
             if w.poller:
                 w.poller.close()
 
-    # ---- collect: everything below reads what the workers left behind
-    if not reason and not interrupted:
-        deaths = [r for w in workers if (r := w.exit_reason())]
-        if deaths:
-            reason = "; ".join(deaths)
-        if watchdog.fired:
-            reason = (reason + "; " if reason else "") + "the cell overran its deadline and was killed by the watchdog"
-    slots_out: list[tuple[str, samples.SlotData]] = []
-    verdict_targets: list[tuple[PlannedThread, Any]] = []
-    for w in workers:
-        slots = samples.read(w.samples_path, w.nslots, w.capacity)
-        errors = (w.ready or {}).get("errors", {})
-        for t, slot in zip(w.planned, slots):
-            fig = figures(slot, is_periodic(t.work))
-            if t.index == 0:
-                errs = dict(errors.get("main", {}))
-            else:
-                raw = (errors.get("threads") or [[0, 0, 0, 0]] * w.nslots)[t.index]
-                errs = {"sched": raw[0], "nice": raw[1], "cpus": raw[2]}
-            if errors.get("memory"):
-                errs["memory"] = errors["memory"].get("errno", 0)
-            app = applied.get(id(t))
-            degraded = _degradation(t.settings, app, errs) if w.ready else []
-            slots_out.append((thread_key(t.process, t.instance, t.index, t.name), slot))
-            result.threads.append(ThreadResult(t.process, t.instance, t.index, t.name, w.pid if w.popen else 0,
-                                               slot.tid, describe_work(t.work), is_periodic(t.work), t.settings, app, degraded, fig))
-            verdict_targets.append((t, fig))
-            for s in slot.samples[:1]:
-                first_wake = s.wake_ns if first_wake is None else min(first_wake, s.wake_ns)
-            for s in slot.samples[-1:]:
-                last_end = s.end_ns if last_end is None else max(last_end, s.end_ns)
-    for i in expectations_for(scenario, cell):
-        exp = scenario.expect[i]
-        targets = {id(t) for t in match_threads([t for t, _ in verdict_targets], exp.thread)}
-        for t, fig in verdict_targets:
-            if id(t) in targets and (is_periodic(t.work) or not exp.metric.needs_callbacks):
-                label = f"{t.process}[{t.instance}]/{t.name}" if len(by_process) > 1 else f"{t.process}/{t.name}"
-                label += " (main)" if t.index == 0 else f" #{t.index}"
-                result.expectations.append(check(exp, label, fig))
+    def collect(self) -> CellResult:
+        """Everything the workers left behind: figures, verdicts, samples, status."""
+        cell, options, workers, hogs = self.cell, self.options, self.workers, self.hogs
+        reason, interrupted, applied = self.reason, self.interrupted, self.applied
+        scenario, by_process, table, began, exit_time = self.scenario, self.by_process, self.table, self.began, self.exit_time
+        watchdog, folder, commands = self.watchdog, self.folder, self.commands
+        result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, spec=spec_json(cell.scenario),
+                            started_at=self.started_at)
+        first_wake = last_end = None
+        if not reason and not interrupted:
+            deaths = [r for w in workers if (r := w.exit_reason())]
+            if deaths:
+                reason = "; ".join(deaths)
+            if watchdog.fired:
+                reason = (reason + "; " if reason else "") + "the cell overran its deadline and was killed by the watchdog"
+        slots_out: list[tuple[str, samples.SlotData]] = []
+        verdict_targets: list[tuple[PlannedThread, Any]] = []
+        for w in workers:
+            slots = samples.read(w.samples_path, w.nslots, w.capacity)
+            errors = (w.ready or {}).get("errors", {})
+            for t, slot in zip(w.planned, slots):
+                fig = figures(slot, is_periodic(t.work))
+                if t.index == 0:
+                    errs = dict(errors.get("main", {}))
+                else:
+                    raw = (errors.get("threads") or [[0, 0, 0, 0]] * w.nslots)[t.index]
+                    errs = {"sched": raw[0], "nice": raw[1], "cpus": raw[2]}
+                if errors.get("memory"):
+                    errs["memory"] = errors["memory"].get("errno", 0)
+                app = applied.get(id(t))
+                degraded = _degradation(t.settings, app, errs) if w.ready else []
+                slots_out.append((thread_key(t.process, t.instance, t.index, t.name), slot))
+                result.threads.append(ThreadResult(t.process, t.instance, t.index, t.name, w.pid if w.popen else 0,
+                                                   slot.tid, describe_work(t.work), is_periodic(t.work), t.settings, app, degraded, fig))
+                verdict_targets.append((t, fig))
+                for s in slot.samples[:1]:
+                    first_wake = s.wake_ns if first_wake is None else min(first_wake, s.wake_ns)
+                for s in slot.samples[-1:]:
+                    last_end = s.end_ns if last_end is None else max(last_end, s.end_ns)
+        for i in expectations_for(scenario, cell):
+            exp = scenario.expect[i]
+            targets = {id(t) for t in match_threads([t for t, _ in verdict_targets], exp.thread)}
+            for t, fig in verdict_targets:
+                if id(t) in targets and (is_periodic(t.work) or not exp.metric.needs_callbacks):
+                    label = f"{t.process}[{t.instance}]/{t.name}" if len(by_process) > 1 else f"{t.process}/{t.name}"
+                    label += " (main)" if t.index == 0 else f" #{t.index}"
+                    result.expectations.append(check(exp, label, fig))
 
-    sample_file = os.path.join(folder, "samples.csv.gz")
-    write_samples(sample_file, slots_out)
-    for w in workers + hogs:
-        try:
-            os.unlink(w.samples_path)
-        except OSError:
-            pass
-    result.samples_file = sample_file
-    result.thread_table = table
-    result.background = [{"kind": "hog", "name": h.spec["comm"], "pid": h.pid if h.popen else None} for h in hogs] + [
-        {"kind": "command", "argv": c.args, "pid": c.pid} for c in commands
-    ]
-    result.duration_s = round(time.monotonic() - began, 3)
-    began_ns = int(began * 1e9)
-    result.overhead_s = {
-        "start_to_first_callback": round((first_wake - began_ns) / 1e9, 4) if first_wake else None,
-        "last_callback_to_exit": round((exit_time - last_end) / 1e9, 4) if exit_time and last_end else None,
-    }
-    statuses = []
-    if interrupted:
-        statuses.append(Status.INTERRUPTED)
-        reason = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
-    if reason:
-        statuses.append(Status.ERROR if not interrupted else Status.INTERRUPTED)
-    if any(not v.passed for v in result.expectations):
-        statuses.append(Status.FAILED)
-    if any(t.degraded for t in result.threads):
-        statuses.append(Status.DEGRADED if options.allow_degraded else Status.ERROR)
-        if not options.allow_degraded and not reason:
-            reason = "settings were not applied as requested: " + "; ".join(
-                f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)
-    result.status = worst(statuses)
-    result.reason = reason
-    if interrupted:
-        raise Interrupted(result)
-    return result
+        sample_file = os.path.join(folder, "samples.csv.gz")
+        write_samples(sample_file, slots_out)
+        for w in workers + hogs:
+            try:
+                os.unlink(w.samples_path)
+            except OSError:
+                pass
+        result.samples_file = sample_file
+        result.thread_table = table
+        result.background = [{"kind": "hog", "name": h.spec["comm"], "pid": h.pid if h.popen else None} for h in hogs] + [
+            {"kind": "command", "argv": c.args, "pid": c.pid} for c in commands
+        ]
+        result.duration_s = round(time.monotonic() - began, 3)
+        began_ns = int(began * 1e9)
+        result.overhead_s = {
+            "start_to_first_callback": round((first_wake - began_ns) / 1e9, 4) if first_wake else None,
+            "last_callback_to_exit": round((exit_time - last_end) / 1e9, 4) if exit_time and last_end else None,
+        }
+        statuses = []
+        if interrupted:
+            statuses.append(Status.INTERRUPTED)
+            reason = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
+        if reason:
+            statuses.append(Status.ERROR if not interrupted else Status.INTERRUPTED)
+        if any(not v.passed for v in result.expectations):
+            statuses.append(Status.FAILED)
+        if any(t.degraded for t in result.threads):
+            statuses.append(Status.DEGRADED if options.allow_degraded else Status.ERROR)
+            if not options.allow_degraded and not reason:
+                reason = "settings were not applied as requested: " + "; ".join(
+                    f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)
+        result.status = worst(statuses)
+        result.reason = reason
+        return result
