@@ -12,7 +12,7 @@ import shutil
 from datetime import datetime, timezone
 
 from .errors import Problem, ScenarioError
-from .results import RunDocument, Status, load, slug, worst
+from .results import RunDocument, Status, cell_dir, load, results_file, worst
 
 
 def merge(paths: list[str], out: str) -> RunDocument:
@@ -23,9 +23,9 @@ def merge(paths: list[str], out: str) -> RunDocument:
     seen: dict[tuple[str, int], str] = {}
     specs: dict[str, tuple[str, str]] = {}
     for path, doc in docs:
-        where = _results_file(path)
+        where = results_file(path)
         if doc.name != first.name:
-            problems.append(Problem(where, 1, 1, "scenario.name", f"is {doc.name!r}, but {_results_file(first_path)} "
+            problems.append(Problem(where, 1, 1, "scenario.name", f"is {doc.name!r}, but {results_file(first_path)} "
                                     f"is {first.name!r}; merge shards of one scenario"))
             continue
         for cell in doc.cells:
@@ -51,13 +51,12 @@ def merge(paths: list[str], out: str) -> RunDocument:
         machine=first.machine, permissions=first.permissions, start_settings=first.start_settings,
         tool_version=first.tool_version, finished_at=max((d.finished_at or "" for _, d in docs), default="") or None,
         cell_ids=list(first.matrix_cells) or [c.id for _, c in cells], matrix_cells=list(first.matrix_cells),
-        plan=first.plan, merged_from=[_results_file(p) for p, _ in docs], folder=os.path.abspath(out),
+        plan=first.plan, merged_from=[results_file(p) for p, _ in docs], folder=os.path.abspath(out),
     )
     for doc, cell in cells:
         source = doc.samples_path(cell)
         if source and os.path.exists(source):
-            rel = os.path.join("cells", slug(cell.id), *([f"repeat-{cell.repeat + 1}"] if cell.id in repeated else []),
-                               "samples.csv.gz")
+            rel = os.path.join(cell_dir(cell.id, cell.repeat, cell.id in repeated), "samples.csv.gz")
             target = os.path.join(out, rel)
             if os.path.abspath(source) != os.path.abspath(target):
                 os.makedirs(os.path.dirname(target), exist_ok=True)
@@ -70,7 +69,3 @@ def merge(paths: list[str], out: str) -> RunDocument:
         merged.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     merged.save(os.path.join(out, "results.json"))
     return merged
-
-
-def _results_file(path: str) -> str:
-    return os.path.join(path, "results.json") if os.path.isdir(path) else path

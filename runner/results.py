@@ -288,6 +288,17 @@ def slug(cell_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.=,+-]", "_", cell_id)[:120] or "default"
 
 
+def cell_dir(cell_id: str, repeat: int, repeated: bool) -> str:
+    """A cell run's folder, relative to the results folder: `cells/<id>`, or `cells/<id>/repeat-<n>` with repeats."""
+    base = os.path.join("cells", slug(cell_id))
+    return os.path.join(base, f"repeat-{repeat + 1}") if repeated else base
+
+
+def results_file(path: str) -> str:
+    """The results.json that `path` names: the file itself, or the one inside a results folder."""
+    return os.path.join(path, "results.json") if os.path.isdir(path) else path
+
+
 def write_atomic(path: str, text: str) -> None:
     """Write `text` to `path` so that readers see the old or the new file, never half of one."""
     folder = os.path.dirname(os.path.abspath(path))
@@ -325,8 +336,7 @@ def load(path: str) -> RunDocument:
 
     `path` may name the results file or the folder holding it.
     """
-    if os.path.isdir(path):
-        path = os.path.join(path, "results.json")
+    path = results_file(path)
     try:
         with open(path, encoding="utf-8") as handle:
             data = json.load(handle)
