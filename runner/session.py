@@ -24,7 +24,7 @@ from .compare import Threshold, parse_threshold, thresholds_with
 from .errors import ExitCode, Problem, ScenarioError, UsageError
 from .machine import machine_info
 from .preflight import check as preflight
-from .results import CellResult, RunDocument, Status, load, slug, worst
+from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst
 from .runorder import Shard, Unit, plan_units
 from .scenario import LoadedScenario, ResolvedCell
 from .spawn import CellOptions, Interrupted, run_cell
@@ -77,8 +77,6 @@ class RunOptions:
 
 
 def _duration(text: str, option: str, minimum: int) -> int:
-    if text.strip() == "0" and minimum == 0:
-        return 0
     try:
         value = units.parse_duration(text)
     except units.UnitError as exc:
@@ -114,6 +112,7 @@ class Progress:
         self.spent: list[float] = []
         self.width = 0
         self.head = ""
+        self.prefix = ""
 
     def eta(self, planned_s: float) -> str:
         left = self.total - self.done
@@ -123,7 +122,8 @@ class Progress:
 
     def start(self, unit: Unit, repeats: int, planned_s: float) -> None:
         rep = f" (repeat {unit.repeat + 1}/{repeats})" if repeats > 1 else ""
-        self.head = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}, ETA {self.eta(planned_s)}"
+        self.prefix = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}"
+        self.head = f"{self.prefix}, ETA {self.eta(planned_s)}"
         if self.live:
             self.line(self.head)
         elif not self.quiet:
@@ -131,7 +131,7 @@ class Progress:
 
     def line(self, text: str) -> None:
         if self.live:
-            text = text if text.startswith("[") else f"{self.head.split(',')[0]}: {text}"
+            text = text if text.startswith("[") else f"{self.prefix}: {text}"
             sys.stderr.write("\r" + text.ljust(self.width))
             sys.stderr.flush()
             self.width = len(text)
@@ -180,7 +180,7 @@ def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[Resol
 def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocument:
     """The interrupted run in --resume DIR, checked against the scenario as it is now."""
     assert options.resume
-    path = os.path.join(options.resume, "results.json")
+    path = results_file(options.resume)
     doc = load(path)
     problems = []
     if doc.name != loaded.name:
@@ -206,11 +206,6 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     doc.status, doc.finished_at = "running", None
     doc.command = options.command
     return doc
-
-
-def _cell_folder(folder: str, unit: Unit, repeats: int) -> str:
-    base = os.path.join(folder, "cells", slug(unit.cell))
-    return base if repeats == 1 else os.path.join(base, f"repeat-{unit.repeat + 1}")
 
 
 def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
@@ -254,7 +249,8 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
             interrupted = False
             began = time.monotonic()
             try:
-                result = run_cell(cell, _cell_folder(folder, unit, options.repeat), start, cell_options, watchdog)
+                result = run_cell(cell, os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1)), start,
+                                  cell_options, watchdog)
             except Interrupted as exc:
                 if not isinstance(exc.args[0], CellResult):
                     raise

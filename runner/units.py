@@ -4,7 +4,7 @@ Pure functions, no I/O.  Durations are integer nanoseconds, sizes integer bytes,
 CPU sets sorted tuples of CPU numbers: the internal units never change, only the
 way they are written does.  A bare number for a duration or a size is refused on
 purpose: `period: 500` is ambiguous (ms? us?) and a wrong guess silently turns a
-500 ms period into a 500 ns one.
+500 ms period into a 500 ns one.  Zero is the exception: 0 is 0 in every unit.
 """
 
 from __future__ import annotations
@@ -41,7 +41,9 @@ class UnitError(ValueError):
 
 
 def parse_duration(value: object) -> int:
-    """Parse `500ms`, `200us`, `1.5s`, `10m` into integer nanoseconds."""
+    """Parse `500ms`, `200us`, `1.5s`, `10m` into integer nanoseconds; a bare 0 is 0 in every unit."""
+    if value == 0 and not isinstance(value, bool) or isinstance(value, str) and value.strip() == "0":
+        return 0
     if isinstance(value, bool) or isinstance(value, (int, float)):
         raise UnitError(f"bare number {value!r} has no unit; expected {DURATION_EXPECTED}")
     if not isinstance(value, str):

@@ -48,3 +48,8 @@ def test_round_trips():
     for text in ("50MiB", "200KiB", "0B", "3GiB"):
         assert units.format_size(units.parse_size(text)) == text
     assert units.format_cpus((0, 1, 2, 5, 7, 8)) == "0-2,5,7-8"
+
+
+@pytest.mark.parametrize("value", ["0", 0, " 0 ", "0ms"])
+def test_zero_needs_no_unit(value):
+    assert units.parse_duration(value) == 0
