@@ -21,6 +21,7 @@ from .fmt import fmt_bytes, fmt_figure, fmt_int, fmt_mean, fmt_us
 from .model import Policy
 from .plan import Settings
 from .pstable import render_ps
+from .measure import Figures
 from .results import CellResult, RunDocument, Status, ThreadResult
 
 if TYPE_CHECKING:
@@ -84,19 +85,23 @@ def periodic_threads(cell: CellResult) -> list[ThreadResult]:
     return [t for t in cell.threads if t.periodic]
 
 
+def _switches(f: Figures) -> str:
+    """`0 involuntary switches in 98 callbacks` or `8.94 involuntary switches per callback (98 of 99 ... preempted)`."""
+    inv = f.involuntary
+    if not inv.total:
+        return f"0 involuntary switches in {f.callbacks:,} callbacks"
+    return (f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
+            f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)")
+
+
 def thread_finding(t: ThreadResult, label: str) -> str:
     """One sentence of what a periodic thread measured, e.g. `at FIFO 80: 0 involuntary switches in 98 callbacks`."""
     f = t.figures
-    inv = f.involuntary
     lat = (f.latency_us or {}).get("p99")
     where = f"**{label}** at {policy_label(t.applied)}"
     if not f.callbacks:
         return f"{where}: no callback ran"
-    if not inv.total:
-        what = f"0 involuntary switches in {f.callbacks:,} callbacks"
-    else:
-        what = (f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
-                f"({inv.callbacks_with_any:,} of {f.callbacks:,} callbacks preempted)")
+    what = _switches(f)
     faults = f.faults.minor_after_first
     tail = f", {faults:,} minor page faults after the first callback" if faults else ""
     return f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}{tail}"
@@ -150,13 +155,7 @@ def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
     p99 = _span([(t.figures.latency_us or {}).get("p99") for t in threads], fmt_us)
     if len(threads) == 1:
         f = threads[0].figures
-        inv = f.involuntary
-        if not f.callbacks:
-            return f"{where}: no callback ran"
-        what = (f"0 involuntary switches in {f.callbacks:,} callbacks" if not inv.total else
-                f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
-                f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)")
-        return f"{where}: {what}, wake-up p99 {p99}"
+        return f"{where}: no callback ran" if not f.callbacks else f"{where}: {_switches(f)}, wake-up p99 {p99}"
     inv_span = _span([t.figures.involuntary.per_callback_mean for t in threads], fmt_mean)
     return f"{where}: {inv_span} involuntary switches per callback, wake-up p99 {p99}"
 
