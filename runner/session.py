@@ -236,7 +236,7 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
     old_term = signal.signal(signal.SIGTERM, _raise_interrupt)
     watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
-    print(f"{loaded.name}: {len(units_left)} cell run{'s' if len(units_left) != 1 else ''}{skipped}, results in {results_path}",
+    print(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}",
           flush=True)
     try:
         for n, unit in enumerate(units_left):

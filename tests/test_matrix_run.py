@@ -82,7 +82,8 @@ def test_resume_after_sigkill_redoes_only_unfinished_cells(tmp_path):
 
     done = cli(scenario, "--resume", out, "--quiet", cwd=str(tmp_path))
     assert done.returncode == 0, done.stderr
-    assert f"{4 - len(kept)} cell runs, {len(kept)} already done" in done.stdout or f"{4 - len(kept)} cell run, " in done.stdout
+    left = 4 - len(kept)
+    assert f"{left} cell{'s' if left != 1 else ''} to run, {len(kept)} already done" in done.stdout
     after = json.load(open(path))
     assert sorted(c["id"] for c in after["cells"]) == sorted(before["matrix_cells"])
     assert {c["id"]: c["started_at"] for c in after["cells"] if c["id"] in kept} == kept  # not run again
