@@ -13,6 +13,7 @@ fixed SVG id salt) so re-rendering the same results gives the same files.
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import re
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 from .report import Plot
-from .results import RunDocument, read_samples
+from .results import RunDocument, read_samples, write_atomic
 
 MAX_SERIES = 12
 
@@ -124,13 +125,16 @@ def involuntary_timeline(title: str, series: Sequence[Series], path: str) -> Non
 
 
 def _save(fig, path: str) -> None:  # type: ignore[no-untyped-def]
+    """Draw `fig` as SVG and replace `path` with it atomically (see results.write_atomic)."""
     import matplotlib.pyplot as plt
 
-    tmp = path + ".tmp"
-    fig.tight_layout()
-    fig.savefig(tmp, format="svg", metadata={"Date": None})
-    plt.close(fig)
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    try:
+        fig.tight_layout()
+        fig.savefig(buf, format="svg", metadata={"Date": None})
+    finally:
+        plt.close(fig)
+    write_atomic(path, buf.getvalue())
 
 
 def write_plots(doc: RunDocument, folder: str, labels: Optional[dict[str, str]] = None) -> dict[str, list[Plot]]:

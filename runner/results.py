@@ -7,6 +7,7 @@ Raw per-callback samples go beside it, one gzip'd CSV per cell.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import enum
 import gzip
@@ -27,6 +28,8 @@ from .pstable import ThreadRow
 from .samples import SlotData
 
 SCHEMA = "runner.results/1"
+SAMPLE_COLUMNS = ("thread", "tid", "seq", "scheduled_ns", "wake_ns", "end_ns", "latency_ns", "burn_wall_ns",
+                  "nivcsw", "nvcsw", "minflt", "majflt", "cpu_start", "cpu_end", "missed")
 
 
 class Status(str, enum.Enum):
@@ -299,36 +302,71 @@ def results_file(path: str) -> str:
     return os.path.join(path, "results.json") if os.path.isdir(path) else path
 
 
-def write_atomic(path: str, text: str) -> None:
-    """Write `text` to `path` so that readers see the old or the new file, never half of one."""
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".results-", dir=folder)
+def _umask() -> int:
+    """The process umask, read without changing it (Linux reports it in /proc/self/status)."""
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
+        with open("/proc/self/status", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)  # at import, before any thread of ours exists: not racy in practice
+    os.umask(old)
+    return old
+
+
+FILE_MODE = 0o666 & ~_umask()  # what open() would give a new file: output files are ordinary files
+
+
+def write_atomic(path: str, data: str | bytes) -> None:
+    """Write `data` to `path` so that readers see the old or the new file, never half of one.
+
+    The new file gets the mode any new file would get (0666 less the umask), not mkstemp's 0600.
+    On failure (a full disk, a read-only or forbidden folder) the old file is untouched, no
+    temporary file is left behind, and the OSError raised names `path`, for the caller to word.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    blob = data.encode("utf-8") if isinstance(data, str) else data
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+        with os.fdopen(fd, "wb") as handle:
+            os.fchmod(handle.fileno(), FILE_MODE)
+            handle.write(blob)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        tmp = None
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    _sync_folder(folder)
+
+
+def _sync_folder(folder: str) -> None:
+    """Make a rename durable (best effort: some file systems cannot fsync a folder)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def write_samples(path: str, slots: list[tuple[str, SlotData]]) -> None:
     """Per-callback samples of a cell as gzip'd CSV (one row per callback), written atomically."""
     buf = io.StringIO()
     out = csv.writer(buf, lineterminator="\n")
-    out.writerow(["thread", "tid", "seq", "scheduled_ns", "wake_ns", "end_ns", "latency_ns", "burn_wall_ns",
-                  "nivcsw", "nvcsw", "minflt", "majflt", "cpu_start", "cpu_end", "missed"])
+    out.writerow(list(SAMPLE_COLUMNS))
     for key, slot in slots:
         for seq, s in enumerate(slot.samples):
             out.writerow([key, slot.tid, seq, s.scheduled_ns, s.wake_ns, s.end_ns, s.latency_ns, s.burn_wall_ns,
                           s.nivcsw, s.nvcsw, s.minflt, s.majflt, s.cpu_start, s.cpu_end, s.missed])
-    tmp = path + ".tmp"
-    with gzip.open(tmp, "wt", encoding="utf-8", compresslevel=6) as handle:
-        handle.write(buf.getvalue())
-    os.replace(tmp, path)
+    write_atomic(path, gzip.compress(buf.getvalue().encode("utf-8"), compresslevel=6))
 
 
 def load(path: str) -> RunDocument:

@@ -231,3 +231,50 @@ def test_latency_units(value, text):
 
 def test_fixture_data_is_where_the_tests_expect_it():
     assert os.path.isdir(os.path.join(DATA, "policy_matrix", "cells"))
+
+
+def test_written_files_get_the_mode_of_any_new_file(tmp_path):
+    from runner.results import write_atomic
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    for name, data in (("results.json", "{}"), ("samples.csv.gz", b"\x1f\x8b")):
+        path = tmp_path / name
+        write_atomic(str(path), data)
+        assert path.stat().st_mode & 0o777 == 0o666 & ~mask, name
+    path = write_report(matrix(), str(tmp_path))
+    assert os.stat(path).st_mode & 0o777 == 0o666 & ~mask
+    for name in os.listdir(tmp_path / "plots"):
+        assert (tmp_path / "plots" / name).stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+@pytest.mark.parametrize("fail", ["write", "fsync", "replace"])
+def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path, monkeypatch, fail):
+    import errno
+
+    from runner import results
+
+    path = tmp_path / "results.json"
+    path.write_text("old")
+
+    def broken(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    if fail == "write":
+        monkeypatch.setattr(results.os, "fchmod", broken)
+    else:
+        monkeypatch.setattr(results.os, fail, broken)
+    with pytest.raises(OSError) as err:
+        results.write_atomic(str(path), "new")
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(path)  # the caller can say which file
+    assert path.read_text() == "old"
+    assert os.listdir(tmp_path) == ["results.json"]
+
+
+def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_path):
+    from runner.results import write_atomic
+
+    target = tmp_path / "missing" / "results.json"
+    with pytest.raises(OSError) as err:
+        write_atomic(str(target), "x")
+    assert err.value.filename == str(target)
