@@ -17,11 +17,12 @@ import io
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
 from .report import Plot
-from .results import RunDocument, read_samples, write_atomic
+from .results import RunDocument, ThreadResult, read_samples, slug, write_atomic
 
 MAX_SERIES = 12
 
@@ -130,11 +131,31 @@ def _save(fig, path: str) -> None:  # type: ignore[no-untyped-def]
 
     buf = io.BytesIO()
     try:
-        fig.tight_layout()
-        fig.savefig(buf, format="svg", metadata={"Date": None})
+        with warnings.catch_warnings():  # text stays text in the SVG (svg.fonttype none): the viewer's fonts draw it
+            warnings.filterwarnings("ignore", message="Glyph .* missing from font")
+            fig.tight_layout()
+            fig.savefig(buf, format="svg", metadata={"Date": None})
     finally:
         plt.close(fig)
     write_atomic(path, buf.getvalue())
+
+
+def plot_name(t: ThreadResult) -> str:
+    """The file name (without extension) of a thread's plots: injective over threads, safe, bounded.
+
+    A thread whose process and name are plain words (`[A-Za-z0-9_.]`) and whose numbers are
+    not negative gets the readable `process-name-main` (`process-2-name-3` for instance 2,
+    thread 3): none of those parts holds a `-`, so the name splits back into them.  Any other
+    thread is named after its exact key, through results.slug (readable part and a hash).
+    """
+    plain = (_WORD.fullmatch(t.process) and _WORD.fullmatch(t.name) and t.instance >= 0 and t.index >= 0)
+    if not plain:
+        return slug(t.key)
+    parts = [t.process] + ([str(t.instance)] if t.instance else []) + [t.name, "main" if t.index == 0 else str(t.index)]
+    return slug("-".join(parts))
+
+
+_WORD = re.compile(r"[A-Za-z0-9_.]+")
 
 
 def write_plots(doc: RunDocument, folder: str, labels: Optional[dict[str, str]] = None) -> dict[str, list[Plot]]:
@@ -142,12 +163,13 @@ def write_plots(doc: RunDocument, folder: str, labels: Optional[dict[str, str]] 
     data = collect(doc)
     if not data:
         return {}
+    threads = {t.key: t for cell in doc.cells for t in cell.threads}
     os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
     out: dict[str, list[Plot]] = {}
     for key, series in data.items():
         title = (labels or {}).get(key, key)
         shown = series[:MAX_SERIES]
-        name = re.sub(r"[^A-Za-z0-9_.]+", "-", re.sub(r"\[\d+\]", lambda m: "" if m.group() == "[0]" else m.group()[1:-1], key)).strip("-")
+        name = plot_name(threads[key])
         hist = os.path.join("plots", f"{name}.latency.svg")
         inv = os.path.join("plots", f"{name}.involuntary.svg")
         latency_histogram(title, shown, os.path.join(folder, hist))

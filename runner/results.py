@@ -11,6 +11,7 @@ import contextlib
 import csv
 import enum
 import gzip
+import hashlib
 import io
 import json
 import os
@@ -286,9 +287,24 @@ class RunDocument:
         return os.path.join(self.folder, cell.samples_file)
 
 
-def slug(cell_id: str) -> str:
-    """A file-system safe folder name for a cell id."""
-    return re.sub(r"[^A-Za-z0-9_.=,+-]", "_", cell_id)[:120] or "default"
+SLUG_MAX = 120  # characters of the readable part; a file name stays well under NAME_MAX (255 bytes)
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.=,+-]")
+
+
+def slug(exact: str) -> str:
+    """A file-system safe name that stands for `exact` alone: deterministic, injective, bounded.
+
+    An id that is already a safe name (letters, digits and `_.=,+-`, not starting with a dot,
+    at most SLUG_MAX characters) is its own name, so folders read as the cell ids they hold.
+    Any other id keeps a readable version (unsafe characters as `_`, cut to SLUG_MAX) and adds
+    `~` and a hash of the exact id: `a/b`, `a_b` and `a:b` get three folders, never one.
+    Names of the first kind never contain `~`, so the two kinds cannot meet.
+    """
+    if exact and len(exact) <= SLUG_MAX and not exact.startswith(".") and not _UNSAFE.search(exact):
+        return exact
+    readable = _UNSAFE.sub("_", exact)[:SLUG_MAX].lstrip(".") or "_"
+    digest = hashlib.sha256(exact.encode("utf-8", "surrogatepass")).hexdigest()[:12]
+    return f"{readable}~{digest}"
 
 
 def cell_dir(cell_id: str, repeat: int, repeated: bool) -> str:

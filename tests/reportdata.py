@@ -38,3 +38,39 @@ def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocume
         f = dataclasses.replace(f, involuntary=dataclasses.replace(f.involuntary, per_callback_mean=changes["invol_mean"]))
     cell.threads[i] = dataclasses.replace(t, figures=f)
     return out
+
+
+def renamed(folder: str, names: list[tuple[str, str]], cell_ids: list[str] | None = None) -> RunDocument:
+    """The recorded matrix copied to `folder` with each cell's periodic thread renamed to (process, name).
+
+    The samples files are rewritten under the new thread keys, so plots find them; `cell_ids`
+    renames the cells too (ids as matrix values would make them).
+    """
+    import gzip
+    import shutil
+
+    shutil.copytree(MATRIX, folder, dirs_exist_ok=True)
+    doc = load(folder)
+    for n, (cell, (process, name)) in enumerate(zip(doc.cells, names)):
+        i = cell.threads.index(main_thread(cell))
+        old = cell.threads[i].key
+        cell.threads[i] = dataclasses.replace(cell.threads[i], process=process, name=name)
+        path = doc.samples_path(cell)
+        assert path is not None
+        with gzip.open(path, "rt", encoding="utf-8") as handle:
+            lines = handle.read().splitlines(keepends=True)
+        import csv
+        import io
+
+        out = io.StringIO()
+        writer = csv.writer(out, lineterminator="\n")
+        for row in csv.reader(lines):
+            writer.writerow([cell.threads[i].key if row[0] == old else row[0]] + row[1:])
+        with gzip.open(path, "wt", encoding="utf-8") as handle:
+            handle.write(out.getvalue())
+        if cell_ids is not None:
+            cell.id = cell_ids[n]
+    if cell_ids is not None:
+        doc.matrix_cells = doc.cell_ids = [c.id for c in doc.cells]
+    doc.save(os.path.join(folder, "results.json"))
+    return load(folder)

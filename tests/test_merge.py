@@ -86,3 +86,57 @@ def test_mixed_specs_are_refused(tmp_path):
 def test_merge_exit_code_follows_the_cells(tmp_path):
     done = merge_edited(tmp_path, [[0], [1]], lambda doc: setattr(doc.cells[0], "status", Status.FAILED), "--no-plots")
     assert done.code == 1
+
+
+# ---------------------------------------------------------------- cell folder names
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from runner.results import SLUG_MAX, cell_dir, slug  # noqa: E402
+
+SAFE_NAME = r"[A-Za-z0-9_.=,+~-]+"
+
+
+@settings(max_examples=300, derandomize=True, database=None)
+@given(st.lists(st.text(max_size=200), min_size=2, max_size=6, unique=True))
+def test_cell_folder_names_are_injective_safe_and_bounded(ids):
+    import re
+
+    names = [slug(i) for i in ids]
+    assert len(set(names)) == len(ids), dict(zip(ids, names))
+    for i, name in zip(ids, names):
+        assert re.fullmatch(SAFE_NAME, name) and not name.startswith("."), name
+        assert len(name) <= SLUG_MAX + 13
+        assert slug(i) == name  # deterministic
+
+
+@given(st.from_regex(r"[A-Za-z0-9_=,+-][A-Za-z0-9_.=,+-]{0,119}", fullmatch=True))
+@settings(max_examples=100, derandomize=True, database=None)
+def test_a_safe_id_is_its_own_folder_name(cell_id):
+    assert slug(cell_id) == cell_id
+
+
+def test_matrix_values_that_read_alike_get_their_own_folders():
+    ids = ["v=a/b", "v=a_b", "v=a:b", "..", ".", "", "x" * 200, "x" * 201]
+    assert len({cell_dir(i, 0, False) for i in ids}) == len(ids)
+    assert slug("v=a_b") == "v=a_b" and slug("v=a/b").startswith("v=a_b~")
+    assert slug("policy=fifo,priority=80") == "policy=fifo,priority=80"  # recorded runs keep their folders
+
+
+def test_cells_whose_ids_read_alike_keep_their_own_samples_when_merged(tmp_path):
+    shards = split(tmp_path, [[0], [1]])
+    for n, (shard, new_id) in enumerate(zip(shards, ["v=a/b", "v=a:b"])):
+        doc = load(shard)
+        doc.cells[0].id = new_id
+        doc.matrix_cells = doc.cell_ids = []
+        doc.save(os.path.join(shard, "results.json"))
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots")
+    assert done.code == 0, done.err
+    merged = load(str(tmp_path / "merged"))
+    paths = [merged.samples_path(c) for c in merged.cells]
+    assert len(set(paths)) == 2 and all(p and os.path.exists(p) for p in paths)
+    full = matrix()
+    for cell, source in zip(merged.cells, full.cells[:2]):
+        with open(merged.samples_path(cell), "rb") as a, open(full.samples_path(source), "rb") as b:
+            assert a.read() == b.read()

@@ -7,10 +7,12 @@ import os
 import xml.etree.ElementTree as ET
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from markdown_it import MarkdownIt
 
 from conftest import run_cli
-from reportdata import DATA, MATRIX, matrix, memory
+from reportdata import DATA, MATRIX, matrix, memory, renamed
 from runner import report
 from runner.publish import append_step_summary, write_report
 
@@ -278,3 +280,33 @@ def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_p
     with pytest.raises(OSError) as err:
         write_atomic(str(target), "x")
     assert err.value.filename == str(target)
+
+
+@settings(max_examples=200, derandomize=True, database=None)
+@given(st.lists(st.tuples(st.text(max_size=30), st.integers(-2, 12), st.integers(-2, 12), st.text(max_size=30)),
+                min_size=2, max_size=6, unique_by=lambda t: t))
+def test_plot_names_are_injective_safe_and_bounded(threads):
+    import re
+
+    from runner.plots import plot_name
+    from runner.results import ThreadResult, thread_key
+
+    def thread(process, instance, index, name):
+        t = ThreadResult.__new__(ThreadResult)
+        t.process, t.instance, t.index, t.name = process, instance, index, name
+        return t
+
+    names = {thread_key(*t): plot_name(thread(*t)) for t in threads}
+    keys = {thread_key(*t) for t in threads}
+    assert len(set(names.values())) == len(keys), names
+    for name in names.values():
+        assert re.fullmatch(r"[A-Za-z0-9_.=,+~-]+", name) and not name.startswith(".") and len(name) <= 133
+
+
+def test_plot_names_of_threads_in_other_scripts_do_not_collide(tmp_path):
+    doc = renamed(str(tmp_path / "run"), [("进程", "线程甲"), ("进程", "线程乙")])
+    text = open(write_report(doc, str(tmp_path)), encoding="utf-8").read()
+    keys = {t.key for c in doc.cells for t in c.threads if t.periodic}
+    assert len(keys) == 3  # the two renamed threads and the recorded one in the other cells
+    assert len([n for n in os.listdir(tmp_path / "plots") if n.endswith(".latency.svg")]) == 3
+    assert text.count(".latency.svg)") == 3
