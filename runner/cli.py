@@ -9,10 +9,13 @@ import argparse
 import json
 import os
 import sys
+import tempfile
+import time
+import traceback
 from typing import Callable, Sequence
 
 from . import __version__
-from .errors import ExitCode, RunnerError, ScenarioError, UsageError
+from .errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
 
 COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
 _TOP_HELP = """\
@@ -29,7 +32,8 @@ Run `runner run --help` for the run options (SCENARIO.yaml is short for `runner 
 RESULTS, BASE and NEW are results.json files or the folders holding them.
 
 exit codes: 0 ok, 1 an expectation failed or a regression against the baseline, 2 invalid input,
-            3 missing permission, 4 run error (worker crash, timeout), 130 interrupted
+            3 missing permission, 4 run error (worker crash, timeout, full disk), 70 a bug in the runner
+            (the traceback is saved to a file), 130 interrupted
 """
 
 _THRESHOLD_HELP = ("regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%%,+10us or involuntary.per_callback_mean=+0.5 "
@@ -82,16 +86,56 @@ def main(argv: Sequence[str] | None = None) -> int:
         "compare": _cmd_compare,
         "merge": _cmd_merge,
     }
+    return _guarded(handlers[command], rest)
+
+
+def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
+    """Run one command; turn anything it raises into one line on stderr and the documented exit code.
+
+    This is the single boundary between the runner and the shell: no traceback passes it.
+    """
     try:
-        return handlers[command](rest)
+        return handler(argv)
     except RunnerError as exc:
-        print(str(exc), file=sys.stderr)
+        _say(str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
-        print("runner: interrupted", file=sys.stderr)
+        _say("runner: interrupted")
         return ExitCode.INTERRUPTED
     except BrokenPipeError:
         return ExitCode.OK
+    except OSError as exc:
+        if exc.filename is None:
+            return _internal_error(exc)
+        error = from_os_error(exc, "cannot use", before_run=False)
+        _say(str(error))
+        return error.exit_code
+    except SystemExit:
+        raise  # argparse's own exit (2 for a usage mistake, 0 for --help)
+    except Exception as exc:  # noqa: BLE001 - the one place a bug becomes a message instead of a traceback
+        return _internal_error(exc)
+
+
+def _say(text: str) -> None:
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _internal_error(exc: BaseException) -> int:
+    """A bug: one line for the user, the whole traceback in a file for the bug report."""
+    text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    where = os.environ.get("RUNNER_CRASH_DIR") or tempfile.gettempdir()
+    path = os.path.join(where, f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.txt")
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            handle.write(f"runner {__version__}\ncommand: {' '.join(sys.argv)}\n\n{text}")
+        saved = f"the traceback is in {path}"
+    except OSError:
+        saved = f"the traceback could not be saved ({type(exc).__name__}: {exc})"
+    _say(f"runner: internal error (a bug in the runner, please report it): {type(exc).__name__}: {exc}; {saved}")
+    return ExitCode.INTERNAL_ERROR
 
 
 def _print_warnings(warnings: Sequence[object]) -> None:
@@ -185,7 +229,10 @@ def _cmd_report(argv: list[str]) -> int:
         sys.stdout.write(render_run(doc, None, section))
     else:
         target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, "report.md")
-        path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
+        try:
+            path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the report", path=target) from None
         print(f"report: {path}")
     return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
 
@@ -204,7 +251,10 @@ def _cmd_compare(argv: list[str]) -> int:
     section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
     sys.stdout.write(section)
     if ns.output:
-        write_atomic(ns.output, section)
+        try:
+            write_atomic(ns.output, section)
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
     return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
 
@@ -219,14 +269,25 @@ def _cmd_merge(argv: list[str]) -> int:
     ns = p.parse_args(argv)
     from .compare import parse_threshold, thresholds_with
     from .merge import merge
+    from .outdir import claim
     from .publish import finish
     from .session import exit_code
 
-    doc = merge(ns.inputs, ns.out)
-    missing = [c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}]
-    if missing:
-        print(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}", file=sys.stderr)
-    print(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
     thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
-    regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
+    held = claim(ns.out, "merge folder")
+    try:
+        try:
+            doc = merge(ns.inputs, ns.out)
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the merged results", before_run=False) from None
+        missing = [c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}]
+        if missing:
+            print(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}", file=sys.stderr)
+        print(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
+        try:
+            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the report", before_run=False) from None
+    finally:
+        held.release()
     return int(exit_code([c.status for c in doc.cells], regressions))

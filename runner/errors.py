@@ -1,8 +1,10 @@
 """Errors a user can act on, and the exit codes they map to.
 
 Every user mistake is a `RunnerError` subclass carrying what the CLI prints; the
-CLI never shows a traceback for one.  A bug in the runner is not a RunnerError and
-keeps its traceback, so it gets reported instead of hidden.
+CLI never shows a traceback for one.  An operating-system error the user can act on
+(a folder that cannot be written, a full disk) becomes one through `from_os_error`.
+A bug in the runner is neither: the CLI prints one line saying so, saves the
+traceback to a file for the bug report, and exits with `INTERNAL_ERROR`.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ class ExitCode(enum.IntEnum):
     INVALID_INPUT = 2
     PERMISSION = 3
     RUN_ERROR = 4
+    INTERNAL_ERROR = 70  # a bug in the runner (EX_SOFTWARE); the traceback is saved to a file
     INTERRUPTED = 130
 
 
@@ -74,6 +77,38 @@ class RunError(RunnerError):
     """A run that could not be carried out (a worker that died, a timeout)."""
 
     exit_code = ExitCode.RUN_ERROR
+
+
+class OutputError(RunnerError):
+    """A file or folder the runner must write could not be written (permission, full disk, not a folder).
+
+    During a run this is a run error (exit 4): what finished is kept, the cell in flight is
+    marked `error`.  Before anything ran it is an input mistake (exit 2), see `from_os_error`.
+    """
+
+    exit_code = ExitCode.RUN_ERROR
+
+
+def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | None = None) -> RunnerError:
+    """A user-facing error for an OSError on a path the user chose: `runner: <what> <path>: <reason>`.
+
+    `before_run` errors (an --out that is a file, an unwritable -o) are invalid input (exit 2);
+    errors once measuring has started (a disk that fills up) are run errors (exit 4).  `path` names
+    the file the user knows when the error came from a temporary one beside it.
+    """
+    path = path or (exc.filename if exc.filename is not None else "")
+    reason = exc.strerror or str(exc)
+    hint = {
+        28: "; free some space or choose another folder with --out",  # ENOSPC
+        13: "; choose a folder you may write, or fix its permissions",  # EACCES
+        30: "; choose a folder on a writable file system",  # EROFS
+        20: "; a file stands where a folder is expected",  # ENOTDIR
+        17: "; a file of that name is in the way",  # EEXIST
+        21: "; a folder stands where a file is expected",  # EISDIR
+    }.get(exc.errno or 0, "")
+    error = UsageError(f"runner: {what} {path}: {reason}{hint}") if before_run else OutputError(
+        f"runner: {what} {path}: {reason}{hint}")
+    return error
 
 
 def did_you_mean(word: str, choices: Iterable[str]) -> str:

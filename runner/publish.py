@@ -7,6 +7,7 @@ atomically, so a reader never sees half a report.
 from __future__ import annotations
 
 import os
+import sys
 from typing import Optional
 
 from . import report
@@ -39,8 +40,12 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
     if len(text.encode()) > STEP_SUMMARY_LIMIT:
         cut = text.encode()[: STEP_SUMMARY_LIMIT - 200].decode(errors="ignore")
         text = cut[: cut.rfind("\n## ")] + "\n\n> Report cut to fit the job summary; the full report is in the artifacts.\n"
-    with open(path, "a", encoding="utf-8") as handle:
-        handle.write(text.rstrip("\n") + "\n\n")
+    try:
+        with open(path, "a", encoding="utf-8") as handle:
+            handle.write(text.rstrip("\n") + "\n\n")
+    except OSError as exc:  # the summary is a copy: the run's own files are written, so warn, do not fail
+        print(f"runner: warning: cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}", file=sys.stderr)
+        return None
     return path
 
 

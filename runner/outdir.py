@@ -1,0 +1,67 @@
+"""An output folder held by one runner at a time.
+
+A run (or a merge) writes results.json, samples and reports into one folder; two
+runs writing into the same folder would mix their cells and share sample buffers.
+`claim` creates the folder, refuses one that holds another run's results (unless
+that run is being resumed), and holds an exclusive `flock` on a lock file inside
+it for as long as the claim lives.  The kernel drops the lock when the process
+dies, however it dies, so a crashed run never leaves its folder locked.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+from dataclasses import dataclass
+from typing import Optional
+
+from .errors import UsageError, from_os_error
+
+LOCK_NAME = ".runner.lock"
+
+
+@dataclass
+class Claim:
+    """A folder this process writes into alone, until `release` (or its exit)."""
+
+    folder: str
+    fd: Optional[int]
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # closing the descriptor drops the flock
+            self.fd = None
+
+
+def claim(folder: str, what: str = "results folder", resume: bool = False) -> Claim:
+    """Create `folder` if needed and hold it exclusively; raise a UsageError (exit 2) naming why not.
+
+    A folder that already holds a results.json is refused unless `resume` is set: a new run
+    into it would overwrite or mix with the results of an earlier one.
+    """
+    folder = os.path.abspath(folder)
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except FileExistsError:
+        raise UsageError(f"runner: {what} {folder}: a file stands where a folder is expected") from None
+    except OSError as exc:
+        raise from_os_error(exc, what) from None
+    if not os.path.isdir(folder):
+        raise UsageError(f"runner: {what} {folder}: not a folder")
+    try:
+        fd = os.open(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+    except OSError as exc:
+        raise from_os_error(exc, what) from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise UsageError(f"runner: {what} {folder} is in use by another runner; give each run its own --out") from None
+        raise from_os_error(exc, what) from None
+    if not resume and os.path.exists(os.path.join(folder, "results.json")):
+        os.close(fd)
+        raise UsageError(f"runner: {what} {folder} already holds the results of another run; choose a new folder, "
+                         "or finish that run with --resume")
+    return Claim(folder, fd)
