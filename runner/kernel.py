@@ -102,6 +102,15 @@ def find_pids(name: str) -> list[int]:
     return sorted(out)
 
 
+def process_state(pid: int) -> Optional[str]:
+    """The process's state letter from /proc/<pid>/stat (R, S, D, T stopped, t traced, Z, ...); None once it is gone."""
+    try:
+        stat = _read(f"/proc/{pid}/stat")
+    except OSError:
+        return None
+    return stat[stat.rfind(")") + 2:][:1] or None
+
+
 def _zombie(pid: str) -> bool:
     stat = _read(f"/proc/{pid}/stat")
     return stat[stat.rfind(")") + 2:][:1] in ("Z", "X")

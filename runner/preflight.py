@@ -94,6 +94,15 @@ def _grant_rt(perm: Permissions, priority: int) -> str:
     )
 
 
+def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
+    """Priority 99 is the watchdog's: a thread or hog above or beside it could keep it from stopping a runaway cell."""
+    if rt_priority == 99 and not allowed:
+        raise UsageError(
+            f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
+            "or pass --allow-priority-99 (the runner may then be unable to stop a runaway thread)"
+        )
+
+
 def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
     """Raise PermissionProblem (exit 3) for a right the cells need and this user lacks, unless degraded runs are allowed."""
     perm = current_permissions()
@@ -105,11 +114,7 @@ def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allo
         hog_threads = [(f"background hog {h.name}", h.sched, h.cpus) for h in sc.background.hogs]
         planned = [(f"{t.process}/{t.name}", t.settings) for t in plan_scenario(sc, start)]
         for where, settings in planned:
-            if settings.policy.is_realtime and settings.priority == 99 and not allow_priority_99:
-                raise UsageError(
-                    f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
-                    "or pass --allow-priority-99 (the runner may then be unable to stop a runaway thread)"
-                )
+            _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
             if settings.cpus is not None and not set(settings.cpus) <= online:
                 raise UsageError(
                     f"{where} asks for CPUs {units.format_cpus(settings.cpus)}, but this machine lets the runner use "
@@ -120,6 +125,7 @@ def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allo
             if settings.nice < start.nice and (min_nice is None or settings.nice < min_nice[0]):
                 min_nice = (settings.nice, where)
         for where, sched, cpus in hog_threads:
+            _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
             if cpus is not None and not set(cpus) <= online:
                 raise UsageError(f"{where} asks for CPUs {units.format_cpus(cpus)}; this machine allows {units.format_cpus(online)}")
             if sched is not None and sched.policy.is_realtime:

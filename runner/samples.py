@@ -8,6 +8,7 @@ progress) and after (for results), even when the worker was killed.
 
 from __future__ import annotations
 
+import errno
 import mmap
 import os
 import struct
@@ -83,9 +84,22 @@ def slot_offset(index: int, capacity: int) -> int:
 
 
 def create(path: str, nthreads: int, capacity: int) -> None:
-    """Create the zero-filled buffer file the worker will map."""
+    """Create the zero-filled buffer file the worker will map, with its disk space reserved.
+
+    A page of a mapped sparse file that cannot be allocated kills the writer with SIGBUS
+    in the middle of the run; reserving the space up front turns a disk too small for the
+    run into an ENOSPC before anything starts.
+    """
     with open(path, "wb") as handle:
-        handle.truncate(file_size(nthreads, capacity))
+        size = file_size(nthreads, capacity)
+        try:
+            os.posix_fallocate(handle.fileno(), 0, size)
+        except OSError as exc:
+            if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
+                handle.close()
+                os.unlink(path)
+                raise OSError(exc.errno, exc.strerror, path) from None
+            handle.truncate(size)  # a file system that cannot reserve: sparse, as before
 
 
 def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
@@ -117,12 +131,23 @@ def header(buf: bytes | mmap.mmap) -> tuple[int, int]:
 
 
 def read(path: str, nthreads: int, capacity: int) -> list[SlotData]:
-    """Every slot of a buffer file; slots a worker never initialised read as empty."""
+    """Every slot of a buffer file; slots a worker never initialised read as empty.
+
+    The file is sized for the whole planned run (sparse until written), so it is mapped and
+    only the samples each slot recorded are decoded: a long run stopped early reads what ran,
+    not the gigabytes it had room for.
+    """
+    size = file_size(nthreads, capacity)
     with open(path, "rb") as handle:
-        data = handle.read()
-    if len(data) < file_size(nthreads, capacity):
-        data = data.ljust(file_size(nthreads, capacity), b"\0")
-    return [parse_slot(data, i, capacity) for i in range(nthreads)]
+        if os.fstat(handle.fileno()).st_size < size:
+            data: bytes | mmap.mmap = handle.read().ljust(size, b"\0")
+        else:
+            data = mmap.mmap(handle.fileno(), size, prot=mmap.PROT_READ)
+    try:
+        return [parse_slot(data, i, capacity) for i in range(nthreads)]
+    finally:
+        if isinstance(data, mmap.mmap):
+            data.close()
 
 
 class Poller:

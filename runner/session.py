@@ -21,13 +21,15 @@ from typing import Any, Optional
 
 from . import __version__, _probe, kernel, units
 from .compare import Threshold, parse_threshold, thresholds_with
-from .errors import ExitCode, Problem, ScenarioError, UsageError
+from . import outdir
+from .errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
+from .guard import Guard
 from .machine import machine_info
 from .preflight import check as preflight
 from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst
 from .runorder import Shard, Unit, plan_units
-from .scenario import LoadedScenario, ResolvedCell
-from .spawn import CellOptions, Interrupted, run_cell
+from .scenario import LoadedScenario, ResolvedCell, spec_json
+from .spawn import CellOptions, CellWriteError, Interrupted, run_cell
 from .terminal import render_cell
 
 DEFAULT_SETTLE_NS = 500_000_000
@@ -148,8 +150,43 @@ class Progress:
             self.width = 0
 
 
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    raise Interrupted(None)
+class StopSignals:
+    """Ctrl-C and SIGTERM as a request to stop, honoured at the run's safe points, never mid-write.
+
+    The handler only records the request: the cell loop and the cell's supervision poll it and
+    stop there, so results.json and the report are always written.  A second or third signal
+    while the runner is already stopping changes nothing (it says so once), so an impatient
+    Ctrl-C can no longer cut the report short or leave the run without results.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: Optional[int] = None
+        self.told = False
+        self.previous: dict[int, Any] = {}
+
+    def __enter__(self) -> "StopSignals":
+        for sig in self.SIGNALS:
+            self.previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.received is None:
+            self.received = signum
+        elif not self.told:
+            self.told = True
+            try:
+                os.write(2, b"runner: already stopping; writing the results and the report\n")
+            except OSError:
+                pass
+
+    def requested(self) -> bool:
+        return self.received is not None
 
 
 def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCell]:
@@ -220,62 +257,121 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
     if doc is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         folder = options.out or os.path.join("reports", loaded.name, stamp)
-        os.makedirs(folder, exist_ok=True)
+        held = outdir.claim(folder)
         doc = _new_document(loaded, options, cells, perms, start)
     else:
         folder = options.resume or ""
+        held = outdir.claim(folder, resume=True)
+    try:
+        with StopSignals() as stop:
+            return _run_units(loaded, options, doc, by_id, folder, start, stop)
+    finally:
+        held.release()
+
+
+def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell],
+               folder: str, start: Any, stop: StopSignals) -> int:
+    """The cell loop of a claimed folder, then the report: every way out saves what finished."""
     doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
-    doc.save(results_path)
+    try:
+        doc.save(results_path)
+    except OSError as exc:
+        raise from_os_error(exc, "cannot write the results file") from None
 
-    units_left = plan_units([c.id for c in cells], options.repeat, options.shuffle_seed,
-                            [(c.id, c.repeat) for c in doc.cells])
+    units_left = plan_units(list(by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
     statuses = [c.status for c in doc.cells]
     progress = Progress(len(units_left), options.settle_ns / 1e9, options.live, options.quiet)
     follow = (lambda line: (progress.clear(), print(line, flush=True))) if options.follow else None
-    old_term = signal.signal(signal.SIGTERM, _raise_interrupt)
     watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
+    guard = Guard()
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
     print(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}",
           flush=True)
+    write_error: Optional[OSError] = None
+    ran_all = False
     try:
         for n, unit in enumerate(units_left):
             if n and options.settle_ns:
-                time.sleep(options.settle_ns / 1e9)
+                _settle(options.settle_ns, stop)
+            if stop.requested():
+                raise Interrupted(None)
             cell = by_id[unit.cell]
             duration = options.duration_ns or cell.scenario.duration
             progress.start(unit, options.repeat, duration / 1e9)
-            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None)
-            interrupted = False
+            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None,
+                                       stop.requested)
             began = time.monotonic()
+            cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
             try:
-                result = run_cell(cell, os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1)), start,
-                                  cell_options, watchdog)
+                result = run_cell(cell, cell_folder, start, cell_options, watchdog, guard)
             except Interrupted as exc:
                 if not isinstance(exc.args[0], CellResult):
                     raise
-                result, interrupted = exc.args[0], True
+                result = exc.args[0]
+                stop.received = stop.received or signal.SIGINT
+            except CellWriteError as exc:
+                result, write_error = exc.result, exc.error
+            except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
+                write_error = exc
+                result = _unrun_cell(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})")
             progress.finish(time.monotonic() - began)
-            _record(doc, result, unit, results_path)
+            statuses.append(result.status)
+            try:
+                _record(doc, result, unit, results_path)
+            except OSError as exc:
+                doc.cells.remove(result)
+                write_error = write_error or exc
             sys.stdout.write(render_cell(result, kernel.pid_width()))
             sys.stdout.flush()
-            statuses.append(result.status)
-            if interrupted:
+            if write_error is not None or stop.requested():
                 break
-    except (KeyboardInterrupt, Interrupted):
-        statuses.append(Status.INTERRUPTED)
+        else:
+            ran_all = True
+    except Interrupted:
+        pass
     finally:
         progress.clear()
         watchdog.close()
-        signal.signal(signal.SIGTERM, old_term)
-        doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        doc.status = worst(statuses).value
+        guard.close()
+    if stop.requested():
+        statuses.append(Status.INTERRUPTED)
+    elif write_error is not None:
+        statuses.append(Status.ERROR)
+    elif not ran_all:
+        statuses.append(Status.ERROR)  # a cell loop that neither finished nor was stopped: never "passed"
+    doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    doc.status = worst(statuses).value
+    try:
         doc.save(results_path)
+    except OSError as exc:
+        write_error = write_error or exc
+    if write_error is not None:
+        print(f"runner: {write_error.filename or results_path}: {write_error.strerror or write_error}; the run stopped. "
+              f"{results_path} keeps every cell that finished before; the cell in flight is marked error where it "
+              "could be written", file=sys.stderr, flush=True)
+        return int(ExitCode.RUN_ERROR)
     from .publish import finish
 
-    regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))
+    try:
+        regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))
+    except OSError as exc:
+        raise from_os_error(exc, "cannot write the report", before_run=False) from None
     print(f"{loaded.name}: {worst(statuses).value}; results: {results_path}", flush=True)
     return int(exit_code(statuses, regressions))
+
+
+def _settle(settle_ns: int, stop: StopSignals) -> None:
+    """The pause between cells, cut short by a stop request."""
+    until = time.monotonic() + settle_ns / 1e9
+    while not stop.requested() and (left := until - time.monotonic()) > 0:
+        time.sleep(min(left, 0.1))
+
+
+def _unrun_cell(cell: ResolvedCell, reason: str) -> CellResult:
+    """The record of a cell that could not even start."""
+    return CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.ERROR, spec=spec_json(cell.scenario),
+                      reason=reason, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
 
 def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str) -> None:

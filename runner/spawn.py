@@ -15,11 +15,12 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, Callable, Optional
 
 from . import _probe, kernel, samples
+from .guard import Guard
 from .measure import check, figures
 from .model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
 from .plan import PlannedThread, Settings, is_periodic, plan_scenario
@@ -39,12 +40,21 @@ class Interrupted(Exception):
     """Ctrl-C or SIGTERM reached the runner."""
 
 
+class CellWriteError(Exception):
+    """The cell ran, but its files could not be written (a full disk): `result` says so; the run must stop."""
+
+    def __init__(self, result: CellResult, error: OSError):
+        super().__init__(str(error))
+        self.result, self.error = result, error
+
+
 @dataclass
 class CellOptions:
     duration_ns: int
     allow_degraded: bool
     follow: Optional[Callable[[str], None]] = None
     progress: Optional[Callable[[str], None]] = None
+    stop_requested: Callable[[], bool] = lambda: False  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
 
 
 def work_tuple(work: Work) -> tuple[int, int, int, bool, int, int]:
@@ -85,7 +95,7 @@ class Worker:
         assert self.popen is not None
         return self.popen.pid
 
-    def start(self) -> None:
+    def start(self, guard: Guard) -> None:
         samples.create(self.samples_path, self.nslots, self.capacity)
         log = open(self.log_path, "w")
         self.popen = subprocess.Popen(
@@ -95,6 +105,7 @@ class Worker:
             env={**os.environ, "RUNNER_PARENT_PID": str(os.getpid())},
         )
         log.close()
+        guard.watch(self.popen.pid)
         assert self.popen.stdin is not None
         self.popen.stdin.write(json.dumps(self.spec) + "\n")
         self.popen.stdin.flush()
@@ -181,8 +192,8 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
     return out
 
 
-def _wait_ready(workers: list[Worker], deadline: float) -> Optional[str]:
-    """Read each worker's ready line; return a reason on failure."""
+def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable[[], bool]) -> Optional[str]:
+    """Read each worker's ready line; return a reason on failure; raise Interrupted when asked to stop."""
     sel = selectors.DefaultSelector()
     pending = {}
     for w in workers:
@@ -191,6 +202,8 @@ def _wait_ready(workers: list[Worker], deadline: float) -> Optional[str]:
         pending[w.popen.stdout] = w
     try:
         while pending:
+            if stop_requested():
+                raise Interrupted(None)
             left = deadline - time.monotonic()
             if left <= 0:
                 return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
@@ -255,30 +268,40 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
                 emit(f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
 
 
-def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any) -> CellResult:
-    """Run one cell and return its result; raises Interrupted after recording what finished."""
-    run = _CellRun(cell, os.path.abspath(folder), start, options, watchdog)
+def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> CellResult:
+    """Run one cell and return its result; raises Interrupted after recording what finished.
+
+    An OSError creating the cell's files (a full disk, a folder that vanished) propagates
+    once every process the cell started is stopped; the caller decides what it means for the run.
+    """
+    run = _CellRun(cell, os.path.abspath(folder), start, options, watchdog, guard)
     try:
         run.start()
         if not run.reason:
             run.supervise()
-    except (KeyboardInterrupt, Interrupted):
+    except Interrupted:
         run.interrupted = True
+        run.exit_time = run.exit_time or time.monotonic_ns()
         for w in run.workers:
             w.signal(signal.SIGKILL)
+    except OSError:
+        run.remove_buffers()  # the cell could not start (a full disk): leave nothing behind
+        raise
     finally:
         run.stop()
     result = run.collect()
     if run.interrupted:
         raise Interrupted(result)
+    if run.write_error is not None:
+        raise CellWriteError(result, run.write_error)
     return result
 
 
 class _CellRun:
     """One cell's processes from start to collection: start, supervise, stop, collect, in that order."""
 
-    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any):
-        self.cell, self.folder, self.options, self.watchdog = cell, folder, options, watchdog
+    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard):
+        self.cell, self.folder, self.options, self.watchdog, self.guard = cell, folder, options, watchdog, guard
         self.scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
         os.makedirs(folder, exist_ok=True)
         self.began = time.monotonic()
@@ -300,14 +323,18 @@ class _CellRun:
         self.reason = ""
         self.interrupted = False
         self.exit_time: Optional[int] = None
+        self.t0: Optional[int] = None  # the common start instant, once the gate opened
+        self.t_end: Optional[int] = None
+        self.incidents: dict[str, str] = {}  # background load that died, processes that were stopped: by who
+        self.write_error: Optional[OSError] = None  # the cell's files could not be written (a full disk)
 
     def start(self) -> None:
         """Start every process; once all are ready, read back each thread's settings and start background commands."""
         everyone = self.workers + self.hogs
         for w in everyone:
-            w.start()
+            w.start(self.guard)
         self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
-        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S) or ""
+        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
         if self.reason:
             return
         every = kernel.online_cpus()
@@ -323,6 +350,7 @@ class _CellRun:
             try:
                 self.commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                                       start_new_session=True))
+                self.guard.watch(self.commands[-1].pid)
             except OSError as exc:
                 self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
             finally:
@@ -335,6 +363,7 @@ class _CellRun:
         now = time.monotonic_ns()
         t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
         t_end = t0 + options.duration_ns
+        self.t0, self.t_end = t0, t_end
         periods = [t.work.period for t in self.planned if isinstance(t.work, PeriodicWork)]
         grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
         self.watchdog.arm(t_end + grace + int(1e9), pids)
@@ -349,8 +378,11 @@ class _CellRun:
         total_expected = sum(options.duration_ns // t.work.period for t in self.planned if isinstance(t.work, PeriodicWork))
         while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
             time.sleep(0.05 if options.follow else 0.2)
+            if options.stop_requested():
+                raise Interrupted(None)
             if not self.table and time.monotonic() >= snapshot_at:
                 self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
+            self._watch_for_incidents(t0, t_end)
             if options.follow:
                 for w in workers:
                     _follow_lines(w, epoch_offset, options.follow)
@@ -363,6 +395,50 @@ class _CellRun:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
             _read_done(w)
+
+    def remove_buffers(self) -> None:
+        """Delete the cell's sample buffers (their contents are in the results by now, or never will be)."""
+        for w in self.workers + self.hogs:
+            try:
+                os.unlink(w.samples_path)
+            except OSError:
+                pass
+
+    def _releases_due(self, work: PeriodicWork) -> int:
+        """Releases on the thread's grid from the start to the end of the cell (or to the interrupt).
+
+        Every release not served by a callback is a missed one, including those after a worker
+        was stopped or killed: the count runs to the end of the cell, not to the last callback.
+        """
+        if self.t0 is None or self.t_end is None:
+            return 0
+        end = self.t_end if not self.interrupted else min(self.t_end, self.exit_time or time.monotonic_ns())
+        first = self.t0 + work.offset
+        return 0 if end <= first else (end - first + work.period - 1) // work.period
+
+    def _watch_for_incidents(self, t0: int, t_end: int) -> None:
+        """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
+        now = time.monotonic_ns()
+        if now >= t_end:
+            return
+        at = f"{max(0, now - t0) / 1e9:.1f}s into the cell"
+        for h in self.hogs:
+            assert h.popen is not None
+            code = h.popen.poll()
+            if code is not None and h.label not in self.incidents:
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
+        for n, c in enumerate(self.commands):
+            code = c.poll()
+            label = f"command {c.args[0] if isinstance(c.args, list) else c.args}[{n}]"
+            if code is not None and label not in self.incidents:
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
+        for w in self.workers + self.hogs:
+            assert w.popen is not None
+            if w.label not in self.incidents and kernel.process_state(w.pid) in ("T", "t"):
+                self.incidents[w.label] = (f"{w.label} (pid {w.pid}) was stopped (SIGSTOP or a debugger) {at}; "
+                                           "its threads could not run while it was")
 
     def stop(self) -> None:
         """Stop the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
@@ -378,8 +454,16 @@ class _CellRun:
             try:
                 proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
             except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
                 proc.wait()
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
+            except ProcessLookupError:
+                pass
+            self.guard.forget(proc.pid)
         self.watchdog.disarm()
         for w in self.workers:
             if w.poller:
@@ -400,6 +484,8 @@ class _CellRun:
                 reason = "; ".join(deaths)
             if watchdog.fired:
                 reason = (reason + "; " if reason else "") + "the cell overran its deadline and was killed by the watchdog"
+        if self.incidents:
+            reason = "; ".join([reason, *self.incidents.values()] if reason else self.incidents.values())
         slots_out: list[tuple[str, samples.SlotData]] = []
         verdict_targets: list[tuple[PlannedThread, Any]] = []
         for w in workers:
@@ -407,6 +493,8 @@ class _CellRun:
             errors = (w.ready or {}).get("errors", {})
             for t, slot in zip(w.planned, slots):
                 fig = figures(slot, is_periodic(t.work))
+                if isinstance(t.work, PeriodicWork):
+                    fig = replace(fig, missed=max(fig.missed, self._releases_due(t.work) - fig.callbacks))
                 if t.index == 0:
                     errs = dict(errors.get("main", {}))
                 else:
@@ -434,13 +522,14 @@ class _CellRun:
                     result.expectations.append(check(exp, label, fig))
 
         sample_file = os.path.join(folder, "samples.csv.gz")
-        write_samples(sample_file, slots_out)
-        for w in workers + hogs:
-            try:
-                os.unlink(w.samples_path)
-            except OSError:
-                pass
-        result.samples_file = sample_file
+        try:
+            write_samples(sample_file, slots_out)
+            result.samples_file = sample_file
+        except OSError as exc:
+            self.write_error = exc
+            reason = (reason + "; " if reason else "") + (
+                f"the samples could not be written to {sample_file}: {exc.strerror or exc}; the figures above are complete")
+        self.remove_buffers()
         result.thread_table = table
         result.background = [{"kind": "hog", "name": h.spec["comm"], "pid": h.pid if h.popen else None} for h in hogs] + [
             {"kind": "command", "argv": c.args, "pid": c.pid} for c in commands
@@ -457,6 +546,8 @@ class _CellRun:
             reason = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
         if reason:
             statuses.append(Status.ERROR if not interrupted else Status.INTERRUPTED)
+        if self.incidents:
+            statuses.append(Status.ERROR)
         if any(not v.passed for v in result.expectations):
             statuses.append(Status.FAILED)
         if any(t.degraded for t in result.threads):

@@ -1,0 +1,168 @@
+"""The runner's edge with the shell and the file system: one line and a documented exit code for anything a user can do.
+
+These need no RT rights and spawn no scenario: the CLI is called in-process, with
+paths that cannot be written, folders already in use, and a handler that fails
+like a bug would.  The exit codes are written out as numbers, as README documents
+them, not taken from the code under test.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import SCENARIOS, run_cli
+from runner import cli, guard, outdir
+from runner.errors import UsageError
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
+POLICY = os.path.join(DATA, "policy_matrix")
+
+
+def test_a_bug_prints_one_line_saves_the_traceback_and_exits_70(tmp_path, monkeypatch, capsys):
+    def broken(argv: list[str]) -> int:
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setenv("RUNNER_CRASH_DIR", str(tmp_path))
+    code = cli._guarded(broken, [])
+    err = capsys.readouterr().err
+    assert code == 70
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert "internal error (a bug in the runner" in err and "ZeroDivisionError" in err
+    saved = list(tmp_path.glob("runner-bug-*.txt"))
+    assert len(saved) == 1 and str(saved[0]) in err
+    assert "Traceback (most recent call last)" in saved[0].read_text() and "def broken" not in err
+
+
+def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):
+    def unwritable(argv: list[str]) -> int:
+        raise PermissionError(13, "Permission denied", "/somewhere/results.json")
+
+    code = cli._guarded(unwritable, [])
+    err = capsys.readouterr().err
+    assert code == 4 and err.count("\n") == 1
+    assert "/somewhere/results.json: Permission denied" in err
+
+
+@pytest.mark.parametrize("out", ["/proc/nope", "/proc/version", "/dev/null/x"])
+def test_an_output_folder_that_cannot_be_made_is_invalid_input(out):
+    done = run_cli(os.path.join(SCENARIOS, "fifo80.yaml"), "--out", out, "--duration", "1s")
+    assert done.code == 2, done.err
+    assert "Traceback" not in done.err and out in done.err and len(done.err.strip().splitlines()) == 1
+
+
+def test_report_to_an_unwritable_file_is_invalid_input(tmp_path):
+    done = run_cli("report", POLICY, "-o", "/proc/nope/report.md", "--no-plots")
+    assert done.code == 2 and "/proc/nope" in done.err and "Traceback" not in done.err
+
+
+def test_compare_to_an_unwritable_file_is_invalid_input():
+    done = run_cli("compare", POLICY, POLICY, "-o", "/proc/nope.md")
+    assert done.code == 2 and "/proc/nope.md" in done.err and "Traceback" not in done.err
+
+
+def test_an_unwritable_step_summary_is_a_warning_not_a_crash(monkeypatch):
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", "/proc/nope/summary.md")
+    done = run_cli("compare", POLICY, POLICY)
+    assert done.code == 0, done.err
+    assert "warning: cannot append to GITHUB_STEP_SUMMARY /proc/nope/summary.md" in done.err
+
+
+def test_merge_into_a_folder_holding_results_is_refused(tmp_path):
+    target = tmp_path / "merged"
+    target.mkdir()
+    (target / "results.json").write_text("{}")
+    done = run_cli("merge", POLICY, "--out", str(target), "--no-plots")
+    assert done.code == 2 and "already holds the results of another run" in done.err
+    assert (target / "results.json").read_text() == "{}"
+
+
+def test_a_folder_is_held_by_one_claim_at_a_time(tmp_path):
+    first = outdir.claim(str(tmp_path / "out"))
+    with pytest.raises(UsageError, match="in use by another runner"):
+        outdir.claim(str(tmp_path / "out"))
+    first.release()
+    outdir.claim(str(tmp_path / "out")).release()
+
+
+def test_the_claim_is_the_kernels_lock_so_another_process_sees_it(tmp_path):
+    held = outdir.claim(str(tmp_path))
+    probe = subprocess.run([sys.executable, "-c", "import sys; from runner import outdir; outdir.claim(sys.argv[1])", str(tmp_path)],
+                           capture_output=True, text=True)
+    held.release()
+    assert probe.returncode != 0 and "in use by another runner" in probe.stderr
+
+
+def test_a_folder_with_results_is_refused_unless_resumed(tmp_path):
+    (tmp_path / "results.json").write_text("{}")
+    with pytest.raises(UsageError, match="already holds the results"):
+        outdir.claim(str(tmp_path))
+    outdir.claim(str(tmp_path), resume=True).release()
+
+
+def test_a_file_where_the_folder_should_be_is_refused(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(UsageError, match="a file stands where a folder is expected|Not a directory"):
+        outdir.claim(str(tmp_path / "f"))
+    with pytest.raises(UsageError):
+        outdir.claim(str(tmp_path / "f" / "sub"))
+
+
+def test_guard_keeps_the_groups_not_forgotten():
+    lines = io.StringIO("+100\n+200\n-100\n+300\nnonsense\n+\n-x\n+400\n-400\n")
+    assert guard.serve(lines) == {200, 300}
+
+
+def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path):
+    """The owner (a shell standing in for the runner) dies by SIGKILL; the group it started dies with it."""
+    script = (
+        "import subprocess, sys, time\n"
+        "from runner.guard import Guard\n"
+        "g = Guard()\n"
+        "p = subprocess.Popen(['sh', '-c', 'sleep 60 & sleep 60'], start_new_session=True)\n"
+        "g.watch(p.pid)\n"
+        "print(p.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    assert owner.stdout is not None
+    pgid = int(owner.stdout.readline())
+    time.sleep(0.3)
+    assert _group_members(pgid), "the watched group should be running"
+    owner.kill()
+    owner.wait()
+    until = time.monotonic() + 5
+    while _group_members(pgid) and time.monotonic() < until:
+        time.sleep(0.05)
+    assert not _group_members(pgid), "the guard should have killed the group of its dead owner"
+
+
+def _group_members(pgid: int) -> list[int]:
+    """Live (not zombie) processes in process group `pgid`, from /proc."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as handle:
+                    fields = handle.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == pgid and fields[0] not in ("Z", "X"):
+                out.append(int(entry))
+    return out
+
+
+def test_a_hog_at_priority_99_obeys_the_threads_rule(write_scenario, tmp_path):
+    path = write_scenario(
+        "name: hog99\nduration: 1s\nprocesses:\n  - name: p\n    main: {work: {kind: periodic, period: 100ms}}\n"
+        "background:\n  hogs:\n    - {count: 1, sched: 'fifo:99'}\n"
+    )
+    done = run_cli(path, "--out", str(tmp_path / "r"))
+    assert done.code == 2, done.err
+    assert "background hog hog asks for RT priority 99" in done.err and "--allow-priority-99" in done.err
+    assert not (tmp_path / "r").exists()

@@ -1,0 +1,180 @@
+"""Nothing lost, nothing mixed up, nothing left behind: the runner against hostile timing and a hostile machine.
+
+Each test runs a real scenario for a second or three and does to it what users and
+machines do: a second run into the same folder, SIGKILL of the runner, Ctrl-C twice,
+a worker stopped with SIGSTOP, a background hog killed, a disk that fills up.  What
+is checked comes from the kernel (/proc: which processes are still alive) and from
+the files left behind, never from the runner's own account of itself.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import SCENARIOS
+from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
+from runner.kernel import find_pids
+
+pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+
+FIFO80 = os.path.join(SCENARIOS, "fifo80.yaml")
+
+
+def _scenario(path, name: str, period: str = "100ms", burn: str = "10ms", extra: str = "", duration: str = "3s") -> str:
+    path.write_text(
+        f"name: {name}\nduration: {duration}\nprocesses:\n  - name: {name}\n    main:\n      sched: fifo:80\n"
+        f"      work: {{kind: periodic, period: {period}, burn: {burn}}}\n{extra}"
+    )
+    return str(path)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:
+        return False
+
+
+def test_a_second_run_into_the_same_folder_is_refused_and_the_first_is_untouched(tmp_path):
+    out = str(tmp_path / "r")
+    first = start_runner(FIFO80, "--duration", "2s", "--out", out, "--quiet", cwd=str(tmp_path))
+    wait_for_threads("minimal_schedul", 10)
+    second = start_runner(FIFO80, "--duration", "2s", "--out", out, "--quiet", cwd=str(tmp_path))
+    late = finish(second, out)
+    done = finish(first, out)
+    assert late.code == 2, late.err
+    assert "in use by another runner" in late.err and "Traceback" not in late.err
+    assert done.code == 0, done.err
+    cell = done.results["cells"][0]
+    assert cell["status"] == "passed" and len(done.results["cells"]) == 1
+    main = thread(done.results, "minimal_schedul", index=0)
+    assert main["callbacks"] >= 15 and main["pid"] in {t["pid"] for t in cell["threads"]}
+
+
+def test_background_commands_and_their_children_die_with_a_sigkilled_runner(tmp_path):
+    marker = f"runner-safety-{os.getpid()}"
+    forks = "import os, time; os.fork(); time.sleep(60)"  # the command leaves a child in its process group
+    extra = f"background:\n  commands:\n    - argv: [{sys.executable}, -c, '{forks}', {marker}]\n"
+    path = _scenario(tmp_path / "s.yaml", "cmdkill", extra=extra, duration="20s")
+    proc = start_runner(path, "--out", str(tmp_path / "r"), "--quiet", cwd=str(tmp_path))
+    wait_for_threads("cmdkill", 1)
+    time.sleep(0.5)
+    sleepers = _pids_with_cmdline(marker)
+    assert len(sleepers) == 2, "the command and the child it left in its group should be running"
+    proc.kill()
+    proc.wait()
+    until = time.monotonic() + 5
+    while (_pids_with_cmdline(marker) or find_pids("cmdkill")) and time.monotonic() < until:
+        time.sleep(0.05)
+    assert not _pids_with_cmdline(marker), "a background command outlived the SIGKILLed runner"
+    assert not find_pids("cmdkill") and not any(_alive(p) for p in sleepers)
+
+
+def _pids_with_cmdline(marker: str) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/cmdline", "rb") as handle:
+                    if marker.encode() in handle.read().split(b"\0") and _alive(int(entry)):
+                        out.append(int(entry))
+            except OSError:
+                continue
+    return out
+
+
+@pytest.mark.parametrize("gap", [0.05, 0.3])
+def test_a_second_signal_while_stopping_still_writes_results_and_report(tmp_path, gap):
+    out = str(tmp_path / "r")
+    proc = start_runner(FIFO80, "--duration", "4s", "--out", out, "--quiet", cwd=str(tmp_path))
+    wait_for_threads("minimal_schedul", 10)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    time.sleep(gap)
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    done = finish(proc, out)
+    assert done.code == 130, (done.code, done.err)
+    assert "Traceback" not in done.err
+    assert done.results["status"] == "interrupted"
+    assert [c["status"] for c in done.results["cells"]] == ["interrupted"]
+    assert os.path.exists(os.path.join(out, "report.md"))
+    assert not find_pids("minimal_schedul") and not find_pids("hog")
+
+
+def test_a_stopped_worker_is_an_error_with_its_missed_releases_counted(tmp_path):
+    out = str(tmp_path / "r")
+    proc = start_runner(FIFO80, "--duration", "3s", "--out", out, "--quiet", cwd=str(tmp_path))
+    pid = wait_for_threads("minimal_schedul", 10)
+    time.sleep(0.7)
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(1.5)
+    os.kill(pid, signal.SIGCONT)
+    done = finish(proc, out)
+    assert done.code == 4, done.err
+    cell = done.results["cells"][0]
+    assert cell["status"] == "error" and "was stopped (SIGSTOP or a debugger)" in cell["reason"], cell["reason"]
+    main = thread(done.results, "minimal_schedul", index=0)
+    # 30 releases of 100 ms in 3 s; about 15 fell in the 1.5 s stop: far more than the jitter of a free run
+    assert main["missed_releases"] >= 8 and main["callbacks"] + main["missed_releases"] >= 29, main
+
+
+def test_a_hog_killed_mid_cell_is_an_error(tmp_path):
+    out = str(tmp_path / "r")
+    proc = start_runner(FIFO80, "--duration", "3s", "--out", out, "--quiet", cwd=str(tmp_path))
+    wait_for_threads("minimal_schedul", 10)
+    time.sleep(1.0)
+    hogs = find_pids("hog")
+    assert hogs
+    os.kill(hogs[0], signal.SIGKILL)
+    done = finish(proc, out)
+    assert done.code == 4, done.err
+    cell = done.results["cells"][0]
+    assert cell["status"] == "error" and "killed by SIGKILL" in cell["reason"] and "background hog" in cell["reason"]
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MiB tmpfs: room for a run's results, not for a large sample buffer."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)], capture_output=True, text=True)
+    if done.returncode != 0:
+        if os.environ.get("CI"):
+            pytest.fail(f"cannot mount a tmpfs for the full-disk test: {done.stderr.strip()}")
+        pytest.skip(f"cannot mount a tmpfs: {done.stderr.strip()}")
+    yield mount
+    subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_path, small_disk):
+    # cell 1: 10 callbacks of 100 ms, a buffer of a few KiB; cell 2: a 50 us period for 2 s, a buffer of 2.2 MB
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(
+        "name: fulldisk\nduration: 1s\nmatrix:\n  period: [100ms, 50us]\nprocesses:\n  - name: fulldisk\n    main:\n"
+        "      sched: fifo:80\n      work: {kind: periodic, period: '${{ matrix.period }}'}\n"
+    )
+    out = small_disk / "r"
+    proc = start_runner(str(scenario), "--duration", "2s", "--settle", "0", "--out", str(out), "--quiet", cwd=str(tmp_path))
+    done = finish(proc, str(out))
+    assert done.code == 4, (done.code, done.err)
+    assert "Traceback" not in done.err and "No space left on device" in done.err
+    cells = done.results["cells"]
+    assert cells[0]["status"] == "passed" and thread(done.results, "fulldisk")["callbacks"] >= 15
+    assert len(cells) == 2 and cells[1]["status"] == "error" and "No space left on device" in cells[1]["reason"]
+    assert done.results["status"] == "error"
+    leftovers = [os.path.join(d, f) for d, _, files in os.walk(out) for f in files
+                 if f.startswith(".results-") or f.endswith((".tmp", ".smp"))]
+    assert not leftovers
+    assert not find_pids("fulldisk")
+    with open(out / "results.json") as handle:
+        json.load(handle)  # complete JSON, not a torn write
