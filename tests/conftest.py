@@ -1,4 +1,4 @@
-"""Shared helpers: the repository layout and an in-process CLI call."""
+"""Shared helpers: the repository layout and an in-process CLI call; CI's rule for the kernel tests."""
 
 from __future__ import annotations
 
@@ -11,6 +11,24 @@ import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENARIOS = os.path.join(REPO, "scenarios")
+
+
+def _in_ci() -> bool:
+    return os.environ.get("CI", "") not in ("", "0", "false")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """In CI the kernel tests must run: a machine without RT rights fails the run instead of skipping 50 tests.
+
+    A CI machine that really has no RT rights says so with RUNNER_TESTS_NO_RT=1; the kernel tests
+    are then skipped, and the summary says why.
+    """
+    from kernelrun import can_use_rt
+
+    if _in_ci() and not can_use_rt() and os.environ.get("RUNNER_TESTS_NO_RT", "") in ("", "0"):
+        raise pytest.UsageError("CI is set but this machine cannot use SCHED_FIFO (no CAP_SYS_NICE, RLIMIT_RTPRIO 0), so the "
+                                "kernel tests would be skipped; run CI as root or with CAP_SYS_NICE, or set "
+                                "RUNNER_TESTS_NO_RT=1 to run without them on purpose")
 
 
 @dataclass
