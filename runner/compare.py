@@ -9,6 +9,7 @@ not comparable: the comparison is refused, naming each differing setting.
 
 from __future__ import annotations
 
+import math
 import statistics
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Optional
@@ -16,7 +17,7 @@ from typing import Any, Callable, Iterable, Optional
 from . import units
 from .errors import Problem, ScenarioError, UsageError, did_you_mean
 from .fmt import fmt_figure
-from .results import CellResult, RunDocument, Status, ThreadResult
+from .results import CellResult, RunDocument, Status, ThreadResult, show_value
 
 
 @dataclass(frozen=True)
@@ -152,6 +153,14 @@ class Comparison:
     figures: list[FigureChange] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
+    def compared(self) -> list[str]:
+        """Cells present in both runs, which are the ones actually compared."""
+        return [c.cell for c in self.cells if c.verdict in (Verdict.SAME, Verdict.REGRESSION)]
+
+    def unmatched(self, verdict: str) -> list[str]:
+        """Cells only in the baseline (`Verdict.MISSING`) or only in this run (`Verdict.NEW`)."""
+        return [c.cell for c in self.cells if c.verdict == verdict]
+
     @property
     def regressions(self) -> int:
         return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(
@@ -170,20 +179,15 @@ def spec_differences(base: Any, new: Any, path: str = "") -> list[str]:
         for key in list(base) + [k for k in new if k not in base]:
             sub = f"{path}.{key}" if path else str(key)
             if key not in new:
-                out.append(f"{sub}: {_show(base[key])} in the baseline, absent now")
+                out.append(f"{sub}: {show_value(base[key])} in the baseline, absent now")
             elif key not in base:
-                out.append(f"{sub}: absent in the baseline, {_show(new[key])} now")
+                out.append(f"{sub}: absent in the baseline, {show_value(new[key])} now")
             else:
                 out.extend(spec_differences(base[key], new[key], sub))
         return out
     if isinstance(base, list) and isinstance(new, list) and len(base) == len(new):
         return [d for i, (a, b) in enumerate(zip(base, new)) for d in spec_differences(a, b, f"{path}[{i}]")]
-    return [] if base == new else [f"{path}: {_show(base)} in the baseline, {_show(new)} now"]
-
-
-def _show(value: Any) -> str:
-    text = repr(value) if not isinstance(value, (dict, list)) else f"{type(value).__name__} of {len(value)}"
-    return text if len(text) <= 60 else text[:57] + "..."
+    return [] if base == new else [f"{path}: {show_value(base)} in the baseline, {show_value(new)} now"]
 
 
 def _groups(doc: RunDocument) -> dict[str, list[CellResult]]:
@@ -209,8 +213,16 @@ def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_na
         raise ScenarioError(problems)
 
 
+def _ids(groups: dict[str, list[CellResult]]) -> str:
+    if not groups:
+        return "no cells"
+    shown = ", ".join(list(groups)[:3]) + (f" and {len(groups) - 3} more" if len(groups) > 3 else "")
+    return f"{len(groups)} cell{'s' if len(groups) != 1 else ''}: {shown}"
+
+
 def _median(values: list[Optional[float]]) -> Optional[float]:
-    present = [v for v in values if v is not None]
+    """The median of the figures there are; NaN or infinity is no figure (never "within threshold")."""
+    present = [v for v in values if v is not None and math.isfinite(v)]
     return statistics.median(present) if present else None
 
 
@@ -223,6 +235,9 @@ def compare(base: RunDocument, new: RunDocument, thresholds: Optional[list[Thres
     check_comparable(base, new, base_name, new_name)
     out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
     b, n = _groups(base), _groups(new)
+    if not any(cell_id in b for cell_id in n):
+        raise ScenarioError([Problem(new_name, 1, 1, "cells", f"no cell in common with the baseline {base_name} "
+                                     f"({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario")])
     if base.machine.get("hostname") != new.machine.get("hostname") or base.machine.get("kernel") != new.machine.get("kernel"):
         out.notes.append(f"The baseline ran on {base.machine.get('hostname', '?')} (kernel {base.machine.get('kernel', '?')}), "
                          f"this run on {new.machine.get('hostname', '?')} (kernel {new.machine.get('kernel', '?')}).")

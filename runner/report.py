@@ -527,10 +527,15 @@ def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Compar
 
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
     regressed = cmp.regressed_cells()
-    total = len({c.cell for c in cmp.cells})
+    total = len(cmp.compared())
     headline = (f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
                 f"cell{'s' if total != 1 else ''}: {', '.join(regressed)}" if regressed
                 else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline.")
+    gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
+    if gone:
+        headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(gone)}."
+    if new_cells:
+        headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {', '.join(new_cells)}."
     facts = Table(["", "Baseline", "This run"], [
         ["Results", f"`{base_name}`", f"`{new_name}`"],
         ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],

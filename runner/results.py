@@ -9,16 +9,21 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import enum
 import gzip
 import hashlib
 import io
 import json
+import math
 import os
 import re
 import tempfile
+import zlib
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Optional
+from typing import Annotated, Any, Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, StrictStr, field_validator
 
 from . import units
 from .errors import Problem, ScenarioError
@@ -240,6 +245,7 @@ class RunDocument:
     shard: Optional[str] = None  # "K/N" when this run is one part of a sharded matrix
     merged_from: list[str] = field(default_factory=list)
     folder: str = ""  # where the file was read from (not stored): samples paths are relative to it
+    source: str = ""  # the results file it was read from (not stored), to say where a problem is
 
     @property
     def name(self) -> str:
@@ -279,16 +285,42 @@ class RunDocument:
         )
 
     def save(self, path: str) -> None:
-        write_atomic(path, json.dumps(self.to_json(), indent=2))
+        """Write the document to `path` atomically; a figure that is not a number is stored as null."""
+        write_atomic(path, json.dumps(without_nan(self.to_json()), indent=2, allow_nan=False))
 
     def samples_path(self, cell: CellResult) -> Optional[str]:
+        """The cell's samples file, refused (ScenarioError) unless it lies inside the results folder.
+
+        A results file names its samples relative to its folder; one that names `/etc/passwd`,
+        `../../x` or a symlink out of the folder is not followed by any reader.
+        """
         if not cell.samples_file:
             return None
-        return os.path.join(self.folder, cell.samples_file)
+        path = os.path.join(self.folder, cell.samples_file)
+        why = samples_path_problem(cell.samples_file, self.folder)
+        if not why:
+            root = os.path.realpath(self.folder)
+            if os.path.commonpath([os.path.realpath(path), root]) != root:
+                why = f"{cell.samples_file!r} leads out of the results folder through a symlink; expected a path inside {self.folder}"
+        if why:
+            where = self.source or os.path.join(self.folder, "results.json")
+            raise ScenarioError([Problem(where, 1, 1, f"cells.{cell.id}.samples_file", why)])
+        return path
 
 
 SLUG_MAX = 120  # characters of the readable part; a file name stays well under NAME_MAX (255 bytes)
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.=,+-]")
+
+
+def without_nan(data: Any) -> Any:
+    """`data` with every NaN or infinite float replaced by None: NaN is never a figure, in no file."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: without_nan(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [without_nan(v) for v in data]
+    return data
 
 
 def slug(exact: str) -> str:
@@ -385,26 +417,319 @@ def write_samples(path: str, slots: list[tuple[str, SlotData]]) -> None:
     write_atomic(path, gzip.compress(buf.getvalue().encode("utf-8"), compresslevel=6))
 
 
-def load(path: str) -> RunDocument:
-    """Read a results document, refusing files that are not `runner.results/1`.
+# ---------------------------------------------------------------- the stored shape
+#
+# `ResultsFile` is the shape of a `runner.results/1` file as pydantic models: what `load` checks
+# before building the dataclasses above, so the report, comparison and merge can trust every
+# type.  Only what the readers use is typed; other keys (older or newer writers) pass through.
 
-    `path` may name the results file or the folder holding it.
+Int = Annotated[StrictInt, Field(ge=-(2**63), le=2**63 - 1)]
+Count = Annotated[StrictInt, Field(ge=0, le=2**63 - 1)]
+Number = Annotated[StrictFloat, Field(ge=-1e18, le=1e18, allow_inf_nan=False)]  # takes ints too, never bools
+Text = StrictStr
+Cpus = Annotated[Union[StrictStr, list[Count]], Field(union_mode="left_to_right")]
+
+
+class _Open(BaseModel):
+    """A stored record: known keys typed, unknown keys kept (other writers' additions)."""
+
+    model_config = ConfigDict(extra="allow")  # the Strict* types keep 1 from passing as "1" or True
+
+
+class SettingsModel(_Open):
+    policy: Policy
+    priority: Int
+    nice: Int
+    cpus: Optional[Cpus] = None
+
+    @field_validator("cpus")
+    @classmethod
+    def _cpus(cls, value: Any) -> Any:
+        if value not in (None, "all"):
+            try:
+                units.parse_cpus(value)
+            except units.UnitError as exc:
+                raise ValueError(str(exc)) from None
+        return value
+
+
+class InvoluntaryModel(_Open):
+    total: Count
+    per_callback_mean: Optional[Number]
+    per_callback_max: Optional[Count]
+    callbacks_with_any: Optional[Count]
+
+
+class FaultsModel(_Open):
+    minor: Count
+    major: Count
+    minor_first_callback: Optional[Count]
+    minor_after_first: Optional[Count]
+    minor_per_callback_max: Optional[Count]
+
+
+class VoluntaryModel(_Open):
+    total: Count
+
+
+class ThreadModel(_Open):
+    process: Text
+    instance: Count
+    index: Count
+    name: Text
+    pid: Int
+    tid: Int
+    work: Text
+    periodic: StrictBool
+    requested: SettingsModel
+    applied: Optional[SettingsModel]
+    degraded: list[Text]
+    complete: StrictBool
+    callbacks: Count
+    missed_releases: Count
+    involuntary: InvoluntaryModel
+    voluntary: VoluntaryModel
+    latency_us: Optional[dict[str, Optional[Number]]]
+    callback_wall_us: Optional[dict[str, Optional[Number]]]
+    faults: FaultsModel
+    cpus_seen: list[Annotated[StrictInt, Field(ge=0, lt=8192)]]
+
+
+class VerdictModel(_Open):
+    thread: Text
+    metric: Metric
+    limit: Text
+    measured: Optional[Number]
+    passed: StrictBool
+    note: Text = ""
+
+
+class ThreadRowModel(_Open):
+    pid: Int
+    tid: Int
+    comm: Text
+    cls: Text
+    rtprio: Int
+    nice: Int
+    psr: Int
+    cpus: Optional[Cpus] = None
+
+
+class BackgroundModel(_Open):
+    kind: Optional[Text] = None
+    argv: list[Text] = []
+
+
+class ThrottlingModel(_Open):
+    runtime_us: Optional[Number] = None
+    period_us: Optional[Number] = None
+
+
+class MachineModel(_Open):
+    rt_throttling: Optional[ThrottlingModel] = None
+    cpufreq_governors: Optional[list[Text]] = None
+    memory_total_bytes: Optional[Int] = None
+
+
+class PermissionsModel(_Open):
+    rlimit_memlock: Optional[Int] = None
+    missing: Optional[list[Text]] = None
+
+
+class CellModel(_Open):
+    id: Text
+    matrix: dict[str, Any]
+    spec_hash: Text
+    status: Status
+    spec: Optional[dict[str, Any]] = None
+    reason: Text = ""
+    started_at: Text = ""
+    duration_s: Number = 0.0
+    machine: Optional[MachineModel] = None
+    thread_table: list[ThreadRowModel] = []
+    threads: list[ThreadModel] = []
+    expectations: list[VerdictModel] = []
+    background: list[BackgroundModel] = []
+    overhead_s: Optional[dict[str, Optional[Number]]] = None
+    samples_file: Optional[Text] = None
+    repeat: Annotated[StrictInt, Field(ge=0, le=1_000_000)] = 0
+
+
+
+class ToolModel(_Open):
+    version: Text = "?"
+
+
+class ScenarioInfoModel(_Open):
+    name: Text = "scenario"
+
+
+class ResultsFile(_Open):
+    """A whole `runner.results/1` file."""
+
+    schema_: Literal["runner.results/1"] = Field(alias="schema")
+    tool: ToolModel = ToolModel()
+    scenario: ScenarioInfoModel
+    command: list[Text] = []
+    started_at: Text = ""
+    finished_at: Optional[Text] = None
+    status: Text = "running"
+    machine: Optional[MachineModel] = None
+    permissions: Optional[PermissionsModel] = None
+    start_settings: Optional[dict[str, Any]] = None
+    cells: list[CellModel] = []
+    cell_ids: Optional[list[Text]] = None
+    matrix_cells: Optional[list[Text]] = None
+    plan: Optional[dict[str, Any]] = None
+    shard: Optional[Text] = None
+    merged_from: Optional[list[Text]] = None
+
+
+def samples_path_problem(relative: Optional[str], folder: str) -> str:
+    """Why a stored samples path may not be followed ("" when it may): it must stay in `folder`.
+
+    Pure (no file access): absolute paths and `..` that climbs out are refused here; a symlink
+    that leads out is caught when the file is about to be opened (`RunDocument.samples_path`).
+    """
+    if not relative:
+        return ""
+    expected = f"expected a path inside {folder or os.curdir}"
+    if "\x00" in relative:
+        return f"contains a NUL character; {expected}"
+    if os.path.isabs(relative):
+        return f"{relative!r} is an absolute path; {expected}"
+    if os.path.normpath(relative).split(os.sep)[0] == os.pardir:
+        return f"{relative!r} leaves the results folder; {expected}"
+    return ""
+
+
+MAX_DEPTH = 64  # JSON nesting a results file never needs; deeper is refused before anything recurses into it
+MAX_PROBLEMS = 20
+
+
+def load(path: str) -> RunDocument:
+    """Read a results document, refusing anything that is not a well-formed `runner.results/1` file.
+
+    `path` may name the results file or the folder holding it.  Every refusal is a ScenarioError
+    of `file:line:col: key.path: message` lines: not JSON, NaN or Infinity (never a figure), numbers
+    out of range, the wrong shape or types (checked against `ResultsFile`), samples paths that
+    leave the results folder.  What loads can be trusted by the report, comparison and merge.
     """
     path = results_file(path)
     try:
-        with open(path, encoding="utf-8") as handle:
-            data = json.load(handle)
+        with open(path, "rb") as handle:
+            raw = handle.read()
     except OSError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read results: {exc.strerror}")]) from None
-    except json.JSONDecodeError as exc:
-        raise ScenarioError([Problem(path, exc.lineno, exc.colno, "", f"not valid JSON: {exc.msg}")]) from None
+    data = parse_json(path, raw)
     schema = data.get("schema") if isinstance(data, dict) else None
     if schema != SCHEMA:
-        raise ScenarioError([Problem(path, 1, 1, "schema", f"expected a {SCHEMA} results file, got {schema!r}")])
+        raise ScenarioError([Problem(path, 1, 1, "schema", f"expected a {SCHEMA} results file, got {show_value(schema)}")])
+    problems = shape_problems(path, data)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not problems:
+        problems = [Problem(path, 1, 1, f"cells.{c['id']}.samples_file", why) for c in data.get("cells", [])
+                    if (why := samples_path_problem(c.get("samples_file"), folder))]
+    if problems:
+        raise ScenarioError(problems)
+    doc = RunDocument.from_json(data, folder)
+    doc.source = path
+    return doc
+
+
+def parse_json(path: str, raw: bytes) -> Any:
+    """Strict JSON: UTF-8, no NaN/Infinity, numbers a float can hold, nesting at most MAX_DEPTH."""
+    def where(exc: json.JSONDecodeError) -> Problem:
+        return Problem(path, exc.lineno, exc.colno, "", f"not valid JSON: {exc.msg}")
+
     try:
-        return RunDocument.from_json(data, os.path.dirname(os.path.abspath(path)))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ScenarioError([Problem(path, 1, 1, "", f"malformed results file: {type(exc).__name__} {exc}")]) from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ScenarioError([Problem(path, line, 1, "", "not UTF-8 text; expected a runner results.json")]) from None
+    try:
+        data = json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
+    except json.JSONDecodeError as exc:
+        raise ScenarioError([where(exc)]) from None
+    except _NotANumber as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", str(exc))]) from None
+    except (ValueError, RecursionError) as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"not a usable number or structure: {exc}")]) from None
+    if _depth(data) > MAX_DEPTH:
+        raise ScenarioError([Problem(path, 1, 1, "", f"nested more than {MAX_DEPTH} levels deep; not a results file")])
+    return data
+
+
+class _NotANumber(ValueError):
+    """A JSON number runner never writes: NaN, Infinity, or one beyond what a float holds."""
+
+
+def _refuse_constant(name: str) -> Any:
+    raise _NotANumber(f"{name} is not a number; a figure is a number or null")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _NotANumber(f"{text} is out of range for a number")
+    return value
+
+
+def _depth(data: Any) -> int:
+    """How deeply `data` nests (iteratively: a hostile file must not exhaust the stack)."""
+    deepest, stack = 0, [(data, 1)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level)
+            if level <= MAX_DEPTH:
+                stack.extend((v, level + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def shape_problems(path: str, data: Any) -> list[Problem]:
+    """Where `data` differs from the `runner.results/1` shape (`ResultsFile`), as problems in `path`."""
+    from pydantic import ValidationError
+
+    try:
+        ResultsFile.model_validate(data)
+    except ValidationError as exc:
+        problems = sorted({Problem(path, 1, 1, _key_path(err["loc"]), _message(err)) for err in exc.errors()})
+        if len(problems) > MAX_PROBLEMS:
+            last, more = problems[MAX_PROBLEMS - 1], len(problems) - MAX_PROBLEMS
+            problems[MAX_PROBLEMS - 1] = dataclasses.replace(last, message=f"{last.message} (and {more} more problems)")
+            del problems[MAX_PROBLEMS:]
+        return problems
+    return []
+
+
+_TYPE_TAG = re.compile(r"(str|int|float|bool|list|dict)(\[.*\])?|function-.*|constrained-.*")
+
+
+def _key_path(loc: tuple[Any, ...]) -> str:
+    """pydantic's error location as a key path (`cells[0].threads[1].callbacks`), without its union tags."""
+    out = ""
+    for part in loc:
+        if isinstance(part, str) and _TYPE_TAG.fullmatch(part):
+            continue
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _message(err: Any) -> str:
+    msg = str(err.get("msg", "invalid"))
+    msg = msg[0].lower() + msg[1:] if msg else "invalid"
+    msg = msg.removeprefix("value error, ")
+    return msg if err.get("type") == "missing" else f"{msg}; got {show_value(err.get('input'))}"
+
+
+def show_value(value: Any) -> str:
+    """A value as a message quotes it: repr, or `dict of 3`, cut to 60 characters."""
+    text = repr(value) if not isinstance(value, (dict, list)) else f"{type(value).__name__} of {len(value)}"
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 @dataclass(frozen=True)
@@ -419,17 +744,48 @@ class SampleRow:
 
 
 def read_samples(path: str) -> dict[str, list[SampleRow]]:
-    """Per-callback samples of a cell by thread key; empty when the file is missing or unreadable."""
+    """Per-callback samples of a cell by thread key; empty when the file does not exist.
+
+    A file that is there but unusable (not gzip, cut short, rows that are not numbers) is a
+    ScenarioError naming the file and the line, not a traceback and not a silently empty plot.
+    """
     out: dict[str, list[SampleRow]] = {}
+    line = 1
     try:
-        with gzip.open(path, "rt", encoding="utf-8") as handle:
-            for row in _rows(handle):
-                out.setdefault(row[0], []).append(row[1])
-    except (OSError, EOFError, ValueError, KeyError):
+        with gzip.open(path, "rt", encoding="utf-8", newline="") as handle:
+            reader = csv.DictReader(handle)
+            for record in reader:
+                line = reader.line_num
+                key, row = _sample_row(record)
+                out.setdefault(key, []).append(row)
+    except FileNotFoundError:
         return out
+    except (OSError, EOFError, zlib.error) as exc:
+        raise ScenarioError([Problem(path, line, 1, "", f"cannot read samples: {exc}; expected a gzip'd CSV "
+                                     "as runner writes it")]) from None
+    except (ValueError, csv.Error) as exc:
+        raise ScenarioError([Problem(path, line, 1, "", f"not a samples row: {exc}")]) from None
     return out
 
 
-def _rows(handle: Any) -> Iterator[tuple[str, SampleRow]]:
-    for r in csv.DictReader(handle):
-        yield r["thread"], SampleRow(int(r["seq"]), int(r["latency_ns"]), int(r["nivcsw"]), int(r["minflt"]), int(r["cpu_end"]))
+_INT64 = 2**63
+
+
+def _sample_row(record: dict[Any, Any]) -> tuple[str, SampleRow]:
+    """One CSV record as (thread key, SampleRow); ValueError saying which column is wrong."""
+    def number(column: str) -> int:
+        text = record.get(column)
+        if text is None:
+            raise ValueError(f"column {column} is missing; expected {', '.join(SAMPLE_COLUMNS)}")
+        try:
+            value = int(text)
+        except ValueError:
+            raise ValueError(f"{column} is {show_value(text)}; expected an integer") from None
+        if not -_INT64 <= value < _INT64:
+            raise ValueError(f"{column} is out of range; expected a 64-bit integer")
+        return value
+
+    key = record.get("thread")
+    if not isinstance(key, str):
+        raise ValueError("column thread is missing")
+    return key, SampleRow(number("seq"), number("latency_ns"), number("nivcsw"), number("minflt"), number("cpu_end"))

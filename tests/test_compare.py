@@ -160,3 +160,40 @@ def test_comparison_section_matches_golden_file():
     base = matrix()
     new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400.0), "policy=other,priority=0", invol_mean=4.0)
     golden("comparison.md", render_comparison(cmp.compare(base, new), "base/results.json", "new/results.json"))
+
+
+def test_runs_with_no_cell_in_common_are_refused_naming_both_files(tmp_path):
+    other = copy.deepcopy(matrix())
+    for cell in other.cells:
+        cell.id = "x=" + cell.id
+    path = save(other, tmp_path / "other")
+    done = run_cli("compare", MATRIX, path)
+    assert done.code == 2, done.out
+    assert "no cell in common with the baseline" in done.err and MATRIX in done.err and path in done.err
+    assert "No regression" not in done.out
+    empty = copy.deepcopy(matrix())
+    empty.cells = []
+    assert run_cli("compare", save(empty, tmp_path / "empty"), MATRIX).code == 2
+
+
+def test_a_partial_comparison_says_which_cells_were_not_compared():
+    base = matrix()
+    new = copy.deepcopy(base)
+    new.cells = new.cells[1:]
+    from runner.report import render_comparison
+
+    text = render_comparison(cmp.compare(base, new), "b", "n")
+    assert f"No regression in 4 cells compared with the baseline. 1 cell of the baseline not in this run: {base.cells[0].id}." in text
+    text = render_comparison(cmp.compare(new, base), "b", "n")
+    assert f"No regression in 4 cells compared with the baseline. 1 cell not in the baseline: {base.cells[0].id}." in text
+
+
+def test_a_figure_that_is_not_a_number_is_never_within_threshold():
+    base = matrix()
+    cell = base.cells[1].id
+    for bad in (float("nan"), float("inf")):
+        result = cmp.compare(base, with_figures(base, cell, latency_p99=bad))
+        verdicts = {(f.cell, f.figure.name): f.verdict for f in result.figures}
+        assert verdicts[(cell, "latency.p99")] == cmp.Verdict.MISSING
+        result = cmp.compare(with_figures(base, cell, latency_p99=bad), base)
+        assert {(f.cell, f.figure.name): f.verdict for f in result.figures}[(cell, "latency.p99")] == cmp.Verdict.NEW

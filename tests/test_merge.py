@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import copy
+import json
 import os
+
+import pytest
 
 from conftest import run_cli
 from reportdata import MATRIX, matrix
@@ -140,3 +143,42 @@ def test_cells_whose_ids_read_alike_keep_their_own_samples_when_merged(tmp_path)
     for cell, source in zip(merged.cells, full.cells[:2]):
         with open(merged.samples_path(cell), "rb") as a, open(full.samples_path(source), "rb") as b:
             assert a.read() == b.read()
+
+
+# ---------------------------------------------------------------- samples paths stay inside the results folder
+
+
+def _with_samples_file(tmp_path, value):
+    shards = split(tmp_path, [[0], [1]])
+    path = os.path.join(shards[1], "results.json")
+    data = json.loads(open(path, encoding="utf-8").read())
+    data["cells"][0]["samples_file"] = value
+    with open(path, "w", encoding="utf-8") as handle:
+        json.dump(data, handle)
+    return shards, data["cells"][0]["id"]
+
+
+@pytest.mark.parametrize("value", ["/etc/passwd", "../../x", "cells/../../outside.csv.gz"])
+def test_merge_refuses_samples_paths_outside_the_results_folder(tmp_path, value):
+    shards, cell_id = _with_samples_file(tmp_path, value)
+    for argv in (("merge", *shards, "--out", str(tmp_path / "merged")), ("report", shards[1], "-o", "-"),
+                 ("compare", MATRIX, shards[1])):
+        done = run_cli(*argv)
+        assert done.code == 2, (argv, done.err)
+        where = os.path.join(shards[1], "results.json")
+        assert f"{where}:1:1: cells.{cell_id}.samples_file: {value!r}" in done.err
+        assert f"expected a path inside {os.path.abspath(shards[1])}" in done.err
+        assert "Traceback" not in done.err
+    assert not os.path.exists(tmp_path / "merged" / "results.json")
+
+
+def test_merge_refuses_a_samples_file_that_is_a_symlink_out_of_the_folder(tmp_path):
+    shards = split(tmp_path, [[0], [1]])
+    cell = load(shards[1]).cells[0]
+    target = os.path.join(shards[1], cell.samples_file)
+    os.unlink(target)
+    os.symlink("/etc/passwd", target)
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"))
+    assert done.code == 2 and f"cells.{cell.id}.samples_file:" in done.err and "through a symlink" in done.err
+    assert not any("passwd" in open(os.path.join(d, f), errors="replace").read()
+                   for d, _, fs in os.walk(tmp_path / "merged") for f in fs if f.endswith(".gz"))

@@ -310,3 +310,116 @@ def test_plot_names_of_threads_in_other_scripts_do_not_collide(tmp_path):
     assert len(keys) == 3  # the two renamed threads and the recorded one in the other cells
     assert len([n for n in os.listdir(tmp_path / "plots") if n.endswith(".latency.svg")]) == 3
     assert text.count(".latency.svg)") == 3
+
+
+# ---------------------------------------------------------------- results files that are not what they claim
+
+
+def _edited(tmp_path, edit):
+    import shutil
+
+    folder = tmp_path / "run"
+    shutil.copytree(MATRIX, folder)
+    path = folder / "results.json"
+    text = edit(path.read_text(encoding="utf-8"))
+    path.write_text(text, encoding="utf-8")
+    return str(path)
+
+
+def _json_edit(change):
+    import json
+
+    def edit(text):
+        data = json.loads(text)
+        change(data)
+        return json.dumps(data)
+    return edit
+
+
+def _thread(data):
+    return data["cells"][0]["threads"][0]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace('"p99": 58.366', '"p99": NaN'), ":1:1: NaN is not a number"),
+    (lambda t: t.replace('"p99": 58.366', '"p99": Infinity'), "Infinity is not a number"),
+    (lambda t: t.replace('"p99": 58.366', '"p99": 1e400'), "1e400 is out of range"),
+    (lambda t: t.replace('"callbacks": 10,', '"callbacks": ' + "9" * 5000 + ",", 1), "not a usable number"),
+    (_json_edit(lambda d: _thread(d).update(callbacks="ten")), "cells[0].threads[0].callbacks: input should be a valid integer; got 'ten'"),
+    (_json_edit(lambda d: _thread(d).update(callbacks=True)), "cells[0].threads[0].callbacks: input should be a valid integer; got True"),
+    (_json_edit(lambda d: _thread(d)["latency_us"].update(p99=1e300)), "cells[0].threads[0].latency_us.p99: input should be less than or equal to"),
+    (_json_edit(lambda d: _thread(d).pop("faults")), "cells[0].threads[0].faults: field required"),
+    (_json_edit(lambda d: d["cells"][0].update(status="splendid")), "cells[0].status: input should be"),
+    (_json_edit(lambda d: d.update(cells={"a": 1})), "cells: input should be a valid list"),
+    (_json_edit(lambda d: d.update(command="runner x")), "command: input should be a valid list"),
+    (_json_edit(lambda d: d["cells"][0]["background"].append({"kind": "command", "argv": [1]})), "cells[0].background[2].argv[0]: input should be a valid string; got 1"),
+    (lambda t: "[" * 100 + "]" * 100, "nested more than 64 levels"),
+    (lambda t: "[]", "expected a runner.results/1 results file, got None"),
+    (lambda t: '{"schema": "runner.results/1", "x": ' + "[" * 100 + "]" * 100 + "}", "nested more than 64 levels"),
+    (lambda t: "\xff", "not valid JSON"),
+])
+def test_bad_results_files_are_one_line_errors(tmp_path, edit, message):
+    path = _edited(tmp_path, edit)
+    for argv in (("report", path, "-o", "-"), ("compare", MATRIX, path), ("merge", path, "--out", str(tmp_path / "m"))):
+        done = run_cli(*argv)
+        assert done.code == 2, (argv, done.out[-300:], done.err)
+        assert message in done.err, done.err
+        assert done.err.startswith(path + ":") and "Traceback" not in done.err and "internal error" not in done.err
+
+
+def test_a_file_that_is_not_utf8_is_a_one_line_error(tmp_path):
+    path = tmp_path / "results.json"
+    path.write_bytes(b'{"schema": "\xff"}')
+    done = run_cli("report", str(path), "-o", "-")
+    assert done.code == 2 and f"{path}:1:1: not UTF-8 text" in done.err
+
+
+@pytest.mark.parametrize("content, message", [
+    (lambda raw: raw[: len(raw) // 2], "cannot read samples"),
+    (lambda raw: b"not gzip at all", "cannot read samples"),
+    (lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n"), ":2:1: not a samples row: latency_ns is 'x'"),
+    (lambda raw: __import__("gzip").compress(b"thread,seq\nk,1\n"), "column latency_ns is missing"),
+    (lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1," + b"9" * 30 + b",0,0,0\n"), "out of range"),
+])
+def test_bad_samples_files_are_one_line_errors(tmp_path, content, message):
+    import shutil
+
+    shutil.copytree(MATRIX, tmp_path / "run")
+    cell = matrix().cells[0]
+    samples = tmp_path / "run" / cell.samples_file
+    samples.write_bytes(content(samples.read_bytes()))
+    done = run_cli("report", str(tmp_path / "run"))
+    assert done.code == 2, done.err
+    assert done.err.startswith(f"{samples}:") and message in done.err and "Traceback" not in done.err
+
+
+def test_a_figure_that_is_not_a_number_is_written_as_null(tmp_path):
+    import dataclasses
+    import json
+
+    from runner.results import load
+
+    doc = matrix()
+    t = doc.cells[0].threads[0]
+    doc.cells[0].threads[0] = dataclasses.replace(t, figures=dataclasses.replace(
+        t.figures, latency_us={**t.figures.latency_us, "p99": float("nan"), "max": float("inf")}))
+    doc.save(str(tmp_path / "results.json"))
+    text = (tmp_path / "results.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    stored = json.loads(text)["cells"][0]["threads"][0]["latency_us"]
+    assert stored["p99"] is None and stored["max"] is None
+    assert load(str(tmp_path)).cells[0].threads[0].figures.latency_us["p99"] is None
+
+
+def test_every_recorded_run_loads_and_what_runner_writes_loads_again(tmp_path):
+    for name in os.listdir(DATA):
+        doc = report_load(os.path.join(DATA, name))
+        doc.save(str(tmp_path / f"{name}.json"))
+        again = report_load(str(tmp_path / f"{name}.json"))
+        assert [c.to_json() for c in again.cells] == [c.to_json() for c in doc.cells]
+
+
+def report_load(path):
+    from runner.results import load
+
+    return load(path)
