@@ -152,7 +152,8 @@ def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allo
                 f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
                 f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
             )
-    if lock is not None and not perm.cap_ipc_lock and perm.uid != 0 and perm.rlimit_memlock != -1 and perm.rlimit_memlock < MEMLOCK_NEEDED:
+    if lock is not None and not perm.cap_ipc_lock and perm.rlimit_memlock != -1 and perm.rlimit_memlock < MEMLOCK_NEEDED:
+        # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
         missing.append(
             f"process {lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(perm.rlimit_memlock)} and this user has no "
             f"CAP_IPC_LOCK; grant it with one of: sudo; add '{perm.user}  -  memlock  unlimited' to /etc/security/limits.conf; "

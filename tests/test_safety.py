@@ -178,3 +178,26 @@ def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_pa
     assert not find_pids("fulldisk")
     with open(out / "results.json") as handle:
         json.load(handle)  # complete JSON, not a torn write
+
+
+def test_root_without_cap_ipc_lock_is_bound_by_rlimit_memlock(tmp_path):
+    """As in a container: uid 0 but no CAP_IPC_LOCK, so mlockall is limited by RLIMIT_MEMLOCK.
+
+    Locking is refused before anything starts (exit 3, permission); preallocating more than the
+    limit is refused already by validation (exit 2, the limit named), since no right can fix the file.
+    """
+    if os.geteuid() != 0:
+        pytest.skip("needs root to drop CAP_IPC_LOCK while staying uid 0")
+    prefix = ("prlimit", "--memlock=65536:65536", "setpriv", "--inh-caps=-ipc_lock", "--bounding-set=-ipc_lock")
+    path = _scenario(tmp_path / "s.yaml", "locker", duration="1s")
+    with open(path, "a") as handle:
+        handle.write("    memory: {lock: true}\n")
+    out = str(tmp_path / "r")
+    done = finish(start_runner(path, "--out", out, cwd=str(tmp_path), prefix=prefix), out)
+    assert done.code == 3, (done.code, done.err)
+    assert "RLIMIT_MEMLOCK is 64KiB" in done.err and "CAP_IPC_LOCK" in done.err and "Traceback" not in done.err
+    assert done.results is None
+
+    prealloc = finish(start_runner(os.path.join(SCENARIOS, "memory_lock.yaml"), "--out", out, cwd=str(tmp_path), prefix=prefix), out)
+    assert prealloc.code == 2, (prealloc.code, prealloc.err)
+    assert "memory_lock.yaml:" in prealloc.err and "Traceback" not in prealloc.err and prealloc.results is None
