@@ -9,8 +9,10 @@ use to autocomplete and underline scenario files (`runner schema`).
 from __future__ import annotations
 
 import enum
+import math
 import os
 import re
+import unicodedata
 from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import (
@@ -28,13 +30,58 @@ from . import units
 
 COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
 
+# Ceilings no real scenario comes near.  They turn absurd input (`period: 2000000h`, a 400-digit
+# size) into a message that names the bound, instead of a run that fails or never ends.  What
+# depends on the machine (RAM, RLIMIT_MEMLOCK, pid_max) is checked in runner.limits.
+NS_PER_HOUR = 3_600_000_000_000
+MIN_RUN, MAX_RUN = 100_000_000, 24 * NS_PER_HOUR  # a cell's run time
+MIN_PERIOD, MAX_PERIOD = 50_000, NS_PER_HOUR  # released less than hourly is not a real-time callback
+MAX_OFFSET = NS_PER_HOUR
+MAX_LATENCY_LIMIT = NS_PER_HOUR  # a latency bound above an hour checks nothing
+MAX_ANY_SIZE = 1 << 40  # 1 TiB: above the RAM of any machine the runner is used on
+MIN_STACK, MAX_STACK = 16 << 10, 1 << 30  # per thread; the usual default is 8 MiB
+MAX_THREAD_COUNT, MAX_INSTANCES, MAX_HOGS = 1024, 64, 256
 
-def _unit(parse: Any) -> Any:
+
+def _unit(parse: Any, ceiling: int | None = None, fmt: Any = None) -> Any:
+    """A pydantic before-validator parsing a unit value, refusing values above `ceiling`.
+
+    Durations need no ceiling here: every duration field has its own range check.
+    """
+
     def check(value: Any) -> Any:
         try:
-            return parse(value)
+            parsed = parse(value)
         except units.UnitError as exc:
             raise ValueError(str(exc)) from None
+        if ceiling is not None and parsed > ceiling:
+            raise ValueError(f"{fmt(parsed)} is too large; at most {fmt(ceiling)}")
+        return parsed
+
+    return check
+
+
+def control_character(text: str, allowed: str = "") -> str | None:
+    """The first control, format or line-separator character in `text` (not in `allowed`), or None.
+
+    A newline or an escape sequence in a name or label ends up in terminals, ps output and
+    report headings, where it breaks lines or injects text; such characters are refused.
+    """
+    if text.isprintable():  # no character of the categories below is printable: the common case is quick
+        return None
+    for char in text:
+        if char not in allowed and (unicodedata.category(char) in ("Cc", "Cf", "Cs", "Zl", "Zp")):
+            return char
+    return None
+
+
+def _no_control(what: str, allowed: str = "") -> Any:
+    def check(value: Any) -> Any:
+        if isinstance(value, str):
+            char = control_character(value, allowed)
+            if char is not None:
+                raise ValueError(f"{what} {value!r} contains the control character {char!r}; remove it")
+        return value
 
     return check
 
@@ -60,7 +107,7 @@ Duration = Annotated[
 
 Size = Annotated[
     int,
-    BeforeValidator(_unit(units.parse_size)),
+    BeforeValidator(_unit(units.parse_size, MAX_ANY_SIZE, units.format_size)),
     PlainSerializer(units.format_size, return_type=str),
     WithJsonSchema(_SIZE_SCHEMA),
 ]
@@ -210,8 +257,13 @@ class PeriodicWork(Strict):
 
     @model_validator(mode="after")
     def _fits(self) -> "PeriodicWork":
-        if self.period < 50_000:
+        if self.period < MIN_PERIOD:
             raise ValueError(f"period {units.format_duration(self.period)} is too short; at least 50us")
+        if self.period > MAX_PERIOD:
+            raise ValueError(f"period {units.format_duration(self.period)} is too long; at most "
+                             f"{units.format_duration(MAX_PERIOD)} (a callback released less often is not real-time work)")
+        if self.offset > MAX_OFFSET:
+            raise ValueError(f"offset {units.format_duration(self.offset)} is too long; at most {units.format_duration(MAX_OFFSET)}")
         if self.burn >= self.period:
             raise ValueError(
                 f"burn {units.format_duration(self.burn)} does not fit in period {units.format_duration(self.period)};"
@@ -257,8 +309,10 @@ def _check_comm(name: str) -> str:
             f"name {name!r} is {len(name.encode())} bytes; the kernel keeps {COMM_MAX} "
             f"(it would show as {name.encode()[:COMM_MAX].decode(errors='ignore')!r})"
         )
-    if re.search(r"[\s/\x00-\x1f]", name):
-        raise ValueError(f"name {name!r} may not contain spaces, '/' or control characters")
+    char = control_character(name)
+    if char is not None or re.search(r"[\s/]", name):
+        found = char if char is not None else re.findall(r"[\s/]", name)[0]
+        raise ValueError(f"name {name!r} may not contain spaces, '/' or control characters (found {found!r})")
     return name
 
 
@@ -286,7 +340,7 @@ class ThreadSpec(Strict):
     """A thread created by the main thread, in declared order."""
 
     name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...)")
-    count: int = Field(1, ge=1, le=1024, description="how many such threads")
+    count: int = Field(1, ge=1, le=MAX_THREAD_COUNT, description="how many such threads")
     inherit: bool = Field(
         True,
         description="true: start with the creator's settings (PTHREAD_INHERIT_SCHED); false: start with "
@@ -320,8 +374,10 @@ class Memory(Strict):
     def _consistent(self) -> "Memory":
         if self.prealloc and not self.lock:
             raise ValueError("prealloc only keeps memory resident together with lock: true")
-        if self.stack_size is not None and self.stack_size < 16 * 1024:
+        if self.stack_size is not None and self.stack_size < MIN_STACK:
             raise ValueError(f"stack_size {units.format_size(self.stack_size)} is below the 16KiB minimum")
+        if self.stack_size is not None and self.stack_size > MAX_STACK:
+            raise ValueError(f"stack_size {units.format_size(self.stack_size)} is too large; at most {units.format_size(MAX_STACK)}")
         return self
 
 
@@ -329,7 +385,7 @@ class ProcessSpec(Strict):
     """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
 
     name: str = Field(description="process name as ps shows it (COMMAND), 15 bytes at most")
-    instances: int = Field(1, ge=1, le=64, description="how many copies of this process")
+    instances: int = Field(1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
     reset_on_fork: bool = Field(
         False,
         description="start from SCHED_OTHER and nice >= 0 as SCHED_RESET_ON_FORK would, instead of inheriting the runner's settings",
@@ -357,7 +413,7 @@ class HogKind(str, enum.Enum):
 class Hog(Strict):
     """Busy loops that compete for the CPUs while the scenario runs."""
 
-    count: int = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=256)
+    count: int = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
     kind: HogKind = Field(HogKind.PROCESS, description="process: one process each; thread: threads of one process")
     name: str = Field("hog", description="process and thread name")
     sched: Optional[Sched] = Field(None, description="policy of the hogs (default: inherited, normally SCHED_OTHER)")
@@ -379,11 +435,23 @@ class Command(Strict):
     argv: list[str] = Field(min_length=1, description="program and arguments as a list (never a shell string)")
     name: Optional[str] = Field(None, description="label in reports; default: the program")
 
+    _label = field_validator("name")(lambda cls, v: _no_control("name")(v))
+
     @field_validator("argv", mode="before")
     @classmethod
     def _no_shell(cls, value: Any) -> Any:
         if isinstance(value, str):
             raise ValueError(f"argv must be a list such as ['stress-ng', '--cpu', '2'], not the string {value!r}")
+        return value
+
+    @field_validator("argv")
+    @classmethod
+    def _executable(cls, value: list[str]) -> list[str]:
+        if not value[0]:
+            raise ValueError("argv[0], the program, is empty")
+        for arg in value:
+            if "\x00" in arg:
+                raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
         return value
 
 
@@ -472,15 +540,31 @@ class Expectation(Strict):
     def _bounded(self) -> "Expectation":
         if self.max is None and self.min is None:
             raise ValueError("an expectation needs max, min or both")
+        for name, bound in (("min", self.min), ("max", self.max)):
+            if bound is None:
+                continue
+            if not math.isfinite(bound):
+                raise ValueError(f"{name}: {bound!r} is not a finite number")
+            if bound < 0:
+                raise ValueError(f"{name}: {bound:g} is negative; {self.metric.value} is never below 0")
+            if self.metric.is_latency and bound > MAX_LATENCY_LIMIT:
+                raise ValueError(f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
+                                 f"at most {units.format_duration(MAX_LATENCY_LIMIT)}")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min {self.describe_bound(self.min)} is above max {self.describe_bound(self.max)}; "
+                             "no run can meet both")
         return self
 
+    def describe_bound(self, value: float) -> str:
+        """A bound as written back: a duration for latency metrics, a number otherwise."""
+        return units.format_duration(int(value)) if self.metric.is_latency else f"{value:g}"
+
     def describe_limit(self) -> str:
-        fmt = (lambda v: units.format_duration(int(v))) if self.metric.is_latency else (lambda v: f"{v:g}")
         parts = []
         if self.min is not None:
-            parts.append(f">= {fmt(self.min)}")
+            parts.append(f">= {self.describe_bound(self.min)}")
         if self.max is not None:
-            parts.append(f"<= {fmt(self.max)}")
+            parts.append(f"<= {self.describe_bound(self.max)}")
         return " and ".join(parts)
 
 
@@ -498,11 +582,14 @@ class Scenario(Strict):
     matrix: Any = Field(None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
     expect: list[Expectation] = Field(default_factory=list)
 
+    _text = field_validator("description")(lambda cls, v: _no_control("description", "\n\t")(v))
+
     @field_validator("duration")
     @classmethod
     def _duration_range(cls, value: int) -> int:
-        if not 100_000_000 <= value <= 24 * 3_600_000_000_000:
-            raise ValueError(f"duration {units.format_duration(value)} is out of range; expected 100ms to 24h")
+        if not MIN_RUN <= value <= MAX_RUN:
+            raise ValueError(f"duration {units.format_duration(value)} is out of range; expected "
+                             f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}")
         return value
 
     @field_validator("name")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import re
+from fractions import Fraction
 
 NS_PER = {
     "ns": 1,
@@ -30,6 +31,8 @@ BYTES_PER = {
 }
 _SI_SIZE_HINT = {"KB": "KiB", "kB": "KiB", "K": "KiB", "MB": "MiB", "M": "MiB", "GB": "GiB", "G": "GiB"}
 _QUANTITY = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?|\.[0-9]+)\s*([A-Za-zµ]+)\s*$")
+MAX_DIGITS = 24  # no duration or size needs more; longer numbers are refused before any arithmetic
+MAX_CPUS = 8192  # CONFIG_NR_CPUS at its largest
 
 DURATION_EXPECTED = "a duration with a unit, such as 500ms, 200us, 1.5s or 10m"
 SIZE_EXPECTED = "a size with a unit, such as 50MiB, 200KiB or 0B"
@@ -50,12 +53,12 @@ def parse_duration(value: object) -> int:
         raise UnitError(f"expected {DURATION_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {value!r}; expected {DURATION_EXPECTED}")
+        raise UnitError(f"cannot read {_shorten(value)}; expected {DURATION_EXPECTED}")
     number, unit = match.groups()
     if unit not in NS_PER:
         hint = _did_you_mean(unit, NS_PER)
         raise UnitError(f"unknown duration unit {unit!r}{hint}; expected one of ns, us, ms, s, m, h")
-    return round(float(number) * NS_PER[unit])
+    return _scaled(number, NS_PER[unit], value, DURATION_EXPECTED)
 
 
 def parse_size(value: object) -> int:
@@ -66,7 +69,7 @@ def parse_size(value: object) -> int:
         raise UnitError(f"expected {SIZE_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {value!r}; expected {SIZE_EXPECTED}")
+        raise UnitError(f"cannot read {_shorten(value)}; expected {SIZE_EXPECTED}")
     number, unit = match.groups()
     if unit not in BYTES_PER:
         if unit in _SI_SIZE_HINT:
@@ -75,7 +78,25 @@ def parse_size(value: object) -> int:
             )
         hint = _did_you_mean(unit, BYTES_PER)
         raise UnitError(f"unknown size unit {unit!r}{hint}; expected one of B, KiB, MiB, GiB, TiB")
-    return round(float(number) * BYTES_PER[unit])
+    return _scaled(number, BYTES_PER[unit], value, SIZE_EXPECTED)
+
+
+def _scaled(number: str, scale: int, written: str, expected: str) -> int:
+    """`number` (decimal digits) times `scale`, exactly, rounded to an integer.
+
+    Floats would overflow (a 400-digit size is infinity) or round (1.000000001s); a
+    Fraction is exact, and the digit limit keeps the arithmetic and its messages small.
+    """
+    if len(number.replace(".", "").lstrip("0")) > MAX_DIGITS:
+        raise UnitError(f"the number in {_shorten(written)} has more than {MAX_DIGITS} digits; expected {expected}")
+    if "." not in number:
+        return int(number) * scale
+    return round(Fraction(number) * scale)
+
+
+def _shorten(text: str, keep: int = 40) -> str:
+    """`text` quoted, its middle cut out when it is long (a hostile value can be a megabyte)."""
+    return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4:])
 
 
 def parse_cpus(value: object) -> tuple[int, ...]:
@@ -94,24 +115,31 @@ def parse_cpus(value: object) -> tuple[int, ...]:
         text = value.strip().replace("_", "")
         if re.fullmatch(r"0[bB][01]+", text) or re.fullmatch(r"0[xX][0-9a-fA-F]+", text):
             mask = int(text, 0)
+            if mask.bit_length() > MAX_CPUS:
+                raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; "
+                                f"Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
         elif re.fullmatch(r"\d+(-\d+)?(,\d+(-\d+)?)*", text):
             for part in text.split(","):
                 low, _, high = part.partition("-")
+                if max(len(low), len(high)) > len(str(MAX_CPUS)) + 1:
+                    raise UnitError(f"CPU number in {_shorten(part)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
                 first, last = int(low), int(high or low)
                 if last < first:
                     raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")
+                if last >= MAX_CPUS:
+                    raise UnitError(f"CPU {last} is beyond what Linux supports ({MAX_CPUS} CPUs)")
                 cpus.update(range(first, last + 1))
         else:
-            raise UnitError(f"cannot read CPUs {value!r}; expected {CPUS_EXPECTED}")
+            raise UnitError(f"cannot read CPUs {_shorten(value)}; expected {CPUS_EXPECTED}")
     else:
         raise UnitError(f"expected {CPUS_EXPECTED}, got {type(value).__name__}")
     if not cpus:
         raise UnitError("the CPU set is empty; name at least one CPU")
     if min(cpus) < 0:
         raise UnitError(f"CPU numbers start at 0, got {min(cpus)}")
-    if max(cpus) >= 8192:
-        raise UnitError(f"CPU {max(cpus)} is beyond what Linux supports (8192 CPUs)")
+    if max(cpus) >= MAX_CPUS:
+        raise UnitError(f"CPU {max(cpus)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
     return tuple(sorted(cpus))
 
 

@@ -53,3 +53,22 @@ def test_round_trips():
 @pytest.mark.parametrize("value", ["0", 0, " 0 ", "0ms"])
 def test_zero_needs_no_unit(value):
     assert units.parse_duration(value) == 0
+
+
+@pytest.mark.parametrize("parse, text", [(units.parse_duration, "1" + "0" * 400 + "s"), (units.parse_size, "1" + "0" * 400 + "B"),
+                                         (units.parse_size, "1" + "0" * 5000 + "B")])
+def test_overflowing_numbers_are_refused_with_a_message(parse, text):
+    with pytest.raises(units.UnitError, match="has more than 24 digits"):
+        parse(text)
+
+
+def test_decimals_are_exact():
+    assert units.parse_duration("1.000000001s") == 1_000_000_001
+    assert units.parse_size("0.5KiB") == 512
+
+
+@pytest.mark.parametrize("value, message", [("0-99999999999", "beyond what Linux supports"), ("0x" + "f" * 100_000, "names CPU"),
+                                            ("1" * 5000, "beyond what Linux supports"), ("0-8192", "CPU 8192 is beyond")])
+def test_huge_cpu_sets_are_refused_without_expanding_them(value, message):
+    with pytest.raises(units.UnitError, match=message):
+        units.parse_cpus(value)
