@@ -9,20 +9,32 @@ Pure: takes plain data (and a Document only to say where a problem is), returns 
   contradict; an entry that fits no cell becomes a cell of its own.
 * A reference that is the whole value keeps the value's type (`priority: ${{ matrix.prio }}`
   stays an integer); inside a longer string it is interpolated.
+
+Caps hold however the cells come about: at most `MAX_CELLS` cells after exclude *and*
+include, at most `MAX_ENTRIES` include and exclude entries, `MAX_KEYS` keys.  Matching uses
+one bit mask per axis value, so expansion stays fast at the caps.  Matrix values end up in
+cell ids, folder names and report headings: control characters (a newline) and nested
+`${{ }}` references are refused.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any, Union
 
 from .errors import Problem, did_you_mean
+from .model import control_character
 from .yamlsource import Document, Path
 
 MatrixValue = Union[str, int, float, bool]
 MAX_CELLS = 4096
+MAX_ENTRIES = 256  # include or exclude entries (GitHub Actions caps a whole matrix at 256 jobs)
+MAX_KEYS = 64  # axes and include-only keys together
+MAX_VALUE_CHARS = 256  # a matrix value is a word or a short setting, and it becomes part of cell ids
+_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 REFERENCE = re.compile(r"\$\{\{\s*(.*?)\s*\}\}")
 _NAME = re.compile(r"^matrix\.([A-Za-z_][A-Za-z0-9_-]*)$")
 
@@ -78,9 +90,16 @@ def parse(doc: Document, raw: Any, problems: list[Problem]) -> MatrixSpec:
         return spec
 
     def scalar(value: Any, path: Path) -> bool:
-        if isinstance(value, (str, int, float, bool)):
+        problem = value_problem(value)
+        if problem is None:
             return True
-        problems.append(doc.problem(path, f"matrix values must be strings, numbers or booleans, got {value!r}"))
+        problems.append(doc.problem(path, problem))
+        return False
+
+    def key_ok(key: str, path: Path) -> bool:
+        if _KEY.fullmatch(key):
+            return True
+        problems.append(doc.problem(path, f"matrix key {key!r} must be a letter or _ followed by letters, digits, _ or -", key=True))
         return False
 
     for key, value in raw.items():
@@ -89,28 +108,35 @@ def parse(doc: Document, raw: Any, problems: list[Problem]) -> MatrixSpec:
             if not isinstance(value, list):
                 problems.append(doc.problem(path, f"expected a list of mappings, got {type(value).__name__}"))
                 continue
+            if len(value) > MAX_ENTRIES:  # the entries are still read, so their keys count as defined
+                problems.append(doc.problem(path, f"{len(value)} {key} entries; at most {MAX_ENTRIES}"))
             entries = spec.include if key == "include" else spec.exclude
             for i, entry in enumerate(value):
                 if not isinstance(entry, dict) or not entry:
                     problems.append(doc.problem(path + (i,), "expected a non-empty mapping of matrix keys to values"))
                     continue
-                if all(scalar(v, path + (i, k)) for k, v in entry.items()):
-                    entries.append(dict(entry))
+                for k, v in entry.items():
+                    key_ok(k, path + (i, k))
+                    scalar(v, path + (i, k))
+                entries.append(dict(entry))  # kept even when wrong: its keys are defined, and problems stop expansion
             continue
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_-]*", key):
+        if not _KEY.fullmatch(key):
             problems.append(doc.problem(path, f"axis name {key!r} must be a letter or _ followed by letters, digits, _ or -", key=True))
             continue
         if not isinstance(value, list) or not value:
             problems.append(doc.problem(path, "an axis needs a non-empty list of values, e.g. [fifo, rr]"))
             continue
-        if all(scalar(v, path + (i,)) for i, v in enumerate(value)):
-            seen: list[str] = []
+        fine = [scalar(v, path + (i,)) for i, v in enumerate(value)]  # every bad value is reported
+        if all(fine):
+            seen: set[str] = set()
             for i, v in enumerate(value):
                 if format_value(v) in seen:
                     problems.append(doc.problem(path + (i,), f"value {format_value(v)!r} appears twice in axis {key!r}"))
-                seen.append(format_value(v))
-            spec.axes[key] = list(value)
+                seen.add(format_value(v))
+        spec.axes[key] = list(value)  # kept even with a wrong value, so references to it are not reported too
 
+    if len(spec.keys()) > MAX_KEYS:
+        problems.append(doc.problem(base, f"the matrix has {len(spec.keys())} keys; at most {MAX_KEYS}"))
     for i, entry in enumerate(spec.exclude):
         for key in entry:
             if key not in spec.axes:
@@ -119,8 +145,50 @@ def parse(doc: Document, raw: Any, problems: list[Problem]) -> MatrixSpec:
     return spec
 
 
+def value_problem(value: Any) -> str | None:
+    """What is wrong with `value` as a matrix value, or None if it is fine."""
+    if isinstance(value, (bool, int)):
+        return None
+    if isinstance(value, float):
+        return None if math.isfinite(value) else f"matrix value {value!r} is not a finite number"
+    if not isinstance(value, str):
+        return f"matrix values must be strings, numbers or booleans, got {value!r}"
+    char = control_character(value)
+    if char is not None:
+        return (f"matrix value {value!r} contains the control character {char!r}; it would break cell ids "
+                "and report headings")
+    if "${{" in value:
+        return f"matrix value {value!r} contains a '${{{{' reference; matrix values are not expanded again"
+    if len(value) > MAX_VALUE_CHARS:
+        return f"matrix value of {len(value)} characters; at most {MAX_VALUE_CHARS}"
+    return None
+
+
+def _masks(combos: list[dict[str, MatrixValue]], axes: list[str]) -> dict[tuple[str, str], int]:
+    """For each (axis, written value), the bit mask of the combos holding it."""
+    masks: dict[tuple[str, str], int] = {}
+    for n, combo in enumerate(combos):
+        for axis in axes:
+            key = (axis, format_value(combo[axis]))
+            masks[key] = masks.get(key, 0) | 1 << n
+    return masks
+
+
+def _matching(masks: dict[tuple[str, str], int], every: int, rule: dict[str, MatrixValue], axes: dict[str, Any]) -> int:
+    """Bit mask of the combos matching every axis key of `rule` (other keys are ignored)."""
+    hit = every
+    for key, value in rule.items():
+        if key in axes:
+            hit &= masks.get((key, format_value(value)), 0)
+    return hit
+
+
 def expand(doc: Document, spec: MatrixSpec, problems: list[Problem], warnings: list[Problem]) -> list[Cell]:
-    """All cells of the matrix, in a deterministic order; dead excludes become warnings."""
+    """All cells of the matrix, in a deterministic order; dead excludes become warnings.
+
+    The cap holds on the result, so include cannot grow a matrix past it; matching is by
+    bit masks (one per axis value), O(entries x keys) big-integer operations.
+    """
     combos: list[dict[str, MatrixValue]] = []
     if spec.axes:
         size = 1
@@ -130,27 +198,33 @@ def expand(doc: Document, spec: MatrixSpec, problems: list[Problem], warnings: l
             problems.append(doc.problem(("matrix",), f"the matrix has {size} cells; at most {MAX_CELLS}"))
             return []
         combos = [dict(zip(spec.axes, combo)) for combo in itertools.product(*spec.axes.values())]
-    used = [False] * len(spec.exclude)
-    kept: list[dict[str, MatrixValue]] = []
-    for combo in combos:
-        hit = [i for i, rule in enumerate(spec.exclude) if all(_same(combo[k], v) for k, v in rule.items() if k in combo)]
-        for i in hit:
-            used[i] = True
+    axes = list(spec.axes)
+    masks = _masks(combos, axes)
+    every = (1 << len(combos)) - 1
+    excluded = 0
+    for i, rule in enumerate(spec.exclude):
+        hit = _matching(masks, every, rule, spec.axes)
         if not hit:
-            kept.append(combo)
-    for i, was_used in enumerate(used):
-        if not was_used:
             warnings.append(doc.problem(("matrix", "exclude", i), "this exclude matches no cell", severity="warning"))
+        excluded |= hit
+    kept = [combo for n, combo in enumerate(combos) if not excluded >> n & 1]
 
-    originals = len(kept)
+    originals = _masks(kept, axes)
+    every = (1 << len(kept)) - 1
     for entry in spec.include:
-        fitted = False
-        for combo in kept[:originals]:
-            if all(_same(combo[k], v) for k, v in entry.items() if k in spec.axes):
-                combo.update({k: v for k, v in entry.items() if k not in spec.axes})
-                fitted = True
+        fitted = _matching(originals, every, entry, spec.axes)
+        extra = {k: v for k, v in entry.items() if k not in spec.axes}
+        rest = fitted
+        while rest:
+            low = rest & -rest
+            kept[low.bit_length() - 1].update(extra)
+            rest ^= low
         if not fitted:
             kept.append(dict(entry))
+    if len(kept) > MAX_CELLS:
+        problems.append(doc.problem(("matrix", "include"), f"the matrix has {len(kept)} cells with its include entries; "
+                                                           f"at most {MAX_CELLS}"))
+        return []
 
     cells: list[Cell] = []
     seen: dict[str, int] = {}

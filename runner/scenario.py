@@ -2,8 +2,13 @@
 
 This is the one entry point the rest of the runner uses: YAML (with positions) ->
 matrix expansion -> per-cell substitution -> typed `Scenario` per cell -> checks
-that span fields (expectation targets, names, matrix selectors).  Every problem
-in the file is collected and raised at once.
+that span fields (expectation targets, names, matrix selectors) -> limits (fixed
+ceilings, and this machine's when `load_scenario` reads them).  Every problem in the
+file is collected and raised at once.
+
+Validation is linear in the number of cells: cells that resolve to the same data are
+validated once, and what spans the matrix (selector keys and values) is indexed once
+rather than searched per cell.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from typing import Any
 
 from pydantic import TypeAdapter, ValidationError
 
+from . import limits as lim
 from . import matrix as mx
 from .errors import Problem, ScenarioError, did_you_mean
 from .model import Expectation, ProcessSpec, Scenario
@@ -59,13 +65,35 @@ def spec_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def load_scenario(path: str) -> LoadedScenario:
-    """Read, validate and expand a scenario file; raise ScenarioError with all problems."""
-    return parse_scenario(load_file(path))
+_PROCESSES = TypeAdapter(list[ProcessSpec])
+_NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
 
 
-def parse_scenario(doc: Document) -> LoadedScenario:
-    """Validate and expand an already loaded document (pure)."""
+@dataclass(frozen=True)
+class MatrixIndex:
+    """What expectation selectors are checked against, computed once per file: keys and their values."""
+
+    keys: list[str]
+    values: dict[str, dict[str, None]]  # key -> written values, in cell order
+
+    @classmethod
+    def of(cls, cells: list[mx.Cell]) -> MatrixIndex:
+        values: dict[str, dict[str, None]] = {}
+        for cell in cells:
+            for key, value in cell.values.items():
+                values.setdefault(key, {})[mx.format_value(value)] = None
+        return cls(sorted(values), values)
+
+
+def load_scenario(path: str, machine: lim.MachineLimits | None = None) -> LoadedScenario:
+    """Read, validate and expand a scenario file, checked against this machine's limits
+    (read here unless given); raise ScenarioError with all problems."""
+    doc = load_file(path)
+    return parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read())
+
+
+def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> LoadedScenario:
+    """Validate and expand an already loaded document (pure); `machine` adds that machine's limits."""
     data = doc.data
     if not isinstance(data, dict):
         raise ScenarioError([doc.problem((), f"expected a scenario mapping (name, processes, ...), got {type(data).__name__}")])
@@ -78,40 +106,63 @@ def parse_scenario(doc: Document) -> LoadedScenario:
         raise ScenarioError(problems + warnings)
 
     default_name = os.path.splitext(os.path.basename(doc.file))[0]
+    index = MatrixIndex.of(cells)
     found: dict[Problem, list[str]] = {}
     resolved: list[ResolvedCell] = []
+    checked: dict[str, tuple[Scenario | None, list[Problem], str]] = {}
     for cell in cells:
         raw = mx.substitute(data, cell.values)
         raw.setdefault("name", default_name)
-        cell_problems: list[Problem] = []
-        for path, expr in mx.unresolved(raw):
-            cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
-        try:
-            scenario = Scenario.model_validate(raw)
-        except ValidationError as exc:
-            cell_problems.extend(problems_from(exc, doc, raw, Scenario))
-            cell_problems.extend(_partial_cross_checks(doc, raw, cells))
-        else:
-            cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), cells))
-            if not cell_problems:
-                resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, spec_hash(scenario)))
+        key = json.dumps(raw, sort_keys=True)
+        if key not in checked:  # cells that resolve alike (an axis only selectors use) are checked once
+            checked[key] = _check_cell(doc, raw, index, machine)
+        scenario, cell_problems, digest = checked[key]
+        if scenario is not None and not cell_problems:
+            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest))
         for problem in cell_problems:
             found.setdefault(problem, []).append(cell.id)
 
     for problem, where in found.items():
         if len(cells) > 1 and len(where) < len(cells):
-            note = f" (in cell {where[0]})" if len(where) == 1 else f" (in {len(where)} of {len(cells)} cells: {'; '.join(where)})"
-            problem = Problem(problem.file, problem.line, problem.col, problem.path, problem.message + note)
+            problem = Problem(problem.file, problem.line, problem.col, problem.path,
+                              problem.message + _cells_note(where, len(cells)))
         problems.append(problem)
     if problems:
         raise ScenarioError(problems + warnings)
     return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
 
 
-def _partial_cross_checks(doc: Document, raw: dict[str, Any], cells: list[mx.Cell]) -> list[Problem]:
+def _check_cell(doc: Document, raw: dict[str, Any], index: MatrixIndex,
+                machine: lim.MachineLimits | None) -> tuple[Scenario | None, list[Problem], str]:
+    """Validate one resolved cell: the model, cross-field checks, ceilings and (if given) this machine's limits."""
+    cell_problems: list[Problem] = []
+    for path, expr in mx.unresolved(raw):
+        cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
+    try:
+        scenario = Scenario.model_validate(raw)
+    except ValidationError as exc:
+        cell_problems.extend(problems_from(exc, doc, raw, Scenario))
+        cell_problems.extend(_partial_cross_checks(doc, raw, index))
+        return None, cell_problems, ""
+    cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index))
+    findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
+    cell_problems.extend(doc.problem(f.path, f.message) for f in findings)
+    return scenario, cell_problems, spec_hash(scenario)
+
+
+def _cells_note(where: list[str], total: int) -> str:
+    """` (in cell X)` / ` (in 3 of 8 cells: a; b; c)` / `(in 900 of 4096 cells: a; b; c; and 897 more)`."""
+    if len(where) == 1:
+        return f" (in cell {where[0]})"
+    named = "; ".join(where[:_NOTE_CELLS])
+    more = f"; and {len(where) - _NOTE_CELLS} more" if len(where) > _NOTE_CELLS else ""
+    return f" (in {len(where)} of {total} cells: {named}{more})"
+
+
+def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex) -> list[Problem]:
     """Cross-field checks on the parts that did validate, so one bad field does not hide the rest."""
     try:
-        processes = TypeAdapter(list[ProcessSpec]).validate_python(raw.get("processes"))
+        processes = _PROCESSES.validate_python(raw.get("processes"))
     except ValidationError:
         return []
     expectations = []
@@ -120,11 +171,11 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], cells: list[mx.Cel
             expectations.append((i, Expectation.model_validate(item)))
         except ValidationError:
             continue
-    return _cross_checks(doc, processes, expectations, cells)
+    return _cross_checks(doc, processes, expectations, index)
 
 
 def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]],
-                  cells: list[mx.Cell]) -> list[Problem]:
+                  index: MatrixIndex) -> list[Problem]:
     """Checks that span several fields: unique names, expectation targets and selectors."""
     out: list[Problem] = []
     seen: set[str] = set()
@@ -137,7 +188,7 @@ def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: lis
     for t in planned:
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
     every = sorted({n for group in names.values() for n in group})
-    keys = sorted({k for c in cells for k in c.values})
+    keys = index.keys
     for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
@@ -155,8 +206,8 @@ def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: lis
                 out.append(doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True))
                 continue
             for value in wanted if isinstance(wanted, list) else [wanted]:
-                if not mx.select(cells, {key: value}):
-                    values = sorted({mx.format_value(c.values[key]) for c in cells if key in c.values})
+                if mx.format_value(value) not in index.values[key]:
+                    values = sorted(index.values[key])
                     out.append(doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}"))
     return out
 
