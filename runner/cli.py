@@ -69,6 +69,10 @@ def _run_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `runner` console script; returns the exit code."""
     args = list(sys.argv[1:] if argv is None else argv)
+    for stream in (sys.stdout, sys.stderr):  # a name the terminal cannot encode is shown escaped, not a crash
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            reconfigure(errors="backslashreplace")
     if not args or args[0] in ("-h", "--help"):
         sys.stdout.write(_TOP_HELP)
         return ExitCode.OK if args else ExitCode.INVALID_INPUT
