@@ -1,7 +1,9 @@
-"""How figures read in reports: latencies in the unit that reads best, counts with separators.  Pure."""
+"""How figures and text read in reports: latencies in the unit that reads best, counts with separators,
+names from the scenario escaped so they stay text in markdown.  Pure."""
 
 from __future__ import annotations
 
+import re
 from typing import Optional
 
 
@@ -40,3 +42,87 @@ def fmt_figure(value: Optional[float], unit: str) -> str:
     if unit == "us":
         return fmt_us(value)
     return "–" if value is None else f"{value:g}"
+
+
+# ---------------------------------------------------------------- text from the scenario, as markdown
+
+
+class Markdown(str):
+    """Text that is already markdown, built by the report from escaped parts: shown as it is.
+
+    Anything else that reaches a report (a thread name, a matrix value, a reason) is plain
+    text and goes through `md_text` first; the templates do that for every value that is not
+    a Markdown, as an HTML template escapes everything not marked safe.
+    """
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+_ALWAYS = set("\\`*[]~")  # code spans, emphasis, links and images, strikethrough
+
+
+def md_text(value: object, in_table: bool = False) -> Markdown:
+    """Plain text as inline markdown that renders as that text, on one line.
+
+    Line breaks and control characters become spaces (a newline must not start a heading),
+    outer spaces go (four would start a code block), and every character that could start
+    markdown structure is backslash-escaped: code spans, emphasis, links and images, HTML
+    and autolinks, entities; in a table cell (`in_table`) `|`, elsewhere what would make a
+    block if the text began a line (`#`, `>`, list markers).  Harmless uses stay as they
+    read (`<= 2ms`, `minimal_schedul_`), so ordinary names look ordinary in the source too.
+    """
+    if isinstance(value, Markdown):
+        return value
+    text = _CONTROL.sub(" ", str(value)).strip()
+    out = []
+    for i, ch in enumerate(text):
+        after = text[i + 1] if i + 1 < len(text) else " "
+        before = text[i - 1] if i else " "
+        if (ch in _ALWAYS
+                or (ch == "|" and in_table)
+                or (ch == "_" and not before.isalnum())  # after a letter or digit `_` cannot open emphasis
+                or (ch == "<" and not (after.isspace() or (after == "=" and text[i + 2:i + 3] in ("", " "))))
+                or (ch == "&" and (after.isalnum() or after == "#"))):
+            out.append("\\" + ch)
+        else:
+            out.append(ch)
+    escaped = "".join(out)
+    return Markdown(escaped if in_table else _escape_line_start(escaped))
+
+
+def _escape_line_start(text: str) -> str:
+    """Escape what would make a block if the text began a line: `#`, `>`, list markers, rules, trailing `#`."""
+    if not text:
+        return text
+    first, after = text[0], text[1:2]
+    if first in "#>" or (first in "-+=" and (after in ("", " ") or set(text) <= {first, " "})):
+        text = "\\" + text
+    else:
+        digits = re.match(r"\d{1,9}([.)])( |$)", text)
+        if digits:
+            text = text[: digits.start(1)] + "\\" + text[digits.start(1):]
+    closing = re.search(r"(?<=[ ])#+$", text)  # `## Cell x #`: a closing sequence would vanish from the heading
+    if closing:
+        text = text[: closing.start()] + "\\" + text[closing.start():]
+    return text
+
+
+def md_code(value: object, in_table: bool = False) -> Markdown:
+    """Plain text as an inline code span that shows it verbatim (a fence longer than any backtick run in it).
+
+    Inside a table `|` must still be escaped (GFM splits cells before it sees code spans).
+    """
+    text = _CONTROL.sub(" ", str(value))
+    if not text:
+        return Markdown("``")
+    fence = "`" * (max((len(run) for run in re.findall(r"`+", text)), default=0) + 1)
+    pad = " " if text[0] == "`" or text[-1] == "`" or (text[0] == " " and text[-1] == " " and text.strip()) else ""
+    if in_table:
+        text = text.replace("|", "\\|")
+    return Markdown(f"{fence}{pad}{text}{pad}{fence}")
+
+
+def md_code_block(value: str, info: str = "") -> Markdown:
+    """Text as a fenced code block: the fence is longer than any backtick run in it, so no line can close it."""
+    fence = "`" * max(3, max((len(run) for run in re.findall(r"`+", value)), default=0) + 1)
+    body = value if value.endswith("\n") else value + "\n"
+    return Markdown(f"{fence}{info}\n{body}{fence}")

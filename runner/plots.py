@@ -48,6 +48,7 @@ def collect(doc: RunDocument) -> dict[str, list[Series]]:
             if not rows:
                 continue
             label = cell.id if not cell.repeat else f"{cell.id} #{cell.repeat + 1}"
+            label = " " + label if label.startswith("_") else label  # matplotlib leaves `_...` labels out of the legend
             out.setdefault(t.key, []).append(
                 Series(label, [r.latency_ns / 1000.0 for r in rows], [r.nivcsw for r in rows]))
     return out
@@ -57,7 +58,8 @@ def _pyplot():  # type: ignore[no-untyped-def]
     import matplotlib
 
     matplotlib.use("Agg")
-    matplotlib.rcParams.update({"svg.hashsalt": "runner", "svg.fonttype": "none", "font.size": 9})
+    # text.parse_math off: names are text, `$\\foo$` in a thread name must not be parsed as mathtext
+    matplotlib.rcParams.update({"svg.hashsalt": "runner", "svg.fonttype": "none", "font.size": 9, "text.parse_math": False})
     import matplotlib.pyplot as plt
 
     return plt

@@ -17,7 +17,7 @@ import jinja2
 from tabulate import tabulate
 
 from . import units
-from .fmt import fmt_bytes, fmt_figure, fmt_int, fmt_mean, fmt_us
+from .fmt import Markdown, fmt_bytes, fmt_figure, fmt_int, fmt_mean, fmt_us, md_code, md_code_block, md_text
 from .model import Policy
 from .plan import Settings
 from .pstable import render_ps
@@ -48,15 +48,11 @@ def policy_label(settings: Optional[Settings]) -> str:
     return text
 
 
-def md(text: object) -> str:
-    """Text safe inside a markdown table cell."""
-    return str(text).replace("|", "\\|").replace("\n", " ")
-
-
-def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Optional[Sequence[str]] = None) -> str:
-    """A GitHub-flavoured markdown table."""
-    return tabulate([[md(c) for c in r] for r in rows], headers=[md(h) for h in headers], tablefmt="github",
-                    disable_numparse=True, colalign=align)
+def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Optional[Sequence[str]] = None) -> Markdown:
+    """A GitHub-flavoured markdown table; cells that are not already Markdown are text, escaped by `md_text`."""
+    return Markdown(tabulate([[md_text(c, in_table=True) for c in r] for r in rows],
+                             headers=[md_text(h, in_table=True) for h in headers],
+                             tablefmt="github", disable_numparse=True, colalign=align))
 
 
 # ---------------------------------------------------------------- findings
@@ -94,35 +90,35 @@ def _switches(f: Figures) -> str:
             f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)")
 
 
-def thread_finding(t: ThreadResult, label: str) -> str:
+def thread_finding(t: ThreadResult, label: str) -> Markdown:
     """One sentence of what a periodic thread measured, e.g. `at FIFO 80: 0 involuntary switches in 98 callbacks`."""
     f = t.figures
     lat = (f.latency_us or {}).get("p99")
-    where = f"**{label}** at {policy_label(t.applied)}"
+    where = f"**{md_text(label)}** at {policy_label(t.applied)}"
     if not f.callbacks:
-        return f"{where}: no callback ran"
+        return Markdown(f"{where}: no callback ran")
     what = _switches(f)
     faults = f.faults.minor_after_first
     tail = f", {faults:,} minor page faults after the first callback" if faults else ""
-    return f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}{tail}"
+    return Markdown(f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}{tail}")
 
 
-def cell_finding(cell: CellResult, labels: dict[str, str]) -> str:
+def cell_finding(cell: CellResult, labels: dict[str, str]) -> Markdown:
     threads = periodic_threads(cell)
     if cell.status is Status.ERROR and not any(t.figures.callbacks for t in threads):
-        return f"No measurement: {cell.reason or 'the cell did not run'}."
+        return Markdown(f"No measurement: {md_text(cell.reason or 'the cell did not run')}.")
     if not threads:
-        return "No thread runs periodic work, so there are no per-callback figures; see the switch counts below."
-    return "; ".join(thread_finding(t, labels[t.key]) for t in threads) + "."
+        return Markdown("No thread runs periodic work, so there are no per-callback figures; see the switch counts below.")
+    return Markdown("; ".join(thread_finding(t, labels[t.key]) for t in threads) + ".")
 
 
-def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[str]:
+def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[Markdown]:
     """Per periodic thread seen in several cells, one sentence: its figures per policy, most preempted first.
 
     e.g. `at OTHER 8.94 involuntary switches per callback (98 of 99 callbacks preempted), wake-up p99 7.43 ms;
     at FIFO 10, 80: 0 per callback, p99 96.3 µs – 117 µs`.
     """
-    out = []
+    out: list[Markdown] = []
     for key, entries in _by_thread(cells).items():
         if len(entries) < 2:
             continue
@@ -130,11 +126,11 @@ def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[
         for _, t in entries:
             groups.setdefault(t.applied.policy.name if t.applied else "?", []).append(t)
         ranked = sorted(groups.items(), key=lambda kv: -max(t.figures.involuntary.per_callback_mean or 0.0 for t in kv[1]))
-        out.append(f"**{labels[key]}**: " + "; ".join(_group_finding(name, ts) for name, ts in ranked) + ".")
+        out.append(Markdown(f"**{md_text(labels[key])}**: " + "; ".join(_group_finding(name, ts) for name, ts in ranked) + "."))
         faults = [t.figures.faults.minor_after_first for _, t in entries]
         if len(set(faults)) > 1:
-            out.append(f"**{labels[key]}**, minor page faults after the first callback: "
-                       + "; ".join(f"{fmt_int(n)} ({cell.id})" for (cell, _), n in zip(entries, faults)) + ".")
+            out.append(Markdown(f"**{md_text(labels[key])}**, minor page faults after the first callback: "
+                                + "; ".join(f"{fmt_int(n)} ({md_text(cell.id)})" for (cell, _), n in zip(entries, faults)) + "."))
     return out
 
 
@@ -173,11 +169,13 @@ def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, 
 
 @dataclass(frozen=True)
 class Table:
+    """A table of text cells (escaped when rendered) and Markdown cells (shown as they are)."""
+
     headers: list[str]
     rows: list[list[str]]
     align: Optional[list[str]] = None
 
-    def render(self) -> str:
+    def render(self) -> Markdown:
         return table(self.headers, self.rows, self.align)
 
 
@@ -252,7 +250,7 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
         p99 = max((p for p in p99s if p is not None), default=None)
         passed = sum(v.passed for v in cell.expectations)
         rows.append([
-            f"[{section_title(cell, repeated)[5:]}](#{anchor(cell, repeated)})",
+            Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})"),
             ICON[cell.status],
             ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
             fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
@@ -339,32 +337,32 @@ def facts(doc: RunDocument) -> Table:
         rt = f"on: RT threads may use {runtime / 1000:g} ms of every {period / 1000:g} ms ({100 * runtime / period:.0f}%)"
     else:
         rt = "off (an RT busy loop can starve a CPU)"
-    preempt = "**yes**" if m.get("preempt_rt") else f"no ({m.get('preempt', 'unknown')})"
+    preempt = Markdown("**yes**" if m.get("preempt_rt") else f"no ({md_text(m.get('preempt', 'unknown'), in_table=True)})")
     caps = ", ".join(f"{name} {'yes' if p.get(key) else 'no'}" for name, key in (("CAP_SYS_NICE", "cap_sys_nice"), ("CAP_IPC_LOCK", "cap_ipc_lock")))
-    perms = (f"{p.get('user', '?')} (uid {p.get('uid', '?')}): {caps}, RLIMIT_RTPRIO {p.get('rlimit_rtprio', '?')}, "
-             f"RLIMIT_MEMLOCK {fmt_bytes(p.get('rlimit_memlock'))}")
+    perms = md_text(f"{p.get('user', '?')} (uid {p.get('uid', '?')}): {caps}, RLIMIT_RTPRIO {p.get('rlimit_rtprio', '?')}, "
+                    f"RLIMIT_MEMLOCK {fmt_bytes(p.get('rlimit_memlock'))}", in_table=True)
     if p.get("missing"):
-        perms += "; **missing:** " + "; ".join(p["missing"])
+        perms = Markdown(perms + "; **missing:** " + "; ".join(md_text(why, in_table=True) for why in p["missing"]))
     counts: dict[Status, int] = {}
     for cell in doc.cells:
         counts[cell.status] = counts.get(cell.status, 0) + 1
     outcome = ", ".join(f"{n} {s.value}" for s, n in sorted(counts.items(), key=lambda kv: list(Status).index(kv[0])))
     missing = len([c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}])
-    rows = [
-        ["Scenario", f"{doc.name} (`{doc.scenario.get('path', '?')}`)"],
+    rows: list[list[str]] = [
+        ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(doc.scenario.get('path', '?'), in_table=True)})")],
         ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
         ["Host", f"{m.get('hostname', '?')}, {m.get('arch', '?')}, CPUs {m.get('cpus_online', '?')} online"
                  f" ({m.get('cpus_allowed', '?')} usable), isolated CPUs: {m.get('isolated_cpus') or 'none'},"
                  f" memory {fmt_bytes(m.get('memory_total_bytes'))}"],
-        ["Kernel", f"{m.get('kernel', '?')} `{m.get('kernel_version', '')}`"],
+        ["Kernel", Markdown(f"{md_text(m.get('kernel', '?'), in_table=True)} {md_code(m.get('kernel_version', ''), in_table=True)}")],
         ["PREEMPT_RT", preempt],
         ["RT throttling", rt],
         ["CPU frequency governor", ", ".join(m.get("cpufreq_governors") or []) or "not exposed"],
         ["Permissions", perms],
         ["Tool", f"runner {doc.tool_version}, Python {m.get('python', '?')}"],
-        ["Command", f"`{' '.join(doc.command)}`"],
-        ["Result", f"**{doc.status}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run ({outcome or 'none'})"
-                   + (f", {missing} not run" if missing else "")],
+        ["Command", md_code(" ".join(doc.command), in_table=True)],
+        ["Result", Markdown(f"**{md_text(doc.status, in_table=True)}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run "
+                            f"({outcome or 'none'})" + (f", {missing} not run" if missing else ""))],
     ]
     hosts: dict[str, int] = {}
     for cell in doc.cells:
@@ -375,7 +373,7 @@ def facts(doc: RunDocument) -> Table:
     if doc.shard:
         rows.append(["Shard", doc.shard])
     if doc.merged_from:
-        rows.append(["Merged from", ", ".join(f"`{p}`" for p in doc.merged_from)])
+        rows.append(["Merged from", Markdown(", ".join(md_code(p, in_table=True) for p in doc.merged_from))])
     return Table(["Fact", "Value"], rows)
 
 
@@ -398,12 +396,12 @@ class CellSection:
     title: str
     anchor: str
     icon: str
-    finding: str
-    ps: str
+    finding: Markdown
+    ps: Optional[Markdown]
     switches: Table
     verdicts: Optional[Table]
     degraded: list[str]
-    load: str
+    load: Markdown
 
 
 @dataclass
@@ -419,23 +417,23 @@ class ReportModel:
     title: str
     description: str
     facts: Table
-    findings: list[str]
+    findings: list[Markdown]
     summary: Optional[Table]
     spread: Optional[Table]
     threads: list[ThreadView]
     sections: list[CellSection]
-    comparison: Optional[str] = None
+    comparison: Optional[Markdown] = None
     notes: list[str] = field(default_factory=list)
 
 
-def _load_line(cell: CellResult) -> str:
+def _load_line(cell: CellResult) -> Markdown:
     hogs = [b for b in cell.background if b.get("kind") == "hog"]
     commands = [b for b in cell.background if b.get("kind") == "command"]
     parts = []
     if hogs:
         parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
-    parts += [f"`{' '.join(c.get('argv', []))}`" for c in commands]
-    return ", ".join(parts) or "none"
+    parts += [md_code(" ".join(c.get("argv", []))) for c in commands]
+    return Markdown(", ".join(parts) or "none")
 
 
 def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, comparison: Optional[str] = None,
@@ -455,7 +453,7 @@ def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, compa
     sections = [
         CellSection(
             cell=cell, title=section_title(cell, repeated), anchor=anchor(cell, repeated), icon=ICON[cell.status], finding=cell_finding(cell, labels),
-            ps=render_ps(cell.thread_table, pid_width=pid_width) if cell.thread_table else "",
+            ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
             switches=switch_table(cell, labels), verdicts=verdict_table(cell),
             degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
             load=_load_line(cell),
@@ -464,10 +462,11 @@ def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, compa
     ]
     findings = matrix_finding(firsts, labels) if matrix else []
     if not findings:
-        findings = [f"{cell.id}: {cell_finding(cell, labels)}" if matrix else cell_finding(cell, labels) for cell in firsts]
+        findings = [Markdown(f"{md_text(cell.id)}: {cell_finding(cell, labels)}") if matrix else cell_finding(cell, labels)
+                    for cell in firsts]
     if repeated:
-        findings.append("Cells ran more than once: the side-by-side view and these findings show each cell's first run; "
-                        "the spread table shows every repeat.")
+        findings.append(Markdown("Cells ran more than once: the side-by-side view and these findings show each cell's "
+                                 "first run; the spread table shows every repeat."))
     notes = []
     if any(len(v.side_by_side.rows[0]) - 1 < v.cells for v in threads if v.side_by_side):
         notes.append(f"The side-by-side view shows the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
@@ -476,7 +475,7 @@ def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, compa
         description=str(doc.scenario.get("description") or ""),
         facts=facts(doc), findings=findings, summary=summary_table(cells, repeated) if len(cells) > 1 else None,
         spread=spread_table(cells, labels),
-        threads=threads, sections=sections, comparison=comparison, notes=notes,
+        threads=threads, sections=sections, comparison=Markdown(comparison) if comparison else None, notes=notes,
     )
 
 
@@ -484,12 +483,17 @@ _ENV: Optional[jinja2.Environment] = None
 
 
 def environment() -> jinja2.Environment:
-    """The template environment (templates ship inside the package)."""
+    """The template environment (templates ship inside the package).
+
+    Every `{{ value }}` that is not Markdown is text and goes through `md_text`, as an HTML
+    template escapes what is not marked safe: a name from the scenario cannot become a heading,
+    a table row, a link or HTML in the report.
+    """
     global _ENV
     if _ENV is None:
         _ENV = jinja2.Environment(loader=jinja2.PackageLoader("runner", "templates"), autoescape=False,
                                   trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
-                                  undefined=jinja2.StrictUndefined)
+                                  undefined=jinja2.StrictUndefined, finalize=md_text)
     return _ENV
 
 
@@ -511,7 +515,7 @@ VERDICT_ICON = {"regression": "❌ regression", "better": "🟢 better", "within
 
 @dataclass
 class ComparisonModel:
-    headline: str
+    headline: Markdown
     facts: Table
     regressions: Optional[Table]
     cells: Table
@@ -529,15 +533,15 @@ def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Compar
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
     headline = (f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
-                f"cell{'s' if total != 1 else ''}: {', '.join(regressed)}" if regressed
+                f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}" if regressed
                 else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline.")
     gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
     if gone:
-        headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(gone)}."
+        headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(map(md_text, gone))}."
     if new_cells:
-        headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {', '.join(new_cells)}."
+        headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {', '.join(map(md_text, new_cells))}."
     facts = Table(["", "Baseline", "This run"], [
-        ["Results", f"`{base_name}`", f"`{new_name}`"],
+        ["Results", md_code(base_name, in_table=True), md_code(new_name, in_table=True)],
         ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],
         ["Host, kernel", f"{cmp.base.machine.get('hostname', '?')}, {cmp.base.machine.get('kernel', '?')}",
          f"{cmp.new.machine.get('hostname', '?')}, {cmp.new.machine.get('kernel', '?')}"],
@@ -555,7 +559,7 @@ def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Compar
                     VERDICT_ICON["regression" if c.cell in regressed else c.verdict] + (f" ({c.note})" if c.note else "")]
                    for c in cmp.cells]
     return ComparisonModel(
-        headline=headline, facts=facts,
+        headline=Markdown(headline), facts=facts,
         regressions=Table(headers, figure_rows(bad)) if bad else None,
         cells=Table(["Cell", "Baseline status", "Status now", "Verdict"], status_rows),
         figures=Table(headers, figure_rows(cmp.figures)) if cmp.figures else None,
@@ -578,7 +582,7 @@ def format_value(f: "FigureChange", which: str) -> str:
     return fmt_figure(f.base if which == "base" else f.new, f.figure.unit)
 
 
-def render_comparison(cmp: "Comparison", base_name: str, new_name: str) -> str:
+def render_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Markdown:
     """The comparison as a markdown section (`## Comparison with the baseline`)."""
     text = environment().get_template("compare.md.j2").render(c=build_comparison(cmp, base_name, new_name))
-    return re.sub(r"\n{3,}", "\n\n", text).strip("\n") + "\n"
+    return Markdown(re.sub(r"\n{3,}", "\n\n", text).strip("\n") + "\n")

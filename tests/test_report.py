@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -423,3 +424,79 @@ def report_load(path):
     from runner.results import load
 
     return load(path)
+
+
+# ---------------------------------------------------------------- names from the scenario stay text
+
+HOSTILE = st.lists(st.sampled_from(list("#|`*_[]()!<>&\\~-+=.:$ \n\r\t\x00\u2028a1") + [
+    "<script>", "](http://x)", "$\\foo$", "```", "<!--", "&amp;", "1. ", "> ", "- ", "## "]), min_size=1, max_size=12).map("".join)
+
+
+def structure(markdown: str) -> list[str]:
+    """The markdown's blocks (headings, lists, tables with their rows and cells) and inline structure, no text."""
+    out = []
+    for tok in MarkdownIt("commonmark").enable(["table", "strikethrough"]).parse(markdown):
+        if tok.type != "inline":
+            out.append(tok.type + tok.tag)
+        for child in tok.children or []:
+            if child.type not in ("text", "text_special", "softbreak"):
+                out.append(child.type)
+    return out
+
+
+def rendered_text(markdown: str) -> str:
+    tokens = MarkdownIt("commonmark").enable(["table", "strikethrough"]).parse(markdown)
+    return "".join(c.content for t in tokens for c in t.children or [] if c.type in ("text", "text_special"))
+
+
+@settings(max_examples=300, derandomize=True, database=None)
+@given(HOSTILE)
+def test_escaped_text_renders_as_the_text_itself(text):
+    from runner.fmt import md_text
+
+    expected = " ".join(re.sub(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]", " ", text).strip().split(" "))
+    escaped = md_text(text)
+    assert "\n" not in escaped
+    assert rendered_text(escaped) == expected, (text, escaped)
+    assert structure(escaped) in ([], ["paragraph_openp", "paragraph_closep"]), (text, escaped)
+    cell = md_text(text, in_table=True)
+    row = "| a | b |\n|---|---|\n| " + cell + " | x |\n"
+    assert structure(row) == structure("| a | b |\n|---|---|\n| plain | x |\n"), (text, cell)
+    assert rendered_text(row) == "ab" + expected + "x", (text, cell)
+
+
+def _hostile_doc(name: str, cells: int = 3):
+    import dataclasses
+
+    doc = matrix()
+    doc.cells = doc.cells[:cells]
+    doc.scenario = {**doc.scenario, "description": name, "name": name}
+    for i, cell in enumerate(doc.cells):
+        cell.id = f"v={name}{i}"
+        cell.reason = name
+        t = next(t for t in cell.threads if t.periodic)
+        cell.threads[cell.threads.index(t)] = dataclasses.replace(t, process=name, name=name, degraded=[name])
+        cell.expectations = [dataclasses.replace(v, thread=name, limit=name, note=name) for v in cell.expectations]
+    doc.matrix_cells = doc.cell_ids = [c.id for c in doc.cells]
+    return doc
+
+
+@settings(max_examples=40, derandomize=True, database=None, deadline=None)
+@given(HOSTILE.filter(lambda s: re.sub(r"[\x00-\x20\x7f-\x9f\u2028\u2029]", "", s)))  # a blank description is none
+def test_hostile_names_do_not_change_the_report_structure(name):
+    from runner.compare import compare
+
+    plain = _hostile_doc("plain")
+    hostile = _hostile_doc(name)
+    assert structure(report.render_run(hostile)) == structure(report.render_run(plain))
+    section = report.render_comparison(compare(hostile, hostile), name, name)
+    assert structure(section) == structure(report.render_comparison(compare(plain, plain), "plain", "plain"))
+
+
+@pytest.mark.parametrize("name", ["$\\foo$", "_hidden", "a\nb", "线程", "<b>x</b>", "$x^2", "\\"])
+def test_plots_draw_any_name(tmp_path, name):
+    doc = renamed(str(tmp_path / "run"), [(name, name)] * 2, cell_ids=[f"v={name}", f"v={name}2", "c", "d", "e"])
+    path = write_report(doc, str(tmp_path / "run"))
+    assert os.path.exists(path)
+    svgs = [n for n in os.listdir(tmp_path / "run" / "plots") if n.endswith(".svg")]
+    assert len(svgs) == 4  # the renamed thread and the recorded one, two plots each
