@@ -302,6 +302,8 @@ class RunDocument:
             root = os.path.realpath(self.folder)
             if os.path.commonpath([os.path.realpath(path), root]) != root:
                 why = f"{cell.samples_file!r} leads out of the results folder through a symlink; expected a path inside {self.folder}"
+            elif os.path.exists(path) and not os.path.isfile(path):
+                why = f"{cell.samples_file!r} is not a file; expected the cell's samples.csv.gz inside {self.folder}"
         if why:
             where = self.source or os.path.join(self.folder, "results.json")
             raise ScenarioError([Problem(where, 1, 1, f"cells.{cell.id}.samples_file", why)])

@@ -1,0 +1,178 @@
+"""Fuzzing the readers: mutated recorded results must give exit 0, 1 or 2, never a traceback.
+
+`runner report`, `runner compare` and `runner merge` read files that may come from another
+machine, another version, or an attacker: every mutation of the recorded runs in tests/data
+(values, types, keys, NaN, huge numbers, unicode and control characters, samples paths,
+truncated text and samples files) must end in a result or a one-line error.
+
+A short run by default; `RUNNER_FUZZ_EXAMPLES=5000` for the long one CI runs.  Reproducible:
+derandomized, no example database.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shutil
+import tempfile
+from typing import Any
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import run_cli
+from reportdata import DATA, MATRIX
+
+EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "120"))
+RUNS = sorted(os.listdir(DATA))
+ORIGINAL = {name: json.load(open(os.path.join(DATA, name, "results.json"), encoding="utf-8")) for name in RUNS}
+
+TEXT = st.lists(st.characters(codec="utf-8", exclude_categories=("Cs",)) | st.sampled_from(
+    list("\x00\n\r\t\u2028$|`#*_[]<>&\\/") + ["..", "$\\foo$", "<script>", "线程"]), max_size=8).map("".join)
+LEAF = st.one_of(
+    st.none(), st.booleans(), TEXT,
+    st.integers(min_value=-(2**70), max_value=2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0, -1, 2**63, -(2**63) - 1, 1e300, -0.0, "", "all", "fifo", "passed", "0-1", "p99"]),
+)
+VALUE = st.recursive(LEAF, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(TEXT, inner, max_size=3),
+                     max_leaves=6)
+SAMPLES_PATHS = st.sampled_from(["/etc/passwd", "../../x", "cells/../../x", "cells/../cells", "", ".", "cells",
+                                 "cells/x/samples.csv.gz", "\x00", "results.json"])
+
+
+def _nodes(node: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    out = [path]
+    if isinstance(node, dict):
+        for key, value in node.items():
+            out += _nodes(value, path + (key,))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            out += _nodes(value, path + (i,))
+    return out
+
+
+NODES = {name: _nodes(doc) for name, doc in ORIGINAL.items()}
+
+
+def _parent(doc: Any, path: tuple[Any, ...]) -> Any:
+    for part in path[:-1]:
+        doc = doc[part]
+    return doc
+
+
+@st.composite
+def mutated(draw: st.DrawFn) -> tuple[str, str, list[tuple[str, Any]]]:
+    """A recorded run's results.json text after a few mutations, and what to do to its samples files."""
+    name = draw(st.sampled_from(RUNS))
+    doc = json.loads(json.dumps(ORIGINAL[name]))
+    for _ in range(draw(st.integers(1, 4))):
+        path = draw(st.sampled_from(NODES[name][1:]))
+        try:
+            parent = _parent(doc, path)
+            parent[path[-1]]  # the path may be gone after an earlier mutation
+        except (KeyError, IndexError, TypeError):
+            continue
+        op = draw(st.sampled_from(["replace", "replace", "delete", "add", "samples_file", "copy"]))
+        if op == "replace":
+            parent[path[-1]] = draw(VALUE)
+        elif op == "delete":
+            del parent[path[-1]]
+        elif op == "add" and isinstance(parent, dict):
+            parent[draw(TEXT)] = draw(VALUE)
+        elif op == "copy" and isinstance(parent, list):
+            parent.append(json.loads(json.dumps(parent[path[-1]])))
+        elif op == "samples_file" and doc.get("cells"):
+            cells = doc["cells"] if isinstance(doc["cells"], list) else []
+            if cells and isinstance(cells[0], dict):
+                cells[draw(st.integers(0, len(cells) - 1))]["samples_file"] = draw(SAMPLES_PATHS)
+    text = json.dumps(doc, ensure_ascii=draw(st.booleans()))
+    edit = draw(st.sampled_from(["none", "none", "none", "truncate", "huge", "inf", "garbage"]))
+    if edit == "truncate":
+        text = text[: draw(st.integers(0, len(text)))]
+    elif edit in ("huge", "inf") and '": 0' in text:
+        text = text.replace('": 0', '": ' + ("9" * 5000 if edit == "huge" else "1e999"), 1)
+    elif edit == "garbage":
+        at = draw(st.integers(0, len(text)))
+        text = text[:at] + draw(TEXT) + text[at:]
+    samples = draw(st.lists(st.tuples(st.sampled_from(["truncate", "rows", "empty", "missing", "symlink"]),
+                                      st.integers(0, 4)), max_size=2))
+    return name, text, samples
+
+
+BAD_ROWS = [b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n", b"thread\n\n\n", b"\x00\x01\x02",
+            b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\n" + b"a,1," + b"9" * 40 + b",0,0,0\n"]
+
+
+def _spoil_samples(folder: str, how: str, index: int) -> None:
+    files = sorted(os.path.join(d, f) for d, _, fs in os.walk(os.path.join(folder, "cells")) for f in fs)
+    if not files:
+        return
+    path = files[index % len(files)]
+    if how == "truncate":
+        data = open(path, "rb").read()
+        open(path, "wb").write(data[: len(data) // 2])
+    elif how == "rows":
+        open(path, "wb").write(gzip.compress(BAD_ROWS[index % len(BAD_ROWS)]))
+    elif how == "empty":
+        open(path, "wb").close()
+    elif how == "missing":
+        os.unlink(path)
+    elif how == "symlink":
+        os.unlink(path)
+        os.symlink("/etc/hostname", path)
+
+
+def _check(argv: tuple[str, ...]) -> None:
+    done = run_cli(*argv)
+    assert done.code in (0, 1, 2), (argv, done.code, done.err[-2000:])
+    for bad in ("Traceback", "internal error"):
+        assert bad not in done.err and bad not in done.out, (argv, done.err[-2000:])
+
+
+@settings(max_examples=EXAMPLES, derandomize=True, database=None, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(mutated())
+def test_mutated_results_never_crash_report_compare_or_merge(case):
+    name, text, samples = case
+    with tempfile.TemporaryDirectory() as tmp:
+        run = os.path.join(tmp, "run")
+        shutil.copytree(os.path.join(DATA, name), run)
+        with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
+            handle.write(text)
+        for how, index in samples:
+            _spoil_samples(run, how, index)
+        _check(("report", run, "-o", os.path.join(tmp, "report.md"), "--no-plots"))
+        _check(("compare", MATRIX, run))
+        _check(("compare", run, run, "-o", os.path.join(tmp, "comparison.md")))
+        _check(("merge", run, "--out", os.path.join(tmp, "merged"), "--no-plots"))
+
+
+@settings(max_examples=max(3, EXAMPLES // 20), derandomize=True, database=None, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(mutated())
+def test_mutated_results_never_crash_the_plots(case):
+    name, text, samples = case
+    with tempfile.TemporaryDirectory() as tmp:
+        run = os.path.join(tmp, "run")
+        shutil.copytree(os.path.join(DATA, name), run)
+        with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
+            handle.write(text)
+        for how, index in samples:
+            _spoil_samples(run, how, index)
+        _check(("report", run))
+
+
+def test_the_fuzzer_reaches_every_outcome():
+    """A harness that only ever produced refusals (or only successes) would prove little."""
+    with tempfile.TemporaryDirectory() as tmp:
+        run = os.path.join(tmp, "run")
+        shutil.copytree(MATRIX, run)
+        assert run_cli("report", run, "--no-plots").code == 0
+        doc = json.loads(json.dumps(ORIGINAL["policy_matrix"]))
+        doc["cells"][0]["threads"][0]["latency_us"]["p99"] = "fast"
+        with open(os.path.join(run, "results.json"), "w", encoding="utf-8") as handle:
+            json.dump(doc, handle)
+        done = run_cli("report", run, "--no-plots")
+        assert done.code == 2 and "cells[0].threads[0].latency_us.p99" in done.err
