@@ -16,17 +16,17 @@ import json
 import os
 import shutil
 import tempfile
+from pathlib import Path
 from typing import Any
 
+from conftest import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from conftest import run_cli
 from reportdata import DATA, MATRIX
 
 EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "120"))
 RUNS = sorted(os.listdir(DATA))
-ORIGINAL = {name: json.load(open(os.path.join(DATA, name, "results.json"), encoding="utf-8")) for name in RUNS}
+ORIGINAL = {name: json.loads(Path(DATA, name, "results.json").read_text(encoding="utf-8")) for name in RUNS}
 
 TEXT = st.lists(st.characters(codec="utf-8", exclude_categories=("Cs",)) | st.sampled_from(
     list("\x00\n\r\t\u2028$|`#*_[]<>&\\/") + ["..", "$\\foo$", "<script>", "线程"]), max_size=8).map("".join)
@@ -109,19 +109,31 @@ def _spoil_samples(folder: str, how: str, index: int) -> None:
     files = sorted(os.path.join(d, f) for d, _, fs in os.walk(os.path.join(folder, "cells")) for f in fs)
     if not files:
         return
-    path = files[index % len(files)]
+    path = Path(files[index % len(files)])
     if how == "truncate":
-        data = open(path, "rb").read()
-        open(path, "wb").write(data[: len(data) // 2])
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
     elif how == "rows":
-        open(path, "wb").write(gzip.compress(BAD_ROWS[index % len(BAD_ROWS)]))
+        path.write_bytes(gzip.compress(BAD_ROWS[index % len(BAD_ROWS)]))
     elif how == "empty":
-        open(path, "wb").close()
+        path.write_bytes(b"")
     elif how == "missing":
         os.unlink(path)
     elif how == "symlink":
         os.unlink(path)
         os.symlink("/etc/hostname", path)
+
+
+def _lay_out(tmp: str, case: tuple[str, str, list[tuple[str, Any]]]) -> str:
+    """The mutated run as a results folder under `tmp` (its samples spoilt as drawn); its path."""
+    name, text, samples = case
+    run = os.path.join(tmp, "run")
+    shutil.copytree(os.path.join(DATA, name), run)
+    with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
+        handle.write(text)
+    for how, index in samples:
+        _spoil_samples(run, how, index)
+    return run
 
 
 def _check(argv: tuple[str, ...]) -> None:
@@ -135,14 +147,8 @@ def _check(argv: tuple[str, ...]) -> None:
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(mutated())
 def test_mutated_results_never_crash_report_compare_or_merge(case):
-    name, text, samples = case
     with tempfile.TemporaryDirectory() as tmp:
-        run = os.path.join(tmp, "run")
-        shutil.copytree(os.path.join(DATA, name), run)
-        with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
-            handle.write(text)
-        for how, index in samples:
-            _spoil_samples(run, how, index)
+        run = _lay_out(tmp, case)
         _check(("report", run, "-o", os.path.join(tmp, "report.md"), "--no-plots"))
         _check(("compare", MATRIX, run))
         _check(("compare", run, run, "-o", os.path.join(tmp, "comparison.md")))
@@ -153,15 +159,8 @@ def test_mutated_results_never_crash_report_compare_or_merge(case):
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(mutated())
 def test_mutated_results_never_crash_the_plots(case):
-    name, text, samples = case
     with tempfile.TemporaryDirectory() as tmp:
-        run = os.path.join(tmp, "run")
-        shutil.copytree(os.path.join(DATA, name), run)
-        with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
-            handle.write(text)
-        for how, index in samples:
-            _spoil_samples(run, how, index)
-        _check(("report", run))
+        _check(("report", _lay_out(tmp, case)))
 
 
 def test_the_fuzzer_reaches_every_outcome():
