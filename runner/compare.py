@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Optional
+from typing import Any
 
 from . import units
 from .errors import Problem, ScenarioError, UsageError, did_you_mean
@@ -27,10 +28,10 @@ class Figure:
     name: str
     words: str
     unit: str  # "us" for latencies, "" for counts
-    value: Callable[[ThreadResult], Optional[float]]
+    value: Callable[[ThreadResult], float | None]
 
 
-def _lat(q: str) -> Callable[[ThreadResult], Optional[float]]:
+def _lat(q: str) -> Callable[[ThreadResult], float | None]:
     return lambda t: (t.figures.latency_us or {}).get(q)
 
 
@@ -54,8 +55,8 @@ class Threshold:
     """How much a figure may grow over its baseline before it counts as a regression."""
 
     figure: str
-    relative: Optional[float] = None  # 0.2 is +20%
-    absolute: Optional[float] = None  # in the figure's unit (µs for latencies)
+    relative: float | None = None  # 0.2 is +20%
+    absolute: float | None = None  # in the figure's unit (µs for latencies)
 
     def exceeded(self, base: float, new: float) -> bool:
         delta = new - base
@@ -129,8 +130,8 @@ class FigureChange:
     cell: str
     thread: str
     figure: Figure
-    base: Optional[float]
-    new: Optional[float]
+    base: float | None
+    new: float | None
     threshold: Threshold
     verdict: str
 
@@ -138,8 +139,8 @@ class FigureChange:
 @dataclass(frozen=True)
 class CellChange:
     cell: str
-    base_status: Optional[Status]
-    new_status: Optional[Status]
+    base_status: Status | None
+    new_status: Status | None
     verdict: str
     note: str = ""
 
@@ -220,7 +221,7 @@ def _ids(groups: dict[str, list[CellResult]]) -> str:
     return f"{len(groups)} cell{'s' if len(groups) != 1 else ''}: {shown}"
 
 
-def _median(values: list[Optional[float]]) -> Optional[float]:
+def _median(values: list[float | None]) -> float | None:
     """The median of the figures there are; NaN or infinity is no figure (never "within threshold")."""
     present = [v for v in values if v is not None and math.isfinite(v)]
     return statistics.median(present) if present else None
@@ -229,7 +230,7 @@ def _median(values: list[Optional[float]]) -> Optional[float]:
 _OK = (Status.PASSED, Status.DEGRADED)
 
 
-def compare(base: RunDocument, new: RunDocument, thresholds: Optional[list[Threshold]] = None,
+def compare(base: RunDocument, new: RunDocument, thresholds: list[Threshold] | None = None,
             base_name: str = "baseline", new_name: str = "new") -> Comparison:
     """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
     check_comparable(base, new, base_name, new_name)

@@ -4,10 +4,9 @@ names from the scenario escaped so they stay text in markdown.  Pure."""
 from __future__ import annotations
 
 import re
-from typing import Optional
 
 
-def fmt_us(value: Optional[float]) -> str:
+def fmt_us(value: float | None) -> str:
     """A latency given in microseconds, in the unit that reads best: `56.6 µs`, `6.12 ms`, `1.20 s`."""
     if value is None:
         return "–"
@@ -18,15 +17,15 @@ def fmt_us(value: Optional[float]) -> str:
     return f"{value / 1_000_000:.2f} s"
 
 
-def fmt_mean(value: Optional[float]) -> str:
+def fmt_mean(value: float | None) -> str:
     return "–" if value is None else ("0" if value == 0 else f"{value:.2f}")
 
 
-def fmt_int(value: Optional[int]) -> str:
+def fmt_int(value: int | None) -> str:
     return "–" if value is None else f"{value:,}"
 
 
-def fmt_bytes(value: Optional[int]) -> str:
+def fmt_bytes(value: int | None) -> str:
     if value is None:
         return "–"
     if value < 0:
@@ -37,7 +36,7 @@ def fmt_bytes(value: Optional[int]) -> str:
     return f"{value} B"
 
 
-def fmt_figure(value: Optional[float], unit: str) -> str:
+def fmt_figure(value: float | None, unit: str) -> str:
     """A compared figure: a latency (unit "us") or a count."""
     if unit == "us":
         return fmt_us(value)

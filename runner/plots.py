@@ -18,8 +18,8 @@ import math
 import os
 import re
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional, Sequence
 
 from .report import Plot
 from .results import RunDocument, ThreadResult, read_samples, slug, write_atomic
@@ -160,7 +160,7 @@ def plot_name(t: ThreadResult) -> str:
 _WORD = re.compile(r"[A-Za-z0-9_.]+")
 
 
-def write_plots(doc: RunDocument, folder: str, labels: Optional[dict[str, str]] = None) -> dict[str, list[Plot]]:
+def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = None) -> dict[str, list[Plot]]:
     """Write the plots of `doc` under `folder`/plots; return, per thread key, the plots (paths relative to `folder`)."""
     data = collect(doc)
     if not data:

@@ -10,18 +10,29 @@ from __future__ import annotations
 
 import re
 import statistics
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Iterable, Optional, Sequence
+from typing import TYPE_CHECKING, Any
 
 import jinja2
 from tabulate import tabulate
 
 from . import units
-from .fmt import Markdown, fmt_bytes, fmt_figure, fmt_int, fmt_mean, fmt_us, md_code, md_code_block, md_text
+from .fmt import (
+    Markdown,
+    fmt_bytes,
+    fmt_figure,
+    fmt_int,
+    fmt_mean,
+    fmt_us,
+    md_code,
+    md_code_block,
+    md_text,
+)
+from .measure import Figures
 from .model import Policy
 from .plan import Settings
 from .pstable import render_ps
-from .measure import Figures
 from .results import CellResult, RunDocument, Status, ThreadResult
 
 if TYPE_CHECKING:
@@ -36,7 +47,7 @@ ICON = {Status.PASSED: "✅ passed", Status.DEGRADED: "⚠️ degraded", Status.
 # ---------------------------------------------------------------- formatting
 
 
-def policy_label(settings: Optional[Settings]) -> str:
+def policy_label(settings: Settings | None) -> str:
     """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`: how people say a thread's scheduling."""
     if settings is None:
         return "?"
@@ -48,7 +59,7 @@ def policy_label(settings: Optional[Settings]) -> str:
     return text
 
 
-def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Optional[Sequence[str]] = None) -> Markdown:
+def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Sequence[str] | None = None) -> Markdown:
     """A GitHub-flavoured markdown table; cells that are not already Markdown are text, escaped by `md_text`."""
     return Markdown(tabulate([[md_text(c, in_table=True) for c in r] for r in rows],
                              headers=[md_text(h, in_table=True) for h in headers],
@@ -134,7 +145,7 @@ def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[
     return out
 
 
-def _span(values: list[Optional[float]], fmt: Any) -> str:
+def _span(values: list[float | None], fmt: Any) -> str:
     present = sorted(v for v in values if v is not None)
     if not present:
         return "–"
@@ -173,7 +184,7 @@ class Table:
 
     headers: list[str]
     rows: list[list[str]]
-    align: Optional[list[str]] = None
+    align: list[str] | None = None
 
     def render(self) -> Markdown:
         return table(self.headers, self.rows, self.align)
@@ -209,7 +220,7 @@ def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
     return Table(SWITCH_HEADERS, rows, ["left", "left"] + ["right"] * (len(SWITCH_HEADERS) - 2))
 
 
-def verdict_table(cell: CellResult) -> Optional[Table]:
+def verdict_table(cell: CellResult) -> Table | None:
     if not cell.expectations:
         return None
     rows = []
@@ -288,7 +299,7 @@ def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -
     return Table(["Figure"] + [cell.id for cell, _ in entries], rows, ["left"] + ["right"] * len(entries))
 
 
-def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Optional[Table]:
+def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table | None:
     """For repeated cells: each periodic thread's key figures as median (min – max) over the repeats."""
     groups: dict[tuple[str, str], list[ThreadResult]] = {}
     for cell in cells:
@@ -297,7 +308,7 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Optiona
     if not any(len(ts) > 1 for ts in groups.values()):
         return None
 
-    def spread(values: list[Optional[float]], fmt: Any) -> str:
+    def spread(values: list[float | None], fmt: Any) -> str:
         present = sorted(v for v in values if v is not None)
         if not present:
             return "–"
@@ -351,9 +362,9 @@ def facts(doc: RunDocument) -> Table:
     rows: list[list[str]] = [
         ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(doc.scenario.get('path', '?'), in_table=True)})")],
         ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
-        ["Host", f"{m.get('hostname', '?')}, {m.get('arch', '?')}, CPUs {m.get('cpus_online', '?')} online"
-                 f" ({m.get('cpus_allowed', '?')} usable), isolated CPUs: {m.get('isolated_cpus') or 'none'},"
-                 f" memory {fmt_bytes(m.get('memory_total_bytes'))}"],
+        ["Host", (f"{m.get('hostname', '?')}, {m.get('arch', '?')}, CPUs {m.get('cpus_online', '?')} online"
+                  f" ({m.get('cpus_allowed', '?')} usable), isolated CPUs: {m.get('isolated_cpus') or 'none'},"
+                  f" memory {fmt_bytes(m.get('memory_total_bytes'))}")],
         ["Kernel", Markdown(f"{md_text(m.get('kernel', '?'), in_table=True)} {md_code(m.get('kernel_version', ''), in_table=True)}")],
         ["PREEMPT_RT", preempt],
         ["RT throttling", rt],
@@ -377,7 +388,7 @@ def facts(doc: RunDocument) -> Table:
     return Table(["Fact", "Value"], rows)
 
 
-def _when(stamp: Optional[str]) -> str:
+def _when(stamp: str | None) -> str:
     return (stamp or "?").replace("T", " ").replace("+00:00", " UTC")
 
 
@@ -397,9 +408,9 @@ class CellSection:
     anchor: str
     icon: str
     finding: Markdown
-    ps: Optional[Markdown]
+    ps: Markdown | None
     switches: Table
-    verdicts: Optional[Table]
+    verdicts: Table | None
     degraded: list[str]
     load: Markdown
 
@@ -407,7 +418,7 @@ class CellSection:
 @dataclass
 class ThreadView:
     label: str
-    side_by_side: Optional[Table]
+    side_by_side: Table | None
     plots: list[Plot]
     cells: int
 
@@ -418,11 +429,11 @@ class ReportModel:
     description: str
     facts: Table
     findings: list[Markdown]
-    summary: Optional[Table]
-    spread: Optional[Table]
+    summary: Table | None
+    spread: Table | None
     threads: list[ThreadView]
     sections: list[CellSection]
-    comparison: Optional[Markdown] = None
+    comparison: Markdown | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -436,7 +447,7 @@ def _load_line(cell: CellResult) -> Markdown:
     return Markdown(", ".join(parts) or "none")
 
 
-def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, comparison: Optional[str] = None,
+def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None,
           pid_width: int = 5) -> ReportModel:
     """Everything the template shows, as text and tables; `plots` maps a thread key to its plot files."""
     plots = plots or {}
@@ -479,7 +490,7 @@ def build(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, compa
     )
 
 
-_ENV: Optional[jinja2.Environment] = None
+_ENV: jinja2.Environment | None = None
 
 
 def environment() -> jinja2.Environment:
@@ -502,7 +513,7 @@ def render(model: ReportModel) -> str:
     return re.sub(r"\n{3,}", "\n\n", environment().get_template("report.md.j2").render(r=model))
 
 
-def render_run(doc: RunDocument, plots: Optional[dict[str, list[Plot]]] = None, comparison: Optional[str] = None,
+def render_run(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None,
                pid_width: int = 5) -> str:
     return render(build(doc, plots, comparison, pid_width))
 
@@ -517,13 +528,13 @@ VERDICT_ICON = {"regression": "❌ regression", "better": "🟢 better", "within
 class ComparisonModel:
     headline: Markdown
     facts: Table
-    regressions: Optional[Table]
+    regressions: Table | None
     cells: Table
-    figures: Optional[Table]
+    figures: Table | None
     notes: list[str]
 
 
-def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> ComparisonModel:
+def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> ComparisonModel:
     """What the comparison section shows: a headline, regressions first, then every figure compared."""
     from .compare import FIGURES
 
@@ -567,7 +578,7 @@ def build_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Compar
     )
 
 
-def change_text(f: "FigureChange") -> str:
+def change_text(f: FigureChange) -> str:
     """`+200 µs (+200%)`: how much a compared figure moved."""
     if f.base is None or f.new is None:
         return "–"
@@ -578,11 +589,11 @@ def change_text(f: "FigureChange") -> str:
     return text
 
 
-def format_value(f: "FigureChange", which: str) -> str:
+def format_value(f: FigureChange, which: str) -> str:
     return fmt_figure(f.base if which == "base" else f.new, f.figure.unit)
 
 
-def render_comparison(cmp: "Comparison", base_name: str, new_name: str) -> Markdown:
+def render_comparison(cmp: Comparison, base_name: str, new_name: str) -> Markdown:
     """The comparison as a markdown section (`## Comparison with the baseline`)."""
     text = environment().get_template("compare.md.j2").render(c=build_comparison(cmp, base_name, new_name))
     return Markdown(re.sub(r"\n{3,}", "\n\n", text).strip("\n") + "\n")

@@ -21,9 +21,18 @@ import re
 import tempfile
 import zlib
 from dataclasses import dataclass, field
-from typing import Annotated, Any, Literal, Optional, Union
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, StrictStr, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    field_validator,
+)
 
 from . import units
 from .errors import Problem, ScenarioError
@@ -53,7 +62,7 @@ def worst(statuses: list[Status]) -> Status:
     return min(statuses, key=order.index) if statuses else Status.PASSED
 
 
-def settings_json(settings: Optional[Settings]) -> Optional[dict[str, Any]]:
+def settings_json(settings: Settings | None) -> dict[str, Any] | None:
     if settings is None:
         return None
     return {
@@ -64,7 +73,7 @@ def settings_json(settings: Optional[Settings]) -> Optional[dict[str, Any]]:
     }
 
 
-def settings_from_json(data: Optional[dict[str, Any]]) -> Optional[Settings]:
+def settings_from_json(data: dict[str, Any] | None) -> Settings | None:
     if data is None:
         return None
     cpus = None if data.get("cpus") in (None, "all") else units.parse_cpus(data["cpus"])
@@ -89,7 +98,7 @@ class ThreadResult:
     work: str
     periodic: bool
     requested: Settings
-    applied: Optional[Settings]
+    applied: Settings | None
     degraded: list[str]
     figures: Figures
 
@@ -135,7 +144,7 @@ class ThreadResult:
         }
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "ThreadResult":
+    def from_json(cls, d: dict[str, Any]) -> ThreadResult:
         inv, faults = d["involuntary"], d["faults"]
         figures = Figures(
             callbacks=d["callbacks"],
@@ -187,8 +196,8 @@ class CellResult:
     threads: list[ThreadResult] = field(default_factory=list)
     expectations: list[Verdict] = field(default_factory=list)
     background: list[dict[str, Any]] = field(default_factory=list)
-    overhead_s: dict[str, Optional[float]] = field(default_factory=dict)
-    samples_file: Optional[str] = None  # relative to the results file's folder
+    overhead_s: dict[str, float | None] = field(default_factory=dict)
+    samples_file: str | None = None  # relative to the results file's folder
     repeat: int = 0
 
     def to_json(self) -> dict[str, Any]:
@@ -212,7 +221,7 @@ class CellResult:
         }
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "CellResult":
+    def from_json(cls, d: dict[str, Any]) -> CellResult:
         return cls(
             id=d["id"], matrix=dict(d["matrix"]), spec_hash=d["spec_hash"], status=Status(d["status"]),
             spec=dict(d.get("spec") or {}), reason=d.get("reason", ""), started_at=d.get("started_at", ""),
@@ -236,13 +245,13 @@ class RunDocument:
     permissions: dict[str, Any]
     start_settings: dict[str, Any]
     tool_version: str
-    finished_at: Optional[str] = None
+    finished_at: str | None = None
     status: str = "running"
     cells: list[CellResult] = field(default_factory=list)
     cell_ids: list[str] = field(default_factory=list)  # every cell this run was asked to run, in order
     matrix_cells: list[str] = field(default_factory=list)  # every cell of the scenario, in expansion order
     plan: dict[str, Any] = field(default_factory=dict)  # repeat, shuffle_seed, settle_s, cell globs: what --resume reuses
-    shard: Optional[str] = None  # "K/N" when this run is one part of a sharded matrix
+    shard: str | None = None  # "K/N" when this run is one part of a sharded matrix
     merged_from: list[str] = field(default_factory=list)
     folder: str = ""  # where the file was read from (not stored): samples paths are relative to it
     source: str = ""  # the results file it was read from (not stored), to say where a problem is
@@ -272,7 +281,7 @@ class RunDocument:
         }
 
     @classmethod
-    def from_json(cls, d: dict[str, Any], folder: str = "") -> "RunDocument":
+    def from_json(cls, d: dict[str, Any], folder: str = "") -> RunDocument:
         return cls(
             scenario=dict(d["scenario"]), command=list(d.get("command", [])), started_at=d.get("started_at", ""),
             machine=dict(d.get("machine") or {}), permissions=dict(d.get("permissions") or {}),
@@ -288,7 +297,7 @@ class RunDocument:
         """Write the document to `path` atomically; a figure that is not a number is stored as null."""
         write_atomic(path, json.dumps(without_nan(self.to_json()), indent=2, allow_nan=False))
 
-    def samples_path(self, cell: CellResult) -> Optional[str]:
+    def samples_path(self, cell: CellResult) -> str | None:
         """The cell's samples file, refused (ScenarioError) unless it lies inside the results folder.
 
         A results file names its samples relative to its folder; one that names `/etc/passwd`,
@@ -429,7 +438,7 @@ Int = Annotated[StrictInt, Field(ge=-(2**63), le=2**63 - 1)]
 Count = Annotated[StrictInt, Field(ge=0, le=2**63 - 1)]
 Number = Annotated[StrictFloat, Field(ge=-1e18, le=1e18, allow_inf_nan=False)]  # takes ints too, never bools
 Text = StrictStr
-Cpus = Annotated[Union[StrictStr, list[Count]], Field(union_mode="left_to_right")]
+Cpus = Annotated[StrictStr | list[Count], Field(union_mode="left_to_right")]
 
 
 class _Open(BaseModel):
@@ -442,7 +451,7 @@ class SettingsModel(_Open):
     policy: Policy
     priority: Int
     nice: Int
-    cpus: Optional[Cpus] = None
+    cpus: Cpus | None = None
 
     @field_validator("cpus")
     @classmethod
@@ -457,17 +466,17 @@ class SettingsModel(_Open):
 
 class InvoluntaryModel(_Open):
     total: Count
-    per_callback_mean: Optional[Number]
-    per_callback_max: Optional[Count]
-    callbacks_with_any: Optional[Count]
+    per_callback_mean: Number | None
+    per_callback_max: Count | None
+    callbacks_with_any: Count | None
 
 
 class FaultsModel(_Open):
     minor: Count
     major: Count
-    minor_first_callback: Optional[Count]
-    minor_after_first: Optional[Count]
-    minor_per_callback_max: Optional[Count]
+    minor_first_callback: Count | None
+    minor_after_first: Count | None
+    minor_per_callback_max: Count | None
 
 
 class VoluntaryModel(_Open):
@@ -484,15 +493,15 @@ class ThreadModel(_Open):
     work: Text
     periodic: StrictBool
     requested: SettingsModel
-    applied: Optional[SettingsModel]
+    applied: SettingsModel | None
     degraded: list[Text]
     complete: StrictBool
     callbacks: Count
     missed_releases: Count
     involuntary: InvoluntaryModel
     voluntary: VoluntaryModel
-    latency_us: Optional[dict[str, Optional[Number]]]
-    callback_wall_us: Optional[dict[str, Optional[Number]]]
+    latency_us: dict[str, Number | None] | None
+    callback_wall_us: dict[str, Number | None] | None
     faults: FaultsModel
     cpus_seen: list[Annotated[StrictInt, Field(ge=0, lt=8192)]]
 
@@ -501,7 +510,7 @@ class VerdictModel(_Open):
     thread: Text
     metric: Metric
     limit: Text
-    measured: Optional[Number]
+    measured: Number | None
     passed: StrictBool
     note: Text = ""
 
@@ -514,28 +523,28 @@ class ThreadRowModel(_Open):
     rtprio: Int
     nice: Int
     psr: Int
-    cpus: Optional[Cpus] = None
+    cpus: Cpus | None = None
 
 
 class BackgroundModel(_Open):
-    kind: Optional[Text] = None
+    kind: Text | None = None
     argv: list[Text] = []
 
 
 class ThrottlingModel(_Open):
-    runtime_us: Optional[Number] = None
-    period_us: Optional[Number] = None
+    runtime_us: Number | None = None
+    period_us: Number | None = None
 
 
 class MachineModel(_Open):
-    rt_throttling: Optional[ThrottlingModel] = None
-    cpufreq_governors: Optional[list[Text]] = None
-    memory_total_bytes: Optional[Int] = None
+    rt_throttling: ThrottlingModel | None = None
+    cpufreq_governors: list[Text] | None = None
+    memory_total_bytes: Int | None = None
 
 
 class PermissionsModel(_Open):
-    rlimit_memlock: Optional[Int] = None
-    missing: Optional[list[Text]] = None
+    rlimit_memlock: Int | None = None
+    missing: list[Text] | None = None
 
 
 class CellModel(_Open):
@@ -543,17 +552,17 @@ class CellModel(_Open):
     matrix: dict[str, Any]
     spec_hash: Text
     status: Status
-    spec: Optional[dict[str, Any]] = None
+    spec: dict[str, Any] | None = None
     reason: Text = ""
     started_at: Text = ""
     duration_s: Number = 0.0
-    machine: Optional[MachineModel] = None
+    machine: MachineModel | None = None
     thread_table: list[ThreadRowModel] = []
     threads: list[ThreadModel] = []
     expectations: list[VerdictModel] = []
     background: list[BackgroundModel] = []
-    overhead_s: Optional[dict[str, Optional[Number]]] = None
-    samples_file: Optional[Text] = None
+    overhead_s: dict[str, Number | None] | None = None
+    samples_file: Text | None = None
     repeat: Annotated[StrictInt, Field(ge=0, le=1_000_000)] = 0
 
 
@@ -574,20 +583,20 @@ class ResultsFile(_Open):
     scenario: ScenarioInfoModel
     command: list[Text] = []
     started_at: Text = ""
-    finished_at: Optional[Text] = None
+    finished_at: Text | None = None
     status: Text = "running"
-    machine: Optional[MachineModel] = None
-    permissions: Optional[PermissionsModel] = None
-    start_settings: Optional[dict[str, Any]] = None
+    machine: MachineModel | None = None
+    permissions: PermissionsModel | None = None
+    start_settings: dict[str, Any] | None = None
     cells: list[CellModel] = []
-    cell_ids: Optional[list[Text]] = None
-    matrix_cells: Optional[list[Text]] = None
-    plan: Optional[dict[str, Any]] = None
-    shard: Optional[Text] = None
-    merged_from: Optional[list[Text]] = None
+    cell_ids: list[Text] | None = None
+    matrix_cells: list[Text] | None = None
+    plan: dict[str, Any] | None = None
+    shard: Text | None = None
+    merged_from: list[Text] | None = None
 
 
-def samples_path_problem(relative: Optional[str], folder: str) -> str:
+def samples_path_problem(relative: str | None, folder: str) -> str:
     """Why a stored samples path may not be followed ("" when it may): it must stay in `folder`.
 
     Pure (no file access): absolute paths and `..` that climbs out are refused here; a symlink
@@ -788,6 +797,6 @@ def _sample_row(record: dict[Any, Any]) -> tuple[str, SampleRow]:
         return value
 
     key = record.get("thread")
-    if not isinstance(key, str):
+    if key is None:
         raise ValueError("column thread is missing")
     return key, SampleRow(number("seq"), number("latency_ns"), number("nivcsw"), number("minflt"), number("cpu_end"))

@@ -6,9 +6,9 @@ import copy
 import json
 
 import pytest
-
 from conftest import run_cli
 from reportdata import MATRIX, main_thread, matrix, with_figures
+
 from runner import compare as cmp
 from runner.errors import ScenarioError, UsageError
 from runner.results import Status

@@ -5,11 +5,12 @@ from __future__ import annotations
 import copy
 import json
 import os
+from pathlib import Path
 
 import pytest
-
 from conftest import run_cli
 from reportdata import MATRIX, matrix
+
 from runner.results import Status, load
 
 
@@ -27,7 +28,7 @@ def split(tmp_path, parts):
             src = os.path.join(MATRIX, cell.samples_file)
             dst = folder / cell.samples_file
             dst.parent.mkdir(parents=True, exist_ok=True)
-            dst.write_bytes(open(src, "rb").read())
+            dst.write_bytes(Path(src).read_bytes())
         doc.save(str(folder / "results.json"))
         out.append(str(folder))
     return out
@@ -93,10 +94,10 @@ def test_merge_exit_code_follows_the_cells(tmp_path):
 
 # ---------------------------------------------------------------- cell folder names
 
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from runner.results import SLUG_MAX, cell_dir, slug  # noqa: E402
+from runner.results import SLUG_MAX, cell_dir, slug
 
 SAFE_NAME = r"[A-Za-z0-9_.=,+~-]+"
 
@@ -151,7 +152,7 @@ def test_cells_whose_ids_read_alike_keep_their_own_samples_when_merged(tmp_path)
 def _with_samples_file(tmp_path, value):
     shards = split(tmp_path, [[0], [1]])
     path = os.path.join(shards[1], "results.json")
-    data = json.loads(open(path, encoding="utf-8").read())
+    data = json.loads(Path(path).read_text(encoding="utf-8"))
     data["cells"][0]["samples_file"] = value
     with open(path, "w", encoding="utf-8") as handle:
         json.dump(data, handle)
@@ -180,5 +181,5 @@ def test_merge_refuses_a_samples_file_that_is_a_symlink_out_of_the_folder(tmp_pa
     os.symlink("/etc/passwd", target)
     done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"))
     assert done.code == 2 and f"cells.{cell.id}.samples_file:" in done.err and "through a symlink" in done.err
-    assert not any("passwd" in open(os.path.join(d, f), errors="replace").read()
+    assert not any("passwd" in Path(d, f).read_text(errors="replace")
                    for d, _, fs in os.walk(tmp_path / "merged") for f in fs if f.endswith(".gz"))

@@ -6,14 +6,15 @@ import copy
 import os
 import re
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
+from conftest import run_cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from markdown_it import MarkdownIt
-
-from conftest import run_cli
 from reportdata import DATA, MATRIX, matrix, memory, renamed
+
 from runner import report
 from runner.publish import append_step_summary, write_report
 
@@ -165,7 +166,7 @@ def test_repeats_get_a_spread_table_and_their_own_sections():
 def test_plots_are_valid_svg_with_every_cell_overlaid(tmp_path):
     doc = matrix()
     path = write_report(doc, str(tmp_path))
-    text = open(path, encoding="utf-8").read()
+    text = Path(path).read_text(encoding="utf-8")
     svgs = sorted(os.listdir(tmp_path / "plots"))
     assert svgs == ["minimal_schedul-minimal_schedul-main.involuntary.svg", "minimal_schedul-minimal_schedul-main.latency.svg"]
     for name in svgs:
@@ -306,7 +307,7 @@ def test_plot_names_are_injective_safe_and_bounded(threads):
 
 def test_plot_names_of_threads_in_other_scripts_do_not_collide(tmp_path):
     doc = renamed(str(tmp_path / "run"), [("进程", "线程甲"), ("进程", "线程乙")])
-    text = open(write_report(doc, str(tmp_path)), encoding="utf-8").read()
+    text = Path(write_report(doc, str(tmp_path))).read_text(encoding="utf-8")
     keys = {t.key for c in doc.cells for t in c.threads if t.periodic}
     assert len(keys) == 3  # the two renamed threads and the recorded one in the other cells
     assert len([n for n in os.listdir(tmp_path / "plots") if n.endswith(".latency.svg")]) == 3
