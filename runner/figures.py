@@ -1,0 +1,169 @@
+"""Every figure the runner measures, declared once: name, unit, words, scope, default comparison threshold.
+
+A figure's name is the one users write in expectations (`latency.p99`), in `--threshold`
+and find in results.json; its unit says how it is stored (nanoseconds as integers for
+durations, plain counts otherwise) and how it is shown; its words are what the report
+and the comparison call it; its scope says whether it exists only for threads with
+periodic callbacks.  Expectations (the scenario's `metric` enum and its schema),
+comparison (figures and default thresholds), the report's verdict rows and the
+terminal's columns are all derived from `REGISTRY`, so a new figure is one entry here
+plus the line of the evaluation core that measures it.
+
+The measured values of one thread live in `ThreadFigures` (typed, integers in ns),
+which the evaluation core produces and the results document stores.  Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Optional, Union
+
+from pydantic import BaseModel, ConfigDict
+
+Number = Union[int, float]
+
+
+class Unit(str, enum.Enum):
+    """How a figure is stored and shown; only formatting ever scales a value."""
+
+    NS = "ns"  # a duration: integer nanoseconds inside, us/ms/s when shown
+    COUNT = "count"  # events: switches, faults, callbacks
+    PER_CALLBACK = "per callback"  # a mean of counts over callbacks (a float)
+
+
+class Scope(str, enum.Enum):
+    """Which threads have the figure."""
+
+    CALLBACKS = "callbacks"  # only threads with periodic callbacks (per-callback figures, latency)
+    THREAD = "thread"  # every thread (whole-thread totals from getrusage)
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A default regression threshold: worse by more than `relative` (a fraction) and/or `absolute` (in the unit)."""
+
+    relative: Optional[float] = None
+    absolute: Optional[Number] = None
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One measured figure of a thread."""
+
+    name: str
+    words: str
+    unit: Unit
+    scope: Scope
+    path: tuple[str, ...]  # where the value lives in ThreadFigures
+    threshold: Optional[Threshold] = None  # compared against a baseline by default when set
+    column: Optional[str] = None  # header in the terminal's per-thread table, when shown there
+
+    @property
+    def is_duration(self) -> bool:
+        return self.unit is Unit.NS
+
+    @property
+    def needs_callbacks(self) -> bool:
+        return self.scope is Scope.CALLBACKS
+
+
+class _Figures(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Involuntary(_Figures):
+    """Involuntary context switches (preemptions): the thread was runnable and lost the CPU."""
+
+    total: int
+    per_callback_mean: Optional[float] = None
+    per_callback_max: Optional[int] = None
+    callbacks_with_any: Optional[int] = None
+
+
+class Voluntary(_Figures):
+    total: int
+
+
+class Spread(_Figures):
+    """Order statistics of per-callback durations, in ns (nearest rank: values that were observed)."""
+
+    min: int
+    p50: int
+    p90: int
+    p99: int
+    p999: int
+    max: int
+
+
+class Faults(_Figures):
+    minor: int
+    major: int
+    minor_first_callback: Optional[int] = None
+    minor_after_first: Optional[int] = None
+    minor_per_callback_max: Optional[int] = None
+
+
+class ThreadFigures(_Figures):
+    """What was measured for one thread; durations in integer nanoseconds."""
+
+    callbacks: int
+    missed_releases: int
+    involuntary: Involuntary
+    voluntary: Voluntary
+    latency_ns: Optional[Spread] = None  # wake-up latency: actual wake minus scheduled release
+    callback_wall_ns: Optional[Spread] = None  # wake to end of the callback, preemptions included
+    faults: Faults
+    cpus_seen: tuple[int, ...] = ()
+    complete: bool  # False when the thread did not finish (killed, crashed, interrupted)
+
+
+_QUANTILE_WORDS = {"min": "min", "p50": "p50", "p90": "p90", "p99": "p99", "p999": "p99.9", "max": "max"}
+_LATENCY_THRESHOLD = {"p99": Threshold(relative=0.20, absolute=10_000)}
+_LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
+
+REGISTRY: tuple[Figure, ...] = (
+    Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks"),
+    Figure("missed_releases", "releases missed (no callback ran for them)", Unit.COUNT, Scope.CALLBACKS,
+           ("missed_releases",), column="missed"),
+    Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD,
+           ("involuntary", "total")),
+    Figure("involuntary.per_callback_mean", "involuntary switches per callback", Unit.PER_CALLBACK, Scope.CALLBACKS,
+           ("involuntary", "per_callback_mean"), Threshold(absolute=0.5), column="invol/cb"),
+    Figure("involuntary.per_callback_max", "involuntary switches in one callback (max)", Unit.COUNT, Scope.CALLBACKS,
+           ("involuntary", "per_callback_max"), column="invol max"),
+    Figure("involuntary.callbacks_with_any", "callbacks with an involuntary switch", Unit.COUNT, Scope.CALLBACKS,
+           ("involuntary", "callbacks_with_any")),
+    Figure("voluntary.total", "voluntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("voluntary", "total")),
+    *(Figure(f"latency.{q}", f"wake-up latency {words}", Unit.NS, Scope.CALLBACKS, ("latency_ns", q),
+             _LATENCY_THRESHOLD.get(q), _LATENCY_COLUMN.get(q)) for q, words in _QUANTILE_WORDS.items()),
+    Figure("faults.minor", "minor page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "minor"),
+           column="minor faults"),
+    Figure("faults.major", "major page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "major"),
+           Threshold(absolute=0)),
+    Figure("faults.minor_after_first", "minor page faults after the first callback", Unit.COUNT, Scope.CALLBACKS,
+           ("faults", "minor_after_first"), Threshold(relative=0.20, absolute=0)),
+)
+
+BY_NAME: dict[str, Figure] = {f.name: f for f in REGISTRY}
+
+
+def figure(name: str) -> Figure:
+    """The figure called `name`; KeyError for an unknown one (callers say "did you mean" with `BY_NAME`)."""
+    return BY_NAME[name]
+
+
+def value(figures: ThreadFigures, fig: Figure) -> Optional[Number]:
+    """The value of `fig` in one thread's figures, None where the thread has none (no callbacks)."""
+    node: object = figures
+    for part in fig.path:
+        node = getattr(node, part, None)
+        if node is None:
+            return None
+    assert isinstance(node, (int, float)) and not isinstance(node, bool), (fig.name, node)
+    return node
+
+
+def default_thresholds() -> dict[str, Threshold]:
+    """The figures compared against a baseline unless told otherwise, with their thresholds."""
+    return {f.name: f.threshold for f in REGISTRY if f.threshold is not None}
