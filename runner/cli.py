@@ -224,6 +224,7 @@ def _cmd_report(argv: list[str]) -> int:
     from .publish import comparison_text, write_report
     from .report import render_run
     from .results import load
+    from .session import exit_code
 
     doc = load(ns.results)
     section, regressions = None, 0
@@ -238,7 +239,7 @@ def _cmd_report(argv: list[str]) -> int:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
         print(f"report: {path}")
-    return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
+    return int(exit_code([], regressions))
 
 
 def _cmd_compare(argv: list[str]) -> int:
@@ -251,6 +252,7 @@ def _cmd_compare(argv: list[str]) -> int:
     from .compare import parse_threshold, thresholds_with
     from .publish import append_step_summary, comparison_text
     from .results import load, write_atomic
+    from .session import exit_code
 
     section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
     sys.stdout.write(section)
@@ -260,7 +262,7 @@ def _cmd_compare(argv: list[str]) -> int:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
-    return ExitCode.EXPECTATION_FAILED if regressions else ExitCode.OK
+    return int(exit_code([], regressions))
 
 
 def _cmd_merge(argv: list[str]) -> int:

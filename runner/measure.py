@@ -1,8 +1,7 @@
 """Per-thread figures from the native core's records, and expectation verdicts.  Pure, no I/O.
 
-The figures are named as in results.json (`involuntary.per_callback_mean`,
-`latency_us.p99`, ...), and `metric_value` is the one place that maps an
-expectation's metric onto them.
+The figures are declared in figures.py (the registry); `thread_figures` measures
+them from a native slot, `check` holds one against an expectation.
 """
 
 from __future__ import annotations
@@ -10,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
+from . import figures as fg
+from .figures import ThreadFigures
 from .model import Expectation, Metric
 from .samples import SlotData
 from .stats import mean, summarize
@@ -47,8 +48,16 @@ class Figures:
     complete: bool  # False when the thread did not finish (killed, crashed, interrupted)
 
 
-def figures(slot: SlotData, periodic: bool) -> Figures:
-    """Figures of one thread from its slot; per-callback fields are None for non-periodic work."""
+def _round(value: Optional[float]) -> Optional[float]:
+    return None if value is None else round(value, 4)
+
+
+def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0) -> ThreadFigures:
+    """A thread's figures from its native slot, in integer ns; per-callback fields are None without callbacks.
+
+    `releases_due` is how many releases the thread's period put in the cell: every one that no
+    callback served is missed, the ones after the last callback too.
+    """
     smp = slot.samples
     totals = slot.totals()
     if totals is None:  # the thread never finished: what its callbacks recorded is all there is
@@ -58,19 +67,20 @@ def figures(slot: SlotData, periodic: bool) -> Figures:
     cpus = set(slot.cpus_seen)
     for s in smp:
         cpus.update((s.cpu_start, s.cpu_end))
-    return Figures(
+    skipped = sum(s.missed for s in smp)
+    return ThreadFigures(
         callbacks=len(smp),
-        missed=sum(s.missed for s in smp),
-        involuntary=Involuntary(
+        missed_releases=max(skipped, releases_due - len(smp)) if periodic else 0,
+        involuntary=fg.Involuntary(
             total=totals[0],
             per_callback_mean=_round(mean(nivcsw)) if periodic else None,
             per_callback_max=max(nivcsw) if periodic and nivcsw else None,
             callbacks_with_any=sum(1 for n in nivcsw if n) if periodic else None,
         ),
-        voluntary_total=totals[1],
-        latency_us=_us(summarize([s.latency_ns for s in smp])) if periodic else None,
-        callback_wall_us=_us(summarize([s.end_ns - s.wake_ns for s in smp])) if periodic else None,
-        faults=Faults(
+        voluntary=fg.Voluntary(total=totals[1]),
+        latency_ns=_spread([s.latency_ns for s in smp]) if periodic else None,
+        callback_wall_ns=_spread([s.end_ns - s.wake_ns for s in smp]) if periodic else None,
+        faults=fg.Faults(
             minor=totals[2],
             major=totals[3],
             minor_first_callback=minflt[0] if minflt else None,
@@ -82,33 +92,22 @@ def figures(slot: SlotData, periodic: bool) -> Figures:
     )
 
 
-def _round(value: Optional[float]) -> Optional[float]:
-    return None if value is None else round(value, 4)
+def _spread(values: list[int]) -> Optional[fg.Spread]:
+    summary = summarize(values)
+    return None if summary is None else fg.Spread(**{k: int(v) for k, v in summary.items()})
 
 
-def _us(summary: Optional[dict[str, float]]) -> Optional[dict[str, float]]:
-    return None if summary is None else {k: round(v / 1000.0, 3) for k, v in summary.items()}
+def legacy(f: ThreadFigures) -> Figures:
+    """The figures in the results file's current (us) form, until results store ThreadFigures themselves."""
+    def us(spread: Optional[fg.Spread]) -> Optional[dict[str, float]]:
+        return None if spread is None else {k: round(v / 1000.0, 3) for k, v in spread.model_dump().items()}
 
-
-def metric_value(fig: Figures, metric: Metric) -> Optional[float]:
-    """The figure an expectation's metric names; latencies in nanoseconds (as limits are)."""
-    inv, faults = fig.involuntary, fig.faults
-    lat = fig.latency_us or {}
-    table: dict[Metric, Optional[float]] = {
-        Metric.CALLBACKS: fig.callbacks,
-        Metric.INVOLUNTARY_TOTAL: inv.total,
-        Metric.INVOLUNTARY_PER_CALLBACK_MEAN: inv.per_callback_mean,
-        Metric.INVOLUNTARY_PER_CALLBACK_MAX: inv.per_callback_max,
-        Metric.INVOLUNTARY_CALLBACKS_WITH_ANY: inv.callbacks_with_any,
-        Metric.VOLUNTARY_TOTAL: fig.voluntary_total,
-        Metric.FAULTS_MINOR: faults.minor,
-        Metric.FAULTS_MAJOR: faults.major,
-        Metric.FAULTS_MINOR_AFTER_FIRST: faults.minor_after_first,
-    }
-    if metric.is_latency:
-        value = lat.get(metric.value.split(".", 1)[1])
-        return None if value is None else value * 1000.0
-    return table[metric]
+    inv, faults = f.involuntary, f.faults
+    return Figures(f.callbacks, f.missed_releases,
+                   Involuntary(inv.total, inv.per_callback_mean, inv.per_callback_max, inv.callbacks_with_any),
+                   f.voluntary.total, us(f.latency_ns), us(f.callback_wall_ns),
+                   Faults(faults.minor, faults.major, faults.minor_first_callback, faults.minor_after_first,
+                          faults.minor_per_callback_max), f.cpus_seen, f.complete)
 
 
 @dataclass(frozen=True)
@@ -123,9 +122,12 @@ class Verdict:
     note: str = field(default="")
 
 
-def check(exp: Expectation, thread: str, fig: Figures) -> Verdict:
-    """Evaluate `exp` on one thread's figures; a missing figure fails with a note saying why."""
-    value = metric_value(fig, exp.metric)
+def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
+    """Evaluate `exp` on one thread's figures; a missing figure fails with a note saying why.
+
+    Limits and values are in the figure's unit (ns for durations), as the registry declares it.
+    """
+    value = fg.value(figs, fg.figure(exp.metric.value))
     if value is None:
         return Verdict(thread, exp.metric, exp.describe_limit(), None, False, "not measured (no callbacks)")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)

@@ -26,7 +26,7 @@ from pydantic import (
     model_validator,
 )
 
-from . import units
+from . import figures, units
 
 COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
 
@@ -465,32 +465,32 @@ class Background(Strict):
 # ------------------------------------------------------------------- expectations
 
 
-class Metric(str, enum.Enum):
-    """Figures an expectation can check, named as in results.json."""
+class _MetricValue(str):
+    """What every expectation metric knows: its declaration in the figure registry."""
 
-    CALLBACKS = "callbacks"
-    INVOLUNTARY_TOTAL = "involuntary.total"
-    INVOLUNTARY_PER_CALLBACK_MEAN = "involuntary.per_callback_mean"
-    INVOLUNTARY_PER_CALLBACK_MAX = "involuntary.per_callback_max"
-    INVOLUNTARY_CALLBACKS_WITH_ANY = "involuntary.callbacks_with_any"
-    VOLUNTARY_TOTAL = "voluntary.total"
-    LATENCY_MIN = "latency.min"
-    LATENCY_P50 = "latency.p50"
-    LATENCY_P90 = "latency.p90"
-    LATENCY_P99 = "latency.p99"
-    LATENCY_P999 = "latency.p999"
-    LATENCY_MAX = "latency.max"
-    FAULTS_MINOR = "faults.minor"
-    FAULTS_MAJOR = "faults.major"
-    FAULTS_MINOR_AFTER_FIRST = "faults.minor_after_first"
+    value: str
+
+    @property
+    def figure(self) -> figures.Figure:
+        return figures.figure(self.value)
 
     @property
     def is_latency(self) -> bool:
-        return self.value.startswith("latency.")
+        return self.figure.is_duration
 
     @property
     def needs_callbacks(self) -> bool:
-        return self not in (Metric.INVOLUNTARY_TOTAL, Metric.VOLUNTARY_TOTAL, Metric.FAULTS_MINOR, Metric.FAULTS_MAJOR)
+        return self.figure.needs_callbacks
+
+
+Metric = enum.Enum(  # type: ignore[misc]  # built from the registry: every figure is an expectation metric
+    "Metric", {f.name.upper().replace(".", "_"): f.name for f in figures.REGISTRY}, type=_MetricValue, module=__name__)
+Metric.__doc__ = "Figures an expectation can check, named as in results.json (runner/figures.py declares them)."
+
+
+def metric_figure(metric: Metric) -> figures.Figure:
+    """The registry's declaration of an expectation's metric: unit, scope, words."""
+    return figures.figure(metric.value)
 
 
 def _limit(value: Any) -> Any:
@@ -523,7 +523,7 @@ class Expectation(Strict):
     def _units(cls, value: Any) -> Any:
         if isinstance(value, dict):
             metric = str(value.get("metric", ""))
-            latency = metric.startswith("latency.")
+            latency = metric in figures.BY_NAME and figures.figure(metric).is_duration
             for bound in ("max", "min"):
                 given = value.get(bound)
                 if given is None:
@@ -547,7 +547,7 @@ class Expectation(Strict):
                 raise ValueError(f"{name}: {bound!r} is not a finite number")
             if bound < 0:
                 raise ValueError(f"{name}: {bound:g} is negative; {self.metric.value} is never below 0")
-            if self.metric.is_latency and bound > MAX_LATENCY_LIMIT:
+            if metric_figure(self.metric).is_duration and bound > MAX_LATENCY_LIMIT:
                 raise ValueError(f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
                                  f"at most {units.format_duration(MAX_LATENCY_LIMIT)}")
         if self.min is not None and self.max is not None and self.min > self.max:
@@ -557,7 +557,7 @@ class Expectation(Strict):
 
     def describe_bound(self, value: float) -> str:
         """A bound as written back: a duration for latency metrics, a number otherwise."""
-        return units.format_duration(int(value)) if self.metric.is_latency else f"{value:g}"
+        return units.format_duration(int(value)) if metric_figure(self.metric).is_duration else f"{value:g}"
 
     def describe_limit(self) -> str:
         parts = []

@@ -24,7 +24,7 @@ from pydantic import TypeAdapter, ValidationError
 from . import limits as lim
 from . import matrix as mx
 from .errors import Problem, ScenarioError, did_you_mean
-from .model import Expectation, ProcessSpec, Scenario
+from .model import Expectation, ProcessSpec, Scenario, metric_figure
 from .plan import PlannedThread, Settings, is_periodic, plan_process
 from .validate import problems_from
 from .yamlsource import Document, load_file
@@ -198,7 +198,7 @@ def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: lis
         elif not targets:
             pool = names.get(proc, []) if sep else every
             out.append(doc.problem(path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"))
-        elif exp.metric.needs_callbacks and not any(is_periodic(t.work) for t in targets):
+        elif metric_figure(exp.metric).needs_callbacks and not any(is_periodic(t.work) for t in targets):
             out.append(doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work"))
         for key, wanted in exp.cells.items():
             if key not in keys:

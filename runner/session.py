@@ -19,17 +19,14 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from . import __version__, _probe, kernel, units
+from . import __version__, outdir, units
+from .backend import Backend, CellOptions, Interrupted
 from .compare import Threshold, parse_threshold, thresholds_with
-from . import outdir
 from .errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
-from .guard import Guard
-from .machine import machine_info
-from .preflight import check as preflight
-from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst
+from .evaluate import evaluate, unrun, with_write_error
+from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst, write_samples
 from .runorder import Shard, Unit, plan_units
-from .scenario import LoadedScenario, ResolvedCell, spec_json
-from .spawn import CellOptions, CellWriteError, Interrupted, run_cell
+from .scenario import LoadedScenario, ResolvedCell
 from .terminal import render_cell
 
 DEFAULT_SETTLE_NS = 500_000_000
@@ -89,7 +86,11 @@ def _duration(text: str, option: str, minimum: int) -> int:
 
 
 def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
-    """The one place a run's outcome becomes an exit code (README, 'Exit codes')."""
+    """The one place an outcome becomes an exit code (README, 'Exit codes'): a run's or a merge's cells,
+    and the regressions of any comparison (`compare` and `report --baseline` pass no cells).
+
+    Errors are the other way out: each error class carries its code, and cli._guarded maps them.
+    """
     status = worst(statuses)
     code = {
         Status.PASSED: ExitCode.OK,
@@ -200,11 +201,12 @@ def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCe
     return chosen
 
 
-def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Any, start: Any) -> RunDocument:
+def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Any, start: Any,
+                  machine: dict[str, Any]) -> RunDocument:
     return RunDocument(
         scenario={"name": loaded.name, "path": loaded.path, "description": loaded.description},
         command=options.command, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        machine=machine_info(), permissions=perms.to_json(),
+        machine=machine, permissions=perms.to_json(),
         start_settings={"policy": start.policy.value, "priority": start.priority, "nice": start.nice},
         tool_version=__version__, cell_ids=[c.id for c in cells], matrix_cells=[c.id for c in loaded.cells],
         plan={"repeat": options.repeat, "shuffle_seed": options.shuffle_seed,
@@ -245,32 +247,46 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     return doc
 
 
-def run_scenario(loaded: LoadedScenario, options: RunOptions) -> int:
-    """Run the selected cells of `loaded`; write results after each and a report at the end; return the exit code."""
+def run_scenario(loaded: LoadedScenario, options: RunOptions, backend: Optional[Backend] = None) -> int:
+    """Run the selected cells of `loaded`; write results after each and a report at the end; return the exit code.
+
+    `backend` is the machine (the real kernel unless a test passes a fake one).
+    """
+    if backend is None:
+        from .spawn import KernelBackend
+
+        backend = KernelBackend()
+    try:
+        return _run(loaded, options, backend)
+    finally:
+        backend.close()
+
+
+def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
     by_id = {c.id: c for c in cells}
-    start = kernel.current_settings()
-    perms = preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
+    start = backend.start_settings()
+    perms = backend.preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
     for problem in perms.missing:
         print(f"runner: warning: {problem}; running degraded", file=sys.stderr)
     if doc is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         folder = options.out or os.path.join("reports", loaded.name, stamp)
         held = outdir.claim(folder)
-        doc = _new_document(loaded, options, cells, perms, start)
+        doc = _new_document(loaded, options, cells, perms, start, backend.machine())
     else:
         folder = options.resume or ""
         held = outdir.claim(folder, resume=True)
     try:
         with StopSignals() as stop:
-            return _run_units(loaded, options, doc, by_id, folder, start, stop)
+            return _run_units(loaded, options, doc, by_id, folder, start, stop, backend)
     finally:
         held.release()
 
 
 def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell],
-               folder: str, start: Any, stop: StopSignals) -> int:
+               folder: str, start: Any, stop: StopSignals, backend: Backend) -> int:
     """The cell loop of a claimed folder, then the report: every way out saves what finished."""
     doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
@@ -283,8 +299,6 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
     statuses = [c.status for c in doc.cells]
     progress = Progress(len(units_left), options.settle_ns / 1e9, options.live, options.quiet)
     follow = (lambda line: (progress.clear(), print(line, flush=True))) if options.follow else None
-    watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
-    guard = Guard()
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
     print(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}",
           flush=True)
@@ -295,7 +309,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
             if n and options.settle_ns:
                 _settle(options.settle_ns, stop)
             if stop.requested():
-                raise Interrupted(None)
+                raise Interrupted()
             cell = by_id[unit.cell]
             duration = options.duration_ns or cell.scenario.duration
             progress.start(unit, options.repeat, duration / 1e9)
@@ -303,18 +317,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
                                        stop.requested)
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            try:
-                result = run_cell(cell, cell_folder, start, cell_options, watchdog, guard)
-            except Interrupted as exc:
-                if not isinstance(exc.args[0], CellResult):
-                    raise
-                result = exc.args[0]
-                stop.received = stop.received or signal.SIGINT
-            except CellWriteError as exc:
-                result, write_error = exc.result, exc.error
-            except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
-                write_error = exc
-                result = _unrun_cell(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})")
+            result, write_error = _one_cell(cell, cell_folder, start, cell_options, backend)
             progress.finish(time.monotonic() - began)
             statuses.append(result.status)
             try:
@@ -322,7 +325,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
             except OSError as exc:
                 doc.cells.remove(result)
                 write_error = write_error or exc
-            sys.stdout.write(render_cell(result, kernel.pid_width()))
+            sys.stdout.write(render_cell(result, backend.pid_width()))
             sys.stdout.flush()
             if write_error is not None or stop.requested():
                 break
@@ -332,14 +335,10 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         pass
     finally:
         progress.clear()
-        watchdog.close()
-        guard.close()
     if stop.requested():
         statuses.append(Status.INTERRUPTED)
-    elif write_error is not None:
-        statuses.append(Status.ERROR)
-    elif not ran_all:
-        statuses.append(Status.ERROR)  # a cell loop that neither finished nor was stopped: never "passed"
+    elif write_error is not None or not ran_all:
+        statuses.append(Status.ERROR)  # a cell loop that neither finished nor was stopped is never "passed"
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value
     try:
@@ -361,17 +360,31 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
     return int(exit_code(statuses, regressions))
 
 
+def _one_cell(cell: ResolvedCell, folder: str, start: Any, options: CellOptions,
+              backend: Backend) -> tuple[CellResult, Optional[OSError]]:
+    """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled."""
+    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        raw = backend.run_cell(cell, folder, start, options)
+    except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
+        return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc
+    scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+    evaluation = evaluate(cell, scenario, raw, options.allow_degraded)
+    path = os.path.join(folder, "samples.csv.gz")
+    try:
+        write_samples(path, evaluation.samples)
+    except OSError as exc:
+        return with_write_error(evaluation.result, path, exc), exc
+    evaluation.result.samples_file = path
+    return evaluation.result, None
+
+
 def _settle(settle_ns: int, stop: StopSignals) -> None:
     """The pause between cells, cut short by a stop request."""
     until = time.monotonic() + settle_ns / 1e9
     while not stop.requested() and (left := until - time.monotonic()) > 0:
         time.sleep(min(left, 0.1))
-
-
-def _unrun_cell(cell: ResolvedCell, reason: str) -> CellResult:
-    """The record of a cell that could not even start."""
-    return CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.ERROR, spec=spec_json(cell.scenario),
-                      reason=reason, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
 
 def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str) -> None:

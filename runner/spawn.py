@@ -1,9 +1,11 @@
-"""Run one cell for real: worker processes, background load, a common start, a hard deadline.
+"""The process shell of a cell run: worker processes, background load, a common start, a hard deadline.
 
 The runner's Python code only orchestrates; measuring happens in the workers'
 native threads.  Deadlines are enforced by the native watchdog (an RT thread
 that needs no GIL), so a scenario that starves the runner's Python thread still
-cannot outlive its cell.
+cannot outlive its cell.  The shell decides nothing: it returns a `RawCell` of
+what the kernel and the native core recorded, and `evaluate` makes results of it.
+`KernelBackend` is the real `Backend` (backend.py) the session runs cells with.
 """
 
 from __future__ import annotations
@@ -15,19 +17,21 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Callable, Optional
 
 from . import _probe, kernel, samples
+from .backend import CellOptions, Interrupted
 from .guard import Guard
-from .measure import check, figures
+from .machine import machine_info
 from .model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
 from .plan import PlannedThread, Settings, is_periodic, plan_scenario
+from .preflight import Permissions
+from .preflight import check as preflight_check
 from .pstable import ThreadRow
-from .results import CellResult, Status, ThreadResult, thread_key, worst, write_samples
-from .scenario import ResolvedCell, expectations_for, match_threads, spec_json
-from .listing import describe_work
+from .rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, Timeline
+from .scenario import ResolvedCell
 
 PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the runner this process imported
 READY_TIMEOUT_S = 20.0
@@ -36,25 +40,31 @@ START_MARGIN_S = 0.02   # time for every worker to receive `go` before the commo
 STOP_GRACE_S = 2.0
 
 
-class Interrupted(Exception):
-    """Ctrl-C or SIGTERM reached the runner."""
+class KernelBackend:
+    """The real backend: this machine's kernel, permissions and processes, a watchdog and a guard."""
 
+    def __init__(self) -> None:
+        self.watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
+        self.guard = Guard()
 
-class CellWriteError(Exception):
-    """The cell ran, but its files could not be written (a full disk): `result` says so; the run must stop."""
+    def start_settings(self) -> Settings:
+        return kernel.current_settings()
 
-    def __init__(self, result: CellResult, error: OSError):
-        super().__init__(str(error))
-        self.result, self.error = result, error
+    def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+        return preflight_check(scenarios, start, allow_degraded, allow_priority_99)
 
+    def machine(self) -> dict[str, Any]:
+        return machine_info()
 
-@dataclass
-class CellOptions:
-    duration_ns: int
-    allow_degraded: bool
-    follow: Optional[Callable[[str], None]] = None
-    progress: Optional[Callable[[str], None]] = None
-    stop_requested: Callable[[], bool] = lambda: False  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
+    def pid_width(self) -> int:
+        return kernel.pid_width()
+
+    def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
+        return run_cell(cell, folder, start, options, self.watchdog, self.guard)
+
+    def close(self) -> None:
+        self.watchdog.close()
+        self.guard.close()
 
 
 def work_tuple(work: Work) -> tuple[int, int, int, bool, int, int]:
@@ -203,7 +213,7 @@ def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable
     try:
         while pending:
             if stop_requested():
-                raise Interrupted(None)
+                raise Interrupted()
             left = deadline - time.monotonic()
             if left <= 0:
                 return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
@@ -234,22 +244,6 @@ def _read_done(w: Worker) -> None:
         pass
 
 
-def _degradation(requested: Settings, applied: Optional[Settings], errors: dict[str, int]) -> list[str]:
-    if applied is None:
-        return ["the thread was gone before its settings could be read back"]
-    out = []
-    why = {k: f" ({os.strerror(v)})" for k, v in errors.items() if v}
-    if (requested.policy, requested.priority) != (applied.policy, applied.priority):
-        out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
-    if requested.nice != applied.nice:
-        out.append(f"nice {requested.nice} requested, {applied.nice} applied{why.get('nice', '')}")
-    if requested.cpus != applied.cpus:
-        out.append(f"cpus {requested.cpus_label()} requested, {applied.cpus_label()} applied{why.get('cpus', '')}")
-    if errors.get("memory"):
-        out.append(f"memory lock failed ({os.strerror(errors['memory'])})")
-    return out
-
-
 def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
     """Print new callbacks in the ros2-realtime-examples' log form."""
     assert w.poller is not None
@@ -268,8 +262,8 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
                 emit(f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
 
 
-def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> CellResult:
-    """Run one cell and return its result; raises Interrupted after recording what finished.
+def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
+    """Run one cell's processes and return what they left behind, interrupted or not.
 
     An OSError creating the cell's files (a full disk, a folder that vanished) propagates
     once every process the cell started is stopped; the caller decides what it means for the run.
@@ -289,12 +283,10 @@ def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOpti
         raise
     finally:
         run.stop()
-    result = run.collect()
-    if run.interrupted:
-        raise Interrupted(result)
-    if run.write_error is not None:
-        raise CellWriteError(result, run.write_error)
-    return result
+    try:
+        return run.raw()
+    finally:
+        run.remove_buffers()
 
 
 class _CellRun:
@@ -326,7 +318,6 @@ class _CellRun:
         self.t0: Optional[int] = None  # the common start instant, once the gate opened
         self.t_end: Optional[int] = None
         self.incidents: dict[str, str] = {}  # background load that died, processes that were stopped: by who
-        self.write_error: Optional[OSError] = None  # the cell's files could not be written (a full disk)
 
     def start(self) -> None:
         """Start every process; once all are ready, read back each thread's settings and start background commands."""
@@ -379,7 +370,7 @@ class _CellRun:
         while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
             time.sleep(0.05 if options.follow else 0.2)
             if options.stop_requested():
-                raise Interrupted(None)
+                raise Interrupted()
             if not self.table and time.monotonic() >= snapshot_at:
                 self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
             self._watch_for_incidents(t0, t_end)
@@ -403,18 +394,6 @@ class _CellRun:
                 os.unlink(w.samples_path)
             except OSError:
                 pass
-
-    def _releases_due(self, work: PeriodicWork) -> int:
-        """Releases on the thread's grid from the start to the end of the cell (or to the interrupt).
-
-        Every release not served by a callback is a missed one, including those after a worker
-        was stopped or killed: the count runs to the end of the cell, not to the last callback.
-        """
-        if self.t0 is None or self.t_end is None:
-            return 0
-        end = self.t_end if not self.interrupted else min(self.t_end, self.exit_time or time.monotonic_ns())
-        first = self.t0 + work.offset
-        return 0 if end <= first else (end - first + work.period - 1) // work.period
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -469,92 +448,32 @@ class _CellRun:
             if w.poller:
                 w.poller.close()
 
-    def collect(self) -> CellResult:
-        """Everything the workers left behind: figures, verdicts, samples, status."""
-        cell, options, workers, hogs = self.cell, self.options, self.workers, self.hogs
-        reason, interrupted, applied = self.reason, self.interrupted, self.applied
-        scenario, by_process, table, began, exit_time = self.scenario, self.by_process, self.table, self.began, self.exit_time
-        watchdog, folder, commands = self.watchdog, self.folder, self.commands
-        result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, spec=spec_json(cell.scenario),
-                            started_at=self.started_at)
-        first_wake = last_end = None
-        if not reason and not interrupted:
-            deaths = [r for w in workers if (r := w.exit_reason())]
-            if deaths:
-                reason = "; ".join(deaths)
-            if watchdog.fired:
-                reason = (reason + "; " if reason else "") + "the cell overran its deadline and was killed by the watchdog"
-        if self.incidents:
-            reason = "; ".join([reason, *self.incidents.values()] if reason else self.incidents.values())
-        slots_out: list[tuple[str, samples.SlotData]] = []
-        verdict_targets: list[tuple[PlannedThread, Any]] = []
-        for w in workers:
+    def raw(self) -> RawCell:
+        """Everything the processes left behind, read back: slots, settings, the table, what went wrong."""
+        failures: list[str] = [self.reason] if self.reason else []
+        if not self.reason and not self.interrupted:
+            failures += [r for w in self.workers if (r := w.exit_reason())]
+            if self.watchdog.fired:
+                failures.append("the cell overran its deadline and was killed by the watchdog")
+        threads: list[RawThread] = []
+        for w in self.workers:
             slots = samples.read(w.samples_path, w.nslots, w.capacity)
-            errors = (w.ready or {}).get("errors", {})
+            report = _ready_report(w)
             for t, slot in zip(w.planned, slots):
-                fig = figures(slot, is_periodic(t.work))
-                if isinstance(t.work, PeriodicWork):
-                    fig = replace(fig, missed=max(fig.missed, self._releases_due(t.work) - fig.callbacks))
-                if t.index == 0:
-                    errs = dict(errors.get("main", {}))
-                else:
-                    raw = (errors.get("threads") or [[0, 0, 0, 0]] * w.nslots)[t.index]
-                    errs = {"sched": raw[0], "nice": raw[1], "cpus": raw[2]}
-                if errors.get("memory"):
-                    errs["memory"] = errors["memory"].get("errno", 0)
-                app = applied.get(id(t))
-                degraded = _degradation(t.settings, app, errs) if w.ready else []
-                slots_out.append((thread_key(t.process, t.instance, t.index, t.name), slot))
-                result.threads.append(ThreadResult(t.process, t.instance, t.index, t.name, w.pid if w.popen else 0,
-                                                   slot.tid, describe_work(t.work), is_periodic(t.work), t.settings, app, degraded, fig))
-                verdict_targets.append((t, fig))
-                for s in slot.samples[:1]:
-                    first_wake = s.wake_ns if first_wake is None else min(first_wake, s.wake_ns)
-                for s in slot.samples[-1:]:
-                    last_end = s.end_ns if last_end is None else max(last_end, s.end_ns)
-        for i in expectations_for(scenario, cell):
-            exp = scenario.expect[i]
-            targets = {id(t) for t in match_threads([t for t, _ in verdict_targets], exp.thread)}
-            for t, fig in verdict_targets:
-                if id(t) in targets and (is_periodic(t.work) or not exp.metric.needs_callbacks):
-                    label = f"{t.process}[{t.instance}]/{t.name}" if len(by_process) > 1 else f"{t.process}/{t.name}"
-                    label += " (main)" if t.index == 0 else f" #{t.index}"
-                    result.expectations.append(check(exp, label, fig))
+                errors = report.errors(t.index) if report else ApplyErrors()
+                threads.append(RawThread(t, w.pid if w.popen else 0, slot, self.applied.get(id(t)), errors, report is not None))
+        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
+        background += [BackgroundProcess("command", str(c.args[0]), c.pid, tuple(str(a) for a in c.args)) for c in self.commands]
+        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
+        return RawCell(self.started_at, tuple(threads), len(self.by_process), timeline, tuple(self.table), tuple(failures),
+                       tuple(self.incidents.values()), self.interrupted, tuple(background))
 
-        sample_file = os.path.join(folder, "samples.csv.gz")
-        try:
-            write_samples(sample_file, slots_out)
-            result.samples_file = sample_file
-        except OSError as exc:
-            self.write_error = exc
-            reason = (reason + "; " if reason else "") + (
-                f"the samples could not be written to {sample_file}: {exc.strerror or exc}; the figures above are complete")
-        self.remove_buffers()
-        result.thread_table = table
-        result.background = [{"kind": "hog", "name": h.spec["comm"], "pid": h.pid if h.popen else None} for h in hogs] + [
-            {"kind": "command", "argv": c.args, "pid": c.pid} for c in commands
-        ]
-        result.duration_s = round(time.monotonic() - began, 3)
-        began_ns = int(began * 1e9)
-        result.overhead_s = {
-            "start_to_first_callback": round((first_wake - began_ns) / 1e9, 4) if first_wake else None,
-            "last_callback_to_exit": round((exit_time - last_end) / 1e9, 4) if exit_time and last_end else None,
-        }
-        statuses = []
-        if interrupted:
-            statuses.append(Status.INTERRUPTED)
-            reason = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
-        if reason:
-            statuses.append(Status.ERROR if not interrupted else Status.INTERRUPTED)
-        if self.incidents:
-            statuses.append(Status.ERROR)
-        if any(not v.passed for v in result.expectations):
-            statuses.append(Status.FAILED)
-        if any(t.degraded for t in result.threads):
-            statuses.append(Status.DEGRADED if options.allow_degraded else Status.ERROR)
-            if not options.allow_degraded and not reason:
-                reason = "settings were not applied as requested: " + "; ".join(
-                    f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)
-        result.status = worst(statuses)
-        result.reason = reason
-        return result
+
+def _ready_report(w: Worker) -> Optional[ReadyReport]:
+    """The worker's ready report, typed; None when it never got ready (or sent something else)."""
+    if w.ready is None:
+        return None
+    try:
+        return ReadyReport.parse(w.ready, w.nslots)
+    except ValueError:
+        return None

@@ -1,0 +1,95 @@
+"""A fake machine for the run path: the session, the evaluation core and the CLI without processes or RT rights.
+
+`FakeBackend.run_cell` plans the cell's threads as the real shell does and makes up
+what the native core would have recorded (callbacks, switches, latencies), so the
+session's cell loop, resume, repeats, shuffle, --follow, interrupts, write errors and
+exit codes run in milliseconds.  What each cell does is set per cell id with `Act`.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from runner.backend import CellOptions
+from runner.model import PeriodicWork, Policy, Scenario
+from runner.plan import Settings, is_periodic, plan_scenario
+from runner.preflight import Permissions
+from runner.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
+from runner.samples import Sample, SlotData
+from runner.scenario import ResolvedCell
+
+START = Settings(Policy.OTHER, 0, 0, None)
+
+
+@dataclass
+class Act:
+    """What the fake machine does in one cell."""
+
+    nivcsw: int = 0  # involuntary switches in every callback
+    latency_ns: int = 50_000
+    served: float = 1.0  # fraction of releases a callback served
+    failures: tuple[str, ...] = ()  # a worker died, the watchdog fired
+    incidents: tuple[str, ...] = ()  # a hog died, a worker was stopped
+    signals: int = 0  # SIGINTs the runner receives during the cell
+    degrade: bool = False  # RT policies come back as SCHED_OTHER
+    oserror: Optional[int] = None  # errno of creating the cell's files
+    follow_lines: int = 0  # --follow lines to print
+
+
+@dataclass
+class FakeBackend:
+    acts: dict[str, Act] = field(default_factory=dict)
+    ran: list[str] = field(default_factory=list)
+    closed: bool = False
+
+    def start_settings(self) -> Settings:
+        return START
+
+    def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+        return Permissions("tester", 1000, True, True, 99, -1)
+
+    def machine(self) -> dict[str, Any]:
+        return {"kernel": "6.0.0-fake", "preempt_rt": False, "cpus_online": 2, "hostname": "fake"}
+
+    def pid_width(self) -> int:
+        return 5
+
+    def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
+        act = self.acts.get(cell.id, Act())
+        self.ran.append(cell.id)
+        if act.oserror is not None:
+            raise OSError(act.oserror, os.strerror(act.oserror), os.path.join(folder, "p.0.smp"))
+        for _ in range(act.signals):
+            os.kill(os.getpid(), signal.SIGINT)
+        for n in range(act.follow_lines):
+            assert options.follow is not None
+            options.follow(f"[INFO] [fake] callback {n}")
+        interrupted = options.stop_requested()
+        scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        t0 = 1_000_000_000
+        t_end = t0 + options.duration_ns
+        threads = []
+        for p in plan_scenario(scenario, start):
+            samples: tuple[Sample, ...] = ()
+            if isinstance(p.work, PeriodicWork):
+                due = options.duration_ns // p.work.period
+                served = int(due * act.served)
+                samples = tuple(
+                    Sample(t0 + k * p.work.period, t0 + k * p.work.period + act.latency_ns,
+                           t0 + k * p.work.period + act.latency_ns + p.work.burn, p.work.burn, act.nivcsw, 1, 0, 0, 0, 0, 0)
+                    for k in range(served))
+            slot = SlotData(tid=10_000 + len(threads), state="done", count=len(samples), err_sched=0, err_nice=0, err_cpus=0,
+                            err_other=0, start_ru=(0, 0, 0, 0), end_ru=(act.nivcsw * len(samples), len(samples), 0, 0),
+                            loops=len(samples), missed=0, work_start_ns=t0, work_end_ns=t_end, cpus_seen=(0,), samples=samples)
+            applied = Settings(Policy.OTHER, 0, p.settings.nice, p.settings.cpus) if act.degrade else p.settings
+            threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True))
+            assert is_periodic(p.work) or not samples
+        timeline = Timeline(0, t0, t_end, t_end + 1_000_000, t_end + 2_000_000)
+        return RawCell("2026-11-22T00:00:00+00:00", tuple(threads), 1, timeline, (), act.failures, act.incidents,
+                       interrupted, (BackgroundProcess("hog", "hog", 4343),))
+
+    def close(self) -> None:
+        self.closed = True

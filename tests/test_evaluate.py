@@ -1,0 +1,91 @@
+"""The pure evaluation core: raw records in, figures, degradations, verdicts and status out (no processes)."""
+
+from __future__ import annotations
+
+import os
+
+from runner.evaluate import degradation, evaluate, releases_due, status
+from runner.model import PeriodicWork, Policy
+from runner.plan import Settings, plan_scenario
+from runner.rawcell import ApplyErrors, RawCell, RawThread, ReadyReport, Timeline
+from runner.results import Status
+from runner.samples import Sample, SlotData
+from runner.scenario import load_scenario
+
+SCENARIOS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios")
+FIFO80 = Settings(Policy.FIFO, 80, 0, None)
+OTHER = Settings(Policy.OTHER, 0, 0, None)
+
+
+def test_releases_due_run_from_the_gate_to_the_end_or_the_interrupt():
+    work = PeriodicWork(kind="periodic", period="100ms")
+    timeline = Timeline(0, start_ns=1_000, end_ns=1_000 + 1_000_000_000, stopped_ns=1_000 + 250_000_000)
+    assert releases_due(work, timeline, interrupted=False) == 10
+    assert releases_due(work, timeline, interrupted=True) == 3  # releases at 0, 100 and 200 ms
+    assert releases_due(work, Timeline(0), interrupted=False) == 0  # the gate never opened
+
+
+def test_degradation_names_each_shortfall_with_the_kernels_reason():
+    assert degradation(FIFO80, FIFO80, ApplyErrors()) == []
+    words = degradation(FIFO80, OTHER, ApplyErrors(sched=1, other=12))
+    assert words == ["policy fifo:80 requested, other applied (Operation not permitted)",
+                     "a per-callback allocation failed (Cannot allocate memory)"]
+    assert degradation(FIFO80, None, ApplyErrors()) == ["the thread was gone before its settings could be read back"]
+
+
+def test_a_ready_report_is_checked_and_gives_each_slot_its_errors():
+    report = ReadyReport.parse({"pid": 7, "tids": [7, 8], "errors": {"main": {"sched": 1, "nice": 0, "cpus": 0},
+                                "threads": [[0, 0, 0, 0], [0, 13, 0, 12]], "memory": {"errno": 12}}}, 2)
+    assert report.errors(0) == ApplyErrors(sched=1, memory=12)
+    assert report.errors(1) == ApplyErrors(nice=13, memory=12, other=12)
+    for broken in ({"tids": [1, 2]}, {"pid": 1, "tids": [1]}, {"pid": "x", "tids": [1, 2]}):
+        try:
+            ReadyReport.parse(broken, 2)
+        except ValueError:
+            continue
+        raise AssertionError(f"{broken} should be refused")
+
+
+def _raw(callbacks: int, interrupted: bool = False, failures: tuple[str, ...] = (), applied: Settings = FIFO80):
+    loaded = load_scenario(os.path.join(SCENARIOS, "fifo80.yaml"))
+    cell = loaded.cells[0]
+    planned = plan_scenario(cell.scenario, OTHER)
+    t0, period = 1_000_000_000, 100_000_000
+    threads = []
+    for p in planned:
+        samples = tuple(Sample(t0 + k * period, t0 + k * period + 20_000, t0 + k * period + 40_000_000, 40_000_000,
+                               0, 1, 0, 0, 0, 0, 0) for k in range(callbacks)) if p.index == 0 else ()
+        slot = SlotData(100 + p.index, "done", len(samples), 0, 0, 0, 0, (0, 0, 0, 0), (0, 0, 0, 0), len(samples), 0, t0, 0,
+                        (0,), samples)
+        threads.append(RawThread(p, 99, slot, applied if p.index == 0 else p.settings, ApplyErrors(), True))
+    timeline = Timeline(0, t0, t0 + 10 * period, t0 + 10 * period, t0 + 11 * period)
+    return cell, RawCell("now", tuple(threads), 1, timeline, failures=failures, interrupted=interrupted)
+
+
+def test_a_cell_that_kept_up_passes():
+    cell, raw = _raw(10)
+    ev = evaluate(cell, cell.scenario, raw, allow_degraded=False)
+    main = ev.result.threads[0]
+    assert ev.result.status is Status.PASSED and ev.result.reason == ""
+    assert main.figures.callbacks == 10 and main.figures.missed == 0
+    assert [v.passed for v in ev.result.expectations] == [True]
+    assert [key for key, _ in ev.samples][0] == "minimal_schedul[0]/minimal_schedul (main)"
+
+
+def test_failures_interrupts_and_degradations_decide_the_status_in_order():
+    cell, raw = _raw(10, failures=("process x (pid 1) was killed by SIGKILL",))
+    result = evaluate(cell, cell.scenario, raw, False).result
+    assert result.status is Status.ERROR and "killed by SIGKILL" in result.reason
+    cell, raw = _raw(4, interrupted=True, failures=("ignored once interrupted",))
+    result = evaluate(cell, cell.scenario, raw, False).result
+    assert result.status is Status.INTERRUPTED and result.reason.startswith("interrupted")
+    cell, raw = _raw(10, applied=OTHER)
+    assert evaluate(cell, cell.scenario, raw, False).result.status is Status.ERROR
+    assert evaluate(cell, cell.scenario, raw, True).result.status is Status.DEGRADED
+    assert status(evaluate(cell, cell.scenario, raw, True).result, raw, True)[0] is Status.DEGRADED
+
+
+def test_missed_releases_count_every_release_no_callback_served():
+    cell, raw = _raw(3)
+    main = evaluate(cell, cell.scenario, raw, False).result.threads[0]
+    assert main.figures.callbacks == 3 and main.figures.missed == 7

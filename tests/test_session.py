@@ -1,0 +1,144 @@
+"""The run path without processes: the session's cell loop, resume, repeats, shuffle, interrupts and exit codes.
+
+A fake backend (tests/fakebackend.py) stands in for the kernel; everything above it
+(the session, the pure evaluation core, results, the report) is the real code.
+Exit codes are written as the numbers README documents, not taken from the code.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from conftest import SCENARIOS
+from fakebackend import Act, FakeBackend
+from runner.cli import _run_parser
+from runner.scenario import load_scenario
+from runner.session import RunOptions, run_scenario
+
+MATRIX = os.path.join(SCENARIOS, "policy_matrix.yaml")
+FIFO80 = os.path.join(SCENARIOS, "fifo80.yaml")
+OTHER = "policy=other,priority=0"
+FIFO_CELLS = ["policy=fifo,priority=10", "policy=fifo,priority=80", "policy=rr,priority=10", "policy=rr,priority=80"]
+
+
+def run(scenario: str, out, backend: FakeBackend, *args: str) -> tuple[int, dict]:
+    ns = _run_parser().parse_args([scenario, "--out", str(out), "--quiet", "--settle", "0", "--no-plots", *args])
+    code = run_scenario(load_scenario(scenario), RunOptions.from_namespace(ns, env={}), backend)
+    with open(os.path.join(out, "results.json")) as handle:
+        return code, json.load(handle)
+
+
+def preempted_other() -> dict[str, Act]:
+    """The matrix as the seed describes it: OTHER preempted in every callback, FIFO and RR never."""
+    return {OTHER: Act(nivcsw=5)}
+
+
+def test_a_matrix_that_meets_its_expectations_exits_0(tmp_path):
+    backend = FakeBackend(preempted_other())
+    code, results = run(MATRIX, tmp_path / "r", backend)
+    assert code == 0
+    assert results["status"] == "passed" and [c["status"] for c in results["cells"]] == ["passed"] * 5
+    assert sorted(backend.ran) == sorted(FIFO_CELLS + [OTHER]) and backend.closed
+    assert os.path.exists(tmp_path / "r" / "report.md")
+
+
+def test_a_failed_expectation_exits_1(tmp_path):
+    code, results = run(MATRIX, tmp_path / "r", FakeBackend({OTHER: Act(nivcsw=0)}))
+    assert code == 1
+    other = next(c for c in results["cells"] if c["id"] == OTHER)
+    assert other["status"] == "failed" and not other["expectations"][0]["passed"]
+
+
+@pytest.mark.parametrize("act, words", [
+    (Act(failures=("process minimal_schedul[0] (pid 4242) was killed by SIGKILL",)), "killed by SIGKILL"),
+    (Act(failures=("the cell overran its deadline and was killed by the watchdog",)), "watchdog"),
+    (Act(incidents=("background hog hog[0] (pid 4343) killed by SIGKILL 1.0s into the cell",)), "background hog"),
+    (Act(incidents=("process minimal_schedul[0] (pid 4242) was stopped (SIGSTOP or a debugger) 0.5s into the cell",)), "stopped"),
+])
+def test_a_run_error_in_a_cell_exits_4_with_its_reason(tmp_path, act, words):
+    code, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": act}), "--duration", "1s")
+    assert code == 4
+    cell = results["cells"][0]
+    assert cell["status"] == "error" and words in cell["reason"]
+    assert results["status"] == "error"
+
+
+def test_unapplied_settings_are_an_error_unless_degraded_runs_are_allowed(tmp_path):
+    code, results = run(FIFO80, tmp_path / "a", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s")
+    assert code == 4 and results["cells"][0]["status"] == "error"
+    assert "fifo:80 requested, other applied (Operation not permitted)" in results["cells"][0]["reason"]
+    code, results = run(FIFO80, tmp_path / "b", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s",
+                        "--allow-degraded")
+    assert code == 0 and results["cells"][0]["status"] == "degraded"
+
+
+def test_missed_releases_are_counted_to_the_end_of_the_cell(tmp_path):
+    code, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": Act(served=0.25)}), "--duration", "2s")
+    main = next(t for t in results["cells"][0]["threads"] if t["index"] == 0)
+    assert main["callbacks"] == 5 and main["missed_releases"] == 15  # 20 releases of 100 ms in 2 s, 5 served
+
+
+def test_an_interrupt_stops_after_the_cell_and_exits_130_with_results_and_report(tmp_path):
+    backend = FakeBackend({FIFO_CELLS[1]: Act(signals=3)})
+    code, results = run(MATRIX, tmp_path / "r", backend)
+    assert code == 130
+    assert backend.ran == FIFO_CELLS[:2], "no cell may start after the interrupt"
+    assert results["status"] == "interrupted"
+    assert [c["status"] for c in results["cells"]] == ["passed", "interrupted"]
+    assert os.path.exists(tmp_path / "r" / "report.md")
+
+
+def test_resume_runs_only_what_did_not_finish(tmp_path):
+    out = tmp_path / "r"
+    acts = preempted_other()
+    run(MATRIX, out, FakeBackend({**acts, FIFO_CELLS[1]: Act(signals=1)}))
+    backend = FakeBackend(acts)
+    ns = _run_parser().parse_args([MATRIX, "--resume", str(out), "--quiet", "--no-plots"])
+    code = run_scenario(load_scenario(MATRIX), RunOptions.from_namespace(ns, env={}), backend)
+    results = json.load(open(out / "results.json"))
+    assert code == 0
+    assert backend.ran == FIFO_CELLS[1:] + [OTHER]
+    assert [c["id"] for c in results["cells"]] == FIFO_CELLS + [OTHER]
+    assert results["status"] == "passed"
+
+
+def test_repeats_and_a_shuffle_seed_give_one_folder_per_repeat_and_a_recorded_order(tmp_path):
+    backend = FakeBackend(preempted_other())
+    code, results = run(MATRIX, tmp_path / "r", backend, "--repeat", "2", "--shuffle", "7")
+    assert code == 0
+    assert sorted(backend.ran) == sorted((FIFO_CELLS + [OTHER]) * 2)
+    assert backend.ran != (FIFO_CELLS + [OTHER]) * 2, "seed 7 should not give the expansion order"
+    assert results["plan"]["shuffle_seed"] == 7 and results["plan"]["repeat"] == 2
+    assert sorted((c["id"], c["repeat"]) for c in results["cells"]) == sorted((c, r) for c in FIFO_CELLS + [OTHER] for r in (0, 1))
+    assert all(os.path.exists(tmp_path / "r" / c["samples_file"]) for c in results["cells"])
+    assert all("/repeat-" in c["samples_file"] for c in results["cells"])
+    again = FakeBackend(preempted_other())
+    run(MATRIX, tmp_path / "s", again, "--repeat", "2", "--shuffle", "7")
+    assert again.ran == backend.ran, "the same seed gives the same order"
+
+
+def test_a_cell_whose_files_cannot_be_made_stops_the_run_with_exit_4(tmp_path, capsys):
+    backend = FakeBackend({FIFO_CELLS[1]: Act(oserror=28)})
+    code, results = run(MATRIX, tmp_path / "r", backend)
+    assert code == 4
+    assert backend.ran == FIFO_CELLS[:2]
+    assert [c["status"] for c in results["cells"]] == ["passed", "error"]
+    assert "No space left on device" in results["cells"][1]["reason"] and results["status"] == "error"
+    assert "No space left on device" in capsys.readouterr().err
+
+
+def test_follow_prints_the_backends_lines(tmp_path, capsys):
+    run(FIFO80, tmp_path / "r", FakeBackend({"default": Act(follow_lines=3)}), "--duration", "1s", "--follow")
+    out = capsys.readouterr().out
+    assert [line for line in out.splitlines() if line.startswith("[INFO] [fake]")] == [f"[INFO] [fake] callback {n}" for n in range(3)]
+
+
+def test_a_regression_against_the_baseline_exits_1(tmp_path):
+    run(FIFO80, tmp_path / "base", FakeBackend({"default": Act(latency_ns=50_000)}), "--duration", "1s")
+    code, _ = run(FIFO80, tmp_path / "new", FakeBackend({"default": Act(latency_ns=900_000)}), "--duration", "1s",
+                  "--baseline", str(tmp_path / "base"))
+    assert code == 1
+    assert "regression" in open(tmp_path / "new" / "comparison.md").read()
