@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 
 from . import __version__
 from .errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
+from .terminal import note, say
 
 COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
 _TOP_HELP = """\
@@ -74,10 +75,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if reconfigure is not None:
             reconfigure(errors="backslashreplace")
     if not args or args[0] in ("-h", "--help"):
-        sys.stdout.write(_TOP_HELP)
+        say(_TOP_HELP)
         return ExitCode.OK if args else ExitCode.INVALID_INPUT
     if args[0] == "--version":
-        print(f"runner {__version__}")
+        say(f"runner {__version__}")
         return ExitCode.OK
     command = args[0] if args[0] in COMMANDS else "run"
     rest = args[1:] if args[0] in COMMANDS else args
@@ -122,7 +123,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
 
 def _say(text: str) -> None:
     try:
-        print(text, file=sys.stderr, flush=True)
+        note(text)
     except (OSError, ValueError):
         pass
 
@@ -144,7 +145,7 @@ def _internal_error(exc: BaseException) -> int:
 
 def _print_warnings(warnings: Sequence[object]) -> None:
     for warning in warnings:
-        print(warning, file=sys.stderr)
+        note(str(warning))
 
 
 def _cmd_validate(argv: list[str]) -> int:
@@ -158,12 +159,12 @@ def _cmd_validate(argv: list[str]) -> int:
         try:
             loaded = load_scenario(path)
         except ScenarioError as exc:
-            print(str(exc), file=sys.stderr)
+            note(str(exc))
             worst = ExitCode.INVALID_INPUT
             continue
         _print_warnings(loaded.warnings)
         count = len(loaded.cells)
-        print(f"{path}: ok ({count} cell{'s' if count != 1 else ''})")
+        say(f"{path}: ok ({count} cell{'s' if count != 1 else ''})")
     return worst
 
 
@@ -172,7 +173,7 @@ def _cmd_schema(argv: list[str]) -> int:
     p.parse_args(argv)
     from .schema import scenario_schema
 
-    print(json.dumps(scenario_schema(), indent=2))
+    say(json.dumps(scenario_schema(), indent=2))
     return ExitCode.OK
 
 
@@ -190,7 +191,7 @@ def _cmd_ps(argv: list[str]) -> int:
     rows = [row for pid in pids for row in thread_rows(pid)]
     if not rows:
         raise UsageError(f"runner ps: no live process matches {ns.target!r}")
-    sys.stdout.write(render_ps(rows, columns, pid_width()))
+    say(render_ps(rows, columns, pid_width()))
     return ExitCode.OK
 
 
@@ -204,7 +205,7 @@ def _cmd_run(argv: list[str]) -> int:
         from .kernel import current_settings, online_cpus
         from .listing import render
 
-        sys.stdout.write(render(loaded, current_settings(), online_cpus()))
+        say(render(loaded, current_settings(), online_cpus()))
         return ExitCode.OK
     from .session import RunOptions, run_scenario
 
@@ -231,14 +232,14 @@ def _cmd_report(argv: list[str]) -> int:
     if ns.baseline:
         section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds_with(parse_threshold(t) for t in ns.threshold))
     if ns.output == "-":
-        sys.stdout.write(render_run(doc, None, section))
+        say(render_run(doc, None, section))
     else:
         target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, "report.md")
         try:
             path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
-        print(f"report: {path}")
+        say(f"report: {path}")
     return int(exit_code([], regressions))
 
 
@@ -255,7 +256,7 @@ def _cmd_compare(argv: list[str]) -> int:
     from .session import exit_code
 
     section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
-    sys.stdout.write(section)
+    say(section)
     if ns.output:
         try:
             write_atomic(ns.output, section)
@@ -288,8 +289,8 @@ def _cmd_merge(argv: list[str]) -> int:
             raise from_os_error(exc, "cannot write the merged results", before_run=False) from None
         missing = [c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}]
         if missing:
-            print(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}", file=sys.stderr)
-        print(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
+            note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
+        say(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
         try:
             regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
         except OSError as exc:

@@ -27,7 +27,7 @@ from .evaluate import evaluate, unrun, with_write_error
 from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst, write_samples
 from .runorder import Shard, Unit, plan_units
 from .scenario import LoadedScenario, ResolvedCell
-from .terminal import render_cell
+from .terminal import Progress, note, render_cell, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
 
@@ -102,53 +102,6 @@ def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
     if regressions and code == ExitCode.OK:
         return ExitCode.EXPECTATION_FAILED
     return code
-
-
-class Progress:
-    """Cells done / total, ETA and the current cell: a live line on a terminal, plain lines in logs."""
-
-    def __init__(self, total: int, settle_s: float, live: bool, quiet: bool):
-        self.total, self.settle_s = total, settle_s
-        self.live = live and sys.stderr.isatty()
-        self.quiet = quiet
-        self.done = 0
-        self.spent: list[float] = []
-        self.width = 0
-        self.head = ""
-        self.prefix = ""
-
-    def eta(self, planned_s: float) -> str:
-        left = self.total - self.done
-        per = sum(self.spent) / len(self.spent) if self.spent else planned_s + 1.0
-        seconds = int(left * (per + self.settle_s))
-        return f"{seconds // 60}m{seconds % 60:02d}s"
-
-    def start(self, unit: Unit, repeats: int, planned_s: float) -> None:
-        rep = f" (repeat {unit.repeat + 1}/{repeats})" if repeats > 1 else ""
-        self.prefix = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}"
-        self.head = f"{self.prefix}, ETA {self.eta(planned_s)}"
-        if self.live:
-            self.line(self.head)
-        elif not self.quiet:
-            print(f"runner: {self.head}", file=sys.stderr, flush=True)
-
-    def line(self, text: str) -> None:
-        if self.live:
-            text = text if text.startswith("[") else f"{self.prefix}: {text}"
-            sys.stderr.write("\r" + text.ljust(self.width))
-            sys.stderr.flush()
-            self.width = len(text)
-
-    def finish(self, seconds: float) -> None:
-        self.done += 1
-        self.spent.append(seconds)
-        self.clear()
-
-    def clear(self) -> None:
-        if self.live and self.width:
-            sys.stderr.write("\r" + " " * self.width + "\r")
-            sys.stderr.flush()
-            self.width = 0
 
 
 class StopSignals:
@@ -269,7 +222,7 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
     start = backend.start_settings()
     perms = backend.preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
     for problem in perms.missing:
-        print(f"runner: warning: {problem}; running degraded", file=sys.stderr)
+        warn(f"{problem}; running degraded")
     if doc is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         folder = options.out or os.path.join("reports", loaded.name, stamp)
@@ -298,10 +251,9 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
     units_left = plan_units(list(by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
     statuses = [c.status for c in doc.cells]
     progress = Progress(len(units_left), options.settle_ns / 1e9, options.live, options.quiet)
-    follow = (lambda line: (progress.clear(), print(line, flush=True))) if options.follow else None
+    follow = (lambda line: (progress.clear(), say(line))) if options.follow else None
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
-    print(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}",
-          flush=True)
+    say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
     write_error: Optional[OSError] = None
     ran_all = False
     try:
@@ -325,8 +277,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
             except OSError as exc:
                 doc.cells.remove(result)
                 write_error = write_error or exc
-            sys.stdout.write(render_cell(result, backend.pid_width()))
-            sys.stdout.flush()
+            say(render_cell(result, backend.pid_width()))
             if write_error is not None or stop.requested():
                 break
         else:
@@ -346,9 +297,9 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
     except OSError as exc:
         write_error = write_error or exc
     if write_error is not None:
-        print(f"runner: {write_error.filename or results_path}: {write_error.strerror or write_error}; the run stopped. "
-              f"{results_path} keeps every cell that finished before; the cell in flight is marked error where it "
-              "could be written", file=sys.stderr, flush=True)
+        note(f"runner: {write_error.filename or results_path}: {write_error.strerror or write_error}; the run stopped. "
+             f"{results_path} keeps every cell that finished before; the cell in flight is marked error where it "
+             "could be written")
         return int(ExitCode.RUN_ERROR)
     from .publish import finish
 
@@ -356,7 +307,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))
     except OSError as exc:
         raise from_os_error(exc, "cannot write the report", before_run=False) from None
-    print(f"{loaded.name}: {worst(statuses).value}; results: {results_path}", flush=True)
+    say(f"{loaded.name}: {worst(statuses).value}; results: {results_path}")
     return int(exit_code(statuses, regressions))
 
 

@@ -1,8 +1,18 @@
-"""What the terminal shows after each cell: the ps-style table and a per-thread summary.  Pure."""
+"""Everything the runner shows on a terminal, through one writer.
+
+`say` (results, the things a user asked for) goes to stdout, `note` (progress, warnings,
+problems) to stderr; both look the streams up at call time, so a caller that redirects
+them (tests, `runner report -o -`) gets everything.  `Progress` keeps the live line out
+of the way of both.  `render_cell` is pure: the ps-style table and a per-thread summary.
+"""
 
 from __future__ import annotations
 
-from typing import Optional
+import sys
+from typing import TYPE_CHECKING, Optional
+
+if TYPE_CHECKING:
+    from .runorder import Unit
 
 from tabulate import tabulate
 
@@ -11,6 +21,69 @@ from .results import CellResult, Status
 
 _MARK = {Status.PASSED: "passed", Status.DEGRADED: "DEGRADED", Status.FAILED: "FAILED", Status.ERROR: "ERROR",
          Status.INTERRUPTED: "INTERRUPTED"}
+
+
+def say(text: str) -> None:
+    """Output the user asked for (tables, reports, paths), on stdout, whole lines."""
+    sys.stdout.write(text if text.endswith("\n") else text + "\n")
+    sys.stdout.flush()
+
+
+def note(text: str) -> None:
+    """Progress, warnings and problems, on stderr, so stdout stays clean to pipe."""
+    sys.stderr.write(text if text.endswith("\n") else text + "\n")
+    sys.stderr.flush()
+
+
+def warn(text: str) -> None:
+    note(f"runner: warning: {text}")
+
+
+class Progress:
+    """Cells done / total, ETA and the current cell: a live line on a terminal, plain lines in logs."""
+
+    def __init__(self, total: int, settle_s: float, live: bool, quiet: bool):
+        self.total, self.settle_s = total, settle_s
+        self.live = live and sys.stderr.isatty()
+        self.quiet = quiet
+        self.done = 0
+        self.spent: list[float] = []
+        self.width = 0
+        self.head = ""
+        self.prefix = ""
+
+    def eta(self, planned_s: float) -> str:
+        left = self.total - self.done
+        per = sum(self.spent) / len(self.spent) if self.spent else planned_s + 1.0
+        seconds = int(left * (per + self.settle_s))
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+
+    def start(self, unit: Unit, repeats: int, planned_s: float) -> None:
+        rep = f" (repeat {unit.repeat + 1}/{repeats})" if repeats > 1 else ""
+        self.prefix = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}"
+        self.head = f"{self.prefix}, ETA {self.eta(planned_s)}"
+        if self.live:
+            self.line(self.head)
+        elif not self.quiet:
+            note(f"runner: {self.head}")
+
+    def line(self, text: str) -> None:
+        if self.live:
+            text = text if text.startswith("[") else f"{self.prefix}: {text}"
+            sys.stderr.write("\r" + text.ljust(self.width))
+            sys.stderr.flush()
+            self.width = len(text)
+
+    def finish(self, seconds: float) -> None:
+        self.done += 1
+        self.spent.append(seconds)
+        self.clear()
+
+    def clear(self) -> None:
+        if self.live and self.width:
+            sys.stderr.write("\r" + " " * self.width + "\r")
+            sys.stderr.flush()
+            self.width = 0
 
 
 def _num(value: Optional[float], fmt: str = "{:.2f}") -> str:
