@@ -9,8 +9,13 @@ import json
 import os
 import sys
 
-from runner.session import exit_code
-from runner.results import Status
+# README's exit-code table, written out so the check holds the tool to its documentation, not to its own code
+README_EXIT = {"interrupted": 130, "error": 4, "failed": 1, "degraded": 0, "passed": 0}
+SEVERITY = ["error", "interrupted", "failed", "degraded", "passed"]
+
+
+def documented_exit(statuses: list[str]) -> int:
+    return README_EXIT[min(statuses or ["passed"], key=SEVERITY.index)]
 
 
 def cells(folder: str) -> list[dict]:
@@ -27,8 +32,8 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
             failures.append(what)
 
     for name, code in (("full", full), ("s1", s1), ("s2", s2)):
-        statuses = [Status(c["status"]) for c in cells(os.path.join(out, name))]
-        check(int(code) == int(exit_code(statuses)), f"{name}: exit {code} is the one its cells ({[s.value for s in statuses]}) call for")
+        statuses = [c["status"] for c in cells(os.path.join(out, name))]
+        check(int(code) == documented_exit(statuses), f"{name}: exit {code} is the one README gives for its cells ({statuses})")
         check(int(code) in (0, 1), f"{name}: no run error, permission or input problem (exit {code})")
     full_cells = cells(os.path.join(out, "full"))
     merged_cells = cells(os.path.join(out, "merged"))

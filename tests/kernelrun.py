@@ -73,3 +73,20 @@ def thread(results: dict[str, Any], name: str, cell: int = 0, index: Optional[in
     threads = [t for t in results["cells"][cell]["threads"] if t["name"] == name and (index is None or t["index"] == index)]
     assert threads, f"no thread {name!r}"
     return threads[0]
+
+
+# README's exit-code table, written out here so the tests check the tool against the documentation,
+# not against its own mapping: the most severe cell decides.
+README_EXIT = {"interrupted": 130, "error": 4, "failed": 1, "degraded": 0, "passed": 0}
+SEVERITY = ["error", "interrupted", "failed", "degraded", "passed"]
+
+
+def documented_exit(results: dict[str, Any]) -> int:
+    """The exit code README documents for these cells."""
+    statuses = [c["status"] for c in results["cells"]] or ["passed"]
+    return README_EXIT[min(statuses, key=SEVERITY.index)]
+
+
+def failed_metrics(results: dict[str, Any]) -> set[str]:
+    """The metrics of every expectation that failed, in every cell."""
+    return {v["metric"] for c in results["cells"] for v in c["expectations"] if not v["passed"]}

@@ -17,7 +17,7 @@ import time
 import pytest
 
 from conftest import SCENARIOS
-from kernelrun import can_use_rt, env, finish, ps_table, start_runner, thread, wait_for_threads
+from kernelrun import can_use_rt, documented_exit, env, failed_metrics, finish, ps_table, start_runner, thread, wait_for_threads
 from runner.kernel import find_pids, pid_width, thread_rows
 from runner.pstable import render_ps
 
@@ -96,7 +96,10 @@ def test_seed_thread_table_pattern_from_the_kernel(seed_runs, name):
         assert all(len(r.cpus) == os.cpu_count() for r in rows[1:]), "threads created before the pinning keep every CPU"
     elif cpus:
         assert all(r.cpus == cpus and r.psr in cpus for r in rows)
-    assert done.code in (0, 1), done.err
+    # 0, or 1 when the scenario's own expectation (~0 switches per callback) met a noisy 3 s on the VM:
+    # the code must be the one the cells call for, and only that expectation may have failed
+    assert done.code == documented_exit(done.results) and done.code in (0, 1), done.err
+    assert failed_metrics(done.results) <= {"involuntary.per_callback_mean"}, done.results["cells"][0]["expectations"]
     snapshot = done.results["cells"][0]["thread_table"]
     assert [(r["comm"], r["cls"]) for r in snapshot] == [(c, cls) for c, (_, cls) in expected]
 
@@ -182,7 +185,11 @@ def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
     proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", out, "--allow-degraded", "--quiet",
                         cwd=str(tmp_path), prefix=prefix)
     done = finish(proc, out)
-    assert done.code in (0, 1), (who, done.err)
+    # degraded to SCHED_OTHER against a busy loop per CPU, fifo80's expectation (<= 0.5 involuntary switches per
+    # callback) nearly always fails (exit 1); on a quiet second it may hold (exit 0, degraded). Either way the
+    # code is the documented one for the cell, and nothing else may have failed.
+    assert done.code == documented_exit(done.results) and done.code in (0, 1), (who, done.err)
+    assert failed_metrics(done.results) <= {"involuntary.per_callback_mean"}
     cell = done.results["cells"][0]
     assert cell["status"] in ("degraded", "failed")
     main = thread(done.results, "minimal_schedul", index=0)
