@@ -73,12 +73,6 @@ class PermissionProblem(RunnerError):
     exit_code = ExitCode.PERMISSION
 
 
-class RunError(RunnerError):
-    """A run that could not be carried out (a worker that died, a timeout)."""
-
-    exit_code = ExitCode.RUN_ERROR
-
-
 class OutputError(RunnerError):
     """A file or folder the runner must write could not be written (permission, full disk, not a folder).
 

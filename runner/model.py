@@ -146,11 +146,6 @@ class Policy(str, enum.Enum):
     def is_realtime(self) -> bool:
         return self in (Policy.FIFO, Policy.RR)
 
-    @property
-    def cls(self) -> str:
-        """The CLS column ps prints for this policy."""
-        return {"other": "TS", "fifo": "FF", "rr": "RR", "batch": "B", "idle": "IDL", "deadline": "DLN"}[self.value]
-
     @classmethod
     def from_kernel(cls, number: int) -> "Policy":
         for policy in cls:

@@ -122,14 +122,6 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, capacity: int, with_samples: 
     )
 
 
-def header(buf: bytes | mmap.mmap) -> tuple[int, int]:
-    """(nthreads, capacity) from a buffer the worker has initialised, (0, 0) before."""
-    if bytes(buf[:8]) != b"RSMP0001":
-        return 0, 0
-    _version, nthreads, capacity = struct.unpack_from("<III", buf, 8)
-    return nthreads, capacity
-
-
 def read(path: str, nthreads: int, capacity: int) -> list[SlotData]:
     """Every slot of a buffer file; slots a worker never initialised read as empty.
 
@@ -163,13 +155,6 @@ class Poller:
 
     def counts(self) -> list[int]:
         return [struct.unpack_from("<Q", self.map, slot_offset(i, self.capacity) + 8)[0] for i in range(self.nthreads)]
-
-    def last(self, index: int) -> Optional[Sample]:
-        count = self.counts()[index]
-        if not count:
-            return None
-        at = slot_offset(index, self.capacity) + SLOT_HEADER + (min(count, self.capacity) - 1) * SAMPLE.size
-        return Sample(*SAMPLE.unpack_from(self.map, at))
 
     def sample(self, index: int, n: int) -> Sample:
         at = slot_offset(index, self.capacity) + SLOT_HEADER + n * SAMPLE.size
