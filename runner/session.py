@@ -20,7 +20,7 @@ from datetime import datetime, timezone
 from typing import Any, Optional
 
 from . import __version__, outdir, units
-from .backend import Backend, CellOptions, Interrupted
+from .backend import Backend, CellOptions
 from .compare import Threshold, parse_threshold, thresholds_with
 from .errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
 from .evaluate import evaluate, unrun, with_write_error
@@ -238,6 +238,24 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
         held.release()
 
 
+@dataclass
+class _Loop:
+    """How a run's cell loop ended: the statuses so far, a write error that stopped it, whether every cell ran."""
+
+    statuses: list[Status]
+    write_error: Optional[OSError] = None
+    ran_all: bool = False
+
+    def final(self, stopped: bool) -> list[Status]:
+        """The statuses that decide the run: an interrupt, a write error, or a loop that neither finished nor
+        was stopped (a bug) each add theirs, so such a run is never "passed"."""
+        if stopped:
+            return [*self.statuses, Status.INTERRUPTED]
+        if self.write_error is not None or not self.ran_all:
+            return [*self.statuses, Status.ERROR]
+        return self.statuses
+
+
 def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell],
                folder: str, start: Any, stop: StopSignals, backend: Backend) -> int:
     """The cell loop of a claimed folder, then the report: every way out saves what finished."""
@@ -247,59 +265,21 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         doc.save(results_path)
     except OSError as exc:
         raise from_os_error(exc, "cannot write the results file") from None
-
     units_left = plan_units(list(by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
-    statuses = [c.status for c in doc.cells]
-    progress = Progress(len(units_left), options.settle_ns / 1e9, options.live, options.quiet)
-    follow = (lambda line: (progress.clear(), say(line))) if options.follow else None
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
     say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
-    write_error: Optional[OSError] = None
-    ran_all = False
-    try:
-        for n, unit in enumerate(units_left):
-            if n and options.settle_ns:
-                _settle(options.settle_ns, stop)
-            if stop.requested():
-                raise Interrupted()
-            cell = by_id[unit.cell]
-            duration = options.duration_ns or cell.scenario.duration
-            progress.start(unit, options.repeat, duration / 1e9)
-            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None,
-                                       stop.requested)
-            began = time.monotonic()
-            cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            result, write_error = _one_cell(cell, cell_folder, start, cell_options, backend)
-            progress.finish(time.monotonic() - began)
-            statuses.append(result.status)
-            try:
-                _record(doc, result, unit, results_path)
-            except OSError as exc:
-                doc.cells.remove(result)
-                write_error = write_error or exc
-            say(render_cell(result, backend.pid_width()))
-            if write_error is not None or stop.requested():
-                break
-        else:
-            ran_all = True
-    except Interrupted:
-        pass
-    finally:
-        progress.clear()
-    if stop.requested():
-        statuses.append(Status.INTERRUPTED)
-    elif write_error is not None or not ran_all:
-        statuses.append(Status.ERROR)  # a cell loop that neither finished nor was stopped is never "passed"
+    loop = _cell_loop(units_left, options, doc, by_id, folder, start, stop, backend)
+    statuses = loop.final(stop.requested())
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value
     try:
         doc.save(results_path)
     except OSError as exc:
-        write_error = write_error or exc
-    if write_error is not None:
-        note(f"runner: {write_error.filename or results_path}: {write_error.strerror or write_error}; the run stopped. "
-             f"{results_path} keeps every cell that finished before; the cell in flight is marked error where it "
-             "could be written")
+        loop.write_error = loop.write_error or exc
+    if loop.write_error is not None:
+        error = loop.write_error
+        note(f"runner: {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
+             "every cell that finished before; the cell in flight is marked error where it could be written")
         return int(ExitCode.RUN_ERROR)
     from .publish import finish
 
@@ -309,6 +289,43 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         raise from_os_error(exc, "cannot write the report", before_run=False) from None
     say(f"{loaded.name}: {worst(statuses).value}; results: {results_path}")
     return int(exit_code(statuses, regressions))
+
+
+def _cell_loop(units: list[Unit], options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell], folder: str,
+               start: Any, stop: StopSignals, backend: Backend) -> _Loop:
+    """Run the cells one after another, recording each as it finishes; stop at a stop request or a write error."""
+    loop = _Loop([c.status for c in doc.cells])
+    progress = Progress(len(units), options.settle_ns / 1e9, options.live, options.quiet)
+    follow = (lambda line: (progress.clear(), say(line))) if options.follow else None
+    results_path = os.path.join(folder, "results.json")
+    try:
+        for n, unit in enumerate(units):
+            if n and options.settle_ns:
+                _settle(options.settle_ns, stop)
+            if stop.requested():
+                return loop
+            cell = by_id[unit.cell]
+            duration = options.duration_ns or cell.scenario.duration
+            progress.start(unit, options.repeat, duration / 1e9)
+            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None,
+                                       stop.requested)
+            began = time.monotonic()
+            cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
+            result, loop.write_error = _one_cell(cell, cell_folder, start, cell_options, backend)
+            progress.finish(time.monotonic() - began)
+            loop.statuses.append(result.status)
+            try:
+                _record(doc, result, unit, results_path)
+            except OSError as exc:
+                doc.cells.remove(result)
+                loop.write_error = loop.write_error or exc
+            say(render_cell(result, backend.pid_width()))
+            if loop.write_error is not None or stop.requested():
+                return loop
+        loop.ran_all = True
+        return loop
+    finally:
+        progress.clear()
 
 
 def _one_cell(cell: ResolvedCell, folder: str, start: Any, options: CellOptions,
