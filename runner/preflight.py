@@ -103,39 +103,47 @@ def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: boo
         )
 
 
-def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
-    """Raise PermissionProblem (exit 3) for a right the cells need and this user lacks, unless degraded runs are allowed."""
-    perm = current_permissions()
-    online = set(os.sched_getaffinity(0))
-    needs_rt: dict[tuple[Policy, int], str] = {}
-    min_nice: tuple[int, str] | None = None
-    lock: str | None = None
-    for sc in scenarios:
-        hog_threads = [(f"background hog {h.name}", h.sched, h.cpus) for h in sc.background.hogs]
-        planned = [(f"{t.process}/{t.name}", t.settings) for t in plan_scenario(sc, start)]
-        for where, settings in planned:
-            _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
-            if settings.cpus is not None and not set(settings.cpus) <= online:
-                raise UsageError(
-                    f"{where} asks for CPUs {units.format_cpus(settings.cpus)}, but this machine lets the runner use "
-                    f"{units.format_cpus(online)}; change the scenario's cpus"
-                )
-            if settings.policy.is_realtime and (settings.policy != start.policy or settings.priority > start.priority):
-                needs_rt.setdefault((settings.policy, settings.priority), where)
-            if settings.nice < start.nice and (min_nice is None or settings.nice < min_nice[0]):
-                min_nice = (settings.nice, where)
-        for where, sched, cpus in hog_threads:
-            _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
-            if cpus is not None and not set(cpus) <= online:
-                raise UsageError(f"{where} asks for CPUs {units.format_cpus(cpus)}; this machine allows {units.format_cpus(online)}")
-            if sched is not None and sched.policy.is_realtime:
-                needs_rt.setdefault((sched.policy, sched.rt_priority), where)
-        for proc in sc.processes:
-            if proc.memory.lock and lock is None:
-                lock = proc.name
+@dataclass
+class Needs:
+    """The rights a run's cells need beyond what the runner's own settings give: found without trying anything."""
 
+    rt: dict[tuple[Policy, int], str] = field(default_factory=dict)  # (policy, priority) -> the first thread asking
+    min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
+    lock: str | None = None  # a process that locks its memory
+
+
+def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, online: set[int]) -> Needs:
+    """What the cells ask for that needs a right; refuses (exit 2) priority 99 and CPUs this machine does not allow."""
+    out = Needs()
+    for sc in scenarios:
+        for t in plan_scenario(sc, start):
+            where, settings = f"{t.process}/{t.name}", t.settings
+            _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
+            _refuse_cpus(where, settings.cpus, online)
+            if settings.policy.is_realtime and (settings.policy != start.policy or settings.priority > start.priority):
+                out.rt.setdefault((settings.policy, settings.priority), where)
+            if settings.nice < start.nice and (out.min_nice is None or settings.nice < out.min_nice[0]):
+                out.min_nice = (settings.nice, where)
+        for h in sc.background.hogs:
+            where, sched = f"background hog {h.name}", h.sched
+            _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
+            _refuse_cpus(where, h.cpus, online)
+            if sched is not None and sched.policy.is_realtime:
+                out.rt.setdefault((sched.policy, sched.rt_priority), where)
+        out.lock = out.lock or next((proc.name for proc in sc.processes if proc.memory.lock), None)
+    return out
+
+
+def _refuse_cpus(where: str, cpus: tuple[int, ...] | None, online: set[int]) -> None:
+    if cpus is not None and not set(cpus) <= online:
+        raise UsageError(f"{where} asks for CPUs {units.format_cpus(cpus)}, but this machine lets the runner use "
+                         f"{units.format_cpus(online)}; change the scenario's cpus")
+
+
+def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
+    """Each right `wanted` that this user lacks, tried on a throwaway thread, with how to grant it."""
     missing: list[str] = []
-    for (policy, priority), where in sorted(needs_rt.items(), key=lambda kv: -kv[0][1]):
+    for (policy, priority), where in sorted(wanted.rt.items(), key=lambda kv: -kv[0][1]):
         err = _try_on_thread(lambda: os.sched_setscheduler(0, policy.kernel_id, os.sched_param(priority)))
         if err:
             missing.append(
@@ -144,26 +152,33 @@ def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allo
                 + _grant_rt(perm, priority)
             )
             break  # the highest priority refused says it all
-    if min_nice is not None:
-        nice, where = min_nice
+    if wanted.min_nice is not None:
+        nice, where = wanted.min_nice
         err = _try_on_thread(lambda: os.setpriority(os.PRIO_PROCESS, 0, nice))
         if err:
             missing.append(
                 f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
                 f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
             )
-    if lock is not None and not perm.cap_ipc_lock and perm.rlimit_memlock != -1 and perm.rlimit_memlock < MEMLOCK_NEEDED:
+    memlock = perm.rlimit_memlock
+    if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
         missing.append(
-            f"process {lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(perm.rlimit_memlock)} and this user has no "
+            f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
             f"CAP_IPC_LOCK; grant it with one of: sudo; add '{perm.user}  -  memlock  unlimited' to /etc/security/limits.conf; "
             f"or 'ulimit -l unlimited' in a root shell before starting the runner"
         )
-    perm.missing = missing
-    if missing and not allow_degraded:
+    return missing
+
+
+def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+    """Raise PermissionProblem (exit 3) for a right the cells need and this user lacks, unless degraded runs are allowed."""
+    perm = current_permissions()
+    perm.missing = missing_rights(perm, needs(scenarios, start, allow_priority_99, set(os.sched_getaffinity(0))))
+    if perm.missing and not allow_degraded:
         raise PermissionProblem(
             "runner: missing permission, nothing was started:\n"
-            + "\n".join(f"  - {m}" for m in missing)
+            + "\n".join(f"  - {m}" for m in perm.missing)
             + "\n  (or pass --allow-degraded to run anyway; affected threads are marked degraded)"
         )
     return perm
