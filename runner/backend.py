@@ -9,8 +9,9 @@ one, in milliseconds and without RT rights.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Optional, Protocol
+from typing import Any, Optional, Protocol
 
 from .model import Scenario
 from .plan import Settings

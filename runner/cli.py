@@ -12,7 +12,7 @@ import sys
 import tempfile
 import time
 import traceback
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from . import __version__
 from .errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
@@ -117,7 +117,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         return error.exit_code
     except SystemExit:
         raise  # argparse's own exit (2 for a usage mistake, 0 for --help)
-    except Exception as exc:  # noqa: BLE001 - the one place a bug becomes a message instead of a traceback
+    except Exception as exc:
         return _internal_error(exc)
 
 

@@ -12,8 +12,8 @@ import os
 from dataclasses import dataclass
 from typing import Optional
 
-from .listing import describe_work
 from .figures import ThreadFigures
+from .listing import describe_work
 from .measure import check, legacy, thread_figures
 from .model import PeriodicWork, Scenario, metric_figure
 from .plan import PlannedThread, Settings, is_periodic

@@ -147,7 +147,7 @@ class Policy(str, enum.Enum):
         return self in (Policy.FIFO, Policy.RR)
 
     @classmethod
-    def from_kernel(cls, number: int) -> "Policy":
+    def from_kernel(cls, number: int) -> Policy:
         for policy in cls:
             if policy.kernel_id == number:
                 return policy
@@ -197,7 +197,7 @@ class Sched(Strict):
         return _sched_shorthand(value)
 
     @model_validator(mode="after")
-    def _consistent(self) -> "Sched":
+    def _consistent(self) -> Sched:
         policy = self.policy
         if policy is Policy.DEADLINE:
             raise ValueError("policy 'deadline' is not supported yet; use fifo or rr for real-time threads")
@@ -251,7 +251,7 @@ class PeriodicWork(Strict):
     offset: Duration = Field(0, description="delay of the first release after the common start")
 
     @model_validator(mode="after")
-    def _fits(self) -> "PeriodicWork":
+    def _fits(self) -> PeriodicWork:
         if self.period < MIN_PERIOD:
             raise ValueError(f"period {units.format_duration(self.period)} is too short; at least 50us")
         if self.period > MAX_PERIOD:
@@ -346,7 +346,7 @@ class ThreadSpec(Strict):
     work: Work = Field(default_factory=SleepWork)
 
     @model_validator(mode="after")
-    def _names_fit(self) -> "ThreadSpec":
+    def _names_fit(self) -> ThreadSpec:
         for name in self.names():
             _check_comm(name)
         return self
@@ -366,7 +366,7 @@ class Memory(Strict):
     stack_size: Optional[Size] = Field(None, description="default stack size of threads the process creates")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "Memory":
+    def _consistent(self) -> Memory:
         if self.prealloc and not self.lock:
             raise ValueError("prealloc only keeps memory resident together with lock: true")
         if self.stack_size is not None and self.stack_size < MIN_STACK:
@@ -532,7 +532,7 @@ class Expectation(Strict):
         return value
 
     @model_validator(mode="after")
-    def _bounded(self) -> "Expectation":
+    def _bounded(self) -> Expectation:
         if self.max is None and self.min is None:
             raise ValueError("an expectation needs max, min or both")
         for name, bound in (("min", self.min), ("max", self.max)):

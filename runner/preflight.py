@@ -14,10 +14,10 @@ import sys
 import threading
 from dataclasses import dataclass, field
 
+from . import units
 from .errors import PermissionProblem, UsageError
 from .model import Policy, Scenario
-from .plan import plan_scenario, Settings
-from . import units
+from .plan import Settings, plan_scenario
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23

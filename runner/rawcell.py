@@ -49,7 +49,7 @@ class ReadyReport:
     memory_message: str = ""
 
     @classmethod
-    def parse(cls, message: dict[str, Any], nslots: int) -> "ReadyReport":
+    def parse(cls, message: dict[str, Any], nslots: int) -> ReadyReport:
         """The report in a worker's JSON line; ValueError when it is not one (a worker out of step)."""
         try:
             errors = message.get("errors") or {}

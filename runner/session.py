@@ -54,7 +54,7 @@ class RunOptions:
     live: bool = True  # a live progress line (a terminal, not CI)
 
     @classmethod
-    def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> "RunOptions":
+    def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
         duration = _duration(ns.duration, "--duration", 100_000_000) if ns.duration else None
         settle = _duration(ns.settle, "--settle", 0) if ns.settle is not None else DEFAULT_SETTLE_NS
         if ns.repeat < 1:
@@ -120,7 +120,7 @@ class StopSignals:
         self.told = False
         self.previous: dict[int, Any] = {}
 
-    def __enter__(self) -> "StopSignals":
+    def __enter__(self) -> StopSignals:
         for sig in self.SIGNALS:
             self.previous[sig] = signal.signal(sig, self._handle)
         return self

@@ -17,9 +17,10 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any, Callable, Optional
+from typing import Any, Optional
 
 from . import _probe, kernel, samples
 from .backend import CellOptions, Interrupted
@@ -139,7 +140,7 @@ class Worker:
         """Why the worker ended badly, or None if it exited cleanly."""
         assert self.popen is not None
         code = self.popen.returncode
-        if code is None or code == 0 and self.done:
+        if code is None or (code == 0 and self.done):
             return None
         if code < 0:
             return f"{self.label} (pid {self.pid}) was killed by {signal.Signals(-code).name}"

@@ -45,7 +45,7 @@ class UnitError(ValueError):
 
 def parse_duration(value: object) -> int:
     """Parse `500ms`, `200us`, `1.5s`, `10m` into integer nanoseconds; a bare 0 is 0 in every unit."""
-    if value == 0 and not isinstance(value, bool) or isinstance(value, str) and value.strip() == "0":
+    if (value == 0 and not isinstance(value, bool)) or (isinstance(value, str) and value.strip() == "0"):
         return 0
     if isinstance(value, bool) or isinstance(value, (int, float)):
         raise UnitError(f"bare number {value!r} has no unit; expected {DURATION_EXPECTED}")

@@ -25,10 +25,7 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     path: list[str | int] = []
     node = data
     for elem in loc:
-        if isinstance(node, dict) and isinstance(elem, str) and elem in node:
-            node = node[elem]
-            path.append(elem)
-        elif isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node):
+        if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)):
             node = node[elem]
             path.append(elem)
         elif isinstance(node, dict) and isinstance(elem, str) and not _is_tag(elem, node):

@@ -15,8 +15,8 @@ import sys
 import time
 
 import pytest
-
 from conftest import SCENARIOS, run_cli
+
 from runner import cli, guard, outdir
 from runner.errors import UsageError
 

@@ -9,8 +9,8 @@ import subprocess
 import sys
 
 import pytest
-
 from conftest import REPO, run_cli
+
 from runner.errors import ScenarioError
 from runner.scenario import load_scenario
 

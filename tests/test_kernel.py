@@ -15,9 +15,9 @@ import sys
 import time
 
 import pytest
-
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, documented_exit, env, failed_metrics, finish, ps_table, start_runner, thread, wait_for_threads
+
 from runner.kernel import find_pids, pid_width, thread_rows
 from runner.pstable import render_ps
 

@@ -17,9 +17,9 @@ import sys
 import time
 
 import pytest
-
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
+
 from runner.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]

@@ -8,8 +8,8 @@ import os
 
 import jsonschema
 import pytest
-
 from conftest import REPO, SCENARIOS, run_cli
+
 from runner.model import Policy
 from runner.plan import Settings, plan_scenario
 from runner.scenario import load_scenario

@@ -11,9 +11,9 @@ import json
 import os
 
 import pytest
-
 from conftest import SCENARIOS
 from fakebackend import Act, FakeBackend
+
 from runner.cli import _run_parser
 from runner.scenario import load_scenario
 from runner.session import RunOptions, run_scenario

@@ -10,7 +10,6 @@ import subprocess
 
 import pytest
 import yaml
-
 from conftest import REPO
 
 WORKFLOW = os.path.join(REPO, ".github", "workflows", "nightly-matrix.yml")
