@@ -5,49 +5,26 @@ baseline), absolute (`+0.5` switches, `+10us`), or both (then it must exceed
 both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  Repeated
 cells are compared by their median.  Cells whose resolved scenario differs are
 not comparable: the comparison is refused, naming each differing setting.
+
+Every figure of the registry (runner/figures.py) can be compared; the registry's
+default thresholds are the ones checked unless told otherwise.  Values and absolute
+thresholds are in the figure's unit: integer ns for durations.
 """
 
 from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from . import figures as fg
 from . import units
 from .errors import Problem, ScenarioError, UsageError, did_you_mean
+from .figures import Figure, Number
 from .fmt import fmt_figure
-from .results import CellResult, RunDocument, Status, ThreadResult, show_value
-
-
-@dataclass(frozen=True)
-class Figure:
-    """A per-thread figure that can be compared: its words, unit and how to read it."""
-
-    name: str
-    words: str
-    unit: str  # "us" for latencies, "" for counts
-    value: Callable[[ThreadResult], float | None]
-
-
-def _lat(q: str) -> Callable[[ThreadResult], float | None]:
-    return lambda t: (t.figures.latency_us or {}).get(q)
-
-
-FIGURES: dict[str, Figure] = {f.name: f for f in (
-    Figure("latency.p50", "wake-up latency p50", "us", _lat("p50")),
-    Figure("latency.p99", "wake-up latency p99", "us", _lat("p99")),
-    Figure("latency.p999", "wake-up latency p99.9", "us", _lat("p999")),
-    Figure("latency.max", "wake-up latency max", "us", _lat("max")),
-    Figure("involuntary.per_callback_mean", "involuntary switches per callback", "",
-           lambda t: t.figures.involuntary.per_callback_mean),
-    Figure("involuntary.per_callback_max", "involuntary switches in one callback (max)", "",
-           lambda t: t.figures.involuntary.per_callback_max),
-    Figure("faults.minor_after_first", "minor page faults after the first callback", "",
-           lambda t: t.figures.faults.minor_after_first),
-    Figure("faults.major", "major page faults", "", lambda t: t.figures.faults.major),
-)}
+from .results import CellResult, RunDocument, Status, show_value
 
 
 @dataclass(frozen=True)
@@ -56,7 +33,7 @@ class Threshold:
 
     figure: str
     relative: float | None = None  # 0.2 is +20%
-    absolute: float | None = None  # in the figure's unit (µs for latencies)
+    absolute: Number | None = None  # in the figure's unit (ns for durations)
 
     def exceeded(self, base: float, new: float) -> bool:
         delta = new - base
@@ -66,7 +43,7 @@ class Threshold:
                 and (self.absolute is None or delta > self.absolute))
 
     def describe(self) -> str:
-        unit = FIGURES[self.figure].unit
+        unit = fg.figure(self.figure).unit
         parts = []
         if self.relative is not None:
             parts.append(f"+{self.relative * 100:g}%")
@@ -75,39 +52,44 @@ class Threshold:
         return " and ".join(parts) if parts else "off"
 
 
-DEFAULT_THRESHOLDS: tuple[Threshold, ...] = (
-    Threshold("latency.p99", relative=0.20, absolute=10.0),
-    Threshold("involuntary.per_callback_mean", absolute=0.5),
-    Threshold("faults.minor_after_first", relative=0.20, absolute=0.0),
-    Threshold("faults.major", absolute=0.0),
-)
+DEFAULT_THRESHOLDS: tuple[Threshold, ...] = tuple(
+    Threshold(name, t.relative, t.absolute) for name, t in fg.default_thresholds().items())
 
 
 def parse_threshold(text: str) -> Threshold:
-    """`latency.p99=+20%`, `latency.p99=+20%,+10us`, `involuntary.per_callback_mean=+0.5`, `latency.max=off`."""
+    """`latency.p99=+20%`, `latency.p99=+20%,+10us` (10_000 ns), `involuntary.per_callback_mean=+0.5`, `latency.max=off`."""
     name, sep, spec = text.partition("=")
     name = name.strip()
     if not sep:
         raise UsageError(f"runner: --threshold {text!r}: expected FIGURE=LIMIT, e.g. latency.p99=+20%")
-    if name not in FIGURES:
-        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, FIGURES)}; "
-                         f"known: {', '.join(FIGURES)}")
+    if name not in fg.BY_NAME:
+        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, fg.BY_NAME)}; "
+                         f"known: {', '.join(fg.BY_NAME)}")
     if spec.strip() == "off":
         return Threshold(name)
-    relative = absolute = None
+    duration = fg.figure(name).is_duration
+    relative: float | None = None
+    absolute: Number | None = None
     for part in spec.split(","):
         part = part.strip().lstrip("+")
         try:
             if part.endswith("%"):
-                relative = float(part[:-1]) / 100.0
-            elif FIGURES[name].unit == "us":
-                absolute = units.parse_duration(part) / 1000.0
+                relative = _finite(part[:-1]) / 100.0
+            elif duration:
+                absolute = units.parse_duration(part)
             else:
-                absolute = float(part)
+                absolute = _finite(part)
         except (ValueError, units.UnitError):
             raise UsageError(f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N"
-                             + (" with a unit (+10us)" if FIGURES[name].unit == "us" else "")) from None
+                             + (" with a unit (+10us)" if duration else "")) from None
     return Threshold(name, relative, absolute)
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(text)
+    return value
 
 
 def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
@@ -130,8 +112,8 @@ class FigureChange:
     cell: str
     thread: str
     figure: Figure
-    base: float | None
-    new: float | None
+    base: Number | None
+    new: Number | None
     threshold: Threshold
     verdict: str
 
@@ -221,7 +203,7 @@ def _ids(groups: dict[str, list[CellResult]]) -> str:
     return f"{len(groups)} cell{'s' if len(groups) != 1 else ''}: {shown}"
 
 
-def _median(values: list[float | None]) -> float | None:
+def _median(values: list[Number | None]) -> Number | None:
     """The median of the figures there are; NaN or infinity is no figure (never "within threshold")."""
     present = [v for v in values if v is not None and math.isfinite(v)]
     return statistics.median(present) if present else None
@@ -239,9 +221,10 @@ def compare(base: RunDocument, new: RunDocument, thresholds: list[Threshold] | N
     if not any(cell_id in b for cell_id in n):
         raise ScenarioError([Problem(new_name, 1, 1, "cells", f"no cell in common with the baseline {base_name} "
                                      f"({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario")])
-    if base.machine.get("hostname") != new.machine.get("hostname") or base.machine.get("kernel") != new.machine.get("kernel"):
-        out.notes.append(f"The baseline ran on {base.machine.get('hostname', '?')} (kernel {base.machine.get('kernel', '?')}), "
-                         f"this run on {new.machine.get('hostname', '?')} (kernel {new.machine.get('kernel', '?')}).")
+    was, now = base.machine, new.machine
+    if (was.hostname, was.kernel) != (now.hostname, now.kernel):
+        out.notes.append(f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
+                         f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'}).")
     for cell_id in list(n) + [c for c in b if c not in n]:
         if cell_id not in n:
             out.cells.append(CellChange(cell_id, _status(b[cell_id]), None, Verdict.MISSING, "in the baseline, not run now"))
@@ -267,9 +250,9 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
     keys = [t.key for t in now[0].threads if t.periodic]
     for key in keys:
         for th in thresholds:
-            fig = FIGURES[th.figure]
-            base = _median([fig.value(t) for c in old for t in c.threads if t.key == key])
-            new = _median([fig.value(t) for c in now for t in c.threads if t.key == key])
+            fig = fg.figure(th.figure)
+            base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
+            new = _median([fg.value(t.figures, fig) for c in now for t in c.threads if t.key == key])
             if base is None and new is None:
                 continue
             if base is None or new is None:

@@ -1,20 +1,27 @@
-"""How figures and text read in reports: latencies in the unit that reads best, counts with separators,
-names from the scenario escaped so they stay text in markdown.  Pure."""
+"""How figures and text read in reports: durations (stored in ns) in the unit that reads best, counts with
+separators, names from the scenario escaped so they stay text in markdown.  Pure.
+
+Formatting is the only place a figure is scaled: results hold durations as integer ns
+(figures.Unit.NS), and `fmt_ns` / `fmt_figure` choose µs, ms or s as they show them.
+"""
 
 from __future__ import annotations
 
 import re
 
+from .figures import Number, Unit
 
-def fmt_us(value: float | None) -> str:
-    """A latency given in microseconds, in the unit that reads best: `56.6 µs`, `6.12 ms`, `1.20 s`."""
+
+def fmt_ns(value: Number | None) -> str:
+    """A duration given in nanoseconds, in the unit that reads best: `56.6 µs`, `142 µs`, `6.12 ms`, `1.20 s`."""
     if value is None:
         return "–"
-    if value < 1000:
-        return f"{value:.1f} µs" if value < 100 else f"{value:.0f} µs"
-    if value < 1_000_000:
-        return f"{value / 1000:.2f} ms"
-    return f"{value / 1_000_000:.2f} s"
+    us = value / 1000
+    if us < 1000:
+        return f"{us:.1f} µs" if us < 100 else f"{us:.0f} µs"
+    if us < 1_000_000:
+        return f"{us / 1000:.2f} ms"
+    return f"{us / 1_000_000:.2f} s"
 
 
 def fmt_mean(value: float | None) -> str:
@@ -36,11 +43,13 @@ def fmt_bytes(value: int | None) -> str:
     return f"{value} B"
 
 
-def fmt_figure(value: float | None, unit: str) -> str:
-    """A compared figure: a latency (unit "us") or a count."""
-    if unit == "us":
-        return fmt_us(value)
-    return "–" if value is None else f"{value:g}"
+def fmt_figure(value: Number | None, unit: Unit) -> str:
+    """A figure in its unit: a duration (ns) as `fmt_ns` shows it, a count as the integer it is, a mean as `%g`."""
+    if unit is Unit.NS:
+        return fmt_ns(value)
+    if value is None:
+        return "–"
+    return str(value) if isinstance(value, int) else f"{value:g}"
 
 
 # ---------------------------------------------------------------- text from the scenario, as markdown

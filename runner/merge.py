@@ -49,7 +49,7 @@ def merge(paths: list[str], out: str) -> RunDocument:
     merged = RunDocument(
         scenario=first.scenario, command=first.command, started_at=min(d.started_at for _, d in docs),
         machine=first.machine, permissions=first.permissions, start_settings=first.start_settings,
-        tool_version=first.tool_version, finished_at=max((d.finished_at or "" for _, d in docs), default="") or None,
+        tool=first.tool, finished_at=max((d.finished_at or "" for _, d in docs), default="") or None,
         cell_ids=list(first.matrix_cells) or [c.id for _, c in cells], matrix_cells=list(first.matrix_cells),
         plan=first.plan, merged_from=[results_file(p) for p, _ in docs], folder=os.path.abspath(out),
     )

@@ -11,22 +11,43 @@ returns the settings each thread is expected to hold.  The runner records this a
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Optional
+from typing import Annotated, Any, Optional
+
+from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from . import units
-from .model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Sched, Scenario, SpinWork, Work
+from .model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Scenario, Sched, SpinWork, Work
+from .pstable import parse_cpu_list
+
+
+def _cpus_in(value: Any) -> Any:
+    """`all` is every CPU (None); any other text is a CPU list (`0-1,3`)."""
+    return None if value == "all" else parse_cpu_list(value)
+
+
+AffinityCpus = Annotated[
+    Optional[tuple[int, ...]],
+    BeforeValidator(_cpus_in),
+    PlainSerializer(lambda cpus: "all" if cpus is None else units.format_cpus(cpus), return_type=str),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`",
+                    "examples": ["all", "0-1,3"]}),
+]
 
 
 @dataclass(frozen=True)
 class Settings:
-    """Scheduling settings of one thread; `cpus` None means every CPU."""
+    """Scheduling settings of one thread; `cpus` None means every CPU.
+
+    Stored in results as `{"policy": "fifo", "priority": 80, "nice": 0, "cpus": "all"}`
+    (the results models validate and serialise it through these annotations).
+    """
 
     policy: Policy = Policy.OTHER
     priority: int = 0
     nice: int = 0
-    cpus: Optional[tuple[int, ...]] = None
+    cpus: AffinityCpus = None
 
-    def with_sched(self, sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> "Settings":
+    def with_sched(self, sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> Settings:
         """These settings after applying `sched` and `cpus` (absent parts stay as they are)."""
         out = self
         if sched is not None:
@@ -37,7 +58,7 @@ class Settings:
             out = replace(out, cpus=tuple(cpus))
         return out
 
-    def reset_on_fork(self) -> "Settings":
+    def reset_on_fork(self) -> Settings:
         """What SCHED_RESET_ON_FORK gives a child: RT and idle become OTHER, negative nice becomes 0."""
         policy = self.policy if self.policy in (Policy.OTHER, Policy.BATCH) else Policy.OTHER
         return replace(self, policy=policy, priority=0, nice=max(self.nice, 0))

@@ -9,8 +9,11 @@ are the runner's own.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Annotated, Any, Optional
+
+from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from . import units
 from .errors import UsageError, did_you_mean
@@ -18,38 +21,52 @@ from .errors import UsageError, did_you_mean
 CLS = {0: "TS", 1: "FF", 2: "RR", 3: "B", 5: "IDL", 6: "DLN"}
 
 
+def parse_cpu_list(value: Any) -> Any:
+    """A stored CPU list (`0-1,3`) as CPU numbers; "" is none.  Anything not text is left to the type check."""
+    if isinstance(value, list):
+        return tuple(value)
+    if not isinstance(value, str):
+        return value
+    if not value:
+        return ()
+    try:
+        return tuple(units.parse_cpus(value))
+    except units.UnitError as exc:
+        raise ValueError(str(exc)) from None
+
+
+CpuList = Annotated[
+    tuple[int, ...],
+    BeforeValidator(parse_cpu_list),
+    PlainSerializer(units.format_cpus, return_type=str),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known",
+                    "examples": ["0-1,3"]}),
+]
+
+
 @dataclass(frozen=True)
 class ThreadRow:
-    """One thread as the kernel reports it (policy numbers as in sched(7))."""
+    """One thread as the kernel reports it (policy numbers as in sched(7)).
+
+    Stored in results by its fields (the results models validate and serialise it);
+    `cpus` as a CPU list string.
+    """
 
     pid: int
     tid: int
     comm: str
-    policy: int
+    policy: int  # sched(7) number; CLS names it as ps does
     rtprio: int
     nice: int
     psr: int
-    prio: int  # /proc stat field 18 (kernel prio, shifted)
-    cpus: tuple[int, ...] = ()
+    prio: Optional[int]  # /proc stat field 18 (kernel prio, shifted); None where not recorded (results/1 files)
+    cpus: CpuList = ()
     voluntary: Optional[int] = None
     involuntary: Optional[int] = None
 
     @property
     def cls(self) -> str:
         return CLS.get(self.policy, "?")
-
-    def to_json(self) -> dict[str, object]:
-        return {
-            "tid": self.tid, "pid": self.pid, "comm": self.comm, "cls": self.cls, "rtprio": self.rtprio,
-            "nice": self.nice, "psr": self.psr, "cpus": units.format_cpus(self.cpus),
-        }
-
-    @classmethod
-    def from_json(cls, data: dict[str, object]) -> "ThreadRow":
-        policy = {v: k for k, v in CLS.items()}.get(str(data["cls"]), -1)
-        cpus = units.parse_cpus(data["cpus"]) if data.get("cpus") else ()
-        return cls(int(data["pid"]), int(data["tid"]), str(data["comm"]), policy, int(data["rtprio"]),  # type: ignore[arg-type]
-                   int(data["nice"]), int(data["psr"]), 0, cpus)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -82,7 +99,7 @@ def columns_for(pid_width: int = 5) -> dict[str, Column]:
         "cls": Column("CLS", 3, False, lambda r: r.cls),
         "psr": Column("PSR", 3, False, lambda r: str(r.psr)),
         "ni": Column("NI", 3, False, _nice),
-        "pri": Column("PRI", 3, False, lambda r: str(39 - r.prio)),
+        "pri": Column("PRI", 3, False, lambda r: "-" if r.prio is None else str(39 - r.prio)),
         "cpus": Column("CPUS", 4, False, lambda r: units.format_cpus(r.cpus) if r.cpus else "-"),
         "vcsw": Column("VCSW", 5, False, lambda r: _opt(r.voluntary)),
         "ivcsw": Column("IVCSW", 5, False, lambda r: _opt(r.involuntary)),

@@ -17,23 +17,24 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 from tabulate import tabulate
 
+from . import figures as fg
 from . import units
+from .figures import Number, ThreadFigures
 from .fmt import (
     Markdown,
     fmt_bytes,
     fmt_figure,
     fmt_int,
     fmt_mean,
-    fmt_us,
+    fmt_ns,
     md_code,
     md_code_block,
     md_text,
 )
-from .measure import Figures
 from .model import Policy
 from .plan import Settings
 from .pstable import render_ps
-from .results import CellResult, RunDocument, Status, ThreadResult
+from .results import BackgroundKind, CellResult, RunDocument, Status, ThreadResult
 
 if TYPE_CHECKING:
     from .compare import Comparison, FigureChange
@@ -69,15 +70,15 @@ def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Seque
 # ---------------------------------------------------------------- findings
 
 
-def thread_label(t: ThreadResult, single_instance: bool = True) -> str:
-    """`process/name (main)`, with `[instance]` only when a process runs more than once."""
-    proc = t.process if single_instance else f"{t.process}[{t.instance}]"
-    return f"{proc}/{t.name}" + (" (main)" if t.index == 0 else f" #{t.index}")
-
-
 def thread_labels(cells: Sequence[CellResult]) -> dict[str, str]:
+    """Each thread's label by key: `process/name (main)`, with `[instance]` only for a process that runs more than once."""
     multi = {t.process for c in cells for t in c.threads if t.instance > 0}
-    return {t.key: thread_label(t, t.process not in multi) for c in cells for t in c.threads}
+    return {t.key: t.label(show_instance=t.process in multi) for c in cells for t in c.threads}
+
+
+def figure(t: ThreadResult, name: str) -> Number | None:
+    """A thread's figure by its registry name (`latency.p99`), None where it has none."""
+    return fg.value(t.figures, fg.figure(name))
 
 
 def first_runs(cells: Sequence[CellResult]) -> list[CellResult]:
@@ -92,7 +93,7 @@ def periodic_threads(cell: CellResult) -> list[ThreadResult]:
     return [t for t in cell.threads if t.periodic]
 
 
-def _switches(f: Figures) -> str:
+def _switches(f: ThreadFigures) -> str:
     """`0 involuntary switches in 98 callbacks` or `8.94 involuntary switches per callback (98 of 99 ... preempted)`."""
     inv = f.involuntary
     if not inv.total:
@@ -104,14 +105,14 @@ def _switches(f: Figures) -> str:
 def thread_finding(t: ThreadResult, label: str) -> Markdown:
     """One sentence of what a periodic thread measured, e.g. `at FIFO 80: 0 involuntary switches in 98 callbacks`."""
     f = t.figures
-    lat = (f.latency_us or {}).get("p99")
+    lat = figure(t, "latency.p99")
     where = f"**{md_text(label)}** at {policy_label(t.applied)}"
     if not f.callbacks:
         return Markdown(f"{where}: no callback ran")
     what = _switches(f)
     faults = f.faults.minor_after_first
     tail = f", {faults:,} minor page faults after the first callback" if faults else ""
-    return Markdown(f"{where}: {what}, wake-up latency p99 {fmt_us(lat)}{tail}")
+    return Markdown(f"{where}: {what}, wake-up latency p99 {fmt_ns(lat)}{tail}")
 
 
 def cell_finding(cell: CellResult, labels: dict[str, str]) -> Markdown:
@@ -145,7 +146,7 @@ def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[
     return out
 
 
-def _span(values: list[float | None], fmt: Any) -> str:
+def _span(values: list[Number | None], fmt: Any) -> str:
     present = sorted(v for v in values if v is not None)
     if not present:
         return "–"
@@ -159,7 +160,7 @@ def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
     where = f"at {policy}" + (f" {', '.join(map(str, prios))}" if prios else "")
     if len(threads) > 1 and not prios:
         where += f" ({len(threads)} cells)"
-    p99 = _span([(t.figures.latency_us or {}).get("p99") for t in threads], fmt_us)
+    p99 = _span([figure(t, "latency.p99") for t in threads], fmt_ns)
     if len(threads) == 1:
         f = threads[0].figures
         return f"{where}: no callback ran" if not f.callbacks else f"{where}: {_switches(f)}, wake-up p99 {p99}"
@@ -200,7 +201,6 @@ def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
     rows = []
     for t in cell.threads:
         f = t.figures
-        lat = f.latency_us or {}
         faults = (f"{fmt_int(f.faults.minor_first_callback)} / {fmt_int(f.faults.minor_after_first)}"
                   if t.periodic else f"{fmt_int(f.faults.minor)} (total)")
         rows.append([
@@ -212,8 +212,8 @@ def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
             fmt_int(f.involuntary.per_callback_max),
             fmt_int(f.involuntary.callbacks_with_any),
             fmt_int(f.involuntary.total),
-            fmt_int(f.voluntary_total),
-            fmt_us(lat.get("p50")), fmt_us(lat.get("p99")), fmt_us(lat.get("max")),
+            fmt_int(f.voluntary.total),
+            *(fmt_ns(figure(t, name)) for name in ("latency.p50", "latency.p99", "latency.max")),
             faults,
             fmt_int(f.faults.major),
         ])
@@ -225,30 +225,10 @@ def verdict_table(cell: CellResult) -> Table | None:
         return None
     rows = []
     for v in cell.expectations:
-        measured = "not measured" if v.measured is None else (
-            fmt_us(v.measured / 1000.0) if v.metric.is_latency else f"{v.measured:g}")
-        rows.append(["✅ pass" if v.passed else "❌ FAIL", v.thread, METRIC_WORDS.get(v.metric.value, v.metric.value),
-                     v.limit, measured + (f" ({v.note})" if v.note else "")])
+        measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
+        rows.append(["✅ pass" if v.passed else "❌ FAIL", v.thread, v.figure.words, v.limit,
+                     measured + (f" ({v.note})" if v.note else "")])
     return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows)
-
-
-METRIC_WORDS = {
-    "callbacks": "callbacks run",
-    "involuntary.total": "involuntary switches (total)",
-    "involuntary.per_callback_mean": "involuntary switches per callback (mean)",
-    "involuntary.per_callback_max": "involuntary switches per callback (max)",
-    "involuntary.callbacks_with_any": "callbacks with an involuntary switch",
-    "voluntary.total": "voluntary switches (total)",
-    "latency.min": "wake-up latency min",
-    "latency.p50": "wake-up latency p50",
-    "latency.p90": "wake-up latency p90",
-    "latency.p99": "wake-up latency p99",
-    "latency.p999": "wake-up latency p99.9",
-    "latency.max": "wake-up latency max",
-    "faults.minor": "minor page faults",
-    "faults.major": "major page faults",
-    "faults.minor_after_first": "minor page faults after the first callback",
-}
 
 
 def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
@@ -257,7 +237,7 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
     for cell in cells:
         threads = periodic_threads(cell)
         worst_inv = max(threads, key=lambda t: t.figures.involuntary.per_callback_mean or 0.0, default=None)
-        p99s = [(t.figures.latency_us or {}).get("p99") for t in threads]
+        p99s = [figure(t, "latency.p99") for t in threads]
         p99 = max((p for p in p99s if p is not None), default=None)
         passed = sum(v.passed for v in cell.expectations)
         rows.append([
@@ -266,7 +246,7 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
             ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
             fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
             fmt_mean(worst_inv.figures.involuntary.per_callback_mean) if worst_inv else "–",
-            fmt_us(p99),
+            fmt_ns(p99),
             f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
             f"{cell.duration_s:.1f} s",
         ])
@@ -281,7 +261,7 @@ def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -
         return [name] + [value(t) for _, t in entries]
 
     def lat(q: str) -> Any:
-        return lambda t: fmt_us((t.figures.latency_us or {}).get(q))
+        return lambda t: fmt_ns(figure(t, f"latency.{q}"))
 
     rows = [
         row("Scheduling (read back from the kernel)", lambda t: policy_label(t.applied)),
@@ -290,7 +270,7 @@ def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -
         row("Involuntary switches per callback (mean)", lambda t: fmt_mean(t.figures.involuntary.per_callback_mean)),
         row("Involuntary switches per callback (max)", lambda t: fmt_int(t.figures.involuntary.per_callback_max)),
         row("Callbacks preempted at least once", lambda t: fmt_int(t.figures.involuntary.callbacks_with_any)),
-        row("Voluntary switches (total)", lambda t: fmt_int(t.figures.voluntary_total)),
+        row("Voluntary switches (total)", lambda t: fmt_int(t.figures.voluntary.total)),
         row("Wake-up latency p50", lat("p50")),
         row("Wake-up latency p99", lat("p99")),
         row("Wake-up latency max", lat("max")),
@@ -308,7 +288,7 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table |
     if not any(len(ts) > 1 for ts in groups.values()):
         return None
 
-    def spread(values: list[float | None], fmt: Any) -> str:
+    def spread(values: list[Number | None], fmt: Any) -> str:
         present = sorted(v for v in values if v is not None)
         if not present:
             return "–"
@@ -319,9 +299,7 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table |
     for (cell_id, key), ts in groups.items():
         rows.append([cell_id, labels[key], str(len(ts)),
                      spread([t.figures.involuntary.per_callback_mean for t in ts], fmt_mean),
-                     spread([(t.figures.latency_us or {}).get("p50") for t in ts], fmt_us),
-                     spread([(t.figures.latency_us or {}).get("p99") for t in ts], fmt_us),
-                     spread([(t.figures.latency_us or {}).get("max") for t in ts], fmt_us)])
+                     *(spread([figure(t, name) for t in ts], fmt_ns) for name in ("latency.p50", "latency.p99", "latency.max"))])
     return Table(["Cell", "Thread", "Repeats", "Involuntary / callback", "Wake-up p50", "Wake-up p99", "Wake-up max"], rows,
                  ["left", "left", "right", "right", "right", "right", "right"])
 
@@ -342,42 +320,43 @@ def anchor(cell: CellResult, repeated: bool = False) -> str:
 def facts(doc: RunDocument) -> Table:
     """The run's facts: what a reader needs to trust or compare its numbers."""
     m, p = doc.machine, doc.permissions
-    throttle = m.get("rt_throttling") or {}
-    if throttle.get("enabled"):
-        runtime, period = throttle.get("runtime_us") or 0, throttle.get("period_us") or 1
-        rt = f"on: RT threads may use {runtime / 1000:g} ms of every {period / 1000:g} ms ({100 * runtime / period:.0f}%)"
+    throttle = m.rt_throttling
+    if throttle and throttle.enabled:
+        runtime, period = throttle.runtime_ns or 0, throttle.period_ns or 1
+        rt = f"on: RT threads may use {runtime / 1e6:g} ms of every {period / 1e6:g} ms ({100 * runtime / period:.0f}%)"
     else:
         rt = "off (an RT busy loop can starve a CPU)"
-    preempt = Markdown("**yes**" if m.get("preempt_rt") else f"no ({md_text(m.get('preempt', 'unknown'), in_table=True)})")
-    caps = ", ".join(f"{name} {'yes' if p.get(key) else 'no'}" for name, key in (("CAP_SYS_NICE", "cap_sys_nice"), ("CAP_IPC_LOCK", "cap_ipc_lock")))
-    perms = md_text(f"{p.get('user', '?')} (uid {p.get('uid', '?')}): {caps}, RLIMIT_RTPRIO {p.get('rlimit_rtprio', '?')}, "
-                    f"RLIMIT_MEMLOCK {fmt_bytes(p.get('rlimit_memlock'))}", in_table=True)
-    if p.get("missing"):
-        perms = Markdown(perms + "; **missing:** " + "; ".join(md_text(why, in_table=True) for why in p["missing"]))
+    preempt = Markdown("**yes**" if m.preempt_rt else f"no ({md_text(_known(m.preempt, 'unknown'), in_table=True)})")
+    caps = ", ".join(f"{name} {'yes' if held else 'no'}"
+                     for name, held in (("CAP_SYS_NICE", p.cap_sys_nice), ("CAP_IPC_LOCK", p.cap_ipc_lock)))
+    perms = md_text(f"{_known(p.user)} (uid {_known(p.uid)}): {caps}, RLIMIT_RTPRIO {_known(p.rlimit_rtprio)}, "
+                    f"RLIMIT_MEMLOCK {fmt_bytes(p.rlimit_memlock)}", in_table=True)
+    if p.missing:
+        perms = Markdown(perms + "; **missing:** " + "; ".join(md_text(why, in_table=True) for why in p.missing))
     counts: dict[Status, int] = {}
     for cell in doc.cells:
         counts[cell.status] = counts.get(cell.status, 0) + 1
     outcome = ", ".join(f"{n} {s.value}" for s, n in sorted(counts.items(), key=lambda kv: list(Status).index(kv[0])))
     missing = len([c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}])
     rows: list[list[str]] = [
-        ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(doc.scenario.get('path', '?'), in_table=True)})")],
+        ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(_known(doc.scenario.path), in_table=True)})")],
         ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
-        ["Host", (f"{m.get('hostname', '?')}, {m.get('arch', '?')}, CPUs {m.get('cpus_online', '?')} online"
-                  f" ({m.get('cpus_allowed', '?')} usable), isolated CPUs: {m.get('isolated_cpus') or 'none'},"
-                  f" memory {fmt_bytes(m.get('memory_total_bytes'))}")],
-        ["Kernel", Markdown(f"{md_text(m.get('kernel', '?'), in_table=True)} {md_code(m.get('kernel_version', ''), in_table=True)}")],
+        ["Host", (f"{_known(m.hostname)}, {_known(m.arch)}, CPUs {_known(m.cpus_online)} online"
+                  f" ({_known(m.cpus_allowed)} usable), isolated CPUs: {m.isolated_cpus or 'none'},"
+                  f" memory {fmt_bytes(m.memory_total_bytes)}")],
+        ["Kernel", Markdown(f"{md_text(_known(m.kernel), in_table=True)} {md_code(m.kernel_version, in_table=True)}")],
         ["PREEMPT_RT", preempt],
         ["RT throttling", rt],
-        ["CPU frequency governor", ", ".join(m.get("cpufreq_governors") or []) or "not exposed"],
+        ["CPU frequency governor", ", ".join(m.cpufreq_governors) or "not exposed"],
         ["Permissions", perms],
-        ["Tool", f"runner {doc.tool_version}, Python {m.get('python', '?')}"],
+        ["Tool", f"runner {doc.tool_version}, Python {_known(m.python)}"],
         ["Command", md_code(" ".join(doc.command), in_table=True)],
         ["Result", Markdown(f"**{md_text(doc.status, in_table=True)}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run "
                             f"({outcome or 'none'})" + (f", {missing} not run" if missing else ""))],
     ]
     hosts: dict[str, int] = {}
     for cell in doc.cells:
-        name = str(cell.machine.get("hostname", "?"))
+        name = _known(cell.machine.hostname if cell.machine else None)
         hosts[name] = hosts.get(name, 0) + 1
     if len(hosts) > 1:
         rows.insert(3, ["Hosts", ", ".join(f"{h} ({n} cell{'s' if n != 1 else ''})" for h, n in hosts.items())])
@@ -386,6 +365,11 @@ def facts(doc: RunDocument) -> Table:
     if doc.merged_from:
         rows.append(["Merged from", Markdown(", ".join(md_code(p, in_table=True) for p in doc.merged_from))])
     return Table(["Fact", "Value"], rows)
+
+
+def _known(value: object, unknown: str = "?") -> str:
+    """A recorded fact as text; `?` where the results do not have it."""
+    return unknown if value is None else str(value)
 
 
 def _when(stamp: str | None) -> str:
@@ -438,12 +422,12 @@ class ReportModel:
 
 
 def _load_line(cell: CellResult) -> Markdown:
-    hogs = [b for b in cell.background if b.get("kind") == "hog"]
-    commands = [b for b in cell.background if b.get("kind") == "command"]
+    hogs = [b for b in cell.background if b.kind is BackgroundKind.HOG]
+    commands = [b for b in cell.background if b.kind is BackgroundKind.COMMAND]
     parts = []
     if hogs:
         parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
-    parts += [md_code(" ".join(c.get("argv", []))) for c in commands]
+    parts += [md_code(" ".join(c.argv)) for c in commands]
     return Markdown(", ".join(parts) or "none")
 
 
@@ -463,7 +447,8 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
         threads.append(ThreadView(labels[key], side_by_side(key, shown) if matrix else None, plots.get(key, []), len(entries)))
     sections = [
         CellSection(
-            cell=cell, title=section_title(cell, repeated), anchor=anchor(cell, repeated), icon=ICON[cell.status], finding=cell_finding(cell, labels),
+            cell=cell, title=section_title(cell, repeated), anchor=anchor(cell, repeated), icon=ICON[cell.status],
+            finding=cell_finding(cell, labels),
             ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
             switches=switch_table(cell, labels), verdicts=verdict_table(cell),
             degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
@@ -483,7 +468,7 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
         notes.append(f"The side-by-side view shows the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
     return ReportModel(
         title=f"{doc.name}: scheduling report",
-        description=str(doc.scenario.get("description") or ""),
+        description=doc.scenario.description,
         facts=facts(doc), findings=findings, summary=summary_table(cells, repeated) if len(cells) > 1 else None,
         spread=spread_table(cells, labels),
         threads=threads, sections=sections, comparison=Markdown(comparison) if comparison else None, notes=notes,
@@ -536,10 +521,6 @@ class ComparisonModel:
 
 def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> ComparisonModel:
     """What the comparison section shows: a headline, regressions first, then every figure compared."""
-    from .compare import FIGURES
-
-    FIGURE_WORDS = {name: f.words for name, f in FIGURES.items()}
-
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
@@ -554,10 +535,10 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     facts = Table(["", "Baseline", "This run"], [
         ["Results", md_code(base_name, in_table=True), md_code(new_name, in_table=True)],
         ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],
-        ["Host, kernel", f"{cmp.base.machine.get('hostname', '?')}, {cmp.base.machine.get('kernel', '?')}",
-         f"{cmp.new.machine.get('hostname', '?')}, {cmp.new.machine.get('kernel', '?')}"],
+        ["Host, kernel", f"{_known(cmp.base.machine.hostname)}, {_known(cmp.base.machine.kernel)}",
+         f"{_known(cmp.new.machine.hostname)}, {_known(cmp.new.machine.kernel)}"],
     ])
-    notes = ["Regression thresholds: " + "; ".join(f"{FIGURE_WORDS.get(t.figure, t.figure)} {t.describe()}" for t in cmp.thresholds)
+    notes = ["Regression thresholds: " + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds)
              + "."] + list(cmp.notes)
 
     def figure_rows(items: Iterable[Any]) -> list[list[str]]:

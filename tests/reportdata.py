@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 import os
 
 from runner.results import CellResult, RunDocument, ThreadResult, load
@@ -26,17 +25,22 @@ def main_thread(cell: CellResult) -> ThreadResult:
 
 
 def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocument:
-    """A copy of `doc` where the periodic thread of `cell_id` has some figures changed (latency_p99=..., invol_mean=...)."""
+    """A copy of `doc` where the periodic thread of `cell_id` has some figures changed.
+
+    `latency_p99=` is in ns (the figure's unit), `invol_mean=` switches per callback.  The
+    copies are not validated, so a test may put a value there that no run would produce (NaN).
+    """
     out = copy.deepcopy(doc)
     cell = next(c for c in out.cells if c.id == cell_id)
     i = cell.threads.index(main_thread(cell))
     t = cell.threads[i]
     f = t.figures
     if "latency_p99" in changes:
-        f = dataclasses.replace(f, latency_us={**(f.latency_us or {}), "p99": changes["latency_p99"]})
+        assert f.latency_ns is not None
+        f = f.model_copy(update={"latency_ns": f.latency_ns.model_copy(update={"p99": changes["latency_p99"]})})
     if "invol_mean" in changes:
-        f = dataclasses.replace(f, involuntary=dataclasses.replace(f.involuntary, per_callback_mean=changes["invol_mean"]))
-    cell.threads[i] = dataclasses.replace(t, figures=f)
+        f = f.model_copy(update={"involuntary": f.involuntary.model_copy(update={"per_callback_mean": changes["invol_mean"]})})
+    cell.threads[i] = t.model_copy(update={"figures": f})
     return out
 
 
@@ -54,7 +58,7 @@ def renamed(folder: str, names: list[tuple[str, str]], cell_ids: list[str] | Non
     for n, (cell, (process, name)) in enumerate(zip(doc.cells, names)):
         i = cell.threads.index(main_thread(cell))
         old = cell.threads[i].key
-        cell.threads[i] = dataclasses.replace(cell.threads[i], process=process, name=name)
+        cell.threads[i] = cell.threads[i].model_copy(update={"process": process, "name": name})
         path = doc.samples_path(cell)
         assert path is not None
         with gzip.open(path, "rt", encoding="utf-8") as handle:

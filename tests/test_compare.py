@@ -29,8 +29,8 @@ def test_identical_runs_pass(tmp_path):
 
 def test_synthetic_latency_regression_is_flagged_with_exit_1(tmp_path):
     base = matrix()
-    p99 = main_thread(base.cells[1]).figures.latency_us["p99"]
-    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=p99 * 1.5 + 20), tmp_path / "new")
+    p99 = main_thread(base.cells[1]).figures.latency_ns.p99
+    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=round(p99 * 1.5) + 20_000), tmp_path / "new")
     done = run_cli("compare", MATRIX, new)
     assert done.code == 1
     assert "1 regression** in 1 of 5 cells: policy=fifo,priority=80" in done.out
@@ -47,9 +47,10 @@ def test_involuntary_regression_and_its_threshold_override(tmp_path):
 
 def test_small_latency_wobble_is_under_the_noise_floor():
     base = matrix()
-    p99 = main_thread(base.cells[0]).figures.latency_us["p99"]
-    result = cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 9.0))  # > 20% only if p99 < 45 us
+    p99 = main_thread(base.cells[0]).figures.latency_ns.p99
+    result = cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 9_000))  # > 20% only if p99 < 45 us
     assert result.regressions == 0
+    assert cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 11_000 + p99 // 5)).regressions == 1
 
 
 def test_improvement_is_reported_as_better_not_regression():
@@ -82,7 +83,7 @@ def test_missing_and_new_cells_are_reported_not_failed():
 def test_repeats_are_compared_by_their_median():
     base = matrix()
     new = copy.deepcopy(base)
-    spiky = with_figures(base, base.cells[0].id, latency_p99=50_000.0).cells[0]
+    spiky = with_figures(base, base.cells[0].id, latency_p99=50_000_000).cells[0]  # 50 ms
     again = copy.deepcopy(base.cells[0])
     for c, r in ((new.cells[0], 0), (spiky, 1), (again, 2)):
         c.repeat = r
@@ -112,7 +113,7 @@ def test_spec_differences_lists_every_changed_leaf():
 
 
 @pytest.mark.parametrize("text, relative, absolute", [
-    ("latency.p99=+20%", 0.2, None), ("latency.p99=+20%,+10us", 0.2, 10.0), ("latency.max=+1ms", None, 1000.0),
+    ("latency.p99=+20%", 0.2, None), ("latency.p99=+20%,+10us", 0.2, 10_000), ("latency.max=+1ms", None, 1_000_000),
     ("involuntary.per_callback_mean=+0.5", None, 0.5), ("latency.p99=off", None, None)])
 def test_threshold_syntax(text, relative, absolute):
     t = cmp.parse_threshold(text)
@@ -138,7 +139,7 @@ def test_compare_refuses_a_results_file_of_another_schema(tmp_path):
     bad = tmp_path / "results.json"
     bad.write_text(json.dumps({"schema": "runner.results/0"}))
     done = run_cli("compare", MATRIX, str(bad))
-    assert done.code == 2 and "expected a runner.results/1 results file" in done.err
+    assert done.code == 2 and "expected a runner.results/2 (or runner.results/1) results file" in done.err
 
 
 def test_refusal_is_a_scenario_error_with_every_cell():
@@ -158,7 +159,7 @@ def test_comparison_section_matches_golden_file():
     from runner.report import render_comparison
 
     base = matrix()
-    new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400.0), "policy=other,priority=0", invol_mean=4.0)
+    new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400_000), "policy=other,priority=0", invol_mean=4.0)
     golden("comparison.md", render_comparison(cmp.compare(base, new), "base/results.json", "new/results.json"))
 
 
@@ -191,9 +192,10 @@ def test_a_partial_comparison_says_which_cells_were_not_compared():
 def test_a_figure_that_is_not_a_number_is_never_within_threshold():
     base = matrix()
     cell = base.cells[1].id
+    name = "involuntary.per_callback_mean"
     for bad in (float("nan"), float("inf")):
-        result = cmp.compare(base, with_figures(base, cell, latency_p99=bad))
+        result = cmp.compare(base, with_figures(base, cell, invol_mean=bad))
         verdicts = {(f.cell, f.figure.name): f.verdict for f in result.figures}
-        assert verdicts[(cell, "latency.p99")] == cmp.Verdict.MISSING
-        result = cmp.compare(with_figures(base, cell, latency_p99=bad), base)
-        assert {(f.cell, f.figure.name): f.verdict for f in result.figures}[(cell, "latency.p99")] == cmp.Verdict.NEW
+        assert verdicts[(cell, name)] == cmp.Verdict.MISSING
+        result = cmp.compare(with_figures(base, cell, invol_mean=bad), base)
+        assert {(f.cell, f.figure.name): f.verdict for f in result.figures}[(cell, name)] == cmp.Verdict.NEW

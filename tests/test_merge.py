@@ -40,7 +40,8 @@ def test_merged_shards_equal_the_full_run(tmp_path):
     assert done.code == 0, done.err
     merged, full = load(str(tmp_path / "merged")), matrix()
     assert [c.id for c in merged.cells] == [c.id for c in full.cells]  # matrix order, not shard order
-    assert [c.to_json()["threads"] for c in merged.cells] == [c.to_json()["threads"] for c in full.cells]
+    assert [c.threads for c in merged.cells] == [c.threads for c in full.cells]
+    assert [c.expectations for c in merged.cells] == [c.expectations for c in full.cells]
     assert merged.merged_from == [os.path.join(s, "results.json") for s in shards]
     for cell in merged.cells:
         assert os.path.exists(merged.samples_path(cell))  # the merged folder stands on its own
@@ -74,7 +75,7 @@ def merge_edited(tmp_path, parts, edit, *extra):
 
 
 def test_mixed_scenarios_are_refused(tmp_path):
-    done = merge_edited(tmp_path, [[0], [1]], lambda doc: doc.scenario.update(name="other_scenario"))
+    done = merge_edited(tmp_path, [[0], [1]], lambda doc: setattr(doc.scenario, "name", "other_scenario"))
     assert done.code == 2 and "is 'other_scenario', but" in done.err
 
 
