@@ -3,7 +3,9 @@
 `runner report`, `runner compare` and `runner merge` read files that may come from another
 machine, another version, or an attacker: every mutation of the recorded runs in tests/data
 (values, types, keys, NaN, huge numbers, unicode and control characters, samples paths,
-truncated text and samples files) must end in a result or a one-line error.
+truncated text and samples files) must end in a result or a one-line error.  Each run is
+mutated in both forms a reader meets: as recorded (runner.results/1, upgraded on load) and
+as this runner writes it (runner.results/2, read strictly).
 
 A short run by default; `RUNNER_FUZZ_EXAMPLES=5000` for the long one CI runs.  Reproducible:
 derandomized, no example database.
@@ -26,7 +28,18 @@ from reportdata import DATA, MATRIX
 
 EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "120"))
 RUNS = sorted(os.listdir(DATA))
+
+
+def _as_written(name: str) -> Any:
+    """The recorded run as this runner writes it (runner.results/2)."""
+    from runner.results import load
+
+    return json.loads(load(os.path.join(DATA, name)).model_dump_json(by_alias=True))
+
+
 ORIGINAL = {name: json.loads(Path(DATA, name, "results.json").read_text(encoding="utf-8")) for name in RUNS}
+ORIGINAL.update({f"{name}@2": _as_written(name) for name in RUNS})
+FORMS = sorted(ORIGINAL)  # `name` as recorded (/1), `name@2` as written now
 
 TEXT = st.lists(st.characters(codec="utf-8", exclude_categories=("Cs",)) | st.sampled_from(
     list("\x00\n\r\t\u2028$|`#*_[]<>&\\/") + ["..", "$\\foo$", "<script>", "线程"]), max_size=8).map("".join)
@@ -65,7 +78,7 @@ def _parent(doc: Any, path: tuple[Any, ...]) -> Any:
 @st.composite
 def mutated(draw: st.DrawFn) -> tuple[str, str, list[tuple[str, Any]]]:
     """A recorded run's results.json text after a few mutations, and what to do to its samples files."""
-    name = draw(st.sampled_from(RUNS))
+    name = draw(st.sampled_from(FORMS))
     doc = json.loads(json.dumps(ORIGINAL[name]))
     for _ in range(draw(st.integers(1, 4))):
         path = draw(st.sampled_from(NODES[name][1:]))
@@ -128,7 +141,7 @@ def _lay_out(tmp: str, case: tuple[str, str, list[tuple[str, Any]]]) -> str:
     """The mutated run as a results folder under `tmp` (its samples spoilt as drawn); its path."""
     name, text, samples = case
     run = os.path.join(tmp, "run")
-    shutil.copytree(os.path.join(DATA, name), run)
+    shutil.copytree(os.path.join(DATA, name.split("@")[0]), run)
     with open(os.path.join(run, "results.json"), "w", encoding="utf-8", errors="surrogatepass") as handle:
         handle.write(text)
     for how, index in samples:
@@ -175,3 +188,14 @@ def test_the_fuzzer_reaches_every_outcome():
             json.dump(doc, handle)
         done = run_cli("report", run, "--no-plots")
         assert done.code == 2 and "cells[0].threads[0].latency_us.p99" in done.err
+        doc = json.loads(json.dumps(ORIGINAL["policy_matrix@2"]))
+        assert run_cli("report", _written(run, doc), "--no-plots").code == 0
+        doc["cells"][0]["threads"][0]["figures"]["latency_ns"]["p99"] = "fast"
+        done = run_cli("report", _written(run, doc), "--no-plots")
+        assert done.code == 2 and "cells[0].threads[0].figures.latency_ns.p99" in done.err
+
+
+def _written(folder: str, doc: Any) -> str:
+    with open(os.path.join(folder, "results.json"), "w", encoding="utf-8") as handle:
+        json.dump(doc, handle)
+    return folder
