@@ -49,6 +49,8 @@ import math
 import os
 import re
 import tempfile
+import types
+import typing
 import zlib
 from dataclasses import dataclass
 from decimal import Decimal
@@ -137,6 +139,12 @@ class _Record(BaseModel):
         if unknown:
             raise TypeError(f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; "
                             f"fields: {', '.join(type(self).model_fields)}")
+        for name, value in data.items():  # records given as dicts are built as records, so their keys are checked too
+            found = _record_type(type(self).model_fields[name].annotation) if name in type(self).model_fields else None
+            if found and found[0] and isinstance(value, list):
+                data[name] = [found[1](**v) if isinstance(v, dict) else v for v in value]
+            elif found and not found[0] and isinstance(value, dict):
+                data[name] = found[1](**value)
         super().__init__(**data)
 
     # Validation (of a file, or of nested dicts) must not run the check above: pydantic calls a model's own
@@ -146,6 +154,18 @@ class _Record(BaseModel):
     @classmethod
     def _keywords(cls) -> set[str]:
         return {alias for name, f in cls.model_fields.items() for alias in (name, f.alias) if alias}
+
+
+def _record_type(annotation: Any) -> tuple[bool, type[_Record]] | None:
+    """(is a list, the record class) when a field holds records (`X`, `X | None`, `list[X]`); None otherwise."""
+    if isinstance(annotation, type) and issubclass(annotation, _Record):
+        return False, annotation
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) is list and args and isinstance(args[0], type) and issubclass(args[0], _Record):
+        return True, args[0]
+    if typing.get_origin(annotation) in (Union, types.UnionType):
+        return next((found for arg in args if (found := _record_type(arg))), None)
+    return None
 
 
 def _figure_name(value: Any) -> Any:

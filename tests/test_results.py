@@ -270,6 +270,10 @@ def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
     lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_s={}),
     lambda: Verdict(thread="t", metric="latency.p99", limit="x", measured=1, passed=True, unit="us"),
     lambda: RunDocument(tool_version="1"),
+    lambda: RunDocument(plan={"repeat": 1, "settle_s": 0.5}),
+    lambda: RunDocument(machine={"hostname": "h", "rt_throttling": {"runtime_us": 950000, "period_us": 1000000}}),
+    lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, background=[{"kind": "hog", "comm": "hog"}]),
+    lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_ns={"start_to_first_callback_s": 1}),
 ])
 def test_a_misspelt_keyword_is_an_error_not_a_lost_field(make):
     with pytest.raises(TypeError, match="has no field"):
@@ -322,3 +326,12 @@ def test_the_schema_refuses_what_the_reader_refuses(tmp_path, change):
     change(data)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(data, results_schema())
+
+
+def test_rt_throttling_is_stored_in_ns_from_the_kernels_microseconds():
+    from runner.results import RtThrottling
+
+    assert RtThrottling.from_sysctl(950_000, 1_000_000) == RtThrottling(runtime_ns=950_000_000, period_ns=1_000_000_000,
+                                                                         enabled=True)
+    assert RtThrottling.from_sysctl(-1, 1_000_000) == RtThrottling(runtime_ns=None, period_ns=1_000_000_000, enabled=False)
+    assert RtThrottling.from_sysctl(None, None) == RtThrottling()
