@@ -39,7 +39,7 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
     merged_cells = cells(os.path.join(out, "merged"))
     check([c["id"] for c in merged_cells] == [c["id"] for c in full_cells], "shards 1/2 + 2/2 merged give the full run's cells, in order")
     check(int(merged) in (0, 1), f"merge with the full run as baseline: exit {merged} (0 or 1, never a refusal)")
-    invol = {c["id"]: c["threads"][0]["involuntary"]["per_callback_mean"] for c in full_cells}
+    invol = {c["id"]: c["threads"][0]["figures"]["involuntary"]["per_callback_mean"] for c in full_cells}
     check(invol["policy=other,priority=0"] > 1.0, f"OTHER is preempted under contention ({invol['policy=other,priority=0']} per callback)")
     for cell_id in ("policy=fifo,priority=80", "policy=rr,priority=80", "policy=fifo,priority=10", "policy=rr,priority=10"):
         check(invol[cell_id] < 0.5, f"{cell_id} is not preempted ({invol[cell_id]} per callback)")

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Optional, Protocol
+from typing import Optional, Protocol
 
 from .model import Scenario
 from .plan import Settings
 from .preflight import Permissions
 from .rawcell import RawCell
+from .results import MachineInfo
 from .scenario import ResolvedCell
 
 
@@ -48,7 +49,7 @@ class Backend(Protocol):
     def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
         """What this user may do; raises PermissionProblem (exit 3) for a right the cells need and lack."""
 
-    def machine(self) -> dict[str, Any]:
+    def machine(self) -> MachineInfo:
         """The machine's facts for the results: kernel, CPUs, RT throttling, memory."""
 
     def pid_width(self) -> int:

@@ -22,7 +22,7 @@ COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
 _TOP_HELP = """\
 usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
-       runner schema                       print the JSON Schema of the scenario format
+       runner schema [--results]           print the JSON Schema of the scenario format (or of results.json)
        runner ps PID|NAME                  ps-style thread table of a live process
        runner report RESULTS [-o FILE]     re-render the markdown report (and plots) of a run
        runner compare BASE NEW             compare two runs; exit 1 on a regression
@@ -169,8 +169,15 @@ def _cmd_validate(argv: list[str]) -> int:
 
 
 def _cmd_schema(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="runner schema", description="Print the JSON Schema of the scenario format.")
-    p.parse_args(argv)
+    p = argparse.ArgumentParser(prog="runner schema", description="Print the JSON Schema of the scenario format "
+                                "(runner.schema.json), or with --results that of results.json (results.schema.json).")
+    p.add_argument("--results", action="store_true", help="the schema of results.json instead of the scenario's")
+    ns = p.parse_args(argv)
+    if ns.results:
+        from .results import results_schema
+
+        say(json.dumps(results_schema(), indent=2))
+        return ExitCode.OK
     from .schema import scenario_schema
 
     say(json.dumps(scenario_schema(), indent=2))

@@ -14,11 +14,11 @@ from typing import Optional
 
 from .figures import ThreadFigures
 from .listing import describe_work
-from .measure import check, legacy, thread_figures
+from .measure import check, thread_figures
 from .model import PeriodicWork, Scenario, metric_figure
 from .plan import PlannedThread, Settings, is_periodic
 from .rawcell import ApplyErrors, RawCell, RawThread, Timeline
-from .results import CellResult, Status, ThreadResult, thread_key, worst
+from .results import Background, BackgroundKind, CellResult, Overhead, Status, ThreadResult, thread_key, thread_label, worst
 from .samples import SlotData
 from .scenario import ResolvedCell, expectations_for, match_threads, spec_json
 
@@ -69,8 +69,7 @@ def degradation(requested: Settings, applied: Optional[Settings], errors: ApplyE
 
 def verdict_label(t: PlannedThread, processes: int) -> str:
     """How a verdict names its thread: the instance only when a cell runs several process instances."""
-    where = f"{t.process}[{t.instance}]/{t.name}" if processes > 1 else f"{t.process}/{t.name}"
-    return where + (" (main)" if t.index == 0 else f" #{t.index}")
+    return thread_label(t.process, t.instance, t.index, t.name, show_instance=processes > 1)
 
 
 def _figures(raw: RawThread, timeline: Timeline, interrupted: bool) -> ThreadFigures:
@@ -79,21 +78,21 @@ def _figures(raw: RawThread, timeline: Timeline, interrupted: bool) -> ThreadFig
     return thread_figures(raw.slot, is_periodic(work), due)
 
 
-def _overhead(raw: RawCell) -> dict[str, Optional[float]]:
-    """Start of the cell to its first callback, last callback to the workers' exit (seconds)."""
+def _overhead(raw: RawCell) -> Overhead:
+    """Start of the cell to its first callback, last callback to the workers' exit (ns)."""
     wakes = [t.slot.samples[0].wake_ns for t in raw.threads if t.slot.samples]
     ends = [t.slot.samples[-1].end_ns for t in raw.threads if t.slot.samples]
     stopped = raw.timeline.stopped_ns
-    return {
-        "start_to_first_callback": round((min(wakes) - raw.timeline.began_ns) / 1e9, 4) if wakes else None,
-        "last_callback_to_exit": round((stopped - max(ends)) / 1e9, 4) if stopped and ends else None,
-    }
+    return Overhead(
+        start_to_first_callback=min(wakes) - raw.timeline.began_ns if wakes else None,
+        last_callback_to_exit=stopped - max(ends) if stopped and ends else None,
+    )
 
 
 def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> Evaluation:
     """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
-    result = CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.PASSED, spec=spec_json(cell.scenario),
-                        started_at=raw.started_at)
+    result = CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.PASSED,
+                        spec=spec_json(cell.scenario), started_at=raw.started_at)
     stored: list[tuple[str, SlotData]] = []
     measured: list[tuple[PlannedThread, ThreadFigures]] = []
     for t in raw.threads:
@@ -101,8 +100,9 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         fig = _figures(t, raw.timeline, raw.interrupted)
         degraded = degradation(p.settings, t.applied, t.errors) if t.ready else []
         stored.append((thread_key(p.process, p.instance, p.index, p.name), t.slot))
-        result.threads.append(ThreadResult(p.process, p.instance, p.index, p.name, t.pid, t.slot.tid, describe_work(p.work),
-                                           is_periodic(p.work), p.settings, t.applied, degraded, legacy(fig)))
+        result.threads.append(ThreadResult(process=p.process, instance=p.instance, index=p.index, name=p.name, pid=t.pid,
+                                           tid=t.slot.tid, work=describe_work(p.work), periodic=is_periodic(p.work),
+                                           requested=p.settings, applied=t.applied, degraded=degraded, figures=fig))
         measured.append((p, fig))
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
@@ -111,10 +111,10 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if id(t) in targets and (is_periodic(t.work) or not metric_figure(exp.metric).needs_callbacks):
                 result.expectations.append(check(exp, verdict_label(t, raw.processes), fig))
     result.thread_table = list(raw.table)
-    result.background = [{"kind": b.kind, "name": b.name, "pid": b.pid} if b.kind == "hog" else
-                         {"kind": b.kind, "argv": list(b.argv), "pid": b.pid} for b in raw.background]
-    result.duration_s = round((raw.timeline.ended_ns - raw.timeline.began_ns) / 1e9, 3)
-    result.overhead_s = _overhead(raw)
+    result.background = [Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid) if b.kind == "hog" else
+                         Background(kind=BackgroundKind.COMMAND, argv=list(b.argv), pid=b.pid) for b in raw.background]
+    result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
+    result.overhead_ns = _overhead(raw)
     result.status, result.reason = status(result, raw, allow_degraded)
     return Evaluation(result, stored)
 
@@ -155,5 +155,5 @@ def with_write_error(result: CellResult, path: str, error: OSError) -> CellResul
 
 def unrun(cell: ResolvedCell, reason: str, started_at: str) -> CellResult:
     """The record of a cell that could not even start (its files could not be created)."""
-    return CellResult(cell.id, dict(cell.matrix), cell.spec_hash, Status.ERROR, spec=spec_json(cell.scenario),
-                      reason=reason, started_at=started_at)
+    return CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.ERROR,
+                      spec=spec_json(cell.scenario), reason=reason, started_at=started_at)

@@ -6,46 +6,14 @@ them from a native slot, `check` holds one against an expectation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Optional
 
 from . import figures as fg
 from .figures import ThreadFigures
-from .model import Expectation, Metric
+from .model import Expectation
+from .results import Verdict
 from .samples import SlotData
 from .stats import mean, summarize
-
-
-@dataclass(frozen=True)
-class Involuntary:
-    total: int
-    per_callback_mean: Optional[float]
-    per_callback_max: Optional[int]
-    callbacks_with_any: Optional[int]
-
-
-@dataclass(frozen=True)
-class Faults:
-    minor: int
-    major: int
-    minor_first_callback: Optional[int]
-    minor_after_first: Optional[int]
-    minor_per_callback_max: Optional[int]
-
-
-@dataclass(frozen=True)
-class Figures:
-    """What was measured for one thread."""
-
-    callbacks: int
-    missed: int
-    involuntary: Involuntary
-    voluntary_total: int
-    latency_us: Optional[dict[str, float]]
-    callback_wall_us: Optional[dict[str, float]]
-    faults: Faults
-    cpus_seen: tuple[int, ...]
-    complete: bool  # False when the thread did not finish (killed, crashed, interrupted)
 
 
 def _round(value: Optional[float]) -> Optional[float]:
@@ -97,38 +65,15 @@ def _spread(values: list[int]) -> Optional[fg.Spread]:
     return None if summary is None else fg.Spread(**{k: int(v) for k, v in summary.items()})
 
 
-def legacy(f: ThreadFigures) -> Figures:
-    """The figures in the results file's current (us) form, until results store ThreadFigures themselves."""
-    def us(spread: Optional[fg.Spread]) -> Optional[dict[str, float]]:
-        return None if spread is None else {k: round(v / 1000.0, 3) for k, v in spread.model_dump().items()}
-
-    inv, faults = f.involuntary, f.faults
-    return Figures(f.callbacks, f.missed_releases,
-                   Involuntary(inv.total, inv.per_callback_mean, inv.per_callback_max, inv.callbacks_with_any),
-                   f.voluntary.total, us(f.latency_ns), us(f.callback_wall_ns),
-                   Faults(faults.minor, faults.major, faults.minor_first_callback, faults.minor_after_first,
-                          faults.minor_per_callback_max), f.cpus_seen, f.complete)
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """One expectation checked against one thread."""
-
-    thread: str
-    metric: Metric
-    limit: str
-    measured: Optional[float]
-    passed: bool
-    note: str = field(default="")
-
-
 def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
     """Evaluate `exp` on one thread's figures; a missing figure fails with a note saying why.
 
     Limits and values are in the figure's unit (ns for durations), as the registry declares it.
     """
-    value = fg.value(figs, fg.figure(exp.metric.value))
+    name = exp.metric.value
+    value = fg.value(figs, fg.figure(name))
     if value is None:
-        return Verdict(thread, exp.metric, exp.describe_limit(), None, False, "not measured (no callbacks)")
+        return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False,
+                       note="not measured (no callbacks)")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)
-    return Verdict(thread, exp.metric, exp.describe_limit(), value, ok)
+    return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok)

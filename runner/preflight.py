@@ -7,6 +7,7 @@ against CAP_IPC_LOCK and RLIMIT_MEMLOCK.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pwd
 import resource
@@ -18,6 +19,7 @@ from . import units
 from .errors import PermissionProblem, UsageError
 from .model import Policy, Scenario
 from .plan import Settings, plan_scenario
+from .results import PermissionsInfo
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
@@ -36,11 +38,9 @@ class Permissions:
     rlimit_memlock: int  # bytes; -1 unlimited
     missing: list[str] = field(default_factory=list)
 
-    def to_json(self) -> dict[str, object]:
-        return {
-            "user": self.user, "uid": self.uid, "cap_sys_nice": self.cap_sys_nice, "cap_ipc_lock": self.cap_ipc_lock,
-            "rlimit_rtprio": self.rlimit_rtprio, "rlimit_memlock": self.rlimit_memlock, "missing": list(self.missing),
-        }
+    def record(self) -> PermissionsInfo:
+        """As the results file stores it."""
+        return PermissionsInfo(**dataclasses.asdict(self))
 
 
 def _caps() -> int:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Optional
 
-from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
+from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema, computed_field
 
 from . import units
 from .errors import UsageError, did_you_mean
@@ -64,6 +64,7 @@ class ThreadRow:
     voluntary: Optional[int] = None
     involuntary: Optional[int] = None
 
+    @computed_field(description="the policy as ps names it (TS, FF, RR, B, IDL, DLN)")  # type: ignore[prop-decorator]
     @property
     def cls(self) -> str:
         return CLS.get(self.policy, "?")

@@ -19,12 +19,26 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from . import __version__, outdir, units
+from . import outdir, units
 from .backend import Backend, CellOptions
 from .compare import Threshold, parse_threshold, thresholds_with
 from .errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
 from .evaluate import evaluate, unrun, with_write_error
-from .results import CellResult, RunDocument, Status, cell_dir, load, results_file, worst, write_samples
+from .plan import Settings
+from .preflight import Permissions
+from .results import (
+    CellResult,
+    MachineInfo,
+    Plan,
+    RunDocument,
+    ScenarioInfo,
+    Status,
+    cell_dir,
+    load,
+    results_file,
+    worst,
+    write_samples,
+)
 from .runorder import Shard, Unit, plan_units
 from .scenario import LoadedScenario, ResolvedCell
 from .terminal import Progress, note, render_cell, say, warn
@@ -154,17 +168,15 @@ def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCe
     return chosen
 
 
-def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Any, start: Any,
-                  machine: dict[str, Any]) -> RunDocument:
+def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Permissions,
+                  start: Settings, machine: MachineInfo) -> RunDocument:
     return RunDocument(
-        scenario={"name": loaded.name, "path": loaded.path, "description": loaded.description},
+        scenario=ScenarioInfo(name=loaded.name, path=loaded.path, description=loaded.description),
         command=options.command, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        machine=machine, permissions=perms.to_json(),
-        start_settings={"policy": start.policy.value, "priority": start.priority, "nice": start.nice},
-        tool_version=__version__, cell_ids=[c.id for c in cells], matrix_cells=[c.id for c in loaded.cells],
-        plan={"repeat": options.repeat, "shuffle_seed": options.shuffle_seed,
-              "settle_s": options.settle_ns / 1e9, "cells": options.cells,
-              "duration_ns": options.duration_ns},
+        machine=machine, permissions=perms.record(), start_settings=start,
+        cell_ids=[c.id for c in cells], matrix_cells=[c.id for c in loaded.cells],
+        plan=Plan(repeat=options.repeat, shuffle_seed=options.shuffle_seed, settle_ns=options.settle_ns,
+                  cells=list(options.cells), duration_ns=options.duration_ns),
         shard=str(options.shard) if options.shard else None,
     )
 
@@ -189,11 +201,11 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
         raise ScenarioError(problems)
     doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED]  # redo what was cut short
     plan = doc.plan
-    options.repeat = int(plan.get("repeat", 1))
-    options.shuffle_seed = plan.get("shuffle_seed")
-    options.settle_ns = int(float(plan.get("settle_s", options.settle_ns / 1e9)) * 1e9)
-    options.cells = list(plan.get("cells") or [])
-    options.duration_ns = options.duration_ns or plan.get("duration_ns")
+    options.repeat = plan.repeat
+    options.shuffle_seed = plan.shuffle_seed
+    options.settle_ns = options.settle_ns if plan.settle_ns is None else plan.settle_ns
+    options.cells = list(plan.cells)
+    options.duration_ns = options.duration_ns or plan.duration_ns
     options.shard = Shard.parse(doc.shard) if doc.shard else None
     doc.status, doc.finished_at = "running", None
     doc.command = options.command

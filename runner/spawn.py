@@ -32,6 +32,7 @@ from .preflight import Permissions
 from .preflight import check as preflight_check
 from .pstable import ThreadRow
 from .rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, Timeline
+from .results import MachineInfo
 from .scenario import ResolvedCell
 
 PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the runner this process imported
@@ -54,7 +55,7 @@ class KernelBackend:
     def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
         return preflight_check(scenarios, start, allow_degraded, allow_priority_99)
 
-    def machine(self) -> dict[str, Any]:
+    def machine(self) -> MachineInfo:
         return machine_info()
 
     def pid_width(self) -> int:

@@ -9,13 +9,15 @@ of the way of both.  `render_cell` is pure: the ps-style table and a per-thread 
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from .runorder import Unit
 
 from tabulate import tabulate
 
+from . import figures as fg
+from .fmt import fmt_figure
 from .pstable import render_ps
 from .results import CellResult, Status
 
@@ -86,39 +88,35 @@ class Progress:
             self.width = 0
 
 
-def _num(value: Optional[float], fmt: str = "{:.2f}") -> str:
-    return "-" if value is None else fmt.format(value)
+TABLE_FIGURES: tuple[fg.Figure, ...] = tuple(f for f in fg.REGISTRY if f.column)
+
+
+def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
+    """A figure in the terminal's table: durations in us (the header says so), means to two places."""
+    if value is None:
+        return "-"
+    if fig.is_duration:
+        return f"{value / 1000:.1f}"
+    return f"{value:.2f}" if fig.unit is fg.Unit.PER_CALLBACK else str(value)
 
 
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:
-    """Thread table, per-thread summary, expectation verdicts and degradations of one cell."""
+    """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations."""
     out = [f"cell {cell.id}: {_MARK[cell.status]} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
     if cell.thread_table:
         out.append("")
         out.extend("  " + line for line in render_ps(cell.thread_table, pid_width=pid_width).splitlines())
-    rows = []
-    for t in cell.threads:
-        f = t.figures
-        lat = f.latency_us or {}
-        rows.append([
-            f"{t.name}{' (main)' if t.index == 0 else ''}",
-            t.tid,
-            t.applied.label() if t.applied else "?",
-            f.callbacks if t.periodic else "-",
-            _num(f.involuntary.per_callback_mean) if t.periodic else f"{f.involuntary.total} total",
-            _num(f.involuntary.per_callback_max, "{}"),
-            _num(lat.get("p50"), "{:.1f}"), _num(lat.get("p99"), "{:.1f}"), _num(lat.get("max"), "{:.1f}"),
-            f.faults.minor,
-        ])
-    if any(t.periodic for t in cell.threads):
-        shown = [r for r, t in zip(rows, cell.threads) if t.periodic]
-        headers = ["thread", "tid", "applied", "callbacks", "invol/cb", "invol max", "lat p50 us", "p99 us", "max us", "minor faults"]
+    periodic = [t for t in cell.threads if t.periodic]
+    if periodic:
+        headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in TABLE_FIGURES]
+        rows = [[f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
+                + [_cell_value(fg.value(t.figures, f), f) for f in TABLE_FIGURES] for t in periodic]
         out.append("")
-        out.extend("  " + line for line in tabulate(shown, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())
+        out.extend("  " + line for line in tabulate(rows, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())
     for v in cell.expectations:
-        measured = "not measured" if v.measured is None else (
-            f"{v.measured / 1000:.1f}us" if v.metric.is_latency else f"{v.measured:g}")
-        out.append(f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric.value} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}")
+        measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
+        out.append(f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric} {v.limit} (measured {measured})"
+                   f"{' - ' + v.note if v.note else ''}")
     for t in cell.threads:
         for why in t.degraded:
             out.append(f"  DEGRADED {t.process}/{t.name}: {why}")

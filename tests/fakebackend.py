@@ -11,13 +11,14 @@ from __future__ import annotations
 import os
 import signal
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Optional
 
 from runner.backend import CellOptions
 from runner.model import PeriodicWork, Policy, Scenario
 from runner.plan import Settings, is_periodic, plan_scenario
 from runner.preflight import Permissions
 from runner.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
+from runner.results import MachineInfo
 from runner.samples import Sample, SlotData
 from runner.scenario import ResolvedCell
 
@@ -51,8 +52,8 @@ class FakeBackend:
     def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
         return Permissions("tester", 1000, True, True, 99, -1)
 
-    def machine(self) -> dict[str, Any]:
-        return {"kernel": "6.0.0-fake", "preempt_rt": False, "cpus_online": 2, "hostname": "fake"}
+    def machine(self) -> MachineInfo:
+        return MachineInfo(kernel="6.0.0-fake", preempt_rt=False, cpus_online="0-1", hostname="fake")
 
     def pid_width(self) -> int:
         return 5

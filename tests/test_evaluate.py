@@ -67,7 +67,7 @@ def test_a_cell_that_kept_up_passes():
     ev = evaluate(cell, cell.scenario, raw, allow_degraded=False)
     main = ev.result.threads[0]
     assert ev.result.status is Status.PASSED and ev.result.reason == ""
-    assert main.figures.callbacks == 10 and main.figures.missed == 0
+    assert main.figures.callbacks == 10 and main.figures.missed_releases == 0
     assert [v.passed for v in ev.result.expectations] == [True]
     assert [key for key, _ in ev.samples][0] == "minimal_schedul[0]/minimal_schedul (main)"
 
@@ -88,4 +88,4 @@ def test_failures_interrupts_and_degradations_decide_the_status_in_order():
 def test_missed_releases_count_every_release_no_callback_served():
     cell, raw = _raw(3)
     main = evaluate(cell, cell.scenario, raw, False).result.threads[0]
-    assert main.figures.callbacks == 3 and main.figures.missed == 7
+    assert main.figures.callbacks == 3 and main.figures.missed_releases == 7

@@ -124,7 +124,7 @@ def test_applied_settings_are_the_kernels_and_match_the_request(seed_runs, name)
 
 
 def test_headline_effect_other_loses_fifo_and_rr_do_not(seed_runs):
-    per_cb = {name: thread(seed_runs[name][1].results, "minimal_schedul", index=0)["involuntary"]["per_callback_mean"]
+    per_cb = {name: thread(seed_runs[name][1].results, "minimal_schedul", index=0)["figures"]["involuntary"]["per_callback_mean"]
               for name in ("other", "fifo80", "rr80")}
     assert per_cb["other"] >= 2.0, per_cb
     assert per_cb["fifo80"] <= 0.5 and per_cb["rr80"] <= 0.5, per_cb
@@ -134,8 +134,8 @@ def test_headline_effect_other_loses_fifo_and_rr_do_not(seed_runs):
 
 def test_mixed_process_rt_thread_beats_its_sibling(seed_runs):
     results = seed_runs["real_time_executor"][1].results
-    sub1 = thread(results, "minimal_sub1")["involuntary"]["per_callback_mean"]
-    sub2 = thread(results, "minimal_sub2")["involuntary"]["per_callback_mean"]
+    sub1 = thread(results, "minimal_sub1")["figures"]["involuntary"]["per_callback_mean"]
+    sub2 = thread(results, "minimal_sub2")["figures"]["involuntary"]["per_callback_mean"]
     assert sub1 >= 2.0 and sub2 <= 0.5, (sub1, sub2)
 
 
@@ -145,12 +145,12 @@ def test_memory_lock_faults(tmp_path):
     assert done.code == 0, done.out + done.err
     cells = {c["matrix"]["memory"]: c for c in done.results["cells"]}
     unlocked = thread({"cells": [cells["unlocked"]]}, "minimal_memory_", index=0)
-    per_callback = unlocked["faults"]["minor_after_first"] / (unlocked["callbacks"] - 1)
+    per_callback = unlocked["figures"]["faults"]["minor_after_first"] / (unlocked["figures"]["callbacks"] - 1)
     assert 12_000 <= per_callback <= 13_500, per_callback  # 50 MiB / 4 KiB = 12,800 pages
     locked = thread({"cells": [cells["locked"]]}, "minimal_memory_", index=0)
-    assert locked["faults"]["minor_first_callback"] >= 12_000 and locked["faults"]["minor_after_first"] == 0
+    assert locked["figures"]["faults"]["minor_first_callback"] >= 12_000 and locked["figures"]["faults"]["minor_after_first"] == 0
     prealloc = thread({"cells": [cells["locked+prealloc"]]}, "minimal_memory_", index=0)
-    assert prealloc["faults"]["minor"] == 0 and prealloc["callbacks"] >= 10
+    assert prealloc["figures"]["faults"]["minor"] == 0 and prealloc["figures"]["callbacks"] >= 10
 
 
 def _unprivileged_prefix() -> tuple[tuple[str, ...], str]:
@@ -195,7 +195,7 @@ def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
     main = thread(done.results, "minimal_schedul", index=0)
     assert main["requested"]["policy"] == "fifo" and main["applied"]["policy"] == "other"
     assert any("fifo:80 requested, other applied" in d for d in main["degraded"])
-    assert "DEGRADED" in done.out and main["callbacks"] >= 5
+    assert "DEGRADED" in done.out and main["figures"]["callbacks"] >= 5
 
 
 def test_a_killed_worker_gives_an_error_cell_and_valid_results(tmp_path):
@@ -209,7 +209,7 @@ def test_a_killed_worker_gives_an_error_cell_and_valid_results(tmp_path):
     assert cell["status"] == "error" and "killed by SIGKILL" in cell["reason"]
     assert done.results["status"] == "error"
     main = thread(done.results, "minimal_schedul", index=0)
-    assert main["callbacks"] >= 5 and main["complete"] is False  # what finished before the kill is kept
+    assert main["figures"]["callbacks"] >= 5 and main["figures"]["complete"] is False  # what finished before the kill is kept
     assert not find_pids("hog") and not find_pids("minimal_schedul")
 
 
@@ -223,6 +223,6 @@ def test_sigint_leaves_no_child_and_an_interrupted_results_file(tmp_path):
     assert "Traceback" not in done.err
     assert done.results["status"] == "interrupted"
     assert [c["status"] for c in done.results["cells"]] == ["interrupted"]
-    assert thread(done.results, "minimal_schedul", index=0)["callbacks"] >= 5
+    assert thread(done.results, "minimal_schedul", index=0)["figures"]["callbacks"] >= 5
     time.sleep(0.2)
     assert not find_pids("minimal_schedul") and not find_pids("hog")

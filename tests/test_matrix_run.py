@@ -114,7 +114,7 @@ def test_exit_code_1_on_a_regression_against_the_baseline(tmp_path):
     base = str(tmp_path / "base")
     assert cli(scenario, "--cell", "sched=other,period=50ms", "--out", base, "--quiet", cwd=str(tmp_path)).returncode == 0
     doc = json.load(open(os.path.join(base, "results.json")))
-    doc["cells"][0]["threads"][0]["latency_us"]["p99"] = 0.001  # a baseline nobody can match
+    doc["cells"][0]["threads"][0]["figures"]["latency_ns"]["p99"] = 1  # a baseline nobody can match
     json.dump(doc, open(os.path.join(base, "results.json"), "w"))
     new = str(tmp_path / "new")
     done = cli(scenario, "--cell", "sched=other,period=50ms", "--out", new, "--baseline", base, "--quiet", cwd=str(tmp_path))
@@ -145,5 +145,5 @@ def test_policy_matrix_report_end_to_end(tmp_path):
     assert sorted(os.listdir(os.path.join(out, "plots"))) == [
         "minimal_schedul-minimal_schedul-main.involuntary.svg", "minimal_schedul-minimal_schedul-main.latency.svg"]
     results = json.load(open(os.path.join(out, "results.json")))
-    invol = {c["id"]: c["threads"][0]["involuntary"]["per_callback_mean"] for c in results["cells"]}
+    invol = {c["id"]: c["threads"][0]["figures"]["involuntary"]["per_callback_mean"] for c in results["cells"]}
     assert invol["policy=other,priority=0"] > 1.0 and invol["policy=fifo,priority=80"] < 0.5

@@ -56,7 +56,7 @@ def test_a_second_run_into_the_same_folder_is_refused_and_the_first_is_untouched
     cell = done.results["cells"][0]
     assert cell["status"] == "passed" and len(done.results["cells"]) == 1
     main = thread(done.results, "minimal_schedul", index=0)
-    assert main["callbacks"] >= 15 and main["pid"] in {t["pid"] for t in cell["threads"]}
+    assert main["figures"]["callbacks"] >= 15 and main["pid"] in {t["pid"] for t in cell["threads"]}
 
 
 def test_background_commands_and_their_children_die_with_a_sigkilled_runner(tmp_path):
@@ -125,7 +125,7 @@ def test_a_stopped_worker_is_an_error_with_its_missed_releases_counted(tmp_path)
     assert cell["status"] == "error" and "was stopped (SIGSTOP or a debugger)" in cell["reason"], cell["reason"]
     main = thread(done.results, "minimal_schedul", index=0)
     # 30 releases of 100 ms in 3 s; about 15 fell in the 1.5 s stop: far more than the jitter of a free run
-    assert main["missed_releases"] >= 8 and main["callbacks"] + main["missed_releases"] >= 29, main
+    assert main["figures"]["missed_releases"] >= 8 and main["figures"]["callbacks"] + main["figures"]["missed_releases"] >= 29, main
 
 
 def test_a_hog_killed_mid_cell_is_an_error(tmp_path):
@@ -169,7 +169,7 @@ def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_pa
     assert done.code == 4, (done.code, done.err)
     assert "Traceback" not in done.err and "No space left on device" in done.err
     cells = done.results["cells"]
-    assert cells[0]["status"] == "passed" and thread(done.results, "fulldisk")["callbacks"] >= 15
+    assert cells[0]["status"] == "passed" and thread(done.results, "fulldisk")["figures"]["callbacks"] >= 15
     assert len(cells) == 2 and cells[1]["status"] == "error" and "No space left on device" in cells[1]["reason"]
     assert done.results["status"] == "error"
     leftovers = [os.path.join(d, f) for d, _, files in os.walk(out) for f in files
