@@ -18,8 +18,9 @@ import copy
 import os
 import time
 
-from runner import compare, report
-from runner.results import load
+from runner.report import compare
+from runner.report import markdown as report
+from runner.results.read import load
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -14,9 +14,9 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 
-from . import __version__
-from .errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
-from .terminal import note, say
+from runner import __version__
+from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
+from runner.terminal import note, say
 
 COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
 _TOP_HELP = """\
@@ -152,7 +152,7 @@ def _cmd_validate(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="runner validate", description="Check scenario files; print every problem as file:line:col.")
     p.add_argument("files", nargs="+", metavar="FILE")
     ns = p.parse_args(argv)
-    from .scenario import load_scenario
+    from runner.scenario.loader import load_scenario
 
     worst = ExitCode.OK
     for path in ns.files:
@@ -174,11 +174,11 @@ def _cmd_schema(argv: list[str]) -> int:
     p.add_argument("--results", action="store_true", help="the schema of results.json instead of the scenario's")
     ns = p.parse_args(argv)
     if ns.results:
-        from .results import results_schema
+        from runner.results.document import results_schema
 
         say(json.dumps(results_schema(), indent=2))
         return ExitCode.OK
-    from .schema import scenario_schema
+    from runner.scenario.schema import scenario_schema
 
     say(json.dumps(scenario_schema(), indent=2))
     return ExitCode.OK
@@ -190,8 +190,8 @@ def _cmd_ps(argv: list[str]) -> int:
                                   "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)")
     p.add_argument("-o", "--columns", default="tid,comm,rtprio,cls,psr", help="columns: tid,comm,rtprio,cls,psr,ni,pri,cpus,nvcsw,nivcsw")
     ns = p.parse_args(argv)
-    from .kernel import find_pids, pid_width, thread_rows
-    from .pstable import parse_columns, render_ps
+    from runner.results.pstable import parse_columns, render_ps
+    from runner.run.kernel import find_pids, pid_width, thread_rows
 
     columns = parse_columns(ns.columns)
     pids = [int(ns.target)] if ns.target.isdigit() else find_pids(ns.target)
@@ -204,17 +204,17 @@ def _cmd_ps(argv: list[str]) -> int:
 
 def _cmd_run(argv: list[str]) -> int:
     ns = _run_parser().parse_args(argv)
-    from .scenario import load_scenario
+    from runner.scenario.loader import load_scenario
 
     loaded = load_scenario(ns.scenario)
     _print_warnings(loaded.warnings)
     if ns.list:
-        from .kernel import current_settings, online_cpus
-        from .listing import render
+        from runner.run.kernel import current_settings, online_cpus
+        from runner.scenario.listing import render
 
         say(render(loaded, current_settings(), online_cpus()))
         return ExitCode.OK
-    from .session import RunOptions, run_scenario
+    from runner.session import RunOptions, run_scenario
 
     options = RunOptions.from_namespace(ns, env=dict(os.environ))
     return run_scenario(loaded, options)
@@ -228,11 +228,11 @@ def _cmd_report(argv: list[str]) -> int:
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     ns = p.parse_args(argv)
-    from .compare import parse_threshold, thresholds_with
-    from .publish import comparison_text, write_report
-    from .report import render_run
-    from .results import load
-    from .session import exit_code
+    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.markdown import render_run
+    from runner.report.publish import comparison_text, write_report
+    from runner.results.read import load
+    from runner.session import exit_code
 
     doc = load(ns.results)
     section, regressions = None, 0
@@ -257,10 +257,11 @@ def _cmd_compare(argv: list[str]) -> int:
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
     ns = p.parse_args(argv)
-    from .compare import parse_threshold, thresholds_with
-    from .publish import append_step_summary, comparison_text
-    from .results import load, write_atomic
-    from .session import exit_code
+    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.publish import append_step_summary, comparison_text
+    from runner.results.files import write_atomic
+    from runner.results.read import load
+    from runner.session import exit_code
 
     section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
     say(section)
@@ -281,11 +282,11 @@ def _cmd_merge(argv: list[str]) -> int:
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     ns = p.parse_args(argv)
-    from .compare import parse_threshold, thresholds_with
-    from .merge import merge
-    from .outdir import claim
-    from .publish import finish
-    from .session import exit_code
+    from runner.outdir import claim
+    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.publish import finish
+    from runner.results.merge import merge
+    from runner.session import exit_code
 
     thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
     held = claim(ns.out, "merge folder")

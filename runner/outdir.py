@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from typing import Optional
 
-from .errors import UsageError, from_os_error
+from runner.errors import UsageError, from_os_error
 
 LOCK_NAME = ".runner.lock"
 

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Optional
 
-from .errors import UsageError
+from runner.errors import UsageError
 
 
 @dataclass(frozen=True)

@@ -19,29 +19,20 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from . import outdir, units
-from .backend import Backend, CellOptions
-from .compare import Threshold, parse_threshold, thresholds_with
-from .errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
-from .evaluate import evaluate, unrun, with_write_error
-from .plan import Settings
-from .preflight import Permissions
-from .results import (
-    CellResult,
-    MachineInfo,
-    Plan,
-    RunDocument,
-    ScenarioInfo,
-    Status,
-    cell_dir,
-    load,
-    results_file,
-    worst,
-    write_samples,
-)
-from .runorder import Shard, Unit, plan_units
-from .scenario import LoadedScenario, ResolvedCell
-from .terminal import Progress, note, render_cell, say, warn
+from runner import outdir, units
+from runner.errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
+from runner.report.compare import Threshold, parse_threshold, thresholds_with
+from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
+from runner.results.files import cell_dir, results_file
+from runner.results.read import load
+from runner.run.backend import Backend, CellOptions
+from runner.run.evaluate import evaluate, unrun, with_write_error
+from runner.run.preflight import Permissions
+from runner.run.samples import write_samples
+from runner.runorder import Shard, Unit, plan_units
+from runner.scenario.loader import LoadedScenario, ResolvedCell
+from runner.scenario.plan import Settings
+from runner.terminal import Progress, note, render_cell, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
 
@@ -218,7 +209,7 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions, backend: Optional[
     `backend` is the machine (the real kernel unless a test passes a fake one).
     """
     if backend is None:
-        from .spawn import KernelBackend
+        from runner.run.spawn import KernelBackend
 
         backend = KernelBackend()
     try:
@@ -293,7 +284,7 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         note(f"runner: {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
              "every cell that finished before; the cell in flight is marked error where it could be written")
         return int(ExitCode.RUN_ERROR)
-    from .publish import finish
+    from runner.report.publish import finish
 
     try:
         regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))

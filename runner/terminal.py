@@ -12,14 +12,14 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from .runorder import Unit
+    from runner.runorder import Unit
 
 from tabulate import tabulate
 
-from . import figures as fg
-from .fmt import fmt_figure
-from .pstable import render_ps
-from .results import CellResult, Status
+from runner import figures as fg
+from runner.report.fmt import fmt_figure
+from runner.results.document import CellResult, Status
+from runner.results.pstable import render_ps
 
 _MARK = {Status.PASSED: "passed", Status.DEGRADED: "DEGRADED", Status.FAILED: "FAILED", Status.ERROR: "ERROR",
          Status.INTERRUPTED: "INTERRUPTED"}

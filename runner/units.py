@@ -12,6 +12,7 @@ from __future__ import annotations
 import difflib
 import re
 from fractions import Fraction
+from typing import Any
 
 NS_PER = {
     "ns": 1,
@@ -141,6 +142,20 @@ def parse_cpus(value: object) -> tuple[int, ...]:
     if max(cpus) >= MAX_CPUS:
         raise UnitError(f"CPU {max(cpus)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
     return tuple(sorted(cpus))
+
+
+def parse_cpu_list(value: Any) -> Any:
+    """A stored CPU list (`0-1,3`) as CPU numbers; "" is none.  Anything not text is left to the type check."""
+    if isinstance(value, list):
+        return tuple(value)
+    if not isinstance(value, str):
+        return value
+    if not value:
+        return ()
+    try:
+        return tuple(parse_cpus(value))
+    except UnitError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def format_duration(ns: int) -> str:

@@ -5,11 +5,15 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import sys
 from dataclasses import dataclass
 
 import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# The tests import the installed package, never the source tree: `python -m pytest` puts the working
+# directory first on sys.path, and a source tree lacks the native core a non-editable install built.
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != REPO]
 SCENARIOS = os.path.join(REPO, "scenarios")
 
 

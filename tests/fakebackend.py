@@ -13,14 +13,14 @@ import signal
 from dataclasses import dataclass, field
 from typing import Optional
 
-from runner.backend import CellOptions
-from runner.model import PeriodicWork, Policy, Scenario
-from runner.plan import Settings, is_periodic, plan_scenario
-from runner.preflight import Permissions
-from runner.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
-from runner.results import MachineInfo
-from runner.samples import Sample, SlotData
-from runner.scenario import ResolvedCell
+from runner.results.document import MachineInfo
+from runner.run.backend import CellOptions
+from runner.run.preflight import Permissions
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
+from runner.run.samples import Sample, SlotData
+from runner.scenario.loader import ResolvedCell
+from runner.scenario.model import PeriodicWork, Policy, Scenario
+from runner.scenario.plan import Settings, is_periodic, plan_scenario
 
 START = Settings(Policy.OTHER, 0, 0, None)
 

@@ -10,10 +10,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional
 
-import runner
-from runner.kernel import find_pids, thread_rows
-
-PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(runner.__file__)))
+from runner.run.kernel import find_pids, thread_rows
 
 
 def can_use_rt() -> bool:
@@ -28,8 +25,8 @@ def can_use_rt() -> bool:
 
 
 def env() -> dict[str, str]:
+    """The runner's environment: this one (the same interpreter finds the same installed package), minus CI's step summary."""
     out = dict(os.environ)
-    out["PYTHONPATH"] = PACKAGE_ROOT
     out.pop("GITHUB_STEP_SUMMARY", None)
     return out
 

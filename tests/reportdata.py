@@ -5,7 +5,8 @@ from __future__ import annotations
 import copy
 import os
 
-from runner.results import CellResult, RunDocument, ThreadResult, load
+from runner.results.document import CellResult, RunDocument, ThreadResult
+from runner.results.read import load
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 MATRIX = os.path.join(DATA, "policy_matrix")  # 5 cells, 1 s each, one hog per CPU

@@ -17,8 +17,9 @@ import time
 import pytest
 from conftest import SCENARIOS, run_cli
 
-from runner import cli, guard, outdir
+from runner import cli, outdir
 from runner.errors import UsageError
+from runner.run import guard
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 POLICY = os.path.join(DATA, "policy_matrix")
@@ -122,7 +123,7 @@ def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path):
     """The owner (a shell standing in for the runner) dies by SIGKILL; the group it started dies with it."""
     script = (
         "import subprocess, sys, time\n"
-        "from runner.guard import Guard\n"
+        "from runner.run.guard import Guard\n"
         "g = Guard()\n"
         "p = subprocess.Popen(['sh', '-c', 'sleep 60 & sleep 60'], start_new_session=True)\n"
         "g.watch(p.pid)\n"

@@ -9,9 +9,9 @@ import pytest
 from conftest import run_cli
 from reportdata import MATRIX, main_thread, matrix, with_figures
 
-from runner import compare as cmp
 from runner.errors import ScenarioError, UsageError
-from runner.results import Status
+from runner.report import compare as cmp
+from runner.results.document import Status
 
 
 def save(doc, folder) -> str:
@@ -156,7 +156,7 @@ def test_refusal_is_a_scenario_error_with_every_cell():
 def test_comparison_section_matches_golden_file():
     from test_report import golden
 
-    from runner.report import render_comparison
+    from runner.report.markdown import render_comparison
 
     base = matrix()
     new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400_000), "policy=other,priority=0", invol_mean=4.0)
@@ -181,7 +181,7 @@ def test_a_partial_comparison_says_which_cells_were_not_compared():
     base = matrix()
     new = copy.deepcopy(base)
     new.cells = new.cells[1:]
-    from runner.report import render_comparison
+    from runner.report.markdown import render_comparison
 
     text = render_comparison(cmp.compare(base, new), "b", "n")
     assert f"No regression in 4 cells compared with the baseline. 1 cell of the baseline not in this run: {base.cells[0].id}." in text

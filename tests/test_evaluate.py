@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import os
 
-from runner.evaluate import degradation, evaluate, releases_due, status
-from runner.model import PeriodicWork, Policy
-from runner.plan import Settings, plan_scenario
-from runner.rawcell import ApplyErrors, RawCell, RawThread, ReadyReport, Timeline
-from runner.results import Status
-from runner.samples import Sample, SlotData
-from runner.scenario import load_scenario
+from runner.results.document import Status
+from runner.run.evaluate import degradation, evaluate, releases_due, status
+from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ReadyReport, Timeline
+from runner.run.samples import Sample, SlotData
+from runner.scenario.loader import load_scenario
+from runner.scenario.model import PeriodicWork, Policy
+from runner.scenario.plan import Settings, plan_scenario
 
 SCENARIOS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios")
 FIFO80 = Settings(Policy.FIFO, 80, 0, None)

@@ -32,7 +32,7 @@ RUNS = sorted(os.listdir(DATA))
 
 def _as_written(name: str) -> Any:
     """The recorded run as this runner writes it (runner.results/2)."""
-    from runner.results import load
+    from runner.results.read import load
 
     return json.loads(load(os.path.join(DATA, name)).model_dump_json(by_alias=True))
 

@@ -12,7 +12,7 @@ import pytest
 from conftest import REPO, run_cli
 
 from runner.errors import ScenarioError
-from runner.scenario import load_scenario
+from runner.scenario.loader import load_scenario
 
 CORPUS = sorted(glob.glob(os.path.join(REPO, "tests", "invalid", "*.yaml")))
 

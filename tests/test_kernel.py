@@ -18,8 +18,8 @@ import pytest
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, documented_exit, env, failed_metrics, finish, ps_table, start_runner, thread, wait_for_threads
 
-from runner.kernel import find_pids, pid_width, thread_rows
-from runner.pstable import render_ps
+from runner.results.pstable import render_ps
+from runner.run.kernel import find_pids, pid_width, thread_rows
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from runner import limits as lim
 from runner.errors import ScenarioError
-from runner.scenario import parse_scenario
-from runner.yamlsource import load_text
+from runner.scenario import limits as lim
+from runner.scenario.loader import parse_scenario
+from runner.scenario.yamlsource import load_text
 
 ROOMY = lim.MachineLimits(pid_max=4_194_304, threads_max=1_000_000, memlock=None, cap_ipc_lock=True,
                           mem_available=64 << 30, cpus=(0, 1, 2, 3))

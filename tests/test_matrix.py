@@ -7,10 +7,10 @@ import time
 
 import pytest
 
-from runner import matrix as mx
 from runner.errors import ScenarioError
-from runner.scenario import parse_scenario
-from runner.yamlsource import load_text
+from runner.scenario import matrix as mx
+from runner.scenario.loader import parse_scenario
+from runner.scenario.yamlsource import load_text
 
 
 def expand(block: dict):
@@ -146,7 +146,7 @@ def test_validation_is_linear_in_cells():
 
 
 def test_cells_that_resolve_alike_are_validated_once(monkeypatch):
-    from runner import scenario as sc
+    from runner.scenario import loader as sc
 
     calls = []
     real = sc._check_cell

@@ -13,7 +13,7 @@ import pytest
 from conftest import SCENARIOS, run_cli
 from kernelrun import can_use_rt, documented_exit, env, failed_metrics, start_runner
 
-from runner.kernel import find_pids
+from runner.run.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 

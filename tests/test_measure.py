@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from runner.measure import check, thread_figures
-from runner.model import Expectation
-from runner.samples import Sample, SlotData
-from runner.stats import nearest_rank, summarize
+from runner.run.measure import check, thread_figures
+from runner.run.samples import Sample, SlotData
+from runner.run.stats import nearest_rank, summarize
+from runner.scenario.model import Expectation
 
 
 def slot(samples, finished=True):

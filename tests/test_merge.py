@@ -11,7 +11,8 @@ import pytest
 from conftest import run_cli
 from reportdata import MATRIX, matrix
 
-from runner.results import Status, load
+from runner.results.document import Status
+from runner.results.read import load
 
 
 def split(tmp_path, parts):
@@ -98,7 +99,7 @@ def test_merge_exit_code_follows_the_cells(tmp_path):
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runner.results import SLUG_MAX, cell_dir, slug
+from runner.results.files import SLUG_MAX, cell_dir, slug
 
 SAFE_NAME = r"[A-Za-z0-9_.=,+~-]+"
 

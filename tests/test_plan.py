@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from runner.model import Policy, ProcessSpec
-from runner.plan import Settings, plan_process
+from runner.scenario.model import Policy, ProcessSpec
+from runner.scenario.plan import Settings, plan_process
 
 BASE = Settings(Policy.OTHER, 0, 0, None)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from runner.errors import UsageError
-from runner.pstable import ThreadRow, parse_columns, render_ps
+from runner.results.pstable import ThreadRow, parse_columns, render_ps
 
 
 def row(tid, comm, policy, rtprio, psr=0, nice=0, prio=20):

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from markdown_it import MarkdownIt
 from reportdata import DATA, MATRIX, matrix, memory, renamed
 
-from runner import report
-from runner.publish import append_step_summary, write_report
+from runner.report import markdown as report
+from runner.report.publish import append_step_summary, write_report
 
 GOLDEN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "golden")
 
@@ -200,7 +200,7 @@ def test_report_command_re_renders_without_running(tmp_path):
 
 
 def _plots(folder):  # the plot links write_report made, rebuilt from the files
-    from runner.report import Plot
+    from runner.report.markdown import Plot
 
     names = sorted(os.listdir(folder / "plots"))
     key = matrix().cells[0].threads[0].key
@@ -240,7 +240,7 @@ def test_fixture_data_is_where_the_tests_expect_it():
 
 
 def test_written_files_get_the_mode_of_any_new_file(tmp_path):
-    from runner.results import write_atomic
+    from runner.results.files import write_atomic
 
     mask = os.umask(0o022)
     os.umask(mask)
@@ -258,7 +258,7 @@ def test_written_files_get_the_mode_of_any_new_file(tmp_path):
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path, monkeypatch, fail):
     import errno
 
-    from runner import results
+    from runner.results import files as results
 
     path = tmp_path / "results.json"
     path.write_text("old")
@@ -278,7 +278,7 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path
 
 
 def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_path):
-    from runner.results import write_atomic
+    from runner.results.files import write_atomic
 
     target = tmp_path / "missing" / "results.json"
     with pytest.raises(OSError) as err:
@@ -292,8 +292,8 @@ def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_p
 def test_plot_names_are_injective_safe_and_bounded(threads):
     import re
 
-    from runner.plots import plot_name
-    from runner.results import ThreadResult, thread_key
+    from runner.report.plots import plot_name
+    from runner.results.document import ThreadResult, thread_key
 
     def thread(process, instance, index, name):  # identity only: plot names need nothing else
         return ThreadResult.model_construct(process=process, instance=instance, index=index, name=name)
@@ -398,7 +398,7 @@ def test_bad_samples_files_are_one_line_errors(tmp_path, content, message):
 def test_a_figure_that_is_not_a_number_is_written_as_null(tmp_path):
     import json
 
-    from runner.results import load
+    from runner.results.read import load
 
     doc = matrix()
     t = doc.cells[0].threads[0]
@@ -425,7 +425,7 @@ def test_every_recorded_run_loads_and_what_runner_writes_loads_again(tmp_path):
 
 
 def report_load(path):
-    from runner.results import load
+    from runner.results.read import load
 
     return load(path)
 
@@ -456,7 +456,7 @@ def rendered_text(markdown: str) -> str:
 @settings(max_examples=300, derandomize=True, database=None)
 @given(HOSTILE)
 def test_escaped_text_renders_as_the_text_itself(text):
-    from runner.fmt import md_text
+    from runner.report.fmt import md_text
 
     expected = " ".join(re.sub(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]", " ", text).strip().split(" "))
     escaped = md_text(text)
@@ -486,7 +486,7 @@ def _hostile_doc(name: str, cells: int = 3):
 @settings(max_examples=40, derandomize=True, database=None, deadline=None)
 @given(HOSTILE.filter(lambda s: re.sub(r"[\x00-\x20\x7f-\x9f\u2028\u2029]", "", s)))  # a blank description is none
 def test_hostile_names_do_not_change_the_report_structure(name):
-    from runner.compare import compare
+    from runner.report.compare import compare
 
     plain = _hostile_doc("plain")
     hostile = _hostile_doc(name)

@@ -15,25 +15,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from reportdata import DATA, MATRIX, MEMORY, matrix
 
-from runner import report
-from runner.compare import compare
 from runner.errors import ScenarioError
 from runner.figures import REGISTRY, Faults, Involuntary, Spread, ThreadFigures, Voluntary
-from runner.model import Metric, Policy
-from runner.plan import Settings
-from runner.pstable import ThreadRow
-from runner.results import (
-    SCHEMA,
-    CellResult,
-    RunDocument,
-    Status,
-    ThreadResult,
-    Verdict,
-    load,
-    results_schema,
-    thread_label,
-    upgrade_v1,
-)
+from runner.report import markdown as report
+from runner.report.compare import compare
+from runner.results.document import SCHEMA, CellResult, RunDocument, Status, ThreadResult, Verdict, results_schema, thread_label
+from runner.results.legacy import upgrade_v1
+from runner.results.pstable import ThreadRow
+from runner.results.read import load
+from runner.scenario.model import Metric, Policy
+from runner.scenario.plan import Settings
 
 RUNS = sorted(os.listdir(DATA))
 V1 = {name: json.loads(Path(DATA, name, "results.json").read_text(encoding="utf-8")) for name in RUNS}
@@ -329,7 +320,7 @@ def test_the_schema_refuses_what_the_reader_refuses(tmp_path, change):
 
 
 def test_rt_throttling_is_stored_in_ns_from_the_kernels_microseconds():
-    from runner.results import RtThrottling
+    from runner.results.document import RtThrottling
 
     assert RtThrottling.from_sysctl(950_000, 1_000_000) == RtThrottling(runtime_ns=950_000_000, period_ns=1_000_000_000,
                                                                          enabled=True)

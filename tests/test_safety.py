@@ -20,7 +20,7 @@ import pytest
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
 
-from runner.kernel import find_pids
+from runner.run.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 

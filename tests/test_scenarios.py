@@ -10,11 +10,11 @@ import jsonschema
 import pytest
 from conftest import REPO, SCENARIOS, run_cli
 
-from runner.model import Policy
-from runner.plan import Settings, plan_scenario
-from runner.scenario import load_scenario
-from runner.schema import scenario_schema
-from runner.yamlsource import load_file
+from runner.scenario.loader import load_scenario
+from runner.scenario.model import Policy
+from runner.scenario.plan import Settings, plan_scenario
+from runner.scenario.schema import scenario_schema
+from runner.scenario.yamlsource import load_file
 
 SHIPPED = sorted(glob.glob(os.path.join(SCENARIOS, "*.yaml")))
 NAMES = {os.path.basename(p)[:-5] for p in SHIPPED}

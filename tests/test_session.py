@@ -15,7 +15,7 @@ from conftest import SCENARIOS
 from fakebackend import Act, FakeBackend
 
 from runner.cli import _run_parser
-from runner.scenario import load_scenario
+from runner.scenario.loader import load_scenario
 from runner.session import RunOptions, run_scenario
 
 MATRIX = os.path.join(SCENARIOS, "policy_matrix.yaml")

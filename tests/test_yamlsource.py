@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 
 from runner.errors import ScenarioError
-from runner.yamlsource import load_text
+from runner.scenario.yamlsource import load_text
 
 
 def test_positions_of_keys_and_values():

@@ -1,0 +1,1 @@
+"""The report stage: markdown, plots and comparison rendered from results documents."""

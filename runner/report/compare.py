@@ -1,0 +1,268 @@
+"""Compare a run with a baseline: align cells by id, check each figure against a threshold.  Pure, no I/O.
+
+A figure regresses when it grows past its threshold: relative (`+20%` of the
+baseline), absolute (`+0.5` switches, `+10us`), or both (then it must exceed
+both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  Repeated
+cells are compared by their median.  Cells whose resolved scenario differs are
+not comparable: the comparison is refused, naming each differing setting.
+
+Every figure of the registry (runner/figures.py) can be compared; the registry's
+default thresholds are the ones checked unless told otherwise.  Values and absolute
+thresholds are in the figure's unit: integer ns for durations.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from runner import figures as fg
+from runner import units
+from runner.errors import Problem, ScenarioError, UsageError, did_you_mean
+from runner.figures import Figure, Number
+from runner.report.fmt import fmt_figure
+from runner.results.document import CellResult, RunDocument, Status
+from runner.results.files import show_value
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """How much a figure may grow over its baseline before it counts as a regression."""
+
+    figure: str
+    relative: float | None = None  # 0.2 is +20%
+    absolute: Number | None = None  # in the figure's unit (ns for durations)
+
+    def exceeded(self, base: float, new: float) -> bool:
+        delta = new - base
+        if self.relative is None and self.absolute is None:
+            return False
+        return ((self.relative is None or delta > self.relative * abs(base))
+                and (self.absolute is None or delta > self.absolute))
+
+    def describe(self) -> str:
+        unit = fg.figure(self.figure).unit
+        parts = []
+        if self.relative is not None:
+            parts.append(f"+{self.relative * 100:g}%")
+        if self.absolute is not None:
+            parts.append(f"+{fmt_figure(self.absolute, unit)}")
+        return " and ".join(parts) if parts else "off"
+
+
+DEFAULT_THRESHOLDS: tuple[Threshold, ...] = tuple(
+    Threshold(name, t.relative, t.absolute) for name, t in fg.default_thresholds().items())
+
+
+def parse_threshold(text: str) -> Threshold:
+    """`latency.p99=+20%`, `latency.p99=+20%,+10us` (10_000 ns), `involuntary.per_callback_mean=+0.5`, `latency.max=off`."""
+    name, sep, spec = text.partition("=")
+    name = name.strip()
+    if not sep:
+        raise UsageError(f"runner: --threshold {text!r}: expected FIGURE=LIMIT, e.g. latency.p99=+20%")
+    if name not in fg.BY_NAME:
+        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, fg.BY_NAME)}; "
+                         f"known: {', '.join(fg.BY_NAME)}")
+    if spec.strip() == "off":
+        return Threshold(name)
+    duration = fg.figure(name).is_duration
+    relative: float | None = None
+    absolute: Number | None = None
+    for part in spec.split(","):
+        part = part.strip().lstrip("+")
+        try:
+            if part.endswith("%"):
+                relative = _finite(part[:-1]) / 100.0
+            elif duration:
+                absolute = units.parse_duration(part)
+            else:
+                absolute = _finite(part)
+        except (ValueError, units.UnitError):
+            raise UsageError(f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N"
+                             + (" with a unit (+10us)" if duration else "")) from None
+    return Threshold(name, relative, absolute)
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(text)
+    return value
+
+
+def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
+    """The defaults, with `overrides` replacing or adding figures."""
+    out = {t.figure: t for t in DEFAULT_THRESHOLDS}
+    out.update({t.figure: t for t in overrides})
+    return list(out.values())
+
+
+class Verdict:
+    REGRESSION = "regression"
+    BETTER = "better"
+    SAME = "within threshold"
+    NEW = "no baseline"
+    MISSING = "missing"
+
+
+@dataclass(frozen=True)
+class FigureChange:
+    cell: str
+    thread: str
+    figure: Figure
+    base: Number | None
+    new: Number | None
+    threshold: Threshold
+    verdict: str
+
+
+@dataclass(frozen=True)
+class CellChange:
+    cell: str
+    base_status: Status | None
+    new_status: Status | None
+    verdict: str
+    note: str = ""
+
+
+@dataclass
+class Comparison:
+    base: RunDocument
+    new: RunDocument
+    thresholds: list[Threshold]
+    cells: list[CellChange] = field(default_factory=list)
+    figures: list[FigureChange] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def compared(self) -> list[str]:
+        """Cells present in both runs, which are the ones actually compared."""
+        return [c.cell for c in self.cells if c.verdict in (Verdict.SAME, Verdict.REGRESSION)]
+
+    def unmatched(self, verdict: str) -> list[str]:
+        """Cells only in the baseline (`Verdict.MISSING`) or only in this run (`Verdict.NEW`)."""
+        return [c.cell for c in self.cells if c.verdict == verdict]
+
+    @property
+    def regressions(self) -> int:
+        return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(
+            f.verdict == Verdict.REGRESSION for f in self.figures)
+
+    def regressed_cells(self) -> list[str]:
+        out = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
+        out += [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION and f.cell not in out]
+        return out
+
+
+def spec_differences(base: Any, new: Any, path: str = "") -> list[str]:
+    """Settings that differ between two resolved specs, as `key.path: base -> new`."""
+    if isinstance(base, dict) and isinstance(new, dict):
+        out = []
+        for key in list(base) + [k for k in new if k not in base]:
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in new:
+                out.append(f"{sub}: {show_value(base[key])} in the baseline, absent now")
+            elif key not in base:
+                out.append(f"{sub}: absent in the baseline, {show_value(new[key])} now")
+            else:
+                out.extend(spec_differences(base[key], new[key], sub))
+        return out
+    if isinstance(base, list) and isinstance(new, list) and len(base) == len(new):
+        return [d for i, (a, b) in enumerate(zip(base, new)) for d in spec_differences(a, b, f"{path}[{i}]")]
+    return [] if base == new else [f"{path}: {show_value(base)} in the baseline, {show_value(new)} now"]
+
+
+def _groups(doc: RunDocument) -> dict[str, list[CellResult]]:
+    out: dict[str, list[CellResult]] = {}
+    for cell in doc.cells:
+        out.setdefault(cell.id, []).append(cell)
+    return out
+
+
+def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
+    """Refuse cells with the same id but a different resolved scenario, naming what differs."""
+    b, n = _groups(base), _groups(new)
+    problems = []
+    for cell_id in [c for c in n if c in b]:
+        old, now = b[cell_id][0], n[cell_id][0]
+        if old.spec_hash == now.spec_hash:
+            continue
+        diffs = spec_differences(old.spec, now.spec) or ["the resolved scenario (no stored spec to say which setting)"]
+        problems.append(Problem(new_name, 1, 1, f"cells.{cell_id}",
+                                f"differs from the baseline ({base_name}): " + "; ".join(diffs[:8])
+                                + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else "")))
+    if problems:
+        raise ScenarioError(problems)
+
+
+def _ids(groups: dict[str, list[CellResult]]) -> str:
+    if not groups:
+        return "no cells"
+    shown = ", ".join(list(groups)[:3]) + (f" and {len(groups) - 3} more" if len(groups) > 3 else "")
+    return f"{len(groups)} cell{'s' if len(groups) != 1 else ''}: {shown}"
+
+
+def _median(values: list[Number | None]) -> Number | None:
+    """The median of the figures there are; NaN or infinity is no figure (never "within threshold")."""
+    present = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.median(present) if present else None
+
+
+_OK = (Status.PASSED, Status.DEGRADED)
+
+
+def compare(base: RunDocument, new: RunDocument, thresholds: list[Threshold] | None = None,
+            base_name: str = "baseline", new_name: str = "new") -> Comparison:
+    """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
+    check_comparable(base, new, base_name, new_name)
+    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
+    b, n = _groups(base), _groups(new)
+    if not any(cell_id in b for cell_id in n):
+        raise ScenarioError([Problem(new_name, 1, 1, "cells", f"no cell in common with the baseline {base_name} "
+                                     f"({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario")])
+    was, now = base.machine, new.machine
+    if (was.hostname, was.kernel) != (now.hostname, now.kernel):
+        out.notes.append(f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
+                         f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'}).")
+    for cell_id in list(n) + [c for c in b if c not in n]:
+        if cell_id not in n:
+            out.cells.append(CellChange(cell_id, _status(b[cell_id]), None, Verdict.MISSING, "in the baseline, not run now"))
+            continue
+        if cell_id not in b:
+            out.cells.append(CellChange(cell_id, None, _status(n[cell_id]), Verdict.NEW, "not in the baseline"))
+            continue
+        old_status, new_status = _status(b[cell_id]), _status(n[cell_id])
+        worse = old_status in _OK and new_status not in _OK
+        out.cells.append(CellChange(cell_id, old_status, new_status, Verdict.REGRESSION if worse else Verdict.SAME,
+                                    f"{old_status.value} → {new_status.value}" if worse else ""))
+        out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
+    return out
+
+
+def _status(cells: list[CellResult]) -> Status:
+    order = list(Status)
+    return min((c.status for c in cells), key=order.index)
+
+
+def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
+    out = []
+    keys = [t.key for t in now[0].threads if t.periodic]
+    for key in keys:
+        for th in thresholds:
+            fig = fg.figure(th.figure)
+            base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
+            new = _median([fg.value(t.figures, fig) for c in now for t in c.threads if t.key == key])
+            if base is None and new is None:
+                continue
+            if base is None or new is None:
+                verdict = Verdict.NEW if base is None else Verdict.MISSING
+            elif th.exceeded(base, new):
+                verdict = Verdict.REGRESSION
+            elif th.exceeded(new, base):
+                verdict = Verdict.BETTER
+            else:
+                verdict = Verdict.SAME
+            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict))
+    return out

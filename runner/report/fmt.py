@@ -1,0 +1,136 @@
+"""How figures and text read in reports: durations (stored in ns) in the unit that reads best, counts with
+separators, names from the scenario escaped so they stay text in markdown.  Pure.
+
+Formatting is the only place a figure is scaled: results hold durations as integer ns
+(figures.Unit.NS), and `fmt_ns` / `fmt_figure` choose µs, ms or s as they show them.
+"""
+
+from __future__ import annotations
+
+import re
+
+from runner.figures import Number, Unit
+
+
+def fmt_ns(value: Number | None) -> str:
+    """A duration given in nanoseconds, in the unit that reads best: `56.6 µs`, `142 µs`, `6.12 ms`, `1.20 s`."""
+    if value is None:
+        return "–"
+    us = value / 1000
+    if us < 1000:
+        return f"{us:.1f} µs" if us < 100 else f"{us:.0f} µs"
+    if us < 1_000_000:
+        return f"{us / 1000:.2f} ms"
+    return f"{us / 1_000_000:.2f} s"
+
+
+def fmt_mean(value: float | None) -> str:
+    return "–" if value is None else ("0" if value == 0 else f"{value:.2f}")
+
+
+def fmt_int(value: int | None) -> str:
+    return "–" if value is None else f"{value:,}"
+
+
+def fmt_bytes(value: int | None) -> str:
+    if value is None:
+        return "–"
+    if value < 0:
+        return "unlimited"
+    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if value >= size:
+            return f"{value / size:.1f} {unit}".replace(".0 ", " ")
+    return f"{value} B"
+
+
+def fmt_figure(value: Number | None, unit: Unit) -> str:
+    """A figure in its unit: a duration (ns) as `fmt_ns` shows it, a count as the integer it is, a mean as `%g`."""
+    if unit is Unit.NS:
+        return fmt_ns(value)
+    if value is None:
+        return "–"
+    return str(value) if isinstance(value, int) else f"{value:g}"
+
+
+# ---------------------------------------------------------------- text from the scenario, as markdown
+
+
+class Markdown(str):
+    """Text that is already markdown, built by the report from escaped parts: shown as it is.
+
+    Anything else that reaches a report (a thread name, a matrix value, a reason) is plain
+    text and goes through `md_text` first; the templates do that for every value that is not
+    a Markdown, as an HTML template escapes everything not marked safe.
+    """
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+_ALWAYS = set("\\`*[]~")  # code spans, emphasis, links and images, strikethrough
+
+
+def md_text(value: object, in_table: bool = False) -> Markdown:
+    """Plain text as inline markdown that renders as that text, on one line.
+
+    Line breaks and control characters become spaces (a newline must not start a heading),
+    outer spaces go (four would start a code block), and every character that could start
+    markdown structure is backslash-escaped: code spans, emphasis, links and images, HTML
+    and autolinks, entities; in a table cell (`in_table`) `|`, elsewhere what would make a
+    block if the text began a line (`#`, `>`, list markers).  Harmless uses stay as they
+    read (`<= 2ms`, `minimal_schedul_`), so ordinary names look ordinary in the source too.
+    """
+    if isinstance(value, Markdown):
+        return value
+    text = _CONTROL.sub(" ", str(value)).strip()
+    out = []
+    for i, ch in enumerate(text):
+        after = text[i + 1] if i + 1 < len(text) else " "
+        before = text[i - 1] if i else " "
+        if (ch in _ALWAYS
+                or (ch == "|" and in_table)
+                or (ch == "_" and not before.isalnum())  # after a letter or digit `_` cannot open emphasis
+                or (ch == "<" and not (after.isspace() or (after == "=" and text[i + 2:i + 3] in ("", " "))))
+                or (ch == "&" and (after.isalnum() or after == "#"))):
+            out.append("\\" + ch)
+        else:
+            out.append(ch)
+    escaped = "".join(out)
+    return Markdown(escaped if in_table else _escape_line_start(escaped))
+
+
+def _escape_line_start(text: str) -> str:
+    """Escape what would make a block if the text began a line: `#`, `>`, list markers, rules, trailing `#`."""
+    if not text:
+        return text
+    first, after = text[0], text[1:2]
+    if first in "#>" or (first in "-+=" and (after in ("", " ") or set(text) <= {first, " "})):
+        text = "\\" + text
+    else:
+        digits = re.match(r"\d{1,9}([.)])( |$)", text)
+        if digits:
+            text = text[: digits.start(1)] + "\\" + text[digits.start(1):]
+    closing = re.search(r"(?<=[ ])#+$", text)  # `## Cell x #`: a closing sequence would vanish from the heading
+    if closing:
+        text = text[: closing.start()] + "\\" + text[closing.start():]
+    return text
+
+
+def md_code(value: object, in_table: bool = False) -> Markdown:
+    """Plain text as an inline code span that shows it verbatim (a fence longer than any backtick run in it).
+
+    Inside a table `|` must still be escaped (GFM splits cells before it sees code spans).
+    """
+    text = _CONTROL.sub(" ", str(value))
+    if not text:
+        return Markdown("``")
+    fence = "`" * (max((len(run) for run in re.findall(r"`+", text)), default=0) + 1)
+    pad = " " if text[0] == "`" or text[-1] == "`" or (text[0] == " " and text[-1] == " " and text.strip()) else ""
+    if in_table:
+        text = text.replace("|", "\\|")
+    return Markdown(f"{fence}{pad}{text}{pad}{fence}")
+
+
+def md_code_block(value: str, info: str = "") -> Markdown:
+    """Text as a fenced code block: the fence is longer than any backtick run in it, so no line can close it."""
+    fence = "`" * max(3, max((len(run) for run in re.findall(r"`+", value)), default=0) + 1)
+    body = value if value.endswith("\n") else value + "\n"
+    return Markdown(f"{fence}{info}\n{body}{fence}")

@@ -1,0 +1,79 @@
+"""Write a run's report files: report.md and its plots beside results.json, and the CI job summary.
+
+The I/O half of reporting; `report` renders and `plots` draws.  Files are replaced
+atomically, so a reader never sees half a report.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Optional
+
+from runner.report import markdown as report
+from runner.report.compare import Threshold, compare
+from runner.results.document import RunDocument
+from runner.results.files import write_atomic
+from runner.results.read import load
+
+STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
+
+
+def write_report(doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True,
+                 pid_width: int = 5, name: str = "report.md") -> str:
+    """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path."""
+    links = {}
+    if plots:
+        from runner.report.plots import write_plots
+
+        links = write_plots(doc, folder, report.thread_labels(doc.cells))
+    text = report.render_run(doc, links, comparison, pid_width)
+    path = os.path.join(folder, name)
+    write_atomic(path, text)
+    return path
+
+
+def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
+    """Append `text` to $GITHUB_STEP_SUMMARY when it is set (GitHub Actions); return the file's path."""
+    path = env.get("GITHUB_STEP_SUMMARY")
+    if not path:
+        return None
+    text = "\n".join(line for line in text.splitlines() if not line.startswith("![")) + "\n"  # plots don't travel
+    if len(text.encode()) > STEP_SUMMARY_LIMIT:
+        cut = text.encode()[: STEP_SUMMARY_LIMIT - 200].decode(errors="ignore")
+        text = cut[: cut.rfind("\n## ")] + "\n\n> Report cut to fit the job summary; the full report is in the artifacts.\n"
+    try:
+        with open(path, "a", encoding="utf-8") as handle:
+            handle.write(text.rstrip("\n") + "\n\n")
+    except OSError as exc:  # the summary is a copy: the run's own files are written, so warn, do not fail
+        print(f"runner: warning: cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}", file=sys.stderr)
+        return None
+    return path
+
+
+def comparison_text(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, int]:
+    """Compare `doc` with the results at `base_path`: the markdown section and the number of regressions."""
+    base = load(base_path)
+    cmp = compare(base, doc, thresholds, base_name=base_path, new_name=new_path)
+    return report.render_comparison(cmp, base_path, new_path), cmp.regressions
+
+
+def finish(doc: RunDocument, folder: str, baseline: Optional[str], thresholds: list[Threshold], write: bool,
+           plots: bool, env: dict[str, str]) -> int:
+    """After a run or a merge: compare with the baseline, write report.md, append the job summary.
+
+    Returns the number of regressions against the baseline (0 without one).
+    """
+    results_path = os.path.join(folder, "results.json")
+    section, regressions = None, 0
+    if baseline:
+        section, regressions = comparison_text(baseline, doc, results_path, thresholds)
+        write_atomic(os.path.join(folder, "comparison.md"), section)
+    if write:
+        path = write_report(doc, folder, section, plots)
+        print(f"report: {path}", flush=True)
+        with open(path, encoding="utf-8") as handle:
+            append_step_summary(handle.read(), env)
+    elif section:
+        append_step_summary(section, env)
+    return regressions

@@ -1,0 +1,1 @@
+"""The results stage: the typed, versioned results document, its files, shards merged."""

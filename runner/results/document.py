@@ -1,0 +1,404 @@
+"""The results document (`runner.results/2`): typed records, declared once, serialised by pydantic.
+
+A run writes `results.json` after every finished cell, atomically (temporary file,
+fsync, rename), so a crash or a kill leaves the cells that finished readable.
+Raw per-callback samples go beside it, one gzip'd CSV per cell (samplesfile.py).
+
+The models below are the one declaration of the file: `RunDocument.save` writes them
+(`model_dump_json`), `read.load` reads them back (`model_validate_json`, strict: `1` is not
+`"1"` or `true`), and `results_schema` is their JSON Schema (`results.schema.json`).
+
+The shape of `runner.results/2`, top down:
+
+- the run: `schema`, `tool` {`name`, `version`}, `scenario` {`name`, `path`, `description`},
+  `command`, `started_at`, `finished_at`, `status` (`running` until it ends, then the worst
+  cell status), `shard`, `merged_from`, `machine`, `permissions`, `start_settings`,
+  `cell_ids`, `matrix_cells`, `plan` {`repeat`, `shuffle_seed`, `settle_ns`, `cells`,
+  `duration_ns`}, `cells`;
+- a cell: `id`, `matrix`, `spec_hash`, `spec` (the resolved cell), `repeat`, `status`,
+  `reason`, `started_at`, `duration_ns`, `machine`, `thread_table` (ps rows), `threads`,
+  `expectations`, `background`, `overhead_ns`, `samples_file` (relative to the results folder);
+- a thread: `key` (derived), `process`, `instance`, `index`, `name`, `pid`, `tid`, `work`,
+  `periodic`, `requested` and `applied` {`policy`, `priority`, `nice`, `cpus`}, `degraded`,
+  `figures` (figures.ThreadFigures: every duration an integer in ns, e.g. `latency_ns.p99`);
+- a verdict: `thread`, `metric` (a figure's name from figures.REGISTRY), `limit` (as the
+  scenario wrote it), `measured` (in the figure's unit: ns for durations), `passed`, `note`.
+
+Every duration in a /2 file is an integer number of nanoseconds, named `..._ns`; only the
+report's formatting scales it.  NaN and infinity are never written (pydantic writes null)
+and never read.  Unknown keys in a file are tolerated (a newer runner may add some) and
+dropped; in Python, an unknown keyword is an error, so a misspelt field cannot vanish.
+
+`runner.results/1` files (latencies in float microseconds, seconds elsewhere) still load:
+`read.load` checks them against their own shape (`legacy._V1File`), converts them (`upgrade_v1`) and
+reads the result as a /2 document.  A file of a newer schema is refused, saying so.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import types
+import typing
+from typing import Annotated, Any, Final, Literal, Optional, Union
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    NonNegativeInt,
+    StrictStr,
+    WithJsonSchema,
+    computed_field,
+)
+from pydantic.json_schema import SkipJsonSchema
+
+from runner import __version__
+from runner import figures as fg
+from runner.errors import Problem, ScenarioError, did_you_mean
+from runner.figures import ThreadFigures
+from runner.results.files import samples_path_problem, write_atomic
+from runner.results.pstable import ThreadRow
+from runner.scenario.plan import Settings
+
+SCHEMA: Final = "runner.results/2"
+LEGACY_SCHEMA = "runner.results/1"
+SCHEMA_ID = "https://github.com/rt-scenario-runner/runner/results.schema.json"
+
+
+class Status(str, enum.Enum):
+    """Outcome of a cell, most severe first."""
+
+    ERROR = "error"
+    INTERRUPTED = "interrupted"
+    FAILED = "failed"
+    DEGRADED = "degraded"
+    PASSED = "passed"
+
+
+def worst(statuses: list[Status]) -> Status:
+    order = list(Status)
+    return min(statuses, key=order.index) if statuses else Status.PASSED
+
+
+def thread_label(process: str, instance: int, index: int, name: str, show_instance: bool = True) -> str:
+    """How a thread is named in keys, rows, verdicts and tables: `process[instance]/name (main)` or `... #index`.
+
+    With `show_instance` False (a process that runs once) the `[instance]` is left out:
+    `process/name (main)`.  The thread's key (its identity across cells and runs, and its
+    name in samples files) is the label with the instance.
+    """
+    proc = f"{process}[{instance}]" if show_instance else process
+    return f"{proc}/{name}" + (" (main)" if index == 0 else f" #{index}")
+
+
+def thread_key(process: str, instance: int, index: int, name: str) -> str:
+    """A thread's identity across cells and runs (and its name in samples files): its label with the instance."""
+    return thread_label(process, instance, index, name)
+
+
+# ---------------------------------------------------------------- the records
+
+
+class _Record(BaseModel):
+    """A stored record: fields typed; an unknown keyword is an error in Python, an unknown key in a file is dropped.
+
+    A file may hold keys this runner does not know (a newer runner added them, or they are
+    derived, like a thread's `key`): reading ignores them.  Code that builds a record with a
+    misspelt keyword gets a TypeError instead of a silently missing field.
+    """
+
+    model_config = ConfigDict(extra="ignore", validate_assignment=True, populate_by_name=True)
+
+    def __init__(self, **data: Any) -> None:
+        unknown = sorted(set(data) - self._keywords())
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; "
+                            f"fields: {', '.join(type(self).model_fields)}")
+        for name, value in data.items():  # records given as dicts are built as records, so their keys are checked too
+            found = _record_type(type(self).model_fields[name].annotation) if name in type(self).model_fields else None
+            if found and found[0] and isinstance(value, list):
+                data[name] = [found[1](**v) if isinstance(v, dict) else v for v in value]
+            elif found and not found[0] and isinstance(value, dict):
+                data[name] = found[1](**value)
+        super().__init__(**data)
+
+    # Validation (of a file, or of nested dicts) must not run the check above: pydantic calls a model's own
+    # __init__ while validating unless it is marked as the base one, as pydantic marks BaseModel.__init__.
+    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
+
+    @classmethod
+    def _keywords(cls) -> set[str]:
+        return {alias for name, f in cls.model_fields.items() for alias in (name, f.alias) if alias}
+
+
+def _record_type(annotation: Any) -> tuple[bool, type[_Record]] | None:
+    """(is a list, the record class) when a field holds records (`X`, `X | None`, `list[X]`); None otherwise."""
+    if isinstance(annotation, type) and issubclass(annotation, _Record):
+        return False, annotation
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) is list and args and isinstance(args[0], type) and issubclass(args[0], _Record):
+        return True, args[0]
+    if typing.get_origin(annotation) in (Union, types.UnionType):
+        return next((found for arg in args if (found := _record_type(arg))), None)
+    return None
+
+
+def _figure_name(value: Any) -> Any:
+    value = value.value if isinstance(value, enum.Enum) else value
+    if isinstance(value, str) and value not in fg.BY_NAME:
+        raise ValueError(f"unknown figure {value!r}{did_you_mean(value, fg.BY_NAME)}; known: {', '.join(fg.BY_NAME)}")
+    return value
+
+
+FigureName = Annotated[StrictStr, BeforeValidator(_figure_name),
+                       WithJsonSchema({"type": "string", "enum": [f.name for f in fg.REGISTRY],
+                                       "description": "a figure's name, as runner/figures.py declares it"})]
+Measured = Optional[Union[int, float]]  # int for counts and durations (ns), float for means
+
+
+class Verdict(_Record):
+    """One expectation checked against one thread; `measured` in the figure's unit (ns for durations)."""
+
+    thread: str = Field(description="the thread's label, as the report names it")
+    metric: FigureName
+    limit: str = Field(description="the limit as the scenario wrote it, e.g. `<= 2ms`")
+    measured: Measured = Field(description="the figure's value in its unit (integer ns for durations); null: not measured")
+    passed: bool
+    note: str = ""
+
+    @property
+    def figure(self) -> fg.Figure:
+        return fg.figure(self.metric)
+
+
+class ThreadResult(_Record):
+    """One measured thread: identity, requested vs applied settings, figures."""
+
+    process: str
+    instance: NonNegativeInt
+    index: NonNegativeInt = Field(description="0 for the main thread, then creation order")
+    name: str
+    pid: int
+    tid: int
+    work: str = Field(description="the thread's work, in words")
+    periodic: bool
+    requested: Settings
+    applied: Optional[Settings] = Field(description="as read back from the kernel; null when the thread was gone")
+    degraded: list[str] = Field(default_factory=list, description="how the applied settings fell short, in words")
+    figures: ThreadFigures
+
+    @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
+    @property
+    def key(self) -> str:
+        return thread_key(self.process, self.instance, self.index, self.name)
+
+    def label(self, show_instance: bool) -> str:
+        """This thread's name in rows and tables (see `thread_label`)."""
+        return thread_label(self.process, self.instance, self.index, self.name, show_instance)
+
+
+class Overhead(_Record):
+    """What the runner itself costs a cell, in ns: None where it could not be measured."""
+
+    start_to_first_callback: Optional[int] = None
+    last_callback_to_exit: Optional[int] = None
+
+
+class BackgroundKind(str, enum.Enum):
+    HOG = "hog"
+    COMMAND = "command"
+
+
+class Background(_Record):
+    """One background load process of a cell: a busy-loop hog or a command."""
+
+    kind: BackgroundKind
+    name: str = ""
+    argv: list[str] = Field(default_factory=list)
+    pid: Optional[int] = None
+
+
+class RtThrottling(_Record):
+    """The kernel's RT throttling (sched_rt_runtime_us / sched_rt_period_us), in ns."""
+
+    runtime_ns: Optional[int] = Field(None, description="RT time allowed per period; null: unlimited or not known")
+    period_ns: Optional[int] = None
+    enabled: bool = False
+
+    @classmethod
+    def from_sysctl(cls, runtime_us: Optional[int], period_us: Optional[int]) -> RtThrottling:
+        """From the two sysctls as the kernel reports them (runtime -1: no throttling)."""
+        enabled = runtime_us is not None and runtime_us >= 0
+        return cls(runtime_ns=runtime_us * 1000 if enabled and runtime_us is not None else None,
+                   period_ns=None if period_us is None else period_us * 1000, enabled=enabled)
+
+
+class MachineInfo(_Record):
+    """Facts about the machine a run (or a cell) ran on: what a reader needs to trust or compare its numbers."""
+
+    hostname: Optional[str] = None
+    kernel: Optional[str] = None
+    kernel_version: str = ""
+    preempt_rt: bool = False
+    preempt: Optional[str] = None
+    arch: Optional[str] = None
+    cpus_online: Optional[str] = None
+    cpus_allowed: Optional[int] = None
+    isolated_cpus: str = ""
+    rt_throttling: Optional[RtThrottling] = None
+    cpufreq_governors: list[str] = Field(default_factory=list)
+    memory_total_bytes: Optional[int] = None
+    python: Optional[str] = None
+
+
+class PermissionsInfo(_Record):
+    """What the user running it was allowed to do."""
+
+    user: Optional[str] = None
+    uid: Optional[int] = None
+    cap_sys_nice: bool = False
+    cap_ipc_lock: bool = False
+    rlimit_rtprio: Optional[int] = None
+    rlimit_memlock: Optional[int] = Field(None, description="bytes; -1 unlimited")
+    missing: list[str] = Field(default_factory=list, description="rights the cells needed and lacked, in words")
+
+
+class Plan(_Record):
+    """The run's options that `--resume` reuses."""
+
+    repeat: Annotated[int, Field(ge=1)] = 1
+    shuffle_seed: Optional[int] = None
+    settle_ns: Optional[NonNegativeInt] = Field(None, description="pause between cells; null: the default")
+    cells: list[str] = Field(default_factory=list, description="the --cell globs")
+    duration_ns: Optional[NonNegativeInt] = None
+
+
+class ScenarioInfo(_Record):
+    name: str = "scenario"
+    path: Optional[str] = None
+    description: str = ""
+
+
+class Tool(_Record):
+    name: str = "runner"
+    version: str = Field(default_factory=lambda: __version__)
+
+
+def _status_value(value: Any) -> Any:
+    return value.value if isinstance(value, enum.Enum) else value
+
+
+def _run_status(value: str) -> str:
+    allowed = ["running"] + [s.value for s in Status]
+    if value not in allowed:
+        raise ValueError(f"expected one of {', '.join(allowed)}")
+    return value
+
+
+RunStatus = Annotated[StrictStr, BeforeValidator(_status_value), AfterValidator(_run_status),
+                      WithJsonSchema({"type": "string", "enum": ["running"] + [s.value for s in Status]})]
+
+
+class CellResult(_Record):
+    """One cell of the matrix, as run."""
+
+    id: str
+    matrix: dict[str, Any] = Field(default_factory=dict, description="the cell's matrix values")
+    spec_hash: str
+    spec: dict[str, Any] = Field(default_factory=dict, description="the resolved cell as hashed, to say what differs")
+    repeat: Annotated[int, Field(ge=0, le=1_000_000)] = 0
+    status: Status
+    reason: str = ""
+    started_at: str = ""
+    duration_ns: NonNegativeInt = 0
+    machine: Optional[MachineInfo] = None
+    thread_table: list[ThreadRow] = Field(default_factory=list, description="the threads as the kernel held them mid-run")
+    threads: list[ThreadResult] = Field(default_factory=list)
+    expectations: list[Verdict] = Field(default_factory=list)
+    background: list[Background] = Field(default_factory=list)
+    overhead_ns: Overhead = Field(default_factory=Overhead)
+    samples_file: Optional[str] = Field(None, description="relative to the results file's folder")
+
+    def __init__(self, **data: Any) -> None:
+        """`duration_s=` (seconds) is accepted here and stored as `duration_ns`; files hold only ns."""
+        if "duration_s" in data:
+            data["duration_ns"] = round(data.pop("duration_s") * 1e9)
+        super().__init__(**data)
+
+    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]  # see _Record.__init__
+
+    @property
+    def duration_s(self) -> float:
+        return self.duration_ns / 1e9
+
+
+class RunDocument(_Record):
+    """A whole results file: the run's facts and its cells, in the order they finished."""
+
+    schema_: Literal["runner.results/2"] = Field(SCHEMA, alias="schema")
+    tool: Tool = Field(default_factory=Tool)
+    scenario: ScenarioInfo = Field(default_factory=ScenarioInfo)
+    command: list[str] = Field(default_factory=list)
+    started_at: str = ""
+    finished_at: Optional[str] = None
+    status: RunStatus = "running"
+    shard: Optional[str] = Field(None, description="`K/N` when this run is one part of a sharded matrix")
+    merged_from: list[str] = Field(default_factory=list)
+    machine: MachineInfo = Field(default_factory=MachineInfo)
+    permissions: PermissionsInfo = Field(default_factory=PermissionsInfo)
+    start_settings: Settings = Field(default_factory=Settings, description="what the processes the runner starts inherit")
+    cell_ids: list[str] = Field(default_factory=list, description="every cell this run was asked to run, in order")
+    matrix_cells: list[str] = Field(default_factory=list, description="every cell of the scenario, in expansion order")
+    plan: Plan = Field(default_factory=Plan)
+    cells: list[CellResult] = Field(default_factory=list)
+    folder: SkipJsonSchema[str] = Field("", exclude=True)  # where the file was read from: samples paths are relative to it
+    source: SkipJsonSchema[str] = Field("", exclude=True)  # the results file it was read from, to say where a problem is
+
+    @property
+    def name(self) -> str:
+        return self.scenario.name
+
+    @property
+    def tool_version(self) -> str:
+        return self.tool.version
+
+    def save(self, path: str) -> None:
+        """Write the document to `path` atomically; a figure that is not a number is stored as null."""
+        write_atomic(path, self.model_dump_json(indent=2, by_alias=True) + "\n")
+
+    def samples_path(self, cell: CellResult) -> str | None:
+        """The cell's samples file, refused (ScenarioError) unless it lies inside the results folder.
+
+        A results file names its samples relative to its folder; one that names `/etc/passwd`,
+        `../../x` or a symlink out of the folder is not followed by any reader.
+        """
+        if not cell.samples_file:
+            return None
+        path = os.path.join(self.folder, cell.samples_file)
+        why = samples_path_problem(cell.samples_file, self.folder)
+        if not why:
+            root = os.path.realpath(self.folder)
+            if os.path.commonpath([os.path.realpath(path), root]) != root:
+                why = f"{cell.samples_file!r} leads out of the results folder through a symlink; expected a path inside {self.folder}"
+            elif os.path.exists(path) and not os.path.isfile(path):
+                why = f"{cell.samples_file!r} is not a file; expected the cell's samples.csv.gz inside {self.folder}"
+        if why:
+            where = self.source or os.path.join(self.folder, "results.json")
+            raise ScenarioError([Problem(where, 1, 1, f"cells.{cell.id}.samples_file", why)])
+        return path
+
+
+def results_schema() -> dict[str, Any]:
+    """The JSON Schema of results.json as this version writes it (`runner schema --results`, results.schema.json)."""
+    schema = RunDocument.model_json_schema(by_alias=True, mode="serialization")
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["$id"] = SCHEMA_ID
+    schema["title"] = "runner results"
+    schema["description"] = (f"A run's results.json ({SCHEMA}): every duration an integer in nanoseconds, "
+                             "named *_ns; a figure that is not a number is null.")
+    return schema
+
+

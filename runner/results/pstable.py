@@ -1,0 +1,123 @@
+"""ps-style thread tables, byte for byte as procps prints `ps -L -o tid,comm,rtprio,cls,psr`.
+
+Pure: rows in, text out.  Column rules follow procps-ng: TID as wide as the
+largest possible PID, COMMAND 15 wide and left-aligned (unpadded when last),
+RTPRIO `-` for SCHED_OTHER only, NI `-` for policies other than TS and B, every
+other column right-aligned, one space apart.  Extra columns (cpus, vcsw, ivcsw)
+are the runner's own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Optional
+
+from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema, computed_field
+
+from runner import units
+from runner.errors import UsageError, did_you_mean
+
+CLS = {0: "TS", 1: "FF", 2: "RR", 3: "B", 5: "IDL", 6: "DLN"}
+
+
+CpuList = Annotated[
+    tuple[int, ...],
+    BeforeValidator(units.parse_cpu_list),
+    PlainSerializer(units.format_cpus, return_type=str),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known",
+                    "examples": ["0-1,3"]}),
+]
+
+
+@dataclass(frozen=True)
+class ThreadRow:
+    """One thread as the kernel reports it (policy numbers as in sched(7)).
+
+    Stored in results by its fields (the results models validate and serialise it);
+    `cpus` as a CPU list string.
+    """
+
+    pid: int
+    tid: int
+    comm: str
+    policy: int  # sched(7) number; CLS names it as ps does
+    rtprio: int
+    nice: int
+    psr: int
+    prio: Optional[int]  # /proc stat field 18 (kernel prio, shifted); None where not recorded (results/1 files)
+    cpus: CpuList = ()
+    voluntary: Optional[int] = None
+    involuntary: Optional[int] = None
+
+    @computed_field(description="the policy as ps names it (TS, FF, RR, B, IDL, DLN)")  # type: ignore[prop-decorator]
+    @property
+    def cls(self) -> str:
+        return CLS.get(self.policy, "?")
+
+
+@dataclass(frozen=True)
+class Column:
+    header: str
+    width: int
+    left: bool
+    value: Callable[[ThreadRow], str]
+
+
+def _rtprio(row: ThreadRow) -> str:
+    return "-" if row.policy == 0 else str(row.rtprio)
+
+
+def _nice(row: ThreadRow) -> str:
+    return str(row.nice) if row.policy in (0, 3) else "-"
+
+
+def _opt(value: Optional[int]) -> str:
+    return "-" if value is None else str(value)
+
+
+def columns_for(pid_width: int = 5) -> dict[str, Column]:
+    """The known columns; `pid_width` is the digit count of the largest PID (pid_max - 1)."""
+    return {
+        "tid": Column("TID", max(pid_width, 3), False, lambda r: str(r.tid)),
+        "pid": Column("PID", max(pid_width, 3), False, lambda r: str(r.pid)),
+        "comm": Column("COMMAND", 15, True, lambda r: r.comm),
+        "rtprio": Column("RTPRIO", 6, False, _rtprio),
+        "cls": Column("CLS", 3, False, lambda r: r.cls),
+        "psr": Column("PSR", 3, False, lambda r: str(r.psr)),
+        "ni": Column("NI", 3, False, _nice),
+        "pri": Column("PRI", 3, False, lambda r: "-" if r.prio is None else str(39 - r.prio)),
+        "cpus": Column("CPUS", 4, False, lambda r: units.format_cpus(r.cpus) if r.cpus else "-"),
+        "vcsw": Column("VCSW", 5, False, lambda r: _opt(r.voluntary)),
+        "ivcsw": Column("IVCSW", 5, False, lambda r: _opt(r.involuntary)),
+    }
+
+
+DEFAULT_COLUMNS = ("tid", "comm", "rtprio", "cls", "psr")
+
+
+def parse_columns(spec: str) -> list[str]:
+    """`tid,comm,rtprio` -> ['tid', 'comm', 'rtprio']; unknown names are a usage error."""
+    known = columns_for()
+    names = [name.strip().lower() for name in spec.split(",") if name.strip()]
+    for name in names:
+        if name not in known:
+            raise UsageError(f"unknown column {name!r}{did_you_mean(name, known)}; known: {', '.join(known)}")
+    return names
+
+
+def render_ps(rows: list[ThreadRow], columns: Optional[list[str]] = None, pid_width: int = 5) -> str:
+    """The table as procps prints it, header included, one line per row, newline-terminated."""
+    known = columns_for(pid_width)
+    cols = [known[name] for name in (columns or DEFAULT_COLUMNS)]
+    lines = []
+    for cells in [[c.header for c in cols]] + [[c.value(r) for c in cols] for r in rows]:
+        parts = []
+        for i, (col, text) in enumerate(zip(cols, cells)):
+            last = i == len(cols) - 1
+            if col.left:
+                parts.append(text if last else text.ljust(col.width))
+            else:
+                parts.append(text.rjust(col.width))
+        lines.append(" ".join(parts))
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,177 @@
+"""Reading results.json: refused, with every problem in `file:line:col: key.path:` form, unless well-formed."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+from typing import Any
+
+from pydantic import (
+    ValidationError,
+)
+
+from runner import __version__
+from runner.errors import Problem, ScenarioError
+from runner.results.document import LEGACY_SCHEMA, SCHEMA, RunDocument
+from runner.results.files import INT64, results_file, samples_path_problem, show_value
+from runner.results.legacy import _V1File, upgrade_v1
+
+# ---------------------------------------------------------------- reading a results file
+
+MAX_DEPTH = 64  # JSON nesting a results file never needs; deeper is refused before anything recurses into it
+MAX_PROBLEMS = 20
+_SCHEMA_NAME = re.compile(r"runner\.results/([0-9]{1,6})")
+
+
+def load(path: str) -> RunDocument:
+    """Read a results document, refusing anything that is not a well-formed results file.
+
+    `path` may name the results file or the folder holding it.  A `runner.results/1` file is
+    checked against its own shape and upgraded; a /2 file is read strictly.  Every refusal is a
+    ScenarioError of `file:line:col: key.path: message` lines: not JSON, NaN or Infinity (never
+    a figure), numbers out of range, the wrong shape or types, a newer schema, samples paths
+    that leave the results folder.  What loads can be trusted by the report, comparison and merge.
+    """
+    path = results_file(path)
+    try:
+        with open(path, "rb") as handle:
+            raw = handle.read()
+    except OSError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"cannot read results: {exc.strerror}")]) from None
+    data = parse_json(path, raw)
+    if _schema_version(path, data) == 1:
+        try:
+            _V1File.model_validate(data)
+        except ValidationError as exc:
+            raise ScenarioError(validation_problems(path, exc)) from None
+        data = upgrade_v1(data)
+    problems = range_problems(path, data)
+    if problems:
+        raise ScenarioError(problems)
+    try:
+        doc = RunDocument.model_validate_json(json.dumps(data), strict=True)
+    except ValidationError as exc:
+        raise ScenarioError(validation_problems(path, exc)) from None
+    doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
+    problems = [Problem(path, 1, 1, f"cells.{c.id}.samples_file", why) for c in doc.cells
+                if (why := samples_path_problem(c.samples_file, doc.folder))]
+    if problems:
+        raise ScenarioError(problems)
+    return doc
+
+
+def _schema_version(path: str, data: Any) -> int:
+    """1 or 2, from the file's `schema`; a newer one, or none, is refused saying what this runner reads."""
+    schema = data.get("schema") if isinstance(data, dict) else None
+    match = _SCHEMA_NAME.fullmatch(schema) if isinstance(schema, str) else None
+    if match and int(match.group(1)) in (1, 2):
+        return int(match.group(1))
+    if match and int(match.group(1)) > 2:
+        why = (f"{schema} is a newer results format than this runner ({__version__}) reads ({LEGACY_SCHEMA} and "
+               f"{SCHEMA}); read it with a newer runner")
+    else:
+        why = f"expected a {SCHEMA} (or {LEGACY_SCHEMA}) results file, got {show_value(schema)}"
+    raise ScenarioError([Problem(path, 1, 1, "schema", why)])
+
+
+def parse_json(path: str, raw: bytes) -> Any:
+    """Strict JSON: UTF-8, no NaN/Infinity, numbers a float can hold, nesting at most MAX_DEPTH."""
+    def where(exc: json.JSONDecodeError) -> Problem:
+        return Problem(path, exc.lineno, exc.colno, "", f"not valid JSON: {exc.msg}")
+
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ScenarioError([Problem(path, line, 1, "", "not UTF-8 text; expected a runner results.json")]) from None
+    try:
+        data = json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
+    except json.JSONDecodeError as exc:
+        raise ScenarioError([where(exc)]) from None
+    except _NotANumber as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", str(exc))]) from None
+    except (ValueError, RecursionError) as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"not a usable number or structure: {exc}")]) from None
+    if _depth(data) > MAX_DEPTH:
+        raise ScenarioError([Problem(path, 1, 1, "", f"nested more than {MAX_DEPTH} levels deep; not a results file")])
+    return data
+
+
+class _NotANumber(ValueError):
+    """A JSON number runner never writes: NaN, Infinity, or one beyond what a float holds."""
+
+
+def _refuse_constant(name: str) -> Any:
+    raise _NotANumber(f"{name} is not a number; a figure is a number or null")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _NotANumber(f"{text} is out of range for a number")
+    return value
+
+
+def _depth(data: Any) -> int:
+    """How deeply `data` nests (iteratively: a hostile file must not exhaust the stack)."""
+    deepest, stack = 0, [(data, 1)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level)
+            if level <= MAX_DEPTH:
+                stack.extend((v, level + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def range_problems(path: str, data: Any) -> list[Problem]:
+    """Integers a 64-bit field cannot hold, wherever they are: runner never writes one, and no reader should meet one."""
+    out: list[Problem] = []
+    stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
+    while stack and len(out) < MAX_PROBLEMS:
+        item, loc = stack.pop()
+        if isinstance(item, dict):
+            stack.extend((v, loc + (k,)) for k, v in item.items())
+        elif isinstance(item, list):
+            stack.extend((v, loc + (i,)) for i, v in enumerate(item))
+        elif isinstance(item, int) and not isinstance(item, bool) and not -INT64 <= item < INT64:
+            out.append(Problem(path, 1, 1, _key_path(loc), f"{show_value(item)} is out of range; expected a 64-bit integer"))
+    return sorted(out)
+
+
+def validation_problems(path: str, exc: ValidationError) -> list[Problem]:
+    """pydantic's errors as problems in `path` (key path, message, the value found); at most MAX_PROBLEMS."""
+    problems = sorted({Problem(path, 1, 1, _key_path(err["loc"]), _message(err)) for err in exc.errors()})
+    if len(problems) > MAX_PROBLEMS:
+        last, more = problems[MAX_PROBLEMS - 1], len(problems) - MAX_PROBLEMS
+        problems[MAX_PROBLEMS - 1] = dataclasses.replace(last, message=f"{last.message} (and {more} more problems)")
+        del problems[MAX_PROBLEMS:]
+    return problems
+
+
+_TYPE_TAG = re.compile(r"(str|int|float|bool|list|dict|tuple)(\[.*\])?|function-.*|constrained-.*|json-or-python.*")
+
+
+def _key_path(loc: tuple[Any, ...]) -> str:
+    """pydantic's error location as a key path (`cells[0].threads[1].callbacks`), without its union tags."""
+    out = ""
+    for part in loc:
+        if isinstance(part, str) and _TYPE_TAG.fullmatch(part):
+            continue
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _message(err: Any) -> str:
+    msg = str(err.get("msg", "invalid"))
+    msg = msg[0].lower() + msg[1:] if msg else "invalid"
+    msg = msg.removeprefix("value error, ")
+    return msg if err.get("type") == "missing" else f"{msg}; got {show_value(err.get('input'))}"
+
+

@@ -1,0 +1,62 @@
+"""What the session needs from the machine, as a protocol: the real kernel, or a fake in tests.
+
+The session (a run's cell loop, resume, repeats, interrupts, exit codes) talks to the
+machine only through a `Backend`: the settings processes inherit, the permission
+preflight, the machine's facts, and running one cell's processes into a `RawCell`.
+`spawn.KernelBackend` is the real one; tests drive the whole run path with a fake
+one, in milliseconds and without RT rights.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Optional, Protocol
+
+from runner.results.document import MachineInfo
+from runner.run.preflight import Permissions
+from runner.run.rawcell import RawCell
+from runner.scenario.loader import ResolvedCell
+from runner.scenario.model import Scenario
+from runner.scenario.plan import Settings
+
+
+class Interrupted(Exception):
+    """A stop was requested (Ctrl-C or SIGTERM): raised at a safe point, never inside a write."""
+
+
+def _never() -> bool:
+    return False
+
+
+@dataclass
+class CellOptions:
+    """How to run one cell: its length, and the session's hooks for progress, --follow and stopping."""
+
+    duration_ns: int
+    allow_degraded: bool
+    follow: Optional[Callable[[str], None]] = None  # one line per callback, as the ros2-realtime-examples log
+    progress: Optional[Callable[[str], None]] = None  # a live status line
+    stop_requested: Callable[[], bool] = _never  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
+
+
+class Backend(Protocol):
+    """The machine a run happens on."""
+
+    def start_settings(self) -> Settings:
+        """The settings the processes the runner starts inherit (the runner's own)."""
+
+    def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+        """What this user may do; raises PermissionProblem (exit 3) for a right the cells need and lack."""
+
+    def machine(self) -> MachineInfo:
+        """The machine's facts for the results: kernel, CPUs, RT throttling, memory."""
+
+    def pid_width(self) -> int:
+        """Digits of the largest PID, to lay out thread tables as procps does."""
+
+    def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
+        """Run one cell's processes into `folder`; OSError when its files cannot be created."""
+
+    def close(self) -> None:
+        """Release what the backend holds (the watchdog thread, the guard process)."""

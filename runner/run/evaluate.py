@@ -1,0 +1,159 @@
+"""The pure core of a cell run: raw data in, figures, degradations, verdicts and a status out.  No I/O.
+
+The process shell (run/spawn.py) hands over a `RawCell`; this module decides everything
+the results say about it, so every rule (what counts as missed, when a thread is
+degraded, which expectation applies to which thread, how a status is chosen) is
+tested with plain records, without processes or RT rights.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Optional
+
+from runner.figures import ThreadFigures
+from runner.results.document import Background, BackgroundKind, CellResult, Overhead, Status, ThreadResult, thread_key, thread_label, worst
+from runner.run.measure import check, thread_figures
+from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
+from runner.run.samples import SlotData
+from runner.scenario.listing import describe_work
+from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
+from runner.scenario.model import PeriodicWork, Scenario, metric_figure
+from runner.scenario.plan import PlannedThread, Settings, is_periodic
+
+INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """A cell's result, and the samples to store beside it (by thread key)."""
+
+    result: CellResult
+    samples: list[tuple[str, SlotData]]
+
+
+def releases_due(work: PeriodicWork, timeline: Timeline, interrupted: bool) -> int:
+    """Releases on the thread's grid from the start gate to the end of the cell (or to the interrupt).
+
+    Every release no callback served is a missed one, those after a worker was stopped or killed
+    included: the count runs to the end of the cell, not to the last callback.
+    """
+    if timeline.start_ns is None or timeline.end_ns is None:
+        return 0
+    end = timeline.end_ns
+    if interrupted and timeline.stopped_ns is not None:
+        end = min(end, timeline.stopped_ns)
+    first = timeline.start_ns + work.offset
+    return 0 if end <= first else (end - first + work.period - 1) // work.period
+
+
+def degradation(requested: Settings, applied: Optional[Settings], errors: ApplyErrors) -> list[str]:
+    """How a thread's settings fell short of the request, in words, with the kernel's reason where it gave one."""
+    if applied is None:
+        return ["the thread was gone before its settings could be read back"]
+    why = {k: f" ({os.strerror(v)})" for k, v in errors.failed().items()}
+    out = []
+    if (requested.policy, requested.priority) != (applied.policy, applied.priority):
+        out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
+    if requested.nice != applied.nice:
+        out.append(f"nice {requested.nice} requested, {applied.nice} applied{why.get('nice', '')}")
+    if requested.cpus != applied.cpus:
+        out.append(f"cpus {requested.cpus_label()} requested, {applied.cpus_label()} applied{why.get('cpus', '')}")
+    if errors.memory:
+        out.append(f"memory lock failed ({os.strerror(errors.memory)})")
+    if errors.other:
+        out.append(f"a per-callback allocation failed ({os.strerror(errors.other)})")
+    return out
+
+
+def verdict_label(t: PlannedThread, processes: int) -> str:
+    """How a verdict names its thread: the instance only when a cell runs several process instances."""
+    return thread_label(t.process, t.instance, t.index, t.name, show_instance=processes > 1)
+
+
+def _figures(raw: RawThread, timeline: Timeline, interrupted: bool) -> ThreadFigures:
+    work = raw.planned.work
+    due = releases_due(work, timeline, interrupted) if isinstance(work, PeriodicWork) else 0
+    return thread_figures(raw.slot, is_periodic(work), due)
+
+
+def _overhead(raw: RawCell) -> Overhead:
+    """Start of the cell to its first callback, last callback to the workers' exit (ns)."""
+    wakes = [t.slot.samples[0].wake_ns for t in raw.threads if t.slot.samples]
+    ends = [t.slot.samples[-1].end_ns for t in raw.threads if t.slot.samples]
+    stopped = raw.timeline.stopped_ns
+    return Overhead(
+        start_to_first_callback=min(wakes) - raw.timeline.began_ns if wakes else None,
+        last_callback_to_exit=stopped - max(ends) if stopped and ends else None,
+    )
+
+
+def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> Evaluation:
+    """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
+    result = CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.PASSED,
+                        spec=spec_json(cell.scenario), started_at=raw.started_at)
+    stored: list[tuple[str, SlotData]] = []
+    measured: list[tuple[PlannedThread, ThreadFigures]] = []
+    for t in raw.threads:
+        p = t.planned
+        fig = _figures(t, raw.timeline, raw.interrupted)
+        degraded = degradation(p.settings, t.applied, t.errors) if t.ready else []
+        stored.append((thread_key(p.process, p.instance, p.index, p.name), t.slot))
+        result.threads.append(ThreadResult(process=p.process, instance=p.instance, index=p.index, name=p.name, pid=t.pid,
+                                           tid=t.slot.tid, work=describe_work(p.work), periodic=is_periodic(p.work),
+                                           requested=p.settings, applied=t.applied, degraded=degraded, figures=fig))
+        measured.append((p, fig))
+    for i in expectations_for(scenario, cell):
+        exp = scenario.expect[i]
+        targets = {id(t) for t in match_threads([t for t, _ in measured], exp.thread)}
+        for t, fig in measured:
+            if id(t) in targets and (is_periodic(t.work) or not metric_figure(exp.metric).needs_callbacks):
+                result.expectations.append(check(exp, verdict_label(t, raw.processes), fig))
+    result.thread_table = list(raw.table)
+    result.background = [Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid) if b.kind == "hog" else
+                         Background(kind=BackgroundKind.COMMAND, argv=list(b.argv), pid=b.pid) for b in raw.background]
+    result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
+    result.overhead_ns = _overhead(raw)
+    result.status, result.reason = status(result, raw, allow_degraded)
+    return Evaluation(result, stored)
+
+
+def status(result: CellResult, raw: RawCell, allow_degraded: bool) -> tuple[Status, str]:
+    """The cell's status and the reason given for it, most severe first.
+
+    Interrupted beats everything (the figures are partial); a failure of the run itself (a
+    worker that died, the watchdog, background load that ended, a stopped process) is an
+    error; then failed expectations; then settings that were not applied, which are an error
+    unless the user allowed degraded runs.
+    """
+    reasons = list(raw.failures) + list(raw.incidents)
+    statuses = []
+    if raw.interrupted:
+        statuses.append(Status.INTERRUPTED)
+        reasons = [INTERRUPTED_REASON]
+    elif reasons:
+        statuses.append(Status.ERROR)
+    if any(not v.passed for v in result.expectations):
+        statuses.append(Status.FAILED)
+    if any(t.degraded for t in result.threads):
+        statuses.append(Status.DEGRADED if allow_degraded else Status.ERROR)
+        if not allow_degraded and not reasons:
+            reasons = ["settings were not applied as requested: " + "; ".join(
+                f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)]
+    return worst(statuses), "; ".join(reasons)
+
+
+def with_write_error(result: CellResult, path: str, error: OSError) -> CellResult:
+    """The result of a cell whose samples could not be stored: an error, its figures kept."""
+    note = f"the samples could not be written to {path}: {error.strerror or error}; the figures above are complete"
+    result.status = worst([result.status, Status.ERROR])
+    result.reason = f"{result.reason}; {note}" if result.reason else note
+    result.samples_file = None
+    return result
+
+
+def unrun(cell: ResolvedCell, reason: str, started_at: str) -> CellResult:
+    """The record of a cell that could not even start (its files could not be created)."""
+    return CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.ERROR,
+                      spec=spec_json(cell.scenario), reason=reason, started_at=started_at)

@@ -1,0 +1,116 @@
+"""Read scheduling state back from the kernel: the oracle for everything the runner reports.
+
+Settings come from sched_getscheduler / sched_getparam / getpriority /
+sched_getaffinity on the thread id, and the thread table from
+/proc/<pid>/task/<tid>/stat, the same sources procps uses.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Optional
+
+from runner.results.pstable import ThreadRow
+from runner.scenario.model import Policy
+from runner.scenario.plan import Settings
+
+RESET_ON_FORK = 0x40000000
+
+
+def online_cpus() -> tuple[int, ...]:
+    """CPUs this process may use (its affinity: cgroup cpusets and taskset included)."""
+    return tuple(sorted(os.sched_getaffinity(0)))
+
+
+def pid_width() -> int:
+    """Digits of the largest PID, as procps sizes its PID columns."""
+    try:
+        with open("/proc/sys/kernel/pid_max") as handle:
+            return len(str(int(handle.read()) - 1))
+    except (OSError, ValueError):
+        return 5
+
+
+def thread_settings(tid: int, all_cpus: Optional[tuple[int, ...]] = None) -> Settings:
+    """A thread's settings as the kernel holds them; cpus None when it may use every CPU in `all_cpus`."""
+    policy = os.sched_getscheduler(tid) & ~RESET_ON_FORK
+    priority = os.sched_getparam(tid).sched_priority
+    nice = os.getpriority(os.PRIO_PROCESS, tid)
+    cpus = tuple(sorted(os.sched_getaffinity(tid)))
+    every = all_cpus if all_cpus is not None else online_cpus()
+    return Settings(Policy.from_kernel(policy), priority, nice, None if set(cpus) >= set(every) else cpus)
+
+
+def current_settings() -> Settings:
+    """The calling thread's settings: what processes the runner starts inherit."""
+    return thread_settings(0)
+
+
+def _read(path: str) -> str:
+    with open(path) as handle:
+        return handle.read()
+
+
+def parse_stat(text: str) -> tuple[str, list[str]]:
+    """Split a /proc stat line into comm and the fields after it (field 3 onwards)."""
+    start, end = text.index("("), text.rindex(")")
+    return text[start + 1:end], text[end + 2:].split()
+
+
+def read_thread(pid: int, tid: int) -> Optional[ThreadRow]:
+    """One thread's row, or None if it has exited."""
+    base = f"/proc/{pid}/task/{tid}"
+    try:
+        comm, fields = parse_stat(_read(f"{base}/stat"))
+        status = _read(f"{base}/status")
+        cpus = tuple(sorted(os.sched_getaffinity(tid)))
+    except (OSError, ValueError):
+        return None
+    # fields[0] is stat field 3 (state): field N is fields[N - 3]
+    vol = invol = None
+    for line in status.splitlines():
+        if line.startswith("voluntary_ctxt_switches:"):
+            vol = int(line.split()[1])
+        elif line.startswith("nonvoluntary_ctxt_switches:"):
+            invol = int(line.split()[1])
+    return ThreadRow(
+        pid=pid, tid=tid, comm=comm, policy=int(fields[41 - 3]), rtprio=int(fields[40 - 3]),
+        nice=int(fields[19 - 3]), psr=int(fields[39 - 3]), prio=int(fields[18 - 3]), cpus=cpus,
+        voluntary=vol, involuntary=invol,
+    )
+
+
+def thread_rows(pid: int) -> list[ThreadRow]:
+    """Every thread of `pid`, in TID order (as ps lists them)."""
+    try:
+        tids = sorted(int(t) for t in os.listdir(f"/proc/{pid}/task"))
+    except OSError:
+        return []
+    return [row for tid in tids if (row := read_thread(pid, tid)) is not None]
+
+
+def find_pids(name: str) -> list[int]:
+    """Live PIDs whose COMMAND (comm) is `name`, as `ps -C name` selects them; zombies are dead, so left out."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                if _read(f"/proc/{entry}/comm").rstrip("\n") == name and not _zombie(entry):
+                    out.append(int(entry))
+            except OSError:
+                continue
+    return sorted(out)
+
+
+def process_state(pid: int) -> Optional[str]:
+    """The process's state letter from /proc/<pid>/stat (R, S, D, T stopped, t traced, Z, ...); None once it is gone."""
+    try:
+        stat = _read(f"/proc/{pid}/stat")
+    except OSError:
+        return None
+    return stat[stat.rfind(")") + 2:][:1] or None
+
+
+def _zombie(pid: str) -> bool:
+    stat = _read(f"/proc/{pid}/stat")
+    return stat[stat.rfind(")") + 2:][:1] in ("Z", "X")

@@ -1,0 +1,184 @@
+"""Permission checks before anything starts: fail with how to grant the right, or note what degrades.
+
+The kernel is asked, not guessed at: each RT policy or negative nice a cell needs
+is tried on a throwaway thread of the runner, and memory locking is checked
+against CAP_IPC_LOCK and RLIMIT_MEMLOCK.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pwd
+import resource
+import sys
+import threading
+from dataclasses import dataclass, field
+
+from runner import units
+from runner.errors import PermissionProblem, UsageError
+from runner.results.document import PermissionsInfo
+from runner.scenario.model import Policy, Scenario
+from runner.scenario.plan import Settings, plan_scenario
+
+CAP_IPC_LOCK = 14
+CAP_SYS_NICE = 23
+MEMLOCK_NEEDED = 512 << 20  # an mlockall'ed Python worker with its threads' stacks, generously
+
+
+@dataclass
+class Permissions:
+    """What this user may do, as found; recorded in results and reports."""
+
+    user: str
+    uid: int
+    cap_sys_nice: bool
+    cap_ipc_lock: bool
+    rlimit_rtprio: int
+    rlimit_memlock: int  # bytes; -1 unlimited
+    missing: list[str] = field(default_factory=list)
+
+    def record(self) -> PermissionsInfo:
+        """As the results file stores it."""
+        return PermissionsInfo(**dataclasses.asdict(self))
+
+
+def _caps() -> int:
+    try:
+        with open("/proc/self/status") as handle:
+            for line in handle:
+                if line.startswith("CapEff:"):
+                    return int(line.split()[1], 16)
+    except OSError:
+        pass
+    return 0
+
+
+def _limit(which: int) -> int:
+    soft = resource.getrlimit(which)[0]
+    return -1 if soft == resource.RLIM_INFINITY else soft
+
+
+def current_permissions() -> Permissions:
+    caps = _caps()
+    uid = os.geteuid()
+    try:
+        user = pwd.getpwuid(uid).pw_name
+    except KeyError:
+        user = str(uid)
+    return Permissions(user, uid, bool(caps >> CAP_SYS_NICE & 1), bool(caps >> CAP_IPC_LOCK & 1),
+                       _limit(resource.RLIMIT_RTPRIO), _limit(resource.RLIMIT_MEMLOCK))
+
+
+def _try_on_thread(action) -> int:  # type: ignore[no-untyped-def]
+    """Run `action` on a throwaway thread; return the errno it failed with, 0 if it worked."""
+    result = [0]
+
+    def body() -> None:
+        try:
+            action()
+        except OSError as exc:
+            result[0] = exc.errno or 1
+
+    thread = threading.Thread(target=body, name="runner-preflight")
+    thread.start()
+    thread.join()
+    return result[0]
+
+
+def _grant_rt(perm: Permissions, priority: int) -> str:
+    exe = os.path.realpath(sys.executable)
+    return (
+        f"grant it with one of: run as root (sudo runner ...); add the line '{perm.user}  -  rtprio  {max(priority, 98)}' "
+        f"to /etc/security/limits.conf and log in again; or 'sudo setcap cap_sys_nice+ep {exe}'"
+    )
+
+
+def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
+    """Priority 99 is the watchdog's: a thread or hog above or beside it could keep it from stopping a runaway cell."""
+    if rt_priority == 99 and not allowed:
+        raise UsageError(
+            f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
+            "or pass --allow-priority-99 (the runner may then be unable to stop a runaway thread)"
+        )
+
+
+@dataclass
+class Needs:
+    """The rights a run's cells need beyond what the runner's own settings give: found without trying anything."""
+
+    rt: dict[tuple[Policy, int], str] = field(default_factory=dict)  # (policy, priority) -> the first thread asking
+    min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
+    lock: str | None = None  # a process that locks its memory
+
+
+def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, online: set[int]) -> Needs:
+    """What the cells ask for that needs a right; refuses (exit 2) priority 99 and CPUs this machine does not allow."""
+    out = Needs()
+    for sc in scenarios:
+        for t in plan_scenario(sc, start):
+            where, settings = f"{t.process}/{t.name}", t.settings
+            _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
+            _refuse_cpus(where, settings.cpus, online)
+            if settings.policy.is_realtime and (settings.policy != start.policy or settings.priority > start.priority):
+                out.rt.setdefault((settings.policy, settings.priority), where)
+            if settings.nice < start.nice and (out.min_nice is None or settings.nice < out.min_nice[0]):
+                out.min_nice = (settings.nice, where)
+        for h in sc.background.hogs:
+            where, sched = f"background hog {h.name}", h.sched
+            _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
+            _refuse_cpus(where, h.cpus, online)
+            if sched is not None and sched.policy.is_realtime:
+                out.rt.setdefault((sched.policy, sched.rt_priority), where)
+        out.lock = out.lock or next((proc.name for proc in sc.processes if proc.memory.lock), None)
+    return out
+
+
+def _refuse_cpus(where: str, cpus: tuple[int, ...] | None, online: set[int]) -> None:
+    if cpus is not None and not set(cpus) <= online:
+        raise UsageError(f"{where} asks for CPUs {units.format_cpus(cpus)}, but this machine lets the runner use "
+                         f"{units.format_cpus(online)}; change the scenario's cpus")
+
+
+def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
+    """Each right `wanted` that this user lacks, tried on a throwaway thread, with how to grant it."""
+    missing: list[str] = []
+    for (policy, priority), where in sorted(wanted.rt.items(), key=lambda kv: -kv[0][1]):
+        err = _try_on_thread(lambda: os.sched_setscheduler(0, policy.kernel_id, os.sched_param(priority)))
+        if err:
+            missing.append(
+                f"{where} needs SCHED_{policy.value.upper()} priority {priority}, which this user may not set "
+                f"({os.strerror(err)}; CAP_SYS_NICE {'yes' if perm.cap_sys_nice else 'no'}, RLIMIT_RTPRIO {perm.rlimit_rtprio}); "
+                + _grant_rt(perm, priority)
+            )
+            break  # the highest priority refused says it all
+    if wanted.min_nice is not None:
+        nice, where = wanted.min_nice
+        err = _try_on_thread(lambda: os.setpriority(os.PRIO_PROCESS, 0, nice))
+        if err:
+            missing.append(
+                f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
+                f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
+            )
+    memlock = perm.rlimit_memlock
+    if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
+        # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
+        missing.append(
+            f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
+            f"CAP_IPC_LOCK; grant it with one of: sudo; add '{perm.user}  -  memlock  unlimited' to /etc/security/limits.conf; "
+            f"or 'ulimit -l unlimited' in a root shell before starting the runner"
+        )
+    return missing
+
+
+def check(scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+    """Raise PermissionProblem (exit 3) for a right the cells need and this user lacks, unless degraded runs are allowed."""
+    perm = current_permissions()
+    perm.missing = missing_rights(perm, needs(scenarios, start, allow_priority_99, set(os.sched_getaffinity(0))))
+    if perm.missing and not allow_degraded:
+        raise PermissionProblem(
+            "runner: missing permission, nothing was started:\n"
+            + "\n".join(f"  - {m}" for m in perm.missing)
+            + "\n  (or pass --allow-degraded to run anyway; affected threads are marked degraded)"
+        )
+    return perm

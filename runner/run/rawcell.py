@@ -1,0 +1,126 @@
+"""What a cell's process shell hands the pure evaluation core: typed raw data, nothing decided yet.
+
+The shell (run/spawn.py) starts, supervises and stops processes and reads back what the
+kernel and the native core recorded; it decides nothing about figures, verdicts or
+status.  Everything it learned travels in a `RawCell`: every field of each thread's
+native slot (samples, rusage totals, the errno of each setting it applied, the
+`err_other` of a failed per-callback allocation), the settings read back from the
+kernel, the worker's ready report, the mid-run thread table, and what went wrong
+around the threads (a worker that died, the watchdog, background load that ended,
+a stopped process, an interrupt).  A fake shell builds the same records to test the
+run path without RT rights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from runner.results.pstable import ThreadRow
+from runner.run.samples import SlotData
+from runner.scenario.plan import PlannedThread, Settings
+
+
+@dataclass(frozen=True)
+class ApplyErrors:
+    """The errno of each setting a thread applied to itself; 0 where it worked or was not asked for."""
+
+    sched: int = 0
+    nice: int = 0
+    cpus: int = 0
+    memory: int = 0  # mlockall / preallocation of the thread's process
+    other: int = 0  # the native slot's err_other: e.g. ENOMEM of a per-callback allocation
+
+    def failed(self) -> dict[str, int]:
+        """The settings that failed, by name, with their errno."""
+        return {k: v for k, v in (("sched", self.sched), ("nice", self.nice), ("cpus", self.cpus),
+                                  ("memory", self.memory), ("other", self.other)) if v}
+
+
+@dataclass(frozen=True)
+class ReadyReport:
+    """A worker's `ready` message, checked: its TIDs and the errno of every setting, per slot."""
+
+    pid: int
+    tids: tuple[int, ...]
+    main: tuple[int, int, int]  # sched, nice, cpus of the main thread (applied by the worker's Python code)
+    threads: tuple[tuple[int, int, int, int], ...]  # per slot: sched, nice, cpus, other (from the native slot)
+    memory_errno: int = 0
+    memory_message: str = ""
+
+    @classmethod
+    def parse(cls, message: dict[str, Any], nslots: int) -> ReadyReport:
+        """The report in a worker's JSON line; ValueError when it is not one (a worker out of step)."""
+        try:
+            errors = message.get("errors") or {}
+            main = errors.get("main") or {}
+            threads = errors.get("threads") or [[0, 0, 0, 0]] * nslots
+            memory = errors.get("memory") or {}
+            report = cls(
+                pid=int(message["pid"]),
+                tids=tuple(int(t) for t in message["tids"]),
+                main=(int(main.get("sched", 0)), int(main.get("nice", 0)), int(main.get("cpus", 0))),
+                threads=tuple((int(a), int(b), int(c), int(d)) for a, b, c, d in threads),
+                memory_errno=int(memory.get("errno", 0)),
+                memory_message=str(memory.get("message", "")),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"malformed ready report: {type(exc).__name__}: {exc}") from None
+        if len(report.tids) != nslots or len(report.threads) != nslots:
+            raise ValueError(f"ready report for {len(report.tids)} threads, {nslots} expected")
+        return report
+
+    def errors(self, index: int) -> ApplyErrors:
+        """What slot `index` failed to apply; the main thread's policy errors come from the worker's own call."""
+        sched, nice, cpus, other = self.threads[index]
+        if index == 0:
+            sched, nice, cpus = self.main
+        return ApplyErrors(sched, nice, cpus, self.memory_errno, other)
+
+
+@dataclass(frozen=True)
+class RawThread:
+    """One planned thread as the shell found it."""
+
+    planned: PlannedThread
+    pid: int  # its process; 0 when the process never started
+    slot: SlotData
+    applied: Optional[Settings]  # read back from the kernel; None when it could not be read
+    errors: ApplyErrors
+    ready: bool  # its process reported ready (settings applied, threads created)
+
+
+@dataclass(frozen=True)
+class BackgroundProcess:
+    """A process of the background load, for the record."""
+
+    kind: str  # "hog" or "command"
+    name: str
+    pid: Optional[int]
+    argv: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """CLOCK_MONOTONIC instants (ns) of the cell; None for what never happened."""
+
+    began_ns: int  # the shell started on the cell
+    start_ns: Optional[int] = None  # the common start gate
+    end_ns: Optional[int] = None  # the planned end of the measured work
+    stopped_ns: Optional[int] = None  # the workers exited, or the interrupt came
+    ended_ns: int = 0  # everything was stopped and read back
+
+
+@dataclass(frozen=True)
+class RawCell:
+    """Everything the shell learned about one cell run."""
+
+    started_at: str  # wall-clock start, ISO 8601 UTC
+    threads: tuple[RawThread, ...]
+    processes: int  # measured process instances (names need the instance when there are several)
+    timeline: Timeline
+    table: tuple[ThreadRow, ...] = ()  # the mid-run snapshot of /proc, as ps shows it
+    failures: tuple[str, ...] = ()  # start failures, workers that died, the watchdog
+    incidents: tuple[str, ...] = ()  # background load that ended early, processes that were stopped
+    interrupted: bool = False
+    background: tuple[BackgroundProcess, ...] = field(default=())

@@ -1,0 +1,480 @@
+"""The process shell of a cell run: worker processes, background load, a common start, a hard deadline.
+
+The runner's Python code only orchestrates; measuring happens in the workers'
+native threads.  Deadlines are enforced by the native watchdog (an RT thread
+that needs no GIL), so a scenario that starves the runner's Python thread still
+cannot outlive its cell.  The shell decides nothing: it returns a `RawCell` of
+what the kernel and the native core recorded, and `evaluate` makes results of it.
+`KernelBackend` is the real `Backend` (backend.py) the session runs cells with.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import selectors
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any, Optional
+
+from runner.results.document import MachineInfo
+from runner.results.pstable import ThreadRow
+from runner.run import _probe, kernel, samples
+from runner.run.backend import CellOptions, Interrupted
+from runner.run.child import child_env, python_module
+from runner.run.guard import Guard
+from runner.run.machine import machine_info
+from runner.run.preflight import Permissions
+from runner.run.preflight import check as preflight_check
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, Timeline
+from runner.scenario.loader import ResolvedCell
+from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
+from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
+
+READY_TIMEOUT_S = 20.0
+SETTLE_S = 0.1          # background load runs this long before the measured start
+START_MARGIN_S = 0.02   # time for every worker to receive `go` before the common start
+STOP_GRACE_S = 2.0
+
+
+class KernelBackend:
+    """The real backend: this machine's kernel, permissions and processes, a watchdog and a guard."""
+
+    def __init__(self) -> None:
+        self.watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
+        self.guard = Guard()
+
+    def start_settings(self) -> Settings:
+        return kernel.current_settings()
+
+    def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
+        return preflight_check(scenarios, start, allow_degraded, allow_priority_99)
+
+    def machine(self) -> MachineInfo:
+        return machine_info()
+
+    def pid_width(self) -> int:
+        return kernel.pid_width()
+
+    def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
+        return run_cell(cell, folder, start, options, self.watchdog, self.guard)
+
+    def close(self) -> None:
+        self.watchdog.close()
+        self.guard.close()
+
+
+def work_tuple(work: Work) -> tuple[int, int, int, bool, int, int]:
+    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns)."""
+    if isinstance(work, PeriodicWork):
+        return (_probe.WORK_PERIODIC, work.period, work.burn, work.burn_clock is BurnClock.WALL, work.alloc, work.offset)
+    if isinstance(work, SpinWork):
+        return (_probe.WORK_SPIN, 0, 0, False, 0, 0)
+    return (_probe.WORK_SLEEP, 0, 0, False, 0, 0)
+
+
+def _sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
+    if sched is None:
+        return None
+    return [sched.policy.kernel_id, sched.rt_priority, sched.nice]
+
+
+@dataclass
+class Worker:
+    """A worker process and what the runner knows of it."""
+
+    label: str
+    spec: dict[str, Any]
+    samples_path: str
+    nslots: int
+    capacity: int
+    planned: list[PlannedThread]
+    measured: bool
+    log_path: str
+    popen: Optional[subprocess.Popen[str]] = None
+    ready: Optional[dict[str, Any]] = None
+    done: bool = False
+    poller: Optional[samples.Poller] = None
+    seen: list[int] = field(default_factory=list)
+
+    @property
+    def pid(self) -> int:
+        assert self.popen is not None
+        return self.popen.pid
+
+    def start(self, guard: Guard) -> None:
+        samples.create(self.samples_path, self.nslots, self.capacity)
+        log = open(self.log_path, "w")
+        self.popen = subprocess.Popen(
+            python_module("runner.run.worker"),
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
+            start_new_session=True, close_fds=True, cwd="/",
+            env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
+        )
+        log.close()
+        guard.watch(self.popen.pid)
+        assert self.popen.stdin is not None
+        self.popen.stdin.write(json.dumps(self.spec) + "\n")
+        self.popen.stdin.flush()
+
+    def send(self, line: str) -> None:
+        try:
+            assert self.popen is not None and self.popen.stdin is not None
+            self.popen.stdin.write(line + "\n")
+            self.popen.stdin.flush()
+        except (BrokenPipeError, OSError, ValueError):
+            pass
+
+    def signal(self, sig: int) -> None:
+        if self.popen is not None and self.popen.poll() is None:
+            try:
+                os.killpg(self.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+
+    def exit_reason(self) -> Optional[str]:
+        """Why the worker ended badly, or None if it exited cleanly."""
+        assert self.popen is not None
+        code = self.popen.returncode
+        if code is None or (code == 0 and self.done):
+            return None
+        if code < 0:
+            return f"{self.label} (pid {self.pid}) was killed by {signal.Signals(-code).name}"
+        tail = _tail(self.log_path)
+        return f"{self.label} (pid {self.pid}) exited with code {code}" + (f": {tail}" if tail else "")
+
+
+def _tail(path: str, lines: int = 3) -> str:
+    try:
+        with open(path) as handle:
+            text = handle.read().strip().splitlines()
+    except OSError:
+        return ""
+    return " | ".join(text[-lines:])
+
+
+def _capacity(threads: list[PlannedThread], duration_ns: int) -> int:
+    periods = [t.work.period for t in threads if isinstance(t.work, PeriodicWork)]
+    return max([16] + [duration_ns // p + 16 for p in periods])
+
+
+def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path: str, capacity: int) -> dict[str, Any]:
+    proc = next(p for p in scenario.processes if p.name == threads[0].process)
+    mem = proc.memory
+    return {
+        "comm": proc.name,
+        "samples": samples_path,
+        "capacity": capacity,
+        "all_cpus": kernel.online_cpus(),
+        "reset_on_fork": proc.reset_on_fork,
+        "memory": {"lock": mem.lock, "prealloc": mem.prealloc, "stack_size": mem.stack_size},
+        "main": {
+            "name": proc.main_name, "apply": proc.main.apply.value, "sched": _sched_json(proc.main.sched),
+            "cpus": list(proc.main.cpus) if proc.main.cpus else None, "work": work_tuple(proc.main.work),
+        },
+        "threads": [
+            {"name": spec_name, "explicit": not spec.inherit, "sched": _sched_json(spec.sched),
+             "cpus": list(spec.cpus) if spec.cpus else None, "work": work_tuple(spec.work)}
+            for spec in proc.threads for spec_name in spec.names()
+        ],
+    }
+
+
+def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
+    """Background hogs as workers: one spinning process each, or one process of spinning threads."""
+    out: list[Worker] = []
+    spin = work_tuple(SpinWork())
+    for h, hog in enumerate(scenario.background.hogs):
+        as_processes = hog.kind is HogKind.PROCESS
+        copies, threads = (hog.count, 0) if as_processes else (1, hog.count)
+        for i in range(copies):
+            path = os.path.join(folder, f"hog{h}-{i}.smp")
+            spec = {
+                "comm": hog.name, "samples": path, "capacity": 1, "all_cpus": kernel.online_cpus(), "memory": {},
+                "main": {"name": hog.name, "apply": "before_threads", "sched": _sched_json(hog.sched),
+                         "cpus": list(hog.cpus) if hog.cpus else None, "work": spin if as_processes else work_tuple(SleepWork())},
+                "threads": [{"name": hog.name, "work": spin} for _ in range(threads)],
+            }
+            out.append(Worker(f"hog {hog.name}[{i}]", spec, path, 1 + threads, 1, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
+    return out
+
+
+def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable[[], bool]) -> Optional[str]:
+    """Read each worker's ready line; return a reason on failure; raise Interrupted when asked to stop."""
+    sel = selectors.DefaultSelector()
+    pending = {}
+    for w in workers:
+        assert w.popen is not None and w.popen.stdout is not None
+        sel.register(w.popen.stdout, selectors.EVENT_READ, w)
+        pending[w.popen.stdout] = w
+    try:
+        while pending:
+            if stop_requested():
+                raise Interrupted()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
+            for key, _ in sel.select(timeout=min(left, 0.5)):
+                w = key.data
+                line = key.fileobj.readline()  # type: ignore[union-attr]
+                sel.unregister(key.fileobj)
+                del pending[key.fileobj]
+                if not line:
+                    w.popen.wait(timeout=5)
+                    return w.exit_reason() or f"{w.label} closed its output before getting ready"
+                msg = json.loads(line)
+                if not msg.get("ready"):
+                    return f"{w.label}: {msg.get('failed', 'could not get ready')}"
+                w.ready = msg
+    finally:
+        sel.close()
+    return None
+
+
+def _read_done(w: Worker) -> None:
+    assert w.popen is not None and w.popen.stdout is not None
+    try:
+        for line in w.popen.stdout:
+            if json.loads(line).get("done"):
+                w.done = True
+    except (ValueError, OSError):
+        pass
+
+
+def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
+    """Print new callbacks in the ros2-realtime-examples' log form."""
+    assert w.poller is not None
+    counts = w.poller.counts()
+    for t in w.planned:
+        if not is_periodic(t.work):
+            continue
+        while w.seen[t.index] < counts[t.index]:
+            s = w.poller.sample(t.index, w.seen[t.index])
+            w.seen[t.index] += 1
+            stamp = s.wake_ns + epoch_offset_ns
+            level = "WARN" if s.nivcsw else "INFO"
+            emit(f"[{level}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: Involuntary context switches: '{s.nivcsw}'")
+            if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
+                lvl = "WARN" if s.minflt or s.majflt else "INFO"
+                emit(f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
+
+
+def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
+    """Run one cell's processes and return what they left behind, interrupted or not.
+
+    An OSError creating the cell's files (a full disk, a folder that vanished) propagates
+    once every process the cell started is stopped; the caller decides what it means for the run.
+    """
+    run = _CellRun(cell, os.path.abspath(folder), start, options, watchdog, guard)
+    try:
+        run.start()
+        if not run.reason:
+            run.supervise()
+    except Interrupted:
+        run.interrupted = True
+        run.exit_time = run.exit_time or time.monotonic_ns()
+        for w in run.workers:
+            w.signal(signal.SIGKILL)
+    except OSError:
+        run.remove_buffers()  # the cell could not start (a full disk): leave nothing behind
+        raise
+    finally:
+        run.stop()
+    try:
+        return run.raw()
+    finally:
+        run.remove_buffers()
+
+
+class _CellRun:
+    """One cell's processes from start to collection: start, supervise, stop, collect, in that order."""
+
+    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard):
+        self.cell, self.folder, self.options, self.watchdog, self.guard = cell, folder, options, watchdog, guard
+        self.scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        os.makedirs(folder, exist_ok=True)
+        self.began = time.monotonic()
+        self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.planned = plan_scenario(self.scenario, start)
+        self.by_process: dict[tuple[str, int], list[PlannedThread]] = {}
+        for t in self.planned:
+            self.by_process.setdefault((t.process, t.instance), []).append(t)
+        self.workers: list[Worker] = []
+        for (proc, inst), threads in self.by_process.items():
+            cap = _capacity(threads, options.duration_ns)
+            path = os.path.join(folder, f"{proc}.{inst}.smp")
+            self.workers.append(Worker(f"process {proc}[{inst}]", _process_spec(threads, self.scenario, path, cap), path,
+                                       len(threads), cap, threads, True, os.path.join(folder, f"{proc}.{inst}.log")))
+        self.hogs = _hog_workers(self.scenario, folder)
+        self.commands: list[subprocess.Popen[bytes]] = []
+        self.table: list[ThreadRow] = []
+        self.applied: dict[int, Optional[Settings]] = {}
+        self.reason = ""
+        self.interrupted = False
+        self.exit_time: Optional[int] = None
+        self.t0: Optional[int] = None  # the common start instant, once the gate opened
+        self.t_end: Optional[int] = None
+        self.incidents: dict[str, str] = {}  # background load that died, processes that were stopped: by who
+
+    def start(self) -> None:
+        """Start every process; once all are ready, read back each thread's settings and start background commands."""
+        everyone = self.workers + self.hogs
+        for w in everyone:
+            w.start(self.guard)
+        self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
+        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
+        if self.reason:
+            return
+        every = kernel.online_cpus()
+        for w in self.workers:
+            assert w.ready is not None
+            for t, tid in zip(w.planned, w.ready["tids"]):
+                try:
+                    self.applied[id(t)] = kernel.thread_settings(tid, every)
+                except OSError:
+                    self.applied[id(t)] = None
+        for cmd in self.scenario.background.commands:
+            log = open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w")
+            try:
+                self.commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                                      start_new_session=True))
+                self.guard.watch(self.commands[-1].pid)
+            except OSError as exc:
+                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+            finally:
+                log.close()
+
+    def supervise(self) -> None:
+        """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
+        options, workers, hogs = self.options, self.workers, self.hogs
+        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands]
+        now = time.monotonic_ns()
+        t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
+        t_end = t0 + options.duration_ns
+        self.t0, self.t_end = t0, t_end
+        periods = [t.work.period for t in self.planned if isinstance(t.work, PeriodicWork)]
+        grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
+        self.watchdog.arm(t_end + grace + int(1e9), pids)
+        for h in hogs:
+            h.send(f"go {now} {t_end + grace}")
+        for w in workers:
+            w.send(f"go {t0} {t_end}")
+            w.poller = samples.Poller(w.samples_path, w.nslots, w.capacity)
+            w.seen = [0] * w.nslots
+        epoch_offset = time.time_ns() - time.monotonic_ns()
+        snapshot_at = (t0 + options.duration_ns // 2) / 1e9
+        total_expected = sum(options.duration_ns // t.work.period for t in self.planned if isinstance(t.work, PeriodicWork))
+        while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
+            time.sleep(0.05 if options.follow else 0.2)
+            if options.stop_requested():
+                raise Interrupted()
+            if not self.table and time.monotonic() >= snapshot_at:
+                self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
+            self._watch_for_incidents(t0, t_end)
+            if options.follow:
+                for w in workers:
+                    _follow_lines(w, epoch_offset, options.follow)
+            if options.progress:
+                done = sum(sum(w.poller.counts()) for w in workers)  # type: ignore[union-attr]
+                left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
+                options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
+        self.exit_time = time.monotonic_ns()
+        for w in workers:
+            if options.follow:
+                _follow_lines(w, epoch_offset, options.follow)
+            _read_done(w)
+
+    def remove_buffers(self) -> None:
+        """Delete the cell's sample buffers (their contents are in the results by now, or never will be)."""
+        for w in self.workers + self.hogs:
+            try:
+                os.unlink(w.samples_path)
+            except OSError:
+                pass
+
+    def _watch_for_incidents(self, t0: int, t_end: int) -> None:
+        """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
+        now = time.monotonic_ns()
+        if now >= t_end:
+            return
+        at = f"{max(0, now - t0) / 1e9:.1f}s into the cell"
+        for h in self.hogs:
+            assert h.popen is not None
+            code = h.popen.poll()
+            if code is not None and h.label not in self.incidents:
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
+        for n, c in enumerate(self.commands):
+            code = c.poll()
+            label = f"command {c.args[0] if isinstance(c.args, list) else c.args}[{n}]"
+            if code is not None and label not in self.incidents:
+                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
+        for w in self.workers + self.hogs:
+            assert w.popen is not None
+            if w.label not in self.incidents and kernel.process_state(w.pid) in ("T", "t"):
+                self.incidents[w.label] = (f"{w.label} (pid {w.pid}) was stopped (SIGSTOP or a debugger) {at}; "
+                                           "its threads could not run while it was")
+
+    def stop(self) -> None:
+        """Stop the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
+        for h in self.hogs:
+            h.signal(signal.SIGTERM)
+        for c in self.commands:
+            try:
+                os.killpg(c.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        stop_by = time.monotonic() + STOP_GRACE_S
+        for proc in [w.popen for w in self.workers + self.hogs if w.popen] + self.commands:
+            try:
+                proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                proc.wait()
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
+            except ProcessLookupError:
+                pass
+            self.guard.forget(proc.pid)
+        self.watchdog.disarm()
+        for w in self.workers:
+            if w.poller:
+                w.poller.close()
+
+    def raw(self) -> RawCell:
+        """Everything the processes left behind, read back: slots, settings, the table, what went wrong."""
+        failures: list[str] = [self.reason] if self.reason else []
+        if not self.reason and not self.interrupted:
+            failures += [r for w in self.workers if (r := w.exit_reason())]
+            if self.watchdog.fired:
+                failures.append("the cell overran its deadline and was killed by the watchdog")
+        threads: list[RawThread] = []
+        for w in self.workers:
+            slots = samples.read(w.samples_path, w.nslots, w.capacity)
+            report = _ready_report(w)
+            for t, slot in zip(w.planned, slots):
+                errors = report.errors(t.index) if report else ApplyErrors()
+                threads.append(RawThread(t, w.pid if w.popen else 0, slot, self.applied.get(id(t)), errors, report is not None))
+        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
+        background += [BackgroundProcess("command", str(c.args[0]), c.pid, tuple(str(a) for a in c.args)) for c in self.commands]
+        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
+        return RawCell(self.started_at, tuple(threads), len(self.by_process), timeline, tuple(self.table), tuple(failures),
+                       tuple(self.incidents.values()), self.interrupted, tuple(background))
+
+
+def _ready_report(w: Worker) -> Optional[ReadyReport]:
+    """The worker's ready report, typed; None when it never got ready (or sent something else)."""
+    if w.ready is None:
+        return None
+    try:
+        return ReadyReport.parse(w.ready, w.nslots)
+    except ValueError:
+        return None

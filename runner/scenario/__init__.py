@@ -1,0 +1,1 @@
+"""The scenario stage: YAML text to typed, validated, expanded cells and their planned threads."""

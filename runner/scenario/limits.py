@@ -1,0 +1,266 @@
+"""Limits a scenario must stay within: fixed ceilings, and the facts of the machine it would run on.
+
+Two kinds of limit, kept apart so validation stays testable:
+
+* Ceilings (`model.MAX_*`): bounds no real scenario comes near (a 1 h period, a 1 TiB size),
+  checked by the model on every machine; `static_check` adds the one that spans a cell
+  (its thread count).
+* `MachineLimits`: what this machine allows (pid_max, threads-max, RLIMIT_MEMLOCK,
+  MemAvailable, the CPUs the runner may use).  `MachineLimits.read()` does the /proc and
+  resource I/O; `check()` is pure and takes the limits as an argument, so tests pass fake
+  limits (a tiny pid_max) without touching the machine.  Its findings are errors *for this
+  machine* and say so: "on this machine (pid_max 32768)".
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+from dataclasses import dataclass, field
+
+from runner import units
+from runner.scenario.model import HogKind, PeriodicWork, ProcessSpec, Scenario
+
+Path = tuple[str | int, ...]
+
+MAX_THREADS = 1 << 17  # threads of one cell, hogs included: far above any scenario, below the kernel maximum
+RUNNER_THREADS = 8  # the runner's own threads and helpers, counted so a cell at the limit still starts
+
+CAP_IPC_LOCK = 14
+_CAP_SYS_ADMIN = 21
+_CAP_SYS_RESOURCE = 24
+
+
+@dataclass(frozen=True)
+class MachineLimits:
+    """What this machine lets a cell use; None where a limit is absent (unlimited) or cannot be read."""
+
+    pid_max: int | None = None  # /proc/sys/kernel/pid_max: thread ids are pids
+    threads_max: int | None = None  # /proc/sys/kernel/threads-max: threads system-wide
+    threads_running: int = 0  # threads that exist already (/proc/loadavg), they share both limits
+    cgroup_pids_max: int | None = None  # pids.max of the runner's cgroup (containers)
+    nproc: int | None = None  # RLIMIT_NPROC soft limit; None: unlimited or not enforced (root)
+    memlock: int | None = None  # RLIMIT_MEMLOCK soft limit in bytes; None: unlimited or CAP_IPC_LOCK
+    cap_ipc_lock: bool = False
+    mem_available: int | None = None  # MemAvailable from /proc/meminfo, bytes
+    default_stack: int = 8 << 20  # default thread stack (glibc takes RLIMIT_STACK, 2 MiB if unlimited)
+    cpus: tuple[int, ...] | None = None  # CPUs the runner may use (its affinity)
+
+    @classmethod
+    def read(cls) -> MachineLimits:
+        """Read the limits of this machine and this process (/proc, getrlimit, affinity)."""
+        caps = _capabilities()
+        root_like = os.geteuid() == 0 or bool(caps >> _CAP_SYS_ADMIN & 1) or bool(caps >> _CAP_SYS_RESOURCE & 1)
+        ipc_lock = bool(caps >> CAP_IPC_LOCK & 1)
+        stack = _rlimit(resource.RLIMIT_STACK)
+        loadavg = _read("/proc/loadavg").split()
+        running = loadavg[3].partition("/")[2] if len(loadavg) > 3 else ""
+        try:
+            cpus: tuple[int, ...] | None = tuple(sorted(os.sched_getaffinity(0)))
+        except OSError:
+            cpus = None
+        return cls(
+            pid_max=_read_int("/proc/sys/kernel/pid_max"),
+            threads_max=_read_int("/proc/sys/kernel/threads-max"),
+            threads_running=int(running) if running.isdigit() else 0,
+            cgroup_pids_max=_cgroup_pids_max(),
+            nproc=None if root_like else _rlimit(resource.RLIMIT_NPROC),
+            memlock=None if ipc_lock else _rlimit(resource.RLIMIT_MEMLOCK),
+            cap_ipc_lock=ipc_lock,
+            mem_available=_meminfo("MemAvailable"),
+            default_stack=stack if stack is not None and stack > 0 else 2 << 20,
+            cpus=cpus,
+        )
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A limit a cell goes past: where in the scenario, and what to do about it."""
+
+    path: Path
+    message: str
+
+
+@dataclass
+class _Tally:
+    """Threads and memory a cell needs, counted once."""
+
+    threads: int = 0
+    resident: int = 0
+    parts: list[str] = field(default_factory=list)
+
+
+def cell_threads(scenario: Scenario) -> int:
+    """Threads a cell creates: every instance's main thread and threads, and the hogs."""
+    total = sum(proc.instances * (1 + sum(t.count for t in proc.threads)) for proc in scenario.processes)
+    for hog in scenario.background.hogs:
+        total += hog.count if hog.kind is HogKind.PROCESS else 1 + hog.count
+    return total + len(scenario.background.commands)
+
+
+def locked_bytes(proc: ProcessSpec, default_stack: int) -> int:
+    """What mlockall(MCL_CURRENT|MCL_FUTURE) pins in one instance: the preallocated heap and every thread stack."""
+    stack = proc.memory.stack_size if proc.memory.stack_size is not None else default_stack
+    return proc.memory.prealloc + stack * sum(t.count for t in proc.threads)
+
+
+def resident_bytes(proc: ProcessSpec, default_stack: int) -> int:
+    """Memory one instance keeps resident at its peak: locked memory, or prealloc, plus every callback's alloc."""
+    held = locked_bytes(proc, default_stack) if proc.memory.lock else proc.memory.prealloc
+    works = [(proc.main.work, 1)] + [(t.work, t.count) for t in proc.threads]
+    return held + sum(work.alloc * n for work, n in works if isinstance(work, PeriodicWork))
+
+
+def static_check(scenario: Scenario) -> list[Finding]:
+    """Ceilings that hold on every machine (no limits needed): the thread count of a cell."""
+    threads = cell_threads(scenario)
+    if threads > MAX_THREADS:
+        return [Finding(("processes",), f"the cell creates {threads} threads (instances x threads, and hogs); "
+                                       f"at most {MAX_THREADS} threads in a cell")]
+    return []
+
+
+def check(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    """Everything in one cell that this machine cannot provide; pure, the limits are given."""
+    out = _check_threads(scenario, limits) or static_check(scenario)  # this machine's limit is the one to name
+    out.extend(_check_memory(scenario, limits))
+    out.extend(_check_cpus(scenario, limits))
+    return out
+
+
+def _check_threads(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    needed = cell_threads(scenario) + RUNNER_THREADS
+    bounds: list[tuple[int, str]] = []
+    if limits.pid_max is not None:
+        bounds.append((limits.pid_max - limits.threads_running, f"pid_max {limits.pid_max}"))
+    if limits.threads_max is not None:
+        bounds.append((limits.threads_max - limits.threads_running, f"threads-max {limits.threads_max}"))
+    if limits.cgroup_pids_max is not None:
+        bounds.append((limits.cgroup_pids_max - limits.threads_running, f"cgroup pids.max {limits.cgroup_pids_max}"))
+    if limits.nproc is not None:
+        bounds.append((limits.nproc - limits.threads_running, f"RLIMIT_NPROC {limits.nproc}"))
+    if not bounds:
+        return []
+    room, named = min(bounds)
+    if needed <= room:
+        return []
+    return [Finding(("processes",), (
+        f"the cell needs {needed} threads (instances x threads, hogs and the runner's own {RUNNER_THREADS}), "
+        f"but on this machine ({named}, {limits.threads_running} threads running) at most {max(room, 0)} can start; "
+        "lower count or instances"))]
+
+
+def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    out: list[Finding] = []
+    for i, proc in enumerate(scenario.processes):
+        if not proc.memory.lock or limits.memlock is None:
+            continue
+        pinned = locked_bytes(proc, limits.default_stack)
+        if pinned > limits.memlock:
+            stacks = sum(t.count for t in proc.threads)
+            what = f"prealloc {units.format_size(proc.memory.prealloc)}" + (f" and {stacks} thread stacks" if stacks else "")
+            out.append(Finding(("processes", i, "memory"), (
+                f"process {proc.name} locks its memory: {what} pin at least {approx_size(pinned)}, "
+                f"but on this machine RLIMIT_MEMLOCK is {approx_size(limits.memlock)} and the runner has no "
+                "CAP_IPC_LOCK; lower prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', "
+                "'memlock unlimited' in /etc/security/limits.conf)")))
+    if limits.mem_available is not None:
+        total = sum(proc.instances * resident_bytes(proc, limits.default_stack) for proc in scenario.processes)
+        if total > limits.mem_available:
+            out.append(Finding(("processes",), (
+                f"the cell keeps {approx_size(total)} resident (prealloc, locked stacks and per-callback alloc, "
+                f"times instances and counts), but on this machine MemAvailable is "
+                f"{approx_size(limits.mem_available)}; lower prealloc, alloc, count or instances")))
+    return out
+
+
+def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    if limits.cpus is None:
+        return []
+    allowed = set(limits.cpus)
+    out: list[Finding] = []
+    wanted: list[tuple[Path, tuple[int, ...] | None]] = []
+    for i, proc in enumerate(scenario.processes):
+        wanted.append((("processes", i, "main", "cpus"), proc.main.cpus))
+        wanted.extend((("processes", i, "threads", j, "cpus"), t.cpus) for j, t in enumerate(proc.threads))
+    wanted.extend((("background", "hogs", h, "cpus"), hog.cpus) for h, hog in enumerate(scenario.background.hogs))
+    for path, cpus in wanted:
+        if cpus is not None and not set(cpus) <= allowed:
+            missing = sorted(set(cpus) - allowed)
+            noun = f"CPU {missing[0]} is" if len(missing) == 1 else f"CPUs {units.format_cpus(missing)} are"
+            out.append(Finding(path, f"{noun} not available on this machine (the runner may use "
+                                     f"{units.format_cpus(limits.cpus)})"))
+    return out
+
+
+def approx_size(nbytes: int) -> str:
+    """A size for a message: exact when it is a whole unit (`8MiB`), else to a tenth (`23.1GiB`)."""
+    exact = units.format_size(nbytes)
+    if len(exact) <= 8:
+        return exact
+    for unit in ("TiB", "GiB", "MiB", "KiB"):
+        if nbytes >= units.BYTES_PER[unit]:
+            return f"{nbytes / units.BYTES_PER[unit]:.1f}{unit}"
+    return exact
+
+
+# ------------------------------------------------------------------------------------- I/O
+
+
+def _read(path: str) -> str:
+    try:
+        with open(path, encoding="ascii", errors="replace") as handle:
+            return handle.read(65536)
+    except OSError:
+        return ""
+
+
+def _read_int(path: str) -> int | None:
+    text = _read(path).strip()
+    return int(text) if text.isdigit() else None
+
+
+def _rlimit(which: int) -> int | None:
+    try:
+        soft = resource.getrlimit(which)[0]
+    except (OSError, ValueError):
+        return None
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
+def _capabilities() -> int:
+    for line in _read("/proc/self/status").splitlines():
+        if line.startswith("CapEff:"):
+            try:
+                return int(line.split()[1], 16)
+            except (IndexError, ValueError):
+                return 0
+    return 0
+
+
+def _meminfo(key: str) -> int | None:
+    for line in _read("/proc/meminfo").splitlines():
+        name, _, rest = line.partition(":")
+        if name == key:
+            number = rest.split()[0] if rest.split() else ""
+            return int(number) * 1024 if number.isdigit() else None
+    return None
+
+
+def _cgroup_pids_max() -> int | None:
+    """pids.max of this process's cgroup (v2, or the v1 pids controller); None when unlimited or absent."""
+    for line in _read("/proc/self/cgroup").splitlines():
+        parts = line.split(":", 2)
+        if len(parts) != 3:
+            continue
+        hierarchy, controllers, where = parts
+        if hierarchy == "0" and controllers == "":
+            candidate = os.path.join("/sys/fs/cgroup", where.lstrip("/"), "pids.max")
+        elif "pids" in controllers.split(","):
+            candidate = os.path.join("/sys/fs/cgroup/pids", where.lstrip("/"), "pids.max")
+        else:
+            continue
+        value = _read_int(candidate)
+        if value is not None:
+            return value
+    return None

@@ -1,0 +1,228 @@
+"""Load a scenario file into fully resolved, validated cells.
+
+This is the one entry point the rest of the runner uses: YAML (with positions) ->
+matrix expansion -> per-cell substitution -> typed `Scenario` per cell -> checks
+that span fields (expectation targets, names, matrix selectors) -> limits (fixed
+ceilings, and this machine's when `load_scenario` reads them).  Every problem in the
+file is collected and raised at once.
+
+Validation is linear in the number of cells: cells that resolve to the same data are
+validated once, and what spans the matrix (selector keys and values) is indexed once
+rather than searched per cell.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import TypeAdapter, ValidationError
+
+from runner.errors import Problem, ScenarioError, did_you_mean
+from runner.scenario import limits as lim
+from runner.scenario import matrix as mx
+from runner.scenario.model import Expectation, ProcessSpec, Scenario, metric_figure
+from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
+from runner.scenario.validate import problems_from
+from runner.scenario.yamlsource import Document, load_file
+
+
+@dataclass(frozen=True)
+class ResolvedCell:
+    """One cell: matrix values, the validated scenario, and a hash of its resolved spec."""
+
+    id: str
+    matrix: dict[str, mx.MatrixValue]
+    scenario: Scenario
+    spec_hash: str
+
+
+@dataclass
+class LoadedScenario:
+    """A scenario file, validated: its cells in run order and any warnings."""
+
+    path: str
+    name: str
+    cells: list[ResolvedCell]
+    warnings: list[Problem] = field(default_factory=list)
+
+    @property
+    def description(self) -> str:
+        return self.cells[0].scenario.description
+
+
+def spec_json(scenario: Scenario) -> dict[str, Any]:
+    """What defines a resolved cell's run: everything but its description, matrix and expectations."""
+    return scenario.model_dump(mode="json", exclude={"description", "matrix", "expect"})
+
+
+def spec_hash(scenario: Scenario) -> str:
+    """A short content hash of a resolved cell, to refuse comparing cells that differ."""
+    text = json.dumps(spec_json(scenario), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+_PROCESSES = TypeAdapter(list[ProcessSpec])
+_NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
+
+
+@dataclass(frozen=True)
+class MatrixIndex:
+    """What expectation selectors are checked against, computed once per file: keys and their values."""
+
+    keys: list[str]
+    values: dict[str, dict[str, None]]  # key -> written values, in cell order
+
+    @classmethod
+    def of(cls, cells: list[mx.Cell]) -> MatrixIndex:
+        values: dict[str, dict[str, None]] = {}
+        for cell in cells:
+            for key, value in cell.values.items():
+                values.setdefault(key, {})[mx.format_value(value)] = None
+        return cls(sorted(values), values)
+
+
+def load_scenario(path: str, machine: lim.MachineLimits | None = None) -> LoadedScenario:
+    """Read, validate and expand a scenario file, checked against this machine's limits
+    (read here unless given); raise ScenarioError with all problems."""
+    doc = load_file(path)
+    return parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read())
+
+
+def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> LoadedScenario:
+    """Validate and expand an already loaded document (pure); `machine` adds that machine's limits."""
+    data = doc.data
+    if not isinstance(data, dict):
+        raise ScenarioError([doc.problem((), f"expected a scenario mapping (name, processes, ...), got {type(data).__name__}")])
+    problems: list[Problem] = []
+    warnings: list[Problem] = []
+    spec = mx.parse(doc, data.get("matrix"), problems)
+    mx.check_references(doc, data, spec, problems)
+    cells = mx.expand(doc, spec, problems, warnings) if not problems else []
+    if problems:
+        raise ScenarioError(problems + warnings)
+
+    default_name = os.path.splitext(os.path.basename(doc.file))[0]
+    index = MatrixIndex.of(cells)
+    found: dict[Problem, list[str]] = {}
+    resolved: list[ResolvedCell] = []
+    checked: dict[str, tuple[Scenario | None, list[Problem], str]] = {}
+    for cell in cells:
+        raw = mx.substitute(data, cell.values)
+        raw.setdefault("name", default_name)
+        key = json.dumps(raw, sort_keys=True)
+        if key not in checked:  # cells that resolve alike (an axis only selectors use) are checked once
+            checked[key] = _check_cell(doc, raw, index, machine)
+        scenario, cell_problems, digest = checked[key]
+        if scenario is not None and not cell_problems:
+            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest))
+        for problem in cell_problems:
+            found.setdefault(problem, []).append(cell.id)
+
+    for problem, where in found.items():
+        if len(cells) > 1 and len(where) < len(cells):
+            problem = Problem(problem.file, problem.line, problem.col, problem.path,
+                              problem.message + _cells_note(where, len(cells)))
+        problems.append(problem)
+    if problems:
+        raise ScenarioError(problems + warnings)
+    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
+
+
+def _check_cell(doc: Document, raw: dict[str, Any], index: MatrixIndex,
+                machine: lim.MachineLimits | None) -> tuple[Scenario | None, list[Problem], str]:
+    """Validate one resolved cell: the model, cross-field checks, ceilings and (if given) this machine's limits."""
+    cell_problems: list[Problem] = []
+    for path, expr in mx.unresolved(raw):
+        cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
+    try:
+        scenario = Scenario.model_validate(raw)
+    except ValidationError as exc:
+        cell_problems.extend(problems_from(exc, doc, raw, Scenario))
+        cell_problems.extend(_partial_cross_checks(doc, raw, index))
+        return None, cell_problems, ""
+    cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index))
+    findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
+    cell_problems.extend(doc.problem(f.path, f.message) for f in findings)
+    return scenario, cell_problems, spec_hash(scenario)
+
+
+def _cells_note(where: list[str], total: int) -> str:
+    """` (in cell X)` / ` (in 3 of 8 cells: a; b; c)` / `(in 900 of 4096 cells: a; b; c; and 897 more)`."""
+    if len(where) == 1:
+        return f" (in cell {where[0]})"
+    named = "; ".join(where[:_NOTE_CELLS])
+    more = f"; and {len(where) - _NOTE_CELLS} more" if len(where) > _NOTE_CELLS else ""
+    return f" (in {len(where)} of {total} cells: {named}{more})"
+
+
+def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex) -> list[Problem]:
+    """Cross-field checks on the parts that did validate, so one bad field does not hide the rest."""
+    try:
+        processes = _PROCESSES.validate_python(raw.get("processes"))
+    except ValidationError:
+        return []
+    expectations = []
+    for i, item in enumerate(raw.get("expect") or [] if isinstance(raw.get("expect"), list) else []):
+        try:
+            expectations.append((i, Expectation.model_validate(item)))
+        except ValidationError:
+            continue
+    return _cross_checks(doc, processes, expectations, index)
+
+
+def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]],
+                  index: MatrixIndex) -> list[Problem]:
+    """Checks that span several fields: unique names, expectation targets and selectors."""
+    out: list[Problem] = []
+    seen: set[str] = set()
+    for i, proc in enumerate(processes):
+        if proc.name in seen:
+            out.append(doc.problem(("processes", i, "name"), f"process name {proc.name!r} is used twice; use instances: N for copies"))
+        seen.add(proc.name)
+    planned = [t for proc in processes for t in plan_process(proc, Settings())]
+    names: dict[str, list[str]] = {}
+    for t in planned:
+        names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
+    every = sorted({n for group in names.values() for n in group})
+    keys = index.keys
+    for i, exp in expectations:
+        path: tuple[Any, ...] = ("expect", i)
+        targets = match_threads(planned, exp.thread)
+        proc, sep, thread = exp.thread.rpartition("/")
+        if sep and proc not in names:
+            out.append(doc.problem(path + ("thread",), f"no process named {proc!r}{did_you_mean(proc, names)}"))
+        elif not targets:
+            pool = names.get(proc, []) if sep else every
+            out.append(doc.problem(path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"))
+        elif metric_figure(exp.metric).needs_callbacks and not any(is_periodic(t.work) for t in targets):
+            out.append(doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work"))
+        for key, wanted in exp.cells.items():
+            if key not in keys:
+                known = ", ".join(keys) if keys else "none (there is no matrix)"
+                out.append(doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True))
+                continue
+            for value in wanted if isinstance(wanted, list) else [wanted]:
+                if mx.format_value(value) not in index.values[key]:
+                    values = sorted(index.values[key])
+                    out.append(doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}"))
+    return out
+
+
+def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:
+    """Indexes of the scenario's expectations that apply to `cell`."""
+    values = cell.values if isinstance(cell, mx.Cell) else cell.matrix
+    probe = mx.Cell("x", values)
+    return [i for i, exp in enumerate(scenario.expect) if not exp.cells or mx.select([probe], exp.cells)]
+
+
+def match_threads(planned: list[PlannedThread], target: str) -> list[PlannedThread]:
+    """Threads an expectation's `thread` names: `name` or `process/name`; numbered threads match their base name.
+
+    Metrics measured per callback only apply to threads that run periodic work.
+    """
+    proc, sep, name = target.rpartition("/")
+    return [t for t in planned if (not sep or t.process == proc) and name in (t.name, t.spec_name)]

@@ -1,0 +1,595 @@
+"""The scenario model: what a scenario can say, as typed, validated objects.
+
+One cell of a scenario (matrix values already substituted) validates into a
+`Scenario`.  Everything here is pure: pydantic models with enums and integer units
+(nanoseconds, bytes), no I/O.  The same models export the JSON Schema that editors
+use to autocomplete and underline scenario files (`runner schema`).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import os
+import re
+import unicodedata
+from typing import Annotated, Any, Literal, Optional, Union
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
+
+from runner import figures, units
+
+COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
+
+# Ceilings no real scenario comes near.  They turn absurd input (`period: 2000000h`, a 400-digit
+# size) into a message that names the bound, instead of a run that fails or never ends.  What
+# depends on the machine (RAM, RLIMIT_MEMLOCK, pid_max) is checked in runner.limits.
+NS_PER_HOUR = 3_600_000_000_000
+MIN_RUN, MAX_RUN = 100_000_000, 24 * NS_PER_HOUR  # a cell's run time
+MIN_PERIOD, MAX_PERIOD = 50_000, NS_PER_HOUR  # released less than hourly is not a real-time callback
+MAX_OFFSET = NS_PER_HOUR
+MAX_LATENCY_LIMIT = NS_PER_HOUR  # a latency bound above an hour checks nothing
+MAX_ANY_SIZE = 1 << 40  # 1 TiB: above the RAM of any machine the runner is used on
+MIN_STACK, MAX_STACK = 16 << 10, 1 << 30  # per thread; the usual default is 8 MiB
+MAX_THREAD_COUNT, MAX_INSTANCES, MAX_HOGS = 1024, 64, 256
+
+
+def _unit(parse: Any, ceiling: int | None = None, fmt: Any = None) -> Any:
+    """A pydantic before-validator parsing a unit value, refusing values above `ceiling`.
+
+    Durations need no ceiling here: every duration field has its own range check.
+    """
+
+    def check(value: Any) -> Any:
+        try:
+            parsed = parse(value)
+        except units.UnitError as exc:
+            raise ValueError(str(exc)) from None
+        if ceiling is not None and parsed > ceiling:
+            raise ValueError(f"{fmt(parsed)} is too large; at most {fmt(ceiling)}")
+        return parsed
+
+    return check
+
+
+def control_character(text: str, allowed: str = "") -> str | None:
+    """The first control, format or line-separator character in `text` (not in `allowed`), or None.
+
+    A newline or an escape sequence in a name or label ends up in terminals, ps output and
+    report headings, where it breaks lines or injects text; such characters are refused.
+    """
+    if text.isprintable():  # no character of the categories below is printable: the common case is quick
+        return None
+    for char in text:
+        if char not in allowed and (unicodedata.category(char) in ("Cc", "Cf", "Cs", "Zl", "Zp")):
+            return char
+    return None
+
+
+def _no_control(what: str, allowed: str = "") -> Any:
+    def check(value: Any) -> Any:
+        if isinstance(value, str):
+            char = control_character(value, allowed)
+            if char is not None:
+                raise ValueError(f"{what} {value!r} contains the control character {char!r}; remove it")
+        return value
+
+    return check
+
+
+_DURATION_SCHEMA = {"type": "string", "pattern": r"^[0-9.]+\s*(ns|us|µs|ms|s|m|h)$", "examples": ["100ms", "40ms", "1.5s"]}
+_SIZE_SCHEMA = {"type": "string", "pattern": r"^[0-9.]+\s*(B|KiB|MiB|GiB|TiB)$", "examples": ["50MiB", "200KiB"]}
+_CPUS_SCHEMA = {
+    "anyOf": [
+        {"type": "array", "items": {"type": "integer", "minimum": 0}, "minItems": 1},
+        {"type": "integer", "minimum": 0},
+        {"type": "string", "pattern": r"^(\d+(-\d+)?(,\d+(-\d+)?)*|0[bB][01_]+|0[xX][0-9a-fA-F_]+)$"},
+    ],
+    "examples": ["0-1", [1], "0b10"],
+}
+
+Duration = Annotated[
+    int,
+    BeforeValidator(_unit(units.parse_duration)),
+    PlainSerializer(units.format_duration, return_type=str),
+    WithJsonSchema(_DURATION_SCHEMA),
+]
+"""A duration in nanoseconds, written with a unit (`100ms`)."""
+
+Size = Annotated[
+    int,
+    BeforeValidator(_unit(units.parse_size, MAX_ANY_SIZE, units.format_size)),
+    PlainSerializer(units.format_size, return_type=str),
+    WithJsonSchema(_SIZE_SCHEMA),
+]
+"""A size in bytes, written with a unit (`50MiB`)."""
+
+CpuSet = Annotated[
+    tuple[int, ...],
+    BeforeValidator(_unit(units.parse_cpus)),
+    PlainSerializer(units.format_cpus, return_type=str),
+    WithJsonSchema(_CPUS_SCHEMA),
+]
+"""A set of CPU numbers, written as a list, `0-1,3` or a mask `0b1100`."""
+
+
+class Strict(BaseModel):
+    """Base of every scenario model: unknown keys are errors, objects are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, use_enum_values=False)
+
+
+class Policy(str, enum.Enum):
+    """Linux scheduling policies, by the kernel's numbers (see sched(7))."""
+
+    OTHER = "other"
+    FIFO = "fifo"
+    RR = "rr"
+    BATCH = "batch"
+    IDLE = "idle"
+    DEADLINE = "deadline"
+
+    @property
+    def kernel_id(self) -> int:
+        return {"other": 0, "fifo": 1, "rr": 2, "batch": 3, "idle": 5, "deadline": 6}[self.value]
+
+    @property
+    def is_realtime(self) -> bool:
+        return self in (Policy.FIFO, Policy.RR)
+
+    @classmethod
+    def from_kernel(cls, number: int) -> Policy:
+        for policy in cls:
+            if policy.kernel_id == number:
+                return policy
+        raise ValueError(f"unknown kernel scheduling policy {number}")
+
+
+POLICY_WORDS = ["other", "fifo", "rr", "batch", "idle"]
+
+
+def _policy_name(text: str) -> str:
+    word = text.strip().lower()
+    if word.startswith("sched_"):
+        word = word[len("sched_"):]
+    if word == "normal":
+        word = "other"
+    return word
+
+
+def _sched_shorthand(value: Any) -> Any:
+    """Accept `fifo`, `FIFO`, `SCHED_FIFO` and `fifo:80` as well as the mapping form."""
+    if isinstance(value, str):
+        policy, sep, priority = value.partition(":")
+        out: dict[str, Any] = {"policy": _policy_name(policy)}
+        if sep:
+            try:
+                out["priority"] = int(priority)
+            except ValueError:
+                raise ValueError(f"priority {priority!r} in {value!r} is not an integer; write e.g. 'fifo:80'") from None
+        return out
+    if isinstance(value, dict) and isinstance(value.get("policy"), str):
+        return {**value, "policy": _policy_name(value["policy"])}
+    return value
+
+
+class Sched(Strict):
+    """Scheduling settings: a policy with its RT priority (fifo, rr) or nice value (other, batch)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": ["fifo:80", "SCHED_RR", {"policy": "other", "nice": -5}]})
+
+    policy: Policy = Field(description="other, batch, idle, fifo or rr (SCHED_ prefix and upper case accepted)")
+    priority: Optional[int] = Field(None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
+    nice: Optional[int] = Field(None, ge=-20, le=19, description="nice value -20..19 for other and batch")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        return _sched_shorthand(value)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Sched:
+        policy = self.policy
+        if policy is Policy.DEADLINE:
+            raise ValueError("policy 'deadline' is not supported yet; use fifo or rr for real-time threads")
+        if policy.is_realtime:
+            if self.priority is None:
+                raise ValueError(f"policy {policy.value} needs a priority 1..99, e.g. '{policy.value}:80'")
+            if not 1 <= self.priority <= 99:
+                raise ValueError(f"priority {self.priority} is out of range for {policy.value}; expected 1..99")
+            if self.nice is not None:
+                raise ValueError(f"nice does not apply to {policy.value}; nice is for other and batch")
+        else:
+            if self.priority not in (None, 0):
+                raise ValueError(
+                    f"an RT priority ({self.priority}) needs a real-time policy; use fifo:{self.priority} or "
+                    f"rr:{self.priority}, or a nice value for {policy.value}"
+                )
+            if policy is Policy.IDLE and self.nice not in (None, 0):
+                raise ValueError("policy idle takes no nice value")
+        return self
+
+    @property
+    def rt_priority(self) -> int:
+        return self.priority or 0
+
+    def label(self) -> str:
+        """Compact form: `fifo:80`, `other`, `other nice=-5`."""
+        text = f"{self.policy.value}:{self.priority}" if self.policy.is_realtime else self.policy.value
+        if self.nice:
+            text += f" nice={self.nice}"
+        return text
+
+
+# --------------------------------------------------------------------------- work
+
+
+class BurnClock(str, enum.Enum):
+    """What a callback's burn measures: the thread's own CPU time (as the seed) or wall time."""
+
+    THREAD_CPU = "thread_cpu"
+    WALL = "wall"
+
+
+class PeriodicWork(Strict):
+    """A periodic callback on absolute deadlines, as a ROS 2 wall timer: wake, burn, allocate, sleep."""
+
+    kind: Literal["periodic"] = "periodic"
+    period: Duration = Field(description="time between callback releases")
+    burn: Duration = Field(0, description="CPU time burned per callback (0: wake-up only, as cyclictest)")
+    burn_clock: BurnClock = Field(BurnClock.THREAD_CPU, description="thread_cpu (the seed's burn) or wall")
+    alloc: Size = Field(0, description="memory to allocate, touch page by page and free per callback")
+    offset: Duration = Field(0, description="delay of the first release after the common start")
+
+    @model_validator(mode="after")
+    def _fits(self) -> PeriodicWork:
+        if self.period < MIN_PERIOD:
+            raise ValueError(f"period {units.format_duration(self.period)} is too short; at least 50us")
+        if self.period > MAX_PERIOD:
+            raise ValueError(f"period {units.format_duration(self.period)} is too long; at most "
+                             f"{units.format_duration(MAX_PERIOD)} (a callback released less often is not real-time work)")
+        if self.offset > MAX_OFFSET:
+            raise ValueError(f"offset {units.format_duration(self.offset)} is too long; at most {units.format_duration(MAX_OFFSET)}")
+        if self.burn >= self.period:
+            raise ValueError(
+                f"burn {units.format_duration(self.burn)} does not fit in period {units.format_duration(self.period)};"
+                " use kind: spin for a thread that never sleeps"
+            )
+        return self
+
+
+class SpinWork(Strict):
+    """Busy spinning for the whole run: a thread that never sleeps (a hog, a polling loop)."""
+
+    kind: Literal["spin"] = "spin"
+
+
+class SleepWork(Strict):
+    """No work: the thread blocks until the run ends (idle middleware threads, a main thread that joins)."""
+
+    kind: Literal["sleep"] = "sleep"
+
+
+def _work_shorthand(value: Any) -> Any:
+    if isinstance(value, str):
+        return {"kind": value}
+    return value
+
+
+Work = Annotated[
+    Union[PeriodicWork, SpinWork, SleepWork],
+    Field(discriminator="kind"),
+    BeforeValidator(_work_shorthand),
+]
+"""What a thread runs; `kind` selects it.  New kinds (rt-app-like phases) add members here."""
+
+
+# ------------------------------------------------------------------------ threads
+
+
+def _check_comm(name: str) -> str:
+    if not name:
+        raise ValueError("a name cannot be empty")
+    if len(name.encode()) > COMM_MAX:
+        raise ValueError(
+            f"name {name!r} is {len(name.encode())} bytes; the kernel keeps {COMM_MAX} "
+            f"(it would show as {name.encode()[:COMM_MAX].decode(errors='ignore')!r})"
+        )
+    char = control_character(name)
+    if char is not None or re.search(r"[\s/]", name):
+        found = char if char is not None else re.findall(r"[\s/]", name)[0]
+        raise ValueError(f"name {name!r} may not contain spaces, '/' or control characters (found {found!r})")
+    return name
+
+
+class ApplyWhen(str, enum.Enum):
+    """When the main thread applies its settings, relative to creating its threads."""
+
+    BEFORE_THREADS = "before_threads"
+    AFTER_THREADS = "after_threads"
+
+
+class MainThread(Strict):
+    """The process's main thread (named as the process): its settings, when it applies them, and its work."""
+
+    sched: Optional[Sched] = Field(None, description="scheduling settings of the main thread")
+    cpus: Optional[CpuSet] = Field(None, description="CPU affinity of the main thread")
+    apply: ApplyWhen = Field(
+        ApplyWhen.BEFORE_THREADS,
+        description="before_threads: threads created later inherit (chrt, middleware_threads); "
+        "after_threads: they keep the old settings (main_thread)",
+    )
+    work: Work = Field(default_factory=SleepWork, description="what the main thread runs after creating its threads")
+
+
+class ThreadSpec(Strict):
+    """A thread created by the main thread, in declared order."""
+
+    name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...)")
+    count: int = Field(1, ge=1, le=MAX_THREAD_COUNT, description="how many such threads")
+    inherit: bool = Field(
+        True,
+        description="true: start with the creator's settings (PTHREAD_INHERIT_SCHED); false: start with "
+        "explicit defaults (SCHED_OTHER, nice 0, all CPUs) as PTHREAD_EXPLICIT_SCHED does",
+    )
+    sched: Optional[Sched] = Field(None, description="settings the thread applies to itself when it starts")
+    cpus: Optional[CpuSet] = Field(None, description="CPU affinity the thread applies to itself when it starts")
+    work: Work = Field(default_factory=SleepWork)
+
+    @model_validator(mode="after")
+    def _names_fit(self) -> ThreadSpec:
+        for name in self.names():
+            _check_comm(name)
+        return self
+
+    def names(self) -> list[str]:
+        """The thread names this spec creates."""
+        if self.count == 1:
+            return [self.name]
+        return [f"{self.name}-{i}" for i in range(self.count)]
+
+
+class Memory(Strict):
+    """Memory settings of a process, as the seed's minimal_memory_lock applies them."""
+
+    lock: bool = Field(False, description="mlockall(MCL_CURRENT|MCL_FUTURE) with glibc tuning (no mmap, no trim)")
+    prealloc: Size = Field(0, description="heap to reserve after locking: allocated, faulted in, and kept")
+    stack_size: Optional[Size] = Field(None, description="default stack size of threads the process creates")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Memory:
+        if self.prealloc and not self.lock:
+            raise ValueError("prealloc only keeps memory resident together with lock: true")
+        if self.stack_size is not None and self.stack_size < MIN_STACK:
+            raise ValueError(f"stack_size {units.format_size(self.stack_size)} is below the 16KiB minimum")
+        if self.stack_size is not None and self.stack_size > MAX_STACK:
+            raise ValueError(f"stack_size {units.format_size(self.stack_size)} is too large; at most {units.format_size(MAX_STACK)}")
+        return self
+
+
+class ProcessSpec(Strict):
+    """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
+
+    name: str = Field(description="process name as ps shows it (COMMAND), 15 bytes at most")
+    instances: int = Field(1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
+    reset_on_fork: bool = Field(
+        False,
+        description="start from SCHED_OTHER and nice >= 0 as SCHED_RESET_ON_FORK would, instead of inheriting the runner's settings",
+    )
+    memory: Memory = Field(default_factory=Memory)
+    main: MainThread = Field(default_factory=MainThread)
+    threads: list[ThreadSpec] = Field(default_factory=list, description="threads the main thread creates, in order")
+
+    _name = field_validator("name")(lambda cls, v: _check_comm(v))
+
+    @property
+    def main_name(self) -> str:
+        """The main thread's name is the process name: the kernel keeps one comm for both."""
+        return self.name
+
+
+# --------------------------------------------------------------------- background
+
+
+class HogKind(str, enum.Enum):
+    THREAD = "thread"
+    PROCESS = "process"
+
+
+class Hog(Strict):
+    """Busy loops that compete for the CPUs while the scenario runs."""
+
+    count: int = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
+    kind: HogKind = Field(HogKind.PROCESS, description="process: one process each; thread: threads of one process")
+    name: str = Field("hog", description="process and thread name")
+    sched: Optional[Sched] = Field(None, description="policy of the hogs (default: inherited, normally SCHED_OTHER)")
+    cpus: Optional[CpuSet] = Field(None, description="CPUs the hogs may run on (default: all)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _per_cpu(cls, value: Any) -> Any:
+        if isinstance(value, dict) and value.get("count") == "cpus":
+            return {**value, "count": len(os.sched_getaffinity(0))}
+        return value
+
+    _name = field_validator("name")(lambda cls, v: _check_comm(v))
+
+
+class Command(Strict):
+    """An external program run as background load, started before and stopped after the cell."""
+
+    argv: list[str] = Field(min_length=1, description="program and arguments as a list (never a shell string)")
+    name: Optional[str] = Field(None, description="label in reports; default: the program")
+
+    _label = field_validator("name")(lambda cls, v: _no_control("name")(v))
+
+    @field_validator("argv", mode="before")
+    @classmethod
+    def _no_shell(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            raise ValueError(f"argv must be a list such as ['stress-ng', '--cpu', '2'], not the string {value!r}")
+        return value
+
+    @field_validator("argv")
+    @classmethod
+    def _executable(cls, value: list[str]) -> list[str]:
+        if not value[0]:
+            raise ValueError("argv[0], the program, is empty")
+        for arg in value:
+            if "\x00" in arg:
+                raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
+        return value
+
+
+class Background(Strict):
+    """Contention that runs during each cell and is stopped after it."""
+
+    hogs: list[Hog] = Field(default_factory=list)
+    commands: list[Command] = Field(default_factory=list)
+
+
+# ------------------------------------------------------------------- expectations
+
+
+class _MetricValue(str):
+    """What every expectation metric knows: its declaration in the figure registry."""
+
+    value: str
+
+    @property
+    def figure(self) -> figures.Figure:
+        return figures.figure(self.value)
+
+    @property
+    def is_latency(self) -> bool:
+        return self.figure.is_duration
+
+    @property
+    def needs_callbacks(self) -> bool:
+        return self.figure.needs_callbacks
+
+
+Metric = enum.Enum(  # type: ignore[misc]  # built from the registry: every figure is an expectation metric
+    "Metric", {f.name.upper().replace(".", "_"): f.name for f in figures.REGISTRY}, type=_MetricValue, module=__name__)
+Metric.__doc__ = "Figures an expectation can check, named as in results.json (runner/figures.py declares them)."
+
+
+def metric_figure(metric: Metric) -> figures.Figure:
+    """The registry's declaration of an expectation's metric: unit, scope, words."""
+    return figures.figure(metric.value)
+
+
+def _limit(value: Any) -> Any:
+    """Latency limits are durations (kept as ns); counts are plain numbers."""
+    if isinstance(value, str):
+        try:
+            return units.parse_duration(value)
+        except units.UnitError as exc:
+            raise ValueError(str(exc)) from None
+    return value
+
+
+Limit = Annotated[float, BeforeValidator(_limit), WithJsonSchema({"anyOf": [{"type": "number"}, _DURATION_SCHEMA]})]
+MatrixValue = Union[str, int, float, bool]
+
+
+class Expectation(Strict):
+    """A check on one measured figure of the named thread(s), in every cell or in selected cells."""
+
+    thread: str = Field(description="thread name, or process/thread")
+    metric: Metric = Field(description="figure to check, as named in results.json")
+    max: Optional[Limit] = Field(None, description="upper bound (a duration for latency metrics)")
+    min: Optional[Limit] = Field(None, description="lower bound (a duration for latency metrics)")
+    cells: dict[str, Union[MatrixValue, list[MatrixValue]]] = Field(
+        default_factory=dict, description="only in cells whose matrix values match, e.g. {policy: [fifo, rr]}"
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _units(cls, value: Any) -> Any:
+        if isinstance(value, dict):
+            metric = str(value.get("metric", ""))
+            latency = metric in figures.BY_NAME and figures.figure(metric).is_duration
+            for bound in ("max", "min"):
+                given = value.get(bound)
+                if given is None:
+                    continue
+                if latency and not isinstance(given, str):
+                    raise ValueError(
+                        f"{bound}: bare number {given!r} for {metric}; expected {units.DURATION_EXPECTED}"
+                    )
+                if not latency and isinstance(given, str):
+                    raise ValueError(f"{bound}: {metric or 'this metric'} is a count; expected a number, got {given!r}")
+        return value
+
+    @model_validator(mode="after")
+    def _bounded(self) -> Expectation:
+        if self.max is None and self.min is None:
+            raise ValueError("an expectation needs max, min or both")
+        for name, bound in (("min", self.min), ("max", self.max)):
+            if bound is None:
+                continue
+            if not math.isfinite(bound):
+                raise ValueError(f"{name}: {bound!r} is not a finite number")
+            if bound < 0:
+                raise ValueError(f"{name}: {bound:g} is negative; {self.metric.value} is never below 0")
+            if metric_figure(self.metric).is_duration and bound > MAX_LATENCY_LIMIT:
+                raise ValueError(f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
+                                 f"at most {units.format_duration(MAX_LATENCY_LIMIT)}")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min {self.describe_bound(self.min)} is above max {self.describe_bound(self.max)}; "
+                             "no run can meet both")
+        return self
+
+    def describe_bound(self, value: float) -> str:
+        """A bound as written back: a duration for latency metrics, a number otherwise."""
+        return units.format_duration(int(value)) if metric_figure(self.metric).is_duration else f"{value:g}"
+
+    def describe_limit(self) -> str:
+        parts = []
+        if self.min is not None:
+            parts.append(f">= {self.describe_bound(self.min)}")
+        if self.max is not None:
+            parts.append(f"<= {self.describe_bound(self.max)}")
+        return " and ".join(parts)
+
+
+# ----------------------------------------------------------------------- scenario
+
+
+class Scenario(Strict):
+    """One fully resolved scenario (a matrix cell): what to spawn, for how long, and what to expect."""
+
+    name: str = Field(description="scenario name; default: the file name without .yaml")
+    description: str = Field("", description="what the scenario reproduces and the effect to expect")
+    duration: Duration = Field(10_000_000_000, description="run time of each cell (the CLI can override)")
+    processes: list[ProcessSpec] = Field(min_length=1)
+    background: Background = Field(default_factory=Background)
+    matrix: Any = Field(None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
+    expect: list[Expectation] = Field(default_factory=list)
+
+    _text = field_validator("description")(lambda cls, v: _no_control("description", "\n\t")(v))
+
+    @field_validator("duration")
+    @classmethod
+    def _duration_range(cls, value: int) -> int:
+        if not MIN_RUN <= value <= MAX_RUN:
+            raise ValueError(f"duration {units.format_duration(value)} is out of range; expected "
+                             f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}")
+        return value
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, value: str) -> str:
+        if not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
+            raise ValueError(f"name {value!r} may use letters, digits and _ . + - only (it names a results folder)")
+        return value

@@ -1,0 +1,125 @@
+"""What each thread of a cell should end up with, by the kernel's inheritance rules.
+
+Pure.  Given the settings a process starts with (the runner's own, unless it asks
+for reset-on-fork), this walks the same steps the worker takes - main thread
+settings before or after thread creation, threads inheriting from their creator
+or starting from explicit defaults, threads applying their own settings - and
+returns the settings each thread is expected to hold.  The runner records this as
+`requested` and compares it with what the kernel reports (`applied`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Annotated, Any, Optional
+
+from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
+
+from runner import units
+from runner.scenario.model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Scenario, Sched, SpinWork, Work
+
+
+def _cpus_in(value: Any) -> Any:
+    """`all` is every CPU (None); any other text is a CPU list (`0-1,3`)."""
+    return None if value == "all" else units.parse_cpu_list(value)
+
+
+AffinityCpus = Annotated[
+    Optional[tuple[int, ...]],
+    BeforeValidator(_cpus_in),
+    PlainSerializer(lambda cpus: "all" if cpus is None else units.format_cpus(cpus), return_type=str),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`",
+                    "examples": ["all", "0-1,3"]}),
+]
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Scheduling settings of one thread; `cpus` None means every CPU.
+
+    Stored in results as `{"policy": "fifo", "priority": 80, "nice": 0, "cpus": "all"}`
+    (the results models validate and serialise it through these annotations).
+    """
+
+    policy: Policy = Policy.OTHER
+    priority: int = 0
+    nice: int = 0
+    cpus: AffinityCpus = None
+
+    def with_sched(self, sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> Settings:
+        """These settings after applying `sched` and `cpus` (absent parts stay as they are)."""
+        out = self
+        if sched is not None:
+            out = replace(out, policy=sched.policy, priority=sched.rt_priority)
+            if sched.nice is not None:
+                out = replace(out, nice=sched.nice)
+        if cpus is not None:
+            out = replace(out, cpus=tuple(cpus))
+        return out
+
+    def reset_on_fork(self) -> Settings:
+        """What SCHED_RESET_ON_FORK gives a child: RT and idle become OTHER, negative nice becomes 0."""
+        policy = self.policy if self.policy in (Policy.OTHER, Policy.BATCH) else Policy.OTHER
+        return replace(self, policy=policy, priority=0, nice=max(self.nice, 0))
+
+    def label(self) -> str:
+        text = f"{self.policy.value}:{self.priority}" if self.policy.is_realtime else self.policy.value
+        if self.nice:
+            text += f" nice={self.nice}"
+        return text
+
+    def cpus_label(self, online: Optional[tuple[int, ...]] = None) -> str:
+        return units.format_cpus(self.cpus if self.cpus is not None else (online or ())) or "all"
+
+
+EXPLICIT_DEFAULTS = Settings()
+
+
+@dataclass(frozen=True)
+class PlannedThread:
+    """One thread to create: its name, its work, and the settings it should end up with."""
+
+    process: str
+    instance: int
+    index: int  # 0 = main thread, then creation order
+    name: str
+    spec_name: str
+    work: Work
+    settings: Settings
+    inherited: bool  # True when the thread started with its creator's settings
+    origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
+
+
+def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[PlannedThread]:
+    """Expected settings of every thread of one process instance, main thread first."""
+    base = start.reset_on_fork() if proc.reset_on_fork else start
+    main_final = base.with_sched(proc.main.sched, proc.main.cpus)
+    creator = main_final if proc.main.apply is ApplyWhen.BEFORE_THREADS else base
+    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, True, "main")]
+    index = 1
+    for spec in proc.threads:
+        initial = creator if spec.inherit else EXPLICIT_DEFAULTS
+        final = initial.with_sched(spec.sched, spec.cpus)
+        own = spec.sched is not None or spec.cpus is not None
+        origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
+        for name in spec.names():
+            out.append(PlannedThread(proc.name, instance, index, name, spec.name, spec.work, final, spec.inherit, origin))
+            index += 1
+    return out
+
+
+def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:
+    """Every measured thread of a cell, process by process, instance by instance."""
+    out: list[PlannedThread] = []
+    for proc in scenario.processes:
+        for instance in range(proc.instances):
+            out.extend(plan_process(proc, start, instance))
+    return out
+
+
+def is_periodic(work: Work) -> bool:
+    return isinstance(work, PeriodicWork)
+
+
+def is_busy(work: Work) -> bool:
+    return isinstance(work, SpinWork)

@@ -1,0 +1,126 @@
+"""Turn pydantic validation errors into `file:line:col: key.path: message` problems.
+
+Pydantic reports locations as tuples that mix data keys with union tags; this
+module maps them back onto the user's data (and so onto source lines), and
+rewrites the messages users meet most (unknown keys, wrong choices) with the
+expected values and a "did you mean".
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from typing import Any, Union, get_args, get_origin
+
+from pydantic import BaseModel, ValidationError
+
+from runner.errors import Problem, did_you_mean
+from runner.scenario.yamlsource import Document, Path
+
+_SCALARS = (str, int, float, bool)
+
+
+def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
+    """Follow `loc` through `data`, skipping union tags; return the path and the value found."""
+    path: list[str | int] = []
+    node = data
+    for elem in loc:
+        if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)):
+            node = node[elem]
+            path.append(elem)
+        elif isinstance(node, dict) and isinstance(elem, str) and not _is_tag(elem, node):
+            path.append(elem)  # a missing or unknown key: point at the parent
+            node = None
+        # otherwise a union tag such as 'periodic' or 'list[int]': not part of the data
+    return tuple(path), node
+
+
+def _is_tag(elem: str, node: dict[str, Any]) -> bool:
+    return node.get("kind") == elem or "[" in elem or elem.startswith("function-")
+
+
+def _unwrap(tp: Any) -> Any:
+    while get_origin(tp) is typing.Annotated:
+        tp = get_args(tp)[0]
+    if get_origin(tp) in (Union, types.UnionType):
+        members = [a for a in get_args(tp) if a is not type(None)]
+        if len(members) == 1:
+            return _unwrap(members[0])
+    return tp
+
+
+def _fields_at(root: type[BaseModel], loc: tuple[Any, ...]) -> list[str] | None:
+    """Field names of the model found at `loc`, or None where it cannot be told."""
+    tp: Any = root
+    for elem in loc:
+        tp = _unwrap(tp)
+        if isinstance(tp, type) and issubclass(tp, BaseModel):
+            if isinstance(elem, str) and elem in tp.model_fields:
+                tp = tp.model_fields[elem].annotation
+                continue
+            return None
+        origin = get_origin(tp)
+        if origin in (list, tuple) and isinstance(elem, int):
+            tp = get_args(tp)[0]
+        elif origin is dict:
+            tp = get_args(tp)[1]
+        elif origin in (Union, types.UnionType):
+            for member in get_args(tp):
+                member = _unwrap(member)
+                if isinstance(member, type) and issubclass(member, BaseModel):
+                    kind = member.model_fields.get("kind")
+                    if kind is not None and kind.default == elem:
+                        tp = member
+                        break
+            else:
+                return None
+        else:
+            return None
+    tp = _unwrap(tp)
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return list(tp.model_fields)
+    return None
+
+
+def problems_from(
+    exc: ValidationError, doc: Document, data: Any, root: type[BaseModel], prefix: Path = ()
+) -> list[Problem]:
+    """One Problem per pydantic error, located in `doc`."""
+    out: list[Problem] = []
+    for err in exc.errors(include_url=False):
+        loc = tuple(err["loc"])
+        path, value = _data_path(data, loc)
+        full = prefix + path
+        kind = err["type"]
+        given = err.get("input")
+        ctx = err.get("ctx") or {}
+        key = False
+        if kind == "extra_forbidden":
+            name = str(loc[-1])
+            fields = _fields_at(root, loc[:-1]) or []
+            hint = did_you_mean(name, fields)
+            expected = f"; expected one of: {', '.join(fields)}" if fields and not hint else ""
+            message = f"unknown key {name!r}{hint}{expected}"
+            key = True
+        elif kind == "missing":
+            message = f"missing required key {str(loc[-1])!r}"
+        elif kind in ("union_tag_invalid", "union_tag_not_found"):
+            tags = [t.strip("' ") for t in str(ctx.get("expected_tags", "")).split(",") if t.strip()]
+            if kind == "union_tag_not_found":
+                message = f"missing 'kind'; expected one of: {', '.join(tags)}"
+            else:
+                tag = ctx.get("tag")
+                message = f"unknown kind {tag!r}{did_you_mean(str(tag), tags)}; expected one of: {', '.join(tags)}"
+            if isinstance(value, dict) and "kind" in value:
+                full = full + ("kind",)
+        elif kind == "enum":
+            choices = [c.strip("' ") for c in str(ctx.get("expected", "")).replace(" or ", ", ").split(",") if c.strip()]
+            message = f"{given!r} is not valid{did_you_mean(str(given), choices)}; expected one of: {', '.join(choices)}"
+        elif kind == "value_error":
+            message = str(ctx.get("error", err["msg"]))
+        else:
+            message = err["msg"][0].lower() + err["msg"][1:]
+            if isinstance(given, _SCALARS) and not isinstance(given, dict):
+                message += f", got {given!r}"
+        out.append(doc.problem(full, message, key=key))
+    return out
