@@ -44,11 +44,17 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
     for cell_id in ("policy=fifo,priority=80", "policy=rr,priority=80", "policy=fifo,priority=10", "policy=rr,priority=10"):
         check(invol[cell_id] < 0.5, f"{cell_id} is not preempted ({invol[cell_id]} per callback)")
     report = open(os.path.join(out, "full", "report.md"), encoding="utf-8").read()
-    for needle in ("## Matrix summary", "## minimal_schedul/minimal_schedul (main) across cells", "```text\n  TID COMMAND",
-                   "plots/minimal_schedul-minimal_schedul-main.latency.svg"):
+    for needle in (
+        "## Matrix summary",
+        "## minimal_schedul/minimal_schedul (main) across cells",
+        "```text\n  TID COMMAND",
+        "plots/minimal_schedul-minimal_schedul-main.latency.svg",
+    ):
         check(needle in report, f"full report has {needle.splitlines()[0]!r}")
-    check("## Comparison with the baseline" in open(os.path.join(out, "merged", "report.md"), encoding="utf-8").read(),
-          "merged report carries the comparison with the baseline")
+    check(
+        "## Comparison with the baseline" in open(os.path.join(out, "merged", "report.md"), encoding="utf-8").read(),
+        "merged report carries the comparison with the baseline",
+    )
     print(f"nightly check: {len(failures)} failure(s)")
     return 1 if failures else 0
 

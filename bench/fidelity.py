@@ -63,8 +63,7 @@ def runner_cmd() -> list[str]:
 def run_runner(scenario: str, out: str, *extra: str) -> tuple[float, float, list[list[str]], float]:
     """Run a scenario; return (start->first callback s, last callback->exit s, samples rows, wall s)."""
     t0 = time.monotonic_ns()
-    done = subprocess.run([*runner_cmd(), scenario, "--out", out, "--quiet", *extra], check=False, capture_output=True, text=True,
-                          cwd=REPO)
+    done = subprocess.run([*runner_cmd(), scenario, "--out", out, "--quiet", *extra], check=False, capture_output=True, text=True, cwd=REPO)
     t1 = time.monotonic_ns()
     if done.returncode not in (0, 1):
         raise SystemExit(f"runner {scenario} failed with exit {done.returncode}: {done.stderr.strip()}")
@@ -121,8 +120,7 @@ def main() -> int:
             hog.kill()
             hog.wait()
 
-    print(f"wake-up latency, FIFO 80, 1 ms period, memory locked, {os.cpu_count()} busy loops, "
-          f"{args.rounds} x {args.seconds}s alternating")
+    print(f"wake-up latency, FIFO 80, 1 ms period, memory locked, {os.cpu_count()} busy loops, {args.rounds} x {args.seconds}s alternating")
     print(f"{'tool':<12} {'samples':>8} {'p50 us':>8} {'p99 us':>8} {'max us':>8}")
     for name, values in (("runner", ours), ("cyclictest", theirs)):
         p50, p99, mx = stats(values)
@@ -131,14 +129,17 @@ def main() -> int:
     many = os.path.join(work, "many.yaml")
     procs = "".join(
         f"  - name: proc{p}\n    main: {{work: sleep}}\n    threads:\n"
-        f"      - {{name: cb, count: 32, work: {{kind: periodic, period: 10ms}}}}\n" for p in range(8)
+        f"      - {{name: cb, count: 32, work: {{kind: periodic, period: 10ms}}}}\n"
+        for p in range(8)
     )
     with open(many, "w") as handle:
         handle.write(MANY.format(procs=procs))
     print()
     print(f"{'cell overhead':<30} {'start->1st cb s':>16} {'last cb->exit s':>16} {'target s':>9}")
-    for label, path, target in (("fifo80.yaml", os.path.join(REPO, "scenarios", "fifo80.yaml"), 0.3),
-                                ("256 threads in 8 processes", many, 1.5)):
+    for label, path, target in (
+        ("fifo80.yaml", os.path.join(REPO, "scenarios", "fifo80.yaml"), 0.3),
+        ("256 threads in 8 processes", many, 1.5),
+    ):
         extra = ("--no-plots",) if args.quick else ()  # quick: the plots of 256 threads take most of a minute
         start, stop, _, _ = run_runner(path, os.path.join(work, "out-" + os.path.basename(path)), *extra)
         print(f"{label:<30} {start:>16.3f} {stop:>16.3f} {target:>9.1f}" + ("  (quick: no plots)" if extra else ""))

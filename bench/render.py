@@ -58,8 +58,10 @@ def main() -> int:
     cmp = compare.compare(doc, doc)
     section = report.render_comparison(cmp, "base", "new")
     compare_s = time.perf_counter() - began
-    print(f"{ns.cells} cells: report {render_s:.2f} s ({len(text) / 1e6:.1f} MB), compare {compare_s:.2f} s "
-          f"({len(section) / 1e6:.1f} MB); target {TARGET_S:.1f} s for the report")
+    print(
+        f"{ns.cells} cells: report {render_s:.2f} s ({len(text) / 1e6:.1f} MB), compare {compare_s:.2f} s "
+        f"({len(section) / 1e6:.1f} MB); target {TARGET_S:.1f} s for the report"
+    )
     return 0 if ns.quick or render_s < TARGET_S else 1
 
 

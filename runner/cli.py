@@ -37,9 +37,11 @@ exit codes: 0 ok, 1 an expectation failed or a regression against the baseline, 
             (the traceback is saved to a file), 130 interrupted
 """
 
-_THRESHOLD_HELP = ("regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%%,+10us or involuntary.per_callback_mean=+0.5 "
-                   "or latency.p99=off (repeatable; defaults: latency.p99 +20%% and +10us, involuntary.per_callback_mean "
-                   "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)")
+_THRESHOLD_HELP = (
+    "regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%%,+10us or involuntary.per_callback_mean=+0.5 "
+    "or latency.p99=off (repeatable; defaults: latency.p99 +20%% and +10us, involuntary.per_callback_mean "
+    "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)"
+)
 
 
 def _run_parser() -> argparse.ArgumentParser:
@@ -50,8 +52,12 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--cell", action="append", default=[], metavar="GLOB", help="run only cells whose id matches (repeatable)")
     p.add_argument("--out", metavar="DIR", help="results folder (default reports/<scenario>/<UTC timestamp>)")
     p.add_argument("--follow", action="store_true", help="print a line per callback, as the ros2-realtime-examples do")
-    p.add_argument("--allow-degraded", action="store_true", help="run even without the rights to apply every setting; mark affected threads degraded")
-    p.add_argument("--allow-priority-99", action="store_true", help="allow scenario threads at RT priority 99 (above the runner's watchdog)")
+    p.add_argument(
+        "--allow-degraded", action="store_true", help="run even without the rights to apply every setting; mark affected threads degraded"
+    )
+    p.add_argument(
+        "--allow-priority-99", action="store_true", help="allow scenario threads at RT priority 99 (above the runner's watchdog)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress display")
     m = p.add_argument_group("matrix runs")
     m.add_argument("--repeat", type=int, default=1, metavar="N", help="run every cell N times; the report gives the spread")
@@ -169,8 +175,11 @@ def _cmd_validate(argv: list[str]) -> int:
 
 
 def _cmd_schema(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="runner schema", description="Print the JSON Schema of the scenario format "
-                                "(runner.schema.json), or with --results that of results.json (results.schema.json).")
+    p = argparse.ArgumentParser(
+        prog="runner schema",
+        description="Print the JSON Schema of the scenario format "
+        "(runner.schema.json), or with --results that of results.json (results.schema.json).",
+    )
     p.add_argument("--results", action="store_true", help="the schema of results.json instead of the scenario's")
     ns = p.parse_args(argv)
     if ns.results:
@@ -185,9 +194,14 @@ def _cmd_schema(argv: list[str]) -> int:
 
 
 def _cmd_ps(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="runner ps", description="Thread table of live processes, as ps -L -o tid,comm,rtprio,cls,psr prints it.")
-    p.add_argument("target", help="a PID, or a process name: every thread of the processes whose COMMAND it is "
-                                  "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)")
+    p = argparse.ArgumentParser(
+        prog="runner ps", description="Thread table of live processes, as ps -L -o tid,comm,rtprio,cls,psr prints it."
+    )
+    p.add_argument(
+        "target",
+        help="a PID, or a process name: every thread of the processes whose COMMAND it is "
+        "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)",
+    )
     p.add_argument("-o", "--columns", default="tid,comm,rtprio,cls,psr", help="columns: tid,comm,rtprio,cls,psr,ni,pri,cpus,nvcsw,nivcsw")
     ns = p.parse_args(argv)
     from runner.results.pstable import parse_columns, render_ps
@@ -221,7 +235,9 @@ def _cmd_run(argv: list[str]) -> int:
 
 
 def _cmd_report(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="runner report", description="Re-render the markdown report of a run from its results, without re-running.")
+    p = argparse.ArgumentParser(
+        prog="runner report", description="Re-render the markdown report of a run from its results, without re-running."
+    )
     p.add_argument("results", metavar="RESULTS", help="results.json or the folder holding it")
     p.add_argument("-o", "--output", metavar="FILE", help="report file (default: report.md beside the results); - for stdout")
     p.add_argument("--baseline", metavar="RESULTS", help="add a comparison with an earlier run")

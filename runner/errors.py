@@ -100,8 +100,7 @@ def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | 
         17: "; a file of that name is in the way",  # EEXIST
         21: "; a folder stands where a file is expected",  # EISDIR
     }.get(exc.errno or 0, "")
-    error = UsageError(f"runner: {what} {path}: {reason}{hint}") if before_run else OutputError(
-        f"runner: {what} {path}: {reason}{hint}")
+    error = UsageError(f"runner: {what} {path}: {reason}{hint}") if before_run else OutputError(f"runner: {what} {path}: {reason}{hint}")
     return error
 
 

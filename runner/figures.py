@@ -124,25 +124,57 @@ _LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
 
 REGISTRY: tuple[Figure, ...] = (
     Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks"),
-    Figure("missed_releases", "releases missed (no callback ran for them)", Unit.COUNT, Scope.CALLBACKS,
-           ("missed_releases",), column="missed"),
-    Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD,
-           ("involuntary", "total")),
-    Figure("involuntary.per_callback_mean", "involuntary switches per callback", Unit.PER_CALLBACK, Scope.CALLBACKS,
-           ("involuntary", "per_callback_mean"), Threshold(absolute=0.5), column="invol/cb"),
-    Figure("involuntary.per_callback_max", "involuntary switches in one callback (max)", Unit.COUNT, Scope.CALLBACKS,
-           ("involuntary", "per_callback_max"), column="invol max"),
-    Figure("involuntary.callbacks_with_any", "callbacks with an involuntary switch", Unit.COUNT, Scope.CALLBACKS,
-           ("involuntary", "callbacks_with_any")),
+    Figure(
+        "missed_releases", "releases missed (no callback ran for them)", Unit.COUNT, Scope.CALLBACKS, ("missed_releases",), column="missed"
+    ),
+    Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("involuntary", "total")),
+    Figure(
+        "involuntary.per_callback_mean",
+        "involuntary switches per callback",
+        Unit.PER_CALLBACK,
+        Scope.CALLBACKS,
+        ("involuntary", "per_callback_mean"),
+        Threshold(absolute=0.5),
+        column="invol/cb",
+    ),
+    Figure(
+        "involuntary.per_callback_max",
+        "involuntary switches in one callback (max)",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("involuntary", "per_callback_max"),
+        column="invol max",
+    ),
+    Figure(
+        "involuntary.callbacks_with_any",
+        "callbacks with an involuntary switch",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("involuntary", "callbacks_with_any"),
+    ),
     Figure("voluntary.total", "voluntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("voluntary", "total")),
-    *(Figure(f"latency.{q}", f"wake-up latency {words}", Unit.NS, Scope.CALLBACKS, ("latency_ns", q),
-             _LATENCY_THRESHOLD.get(q), _LATENCY_COLUMN.get(q)) for q, words in _QUANTILE_WORDS.items()),
-    Figure("faults.minor", "minor page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "minor"),
-           column="minor faults"),
-    Figure("faults.major", "major page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "major"),
-           Threshold(absolute=0)),
-    Figure("faults.minor_after_first", "minor page faults after the first callback", Unit.COUNT, Scope.CALLBACKS,
-           ("faults", "minor_after_first"), Threshold(relative=0.20, absolute=0)),
+    *(
+        Figure(
+            f"latency.{q}",
+            f"wake-up latency {words}",
+            Unit.NS,
+            Scope.CALLBACKS,
+            ("latency_ns", q),
+            _LATENCY_THRESHOLD.get(q),
+            _LATENCY_COLUMN.get(q),
+        )
+        for q, words in _QUANTILE_WORDS.items()
+    ),
+    Figure("faults.minor", "minor page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "minor"), column="minor faults"),
+    Figure("faults.major", "major page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "major"), Threshold(absolute=0)),
+    Figure(
+        "faults.minor_after_first",
+        "minor page faults after the first callback",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("faults", "minor_after_first"),
+        Threshold(relative=0.20, absolute=0),
+    ),
 )
 
 BY_NAME: dict[str, Figure] = {f.name: f for f in REGISTRY}

@@ -62,6 +62,7 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
         raise from_os_error(exc, what) from None
     if not resume and os.path.exists(os.path.join(folder, "results.json")):
         os.close(fd)
-        raise UsageError(f"runner: {what} {folder} already holds the results of another run; choose a new folder, "
-                         "or finish that run with --resume")
+        raise UsageError(
+            f"runner: {what} {folder} already holds the results of another run; choose a new folder, or finish that run with --resume"
+        )
     return Claim(folder, fd)

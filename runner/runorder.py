@@ -47,8 +47,9 @@ class Unit:
     repeat: int
 
 
-def plan_units(cells: Sequence[str], repeat: int = 1, shuffle_seed: Optional[int] = None,
-               done: Iterable[tuple[str, int]] = ()) -> list[Unit]:
+def plan_units(
+    cells: Sequence[str], repeat: int = 1, shuffle_seed: Optional[int] = None, done: Iterable[tuple[str, int]] = ()
+) -> list[Unit]:
     """Every (cell, repeat) still to run: repeats of a cell are spread out (round by round), then
     shuffled when a seed is given (the same seed gives the same order, so a resumed run keeps it)."""
     units = [Unit(cell, r) for r in range(repeat) for cell in cells]

@@ -73,11 +73,26 @@ class RunOptions:
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
         in_ci = env.get("CI", "") not in ("", "0", "false")
-        return cls(duration, ns.cell, ns.out, ns.follow, ns.allow_degraded, ns.allow_priority_99,
-                   ns.quiet, ["runner"] + sys.argv[1:], repeat=ns.repeat, shuffle_seed=seed, settle_ns=settle,
-                   shard=Shard.parse(ns.shard) if ns.shard else None, resume=ns.resume, baseline=ns.baseline,
-                   thresholds=thresholds_with(parse_threshold(t) for t in ns.threshold),
-                   report=not ns.no_report, plots=not ns.no_plots, live=not (ns.quiet or in_ci))
+        return cls(
+            duration,
+            ns.cell,
+            ns.out,
+            ns.follow,
+            ns.allow_degraded,
+            ns.allow_priority_99,
+            ns.quiet,
+            ["runner"] + sys.argv[1:],
+            repeat=ns.repeat,
+            shuffle_seed=seed,
+            settle_ns=settle,
+            shard=Shard.parse(ns.shard) if ns.shard else None,
+            resume=ns.resume,
+            baseline=ns.baseline,
+            thresholds=thresholds_with(parse_threshold(t) for t in ns.threshold),
+            report=not ns.no_report,
+            plots=not ns.no_plots,
+            live=not (ns.quiet or in_ci),
+        )
 
 
 def _duration(text: str, option: str, minimum: int) -> int:
@@ -159,15 +174,25 @@ def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCe
     return chosen
 
 
-def _new_document(loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Permissions,
-                  start: Settings, machine: MachineInfo) -> RunDocument:
+def _new_document(
+    loaded: LoadedScenario, options: RunOptions, cells: list[ResolvedCell], perms: Permissions, start: Settings, machine: MachineInfo
+) -> RunDocument:
     return RunDocument(
         scenario=ScenarioInfo(name=loaded.name, path=loaded.path, description=loaded.description),
-        command=options.command, started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        machine=machine, permissions=perms.record(), start_settings=start,
-        cell_ids=[c.id for c in cells], matrix_cells=[c.id for c in loaded.cells],
-        plan=Plan(repeat=options.repeat, shuffle_seed=options.shuffle_seed, settle_ns=options.settle_ns,
-                  cells=list(options.cells), duration_ns=options.duration_ns),
+        command=options.command,
+        started_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        machine=machine,
+        permissions=perms.record(),
+        start_settings=start,
+        cell_ids=[c.id for c in cells],
+        matrix_cells=[c.id for c in loaded.cells],
+        plan=Plan(
+            repeat=options.repeat,
+            shuffle_seed=options.shuffle_seed,
+            settle_ns=options.settle_ns,
+            cells=list(options.cells),
+            duration_ns=options.duration_ns,
+        ),
         shard=str(options.shard) if options.shard else None,
     )
 
@@ -186,8 +211,9 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
         if now is None:
             problems.append(Problem(path, 1, 1, f"cells.{cell.id}", f"is no longer a cell of {loaded.path}"))
         elif now.spec_hash != cell.spec_hash:
-            problems.append(Problem(path, 1, 1, f"cells.{cell.id}", f"{loaded.path} changed since this cell ran; "
-                                    "start a new run instead of resuming"))
+            problems.append(
+                Problem(path, 1, 1, f"cells.{cell.id}", f"{loaded.path} changed since this cell ran; start a new run instead of resuming")
+            )
     if problems:
         raise ScenarioError(problems)
     doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED]  # redo what was cut short
@@ -259,8 +285,16 @@ class _Loop:
         return self.statuses
 
 
-def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell],
-               folder: str, start: Any, stop: StopSignals, backend: Backend) -> int:
+def _run_units(
+    loaded: LoadedScenario,
+    options: RunOptions,
+    doc: RunDocument,
+    by_id: dict[str, ResolvedCell],
+    folder: str,
+    start: Any,
+    stop: StopSignals,
+    backend: Backend,
+) -> int:
     """The cell loop of a claimed folder, then the report: every way out saves what finished."""
     doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
@@ -281,8 +315,10 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
         loop.write_error = loop.write_error or exc
     if loop.write_error is not None:
         error = loop.write_error
-        note(f"runner: {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
-             "every cell that finished before; the cell in flight is marked error where it could be written")
+        note(
+            f"runner: {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
+            "every cell that finished before; the cell in flight is marked error where it could be written"
+        )
         return int(ExitCode.RUN_ERROR)
     from runner.report.publish import finish
 
@@ -294,8 +330,16 @@ def _run_units(loaded: LoadedScenario, options: RunOptions, doc: RunDocument, by
     return int(exit_code(statuses, regressions))
 
 
-def _cell_loop(units: list[Unit], options: RunOptions, doc: RunDocument, by_id: dict[str, ResolvedCell], folder: str,
-               start: Any, stop: StopSignals, backend: Backend) -> _Loop:
+def _cell_loop(
+    units: list[Unit],
+    options: RunOptions,
+    doc: RunDocument,
+    by_id: dict[str, ResolvedCell],
+    folder: str,
+    start: Any,
+    stop: StopSignals,
+    backend: Backend,
+) -> _Loop:
     """Run the cells one after another, recording each as it finishes; stop at a stop request or a write error."""
     loop = _Loop([c.status for c in doc.cells])
     progress = Progress(len(units), options.settle_ns / 1e9, options.live, options.quiet)
@@ -310,8 +354,9 @@ def _cell_loop(units: list[Unit], options: RunOptions, doc: RunDocument, by_id: 
             cell = by_id[unit.cell]
             duration = options.duration_ns or cell.scenario.duration
             progress.start(unit, options.repeat, duration / 1e9)
-            cell_options = CellOptions(duration, options.allow_degraded, follow, progress.line if not options.follow else None,
-                                       stop.requested)
+            cell_options = CellOptions(
+                duration, options.allow_degraded, follow, progress.line if not options.follow else None, stop.requested
+            )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
             result, loop.write_error = _one_cell(cell, cell_folder, start, cell_options, backend)
@@ -331,8 +376,7 @@ def _cell_loop(units: list[Unit], options: RunOptions, doc: RunDocument, by_id: 
         progress.clear()
 
 
-def _one_cell(cell: ResolvedCell, folder: str, start: Any, options: CellOptions,
-              backend: Backend) -> tuple[CellResult, Optional[OSError]]:
+def _one_cell(cell: ResolvedCell, folder: str, start: Any, options: CellOptions, backend: Backend) -> tuple[CellResult, Optional[OSError]]:
     """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled."""
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     try:

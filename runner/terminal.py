@@ -21,8 +21,13 @@ from runner.report.fmt import fmt_figure
 from runner.results.document import CellResult, Status
 from runner.results.pstable import render_ps
 
-_MARK = {Status.PASSED: "passed", Status.DEGRADED: "DEGRADED", Status.FAILED: "FAILED", Status.ERROR: "ERROR",
-         Status.INTERRUPTED: "INTERRUPTED"}
+_MARK = {
+    Status.PASSED: "passed",
+    Status.DEGRADED: "DEGRADED",
+    Status.FAILED: "FAILED",
+    Status.ERROR: "ERROR",
+    Status.INTERRUPTED: "INTERRUPTED",
+}
 
 
 def say(text: str) -> None:
@@ -109,14 +114,18 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     periodic = [t for t in cell.threads if t.periodic]
     if periodic:
         headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in TABLE_FIGURES]
-        rows = [[f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
-                + [_cell_value(fg.value(t.figures, f), f) for f in TABLE_FIGURES] for t in periodic]
+        rows = [
+            [f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
+            + [_cell_value(fg.value(t.figures, f), f) for f in TABLE_FIGURES]
+            for t in periodic
+        ]
         out.append("")
         out.extend("  " + line for line in tabulate(rows, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())
     for v in cell.expectations:
         measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-        out.append(f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric} {v.limit} (measured {measured})"
-                   f"{' - ' + v.note if v.note else ''}")
+        out.append(
+            f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
+        )
     for t in cell.threads:
         for why in t.degraded:
             out.append(f"  DEGRADED {t.process}/{t.name}: {why}")

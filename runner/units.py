@@ -74,9 +74,7 @@ def parse_size(value: object) -> int:
     number, unit = match.groups()
     if unit not in BYTES_PER:
         if unit in _SI_SIZE_HINT:
-            raise UnitError(
-                f"unit {unit!r} is ambiguous (1000 or 1024?); did you mean {_SI_SIZE_HINT[unit]!r}?"
-            )
+            raise UnitError(f"unit {unit!r} is ambiguous (1000 or 1024?); did you mean {_SI_SIZE_HINT[unit]!r}?")
         hint = _did_you_mean(unit, BYTES_PER)
         raise UnitError(f"unknown size unit {unit!r}{hint}; expected one of B, KiB, MiB, GiB, TiB")
     return _scaled(number, BYTES_PER[unit], value, SIZE_EXPECTED)
@@ -97,7 +95,7 @@ def _scaled(number: str, scale: int, written: str, expected: str) -> int:
 
 def _shorten(text: str, keep: int = 40) -> str:
     """`text` quoted, its middle cut out when it is long (a hostile value can be a megabyte)."""
-    return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4:])
+    return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4 :])
 
 
 def parse_cpus(value: object) -> tuple[int, ...]:
@@ -117,8 +115,7 @@ def parse_cpus(value: object) -> tuple[int, ...]:
         if re.fullmatch(r"0[bB][01]+", text) or re.fullmatch(r"0[xX][0-9a-fA-F]+", text):
             mask = int(text, 0)
             if mask.bit_length() > MAX_CPUS:
-                raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; "
-                                f"Linux supports {MAX_CPUS} CPUs")
+                raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
         elif re.fullmatch(r"\d+(-\d+)?(,\d+(-\d+)?)*", text):
             for part in text.split(","):

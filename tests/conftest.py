@@ -30,9 +30,11 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from kernelrun import can_use_rt
 
     if _in_ci() and not can_use_rt() and os.environ.get("RUNNER_TESTS_NO_RT", "") in ("", "0"):
-        raise pytest.UsageError("CI is set but this machine cannot use SCHED_FIFO (no CAP_SYS_NICE, RLIMIT_RTPRIO 0), so the "
-                                "kernel tests would be skipped; run CI as root or with CAP_SYS_NICE, or set "
-                                "RUNNER_TESTS_NO_RT=1 to run without them on purpose")
+        raise pytest.UsageError(
+            "CI is set but this machine cannot use SCHED_FIFO (no CAP_SYS_NICE, RLIMIT_RTPRIO 0), so the "
+            "kernel tests would be skipped; run CI as root or with CAP_SYS_NICE, or set "
+            "RUNNER_TESTS_NO_RT=1 to run without them on purpose"
+        )
 
 
 @dataclass

@@ -79,18 +79,53 @@ class FakeBackend:
                 due = options.duration_ns // p.work.period
                 served = int(due * act.served)
                 samples = tuple(
-                    Sample(t0 + k * p.work.period, t0 + k * p.work.period + act.latency_ns,
-                           t0 + k * p.work.period + act.latency_ns + p.work.burn, p.work.burn, act.nivcsw, 1, 0, 0, 0, 0, 0)
-                    for k in range(served))
-            slot = SlotData(tid=10_000 + len(threads), state="done", count=len(samples), err_sched=0, err_nice=0, err_cpus=0,
-                            err_other=0, start_ru=(0, 0, 0, 0), end_ru=(act.nivcsw * len(samples), len(samples), 0, 0),
-                            loops=len(samples), missed=0, work_start_ns=t0, work_end_ns=t_end, cpus_seen=(0,), samples=samples)
+                    Sample(
+                        t0 + k * p.work.period,
+                        t0 + k * p.work.period + act.latency_ns,
+                        t0 + k * p.work.period + act.latency_ns + p.work.burn,
+                        p.work.burn,
+                        act.nivcsw,
+                        1,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                    )
+                    for k in range(served)
+                )
+            slot = SlotData(
+                tid=10_000 + len(threads),
+                state="done",
+                count=len(samples),
+                err_sched=0,
+                err_nice=0,
+                err_cpus=0,
+                err_other=0,
+                start_ru=(0, 0, 0, 0),
+                end_ru=(act.nivcsw * len(samples), len(samples), 0, 0),
+                loops=len(samples),
+                missed=0,
+                work_start_ns=t0,
+                work_end_ns=t_end,
+                cpus_seen=(0,),
+                samples=samples,
+            )
             applied = Settings(Policy.OTHER, 0, p.settings.nice, p.settings.cpus) if act.degrade else p.settings
             threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True))
             assert is_periodic(p.work) or not samples
         timeline = Timeline(0, t0, t_end, t_end + 1_000_000, t_end + 2_000_000)
-        return RawCell("2026-11-22T00:00:00+00:00", tuple(threads), 1, timeline, (), act.failures, act.incidents,
-                       interrupted, (BackgroundProcess("hog", "hog", 4343),))
+        return RawCell(
+            "2026-11-22T00:00:00+00:00",
+            tuple(threads),
+            1,
+            timeline,
+            (),
+            act.failures,
+            act.incidents,
+            interrupted,
+            (BackgroundProcess("hog", "hog", 4343),),
+        )
 
     def close(self) -> None:
         self.closed = True

@@ -32,8 +32,15 @@ def env() -> dict[str, str]:
 
 
 def start_runner(*args: str, cwd: str, prefix: tuple[str, ...] = ()) -> subprocess.Popen[str]:
-    return subprocess.Popen([*prefix, sys.executable, "-m", "runner", *args], cwd=cwd, env=env(), text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    return subprocess.Popen(
+        [*prefix, sys.executable, "-m", "runner", *args],
+        cwd=cwd,
+        env=env(),
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
 
 
 def wait_for_threads(comm: str, count: int, timeout: float = 15.0) -> int:

@@ -93,8 +93,11 @@ def test_a_folder_is_held_by_one_claim_at_a_time(tmp_path):
 
 def test_the_claim_is_the_kernels_lock_so_another_process_sees_it(tmp_path):
     held = outdir.claim(str(tmp_path))
-    probe = subprocess.run([sys.executable, "-c", "import sys; from runner import outdir; outdir.claim(sys.argv[1])", str(tmp_path)],
-                           capture_output=True, text=True)
+    probe = subprocess.run(
+        [sys.executable, "-c", "import sys; from runner import outdir; outdir.claim(sys.argv[1])", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     held.release()
     assert probe.returncode != 0 and "in use by another runner" in probe.stderr
 

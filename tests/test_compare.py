@@ -108,21 +108,37 @@ def test_spec_differences_lists_every_changed_leaf():
     base = {"a": {"b": 1, "c": [1, 2]}, "d": "x"}
     new = {"a": {"b": 2, "c": [1, 3]}, "e": True}
     assert cmp.spec_differences(base, new) == [
-        "a.b: 1 in the baseline, 2 now", "a.c[1]: 2 in the baseline, 3 now",
-        "d: 'x' in the baseline, absent now", "e: absent in the baseline, True now"]
+        "a.b: 1 in the baseline, 2 now",
+        "a.c[1]: 2 in the baseline, 3 now",
+        "d: 'x' in the baseline, absent now",
+        "e: absent in the baseline, True now",
+    ]
 
 
-@pytest.mark.parametrize("text, relative, absolute", [
-    ("latency.p99=+20%", 0.2, None), ("latency.p99=+20%,+10us", 0.2, 10_000), ("latency.max=+1ms", None, 1_000_000),
-    ("involuntary.per_callback_mean=+0.5", None, 0.5), ("latency.p99=off", None, None)])
+@pytest.mark.parametrize(
+    "text, relative, absolute",
+    [
+        ("latency.p99=+20%", 0.2, None),
+        ("latency.p99=+20%,+10us", 0.2, 10_000),
+        ("latency.max=+1ms", None, 1_000_000),
+        ("involuntary.per_callback_mean=+0.5", None, 0.5),
+        ("latency.p99=off", None, None),
+    ],
+)
 def test_threshold_syntax(text, relative, absolute):
     t = cmp.parse_threshold(text)
     assert (t.relative, t.absolute) == (relative, absolute)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("latency.p9=+20%", "did you mean 'latency.p99'"), ("latency.p99", "expected FIGURE=LIMIT"),
-    ("latency.p99=+10", "with a unit"), ("involuntary.per_callback_mean=lots", "is not a limit")])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("latency.p9=+20%", "did you mean 'latency.p99'"),
+        ("latency.p99", "expected FIGURE=LIMIT"),
+        ("latency.p99=+10", "with a unit"),
+        ("involuntary.per_callback_mean=lots", "is not a limit"),
+    ],
+)
 def test_threshold_errors_say_what_is_expected(text, message):
     with pytest.raises(UsageError, match=message.replace("(", r"\(")):
         cmp.parse_threshold(text)

@@ -28,14 +28,22 @@ def test_releases_due_run_from_the_gate_to_the_end_or_the_interrupt():
 def test_degradation_names_each_shortfall_with_the_kernels_reason():
     assert degradation(FIFO80, FIFO80, ApplyErrors()) == []
     words = degradation(FIFO80, OTHER, ApplyErrors(sched=1, other=12))
-    assert words == ["policy fifo:80 requested, other applied (Operation not permitted)",
-                     "a per-callback allocation failed (Cannot allocate memory)"]
+    assert words == [
+        "policy fifo:80 requested, other applied (Operation not permitted)",
+        "a per-callback allocation failed (Cannot allocate memory)",
+    ]
     assert degradation(FIFO80, None, ApplyErrors()) == ["the thread was gone before its settings could be read back"]
 
 
 def test_a_ready_report_is_checked_and_gives_each_slot_its_errors():
-    report = ReadyReport.parse({"pid": 7, "tids": [7, 8], "errors": {"main": {"sched": 1, "nice": 0, "cpus": 0},
-                                "threads": [[0, 0, 0, 0], [0, 13, 0, 12]], "memory": {"errno": 12}}}, 2)
+    report = ReadyReport.parse(
+        {
+            "pid": 7,
+            "tids": [7, 8],
+            "errors": {"main": {"sched": 1, "nice": 0, "cpus": 0}, "threads": [[0, 0, 0, 0], [0, 13, 0, 12]], "memory": {"errno": 12}},
+        },
+        2,
+    )
     assert report.errors(0) == ApplyErrors(sched=1, memory=12)
     assert report.errors(1) == ApplyErrors(nice=13, memory=12, other=12)
     for broken in ({"tids": [1, 2]}, {"pid": 1, "tids": [1]}, {"pid": "x", "tids": [1, 2]}):
@@ -53,10 +61,15 @@ def _raw(callbacks: int, interrupted: bool = False, failures: tuple[str, ...] = 
     t0, period = 1_000_000_000, 100_000_000
     threads = []
     for p in planned:
-        samples = tuple(Sample(t0 + k * period, t0 + k * period + 20_000, t0 + k * period + 40_000_000, 40_000_000,
-                               0, 1, 0, 0, 0, 0, 0) for k in range(callbacks)) if p.index == 0 else ()
-        slot = SlotData(100 + p.index, "done", len(samples), 0, 0, 0, 0, (0, 0, 0, 0), (0, 0, 0, 0), len(samples), 0, t0, 0,
-                        (0,), samples)
+        samples = (
+            tuple(
+                Sample(t0 + k * period, t0 + k * period + 20_000, t0 + k * period + 40_000_000, 40_000_000, 0, 1, 0, 0, 0, 0, 0)
+                for k in range(callbacks)
+            )
+            if p.index == 0
+            else ()
+        )
+        slot = SlotData(100 + p.index, "done", len(samples), 0, 0, 0, 0, (0, 0, 0, 0), (0, 0, 0, 0), len(samples), 0, t0, 0, (0,), samples)
         threads.append(RawThread(p, 99, slot, applied if p.index == 0 else p.settings, ApplyErrors(), True))
     timeline = Timeline(0, t0, t0 + 10 * period, t0 + 10 * period, t0 + 11 * period)
     return cell, RawCell("now", tuple(threads), 1, timeline, failures=failures, interrupted=interrupted)

@@ -41,18 +41,23 @@ ORIGINAL = {name: json.loads(Path(DATA, name, "results.json").read_text(encoding
 ORIGINAL.update({f"{name}@2": _as_written(name) for name in RUNS})
 FORMS = sorted(ORIGINAL)  # `name` as recorded (/1), `name@2` as written now
 
-TEXT = st.lists(st.characters(codec="utf-8", exclude_categories=("Cs",)) | st.sampled_from(
-    list("\x00\n\r\t\u2028$|`#*_[]<>&\\/") + ["..", "$\\foo$", "<script>", "线程"]), max_size=8).map("".join)
+TEXT = st.lists(
+    st.characters(codec="utf-8", exclude_categories=("Cs",))
+    | st.sampled_from(list("\x00\n\r\t\u2028$|`#*_[]<>&\\/") + ["..", "$\\foo$", "<script>", "线程"]),
+    max_size=8,
+).map("".join)
 LEAF = st.one_of(
-    st.none(), st.booleans(), TEXT,
+    st.none(),
+    st.booleans(),
+    TEXT,
     st.integers(min_value=-(2**70), max_value=2**70),
     st.floats(allow_nan=True, allow_infinity=True),
     st.sampled_from([0, -1, 2**63, -(2**63) - 1, 1e300, -0.0, "", "all", "fifo", "passed", "0-1", "p99"]),
 )
-VALUE = st.recursive(LEAF, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(TEXT, inner, max_size=3),
-                     max_leaves=6)
-SAMPLES_PATHS = st.sampled_from(["/etc/passwd", "../../x", "cells/../../x", "cells/../cells", "", ".", "cells",
-                                 "cells/x/samples.csv.gz", "\x00", "results.json"])
+VALUE = st.recursive(LEAF, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(TEXT, inner, max_size=3), max_leaves=6)
+SAMPLES_PATHS = st.sampled_from(
+    ["/etc/passwd", "../../x", "cells/../../x", "cells/../cells", "", ".", "cells", "cells/x/samples.csv.gz", "\x00", "results.json"]
+)
 
 
 def _nodes(node: Any, path: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
@@ -109,13 +114,16 @@ def mutated(draw: st.DrawFn) -> tuple[str, str, list[tuple[str, Any]]]:
     elif edit == "garbage":
         at = draw(st.integers(0, len(text)))
         text = text[:at] + draw(TEXT) + text[at:]
-    samples = draw(st.lists(st.tuples(st.sampled_from(["truncate", "rows", "empty", "missing", "symlink"]),
-                                      st.integers(0, 4)), max_size=2))
+    samples = draw(st.lists(st.tuples(st.sampled_from(["truncate", "rows", "empty", "missing", "symlink"]), st.integers(0, 4)), max_size=2))
     return name, text, samples
 
 
-BAD_ROWS = [b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n", b"thread\n\n\n", b"\x00\x01\x02",
-            b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\n" + b"a,1," + b"9" * 40 + b",0,0,0\n"]
+BAD_ROWS = [
+    b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n",
+    b"thread\n\n\n",
+    b"\x00\x01\x02",
+    b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\n" + b"a,1," + b"9" * 40 + b",0,0,0\n",
+]
 
 
 def _spoil_samples(folder: str, how: str, index: int) -> None:
@@ -156,8 +164,13 @@ def _check(argv: tuple[str, ...]) -> None:
         assert bad not in done.err and bad not in done.out, (argv, done.err[-2000:])
 
 
-@settings(max_examples=EXAMPLES, derandomize=True, database=None, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=EXAMPLES,
+    derandomize=True,
+    database=None,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(mutated())
 def test_mutated_results_never_crash_report_compare_or_merge(case):
     with tempfile.TemporaryDirectory() as tmp:
@@ -168,8 +181,13 @@ def test_mutated_results_never_crash_report_compare_or_merge(case):
         _check(("merge", run, "--out", os.path.join(tmp, "merged"), "--no-plots"))
 
 
-@settings(max_examples=max(3, EXAMPLES // 20), derandomize=True, database=None, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(
+    max_examples=max(3, EXAMPLES // 20),
+    derandomize=True,
+    database=None,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(mutated())
 def test_mutated_results_never_crash_the_plots(case):
     with tempfile.TemporaryDirectory() as tmp:

@@ -35,15 +35,87 @@ FUZZ = settings(
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
 )
 
-KEYS = ["name", "description", "duration", "processes", "background", "matrix", "expect", "instances", "memory",
-        "lock", "prealloc", "stack_size", "main", "threads", "sched", "cpus", "apply", "work", "kind", "period",
-        "burn", "burn_clock", "alloc", "offset", "count", "inherit", "reset_on_fork", "hogs", "commands", "argv",
-        "thread", "metric", "max", "min", "cells", "include", "exclude", "policy", "priority", "nice", "<<"]
+KEYS = [
+    "name",
+    "description",
+    "duration",
+    "processes",
+    "background",
+    "matrix",
+    "expect",
+    "instances",
+    "memory",
+    "lock",
+    "prealloc",
+    "stack_size",
+    "main",
+    "threads",
+    "sched",
+    "cpus",
+    "apply",
+    "work",
+    "kind",
+    "period",
+    "burn",
+    "burn_clock",
+    "alloc",
+    "offset",
+    "count",
+    "inherit",
+    "reset_on_fork",
+    "hogs",
+    "commands",
+    "argv",
+    "thread",
+    "metric",
+    "max",
+    "min",
+    "cells",
+    "include",
+    "exclude",
+    "policy",
+    "priority",
+    "nice",
+    "<<",
+]
 UNITS = ["ns", "us", "µs", "ms", "s", "m", "h", "B", "KiB", "MiB", "GiB", "TiB", "MB", "sec", ""]
-WORDS = ["fifo", "rr", "other", "batch", "idle", "deadline", "fifo:80", "SCHED_RR", "periodic", "spin", "sleep",
-         "cpus", "process", "thread", "before_threads", "after_threads", "wall", "latency.p99", "callbacks",
-         "0-1", "0b11", "0x3", "1-0", "app", "gc", "$\\foo$", "a|b", "`x`", "#c", "<x>", "${{ matrix.x }}",
-         "${{ matrix.policy }}", "fifo:${{ matrix.prio }}", "${{ env.HOME }}", "${{ matrix. }}"]
+WORDS = [
+    "fifo",
+    "rr",
+    "other",
+    "batch",
+    "idle",
+    "deadline",
+    "fifo:80",
+    "SCHED_RR",
+    "periodic",
+    "spin",
+    "sleep",
+    "cpus",
+    "process",
+    "thread",
+    "before_threads",
+    "after_threads",
+    "wall",
+    "latency.p99",
+    "callbacks",
+    "0-1",
+    "0b11",
+    "0x3",
+    "1-0",
+    "app",
+    "gc",
+    "$\\foo$",
+    "a|b",
+    "`x`",
+    "#c",
+    "<x>",
+    "${{ matrix.x }}",
+    "${{ matrix.policy }}",
+    "fifo:${{ matrix.prio }}",
+    "${{ env.HOME }}",
+    "${{ matrix. }}",
+]
 
 numbers = st.one_of(
     st.integers(min_value=-(10**6), max_value=10**6),
@@ -53,8 +125,10 @@ numbers = st.one_of(
 )
 quantities = st.builds(
     lambda number, unit: f"{number}{unit}",
-    st.one_of(st.integers(min_value=0, max_value=10**30).map(str), st.sampled_from(["1" + "0" * 400, "1.5", ".5", "1e400",
-                                                                                   "-1", "nan", "inf", "0.0000001"])),
+    st.one_of(
+        st.integers(min_value=0, max_value=10**30).map(str),
+        st.sampled_from(["1" + "0" * 400, "1.5", ".5", "1e400", "-1", "nan", "inf", "0.0000001"]),
+    ),
     st.sampled_from(UNITS),
 )
 texts = st.one_of(
@@ -146,18 +220,55 @@ def test_mutated_shipped_scenarios_never_crash(index, choice, action, new, key):
 
 
 YAML_SNIPPETS = [
-    "&a ", "*a", "<<: *a\n", "<<: [*a, *a]\n", "!!int ", "!!float ", "!!str ", "!!binary ", "!!python/name:os.system ",
-    "${{ matrix.policy }}", "\"${{ matrix.x }}\"", "1e400s", "1" + "0" * 400 + "B", ".inf", ".nan", "-.inf", "~",
-    "\x01", "\x1b", "\t", "\u2028", "\ufeff", "\"\\ud800\"", "{", "}", "[", "]", ": ", "- ", "? ", "|\n", ">-\n",
-    "include:\n  - {x: 1}\n", "exclude:\n  - {policy: fifo}\n", "#", "'", "\"", "%YAML 1.1\n---\n", "---\n", "...\n",
+    "&a ",
+    "*a",
+    "<<: *a\n",
+    "<<: [*a, *a]\n",
+    "!!int ",
+    "!!float ",
+    "!!str ",
+    "!!binary ",
+    "!!python/name:os.system ",
+    "${{ matrix.policy }}",
+    '"${{ matrix.x }}"',
+    "1e400s",
+    "1" + "0" * 400 + "B",
+    ".inf",
+    ".nan",
+    "-.inf",
+    "~",
+    "\x01",
+    "\x1b",
+    "\t",
+    "\u2028",
+    "\ufeff",
+    '"\\ud800"',
+    "{",
+    "}",
+    "[",
+    "]",
+    ": ",
+    "- ",
+    "? ",
+    "|\n",
+    ">-\n",
+    "include:\n  - {x: 1}\n",
+    "exclude:\n  - {policy: fifo}\n",
+    "#",
+    "'",
+    '"',
+    "%YAML 1.1\n---\n",
+    "---\n",
+    "...\n",
 ]
 
 
 @FUZZ
 @given(
     index=st.integers(min_value=0, max_value=100),
-    edits=st.lists(st.tuples(st.integers(min_value=0, max_value=10**6), st.sampled_from(YAML_SNIPPETS) | st.text(max_size=4)),
-                   min_size=1, max_size=4),
+    edits=st.lists(
+        st.tuples(st.integers(min_value=0, max_value=10**6), st.sampled_from(YAML_SNIPPETS) | st.text(max_size=4)), min_size=1, max_size=4
+    ),
 )
 def test_text_edits_of_shipped_scenarios_never_crash(index, edits):
     with open(SHIPPED[index % len(SHIPPED)], encoding="utf-8") as handle:
@@ -194,8 +305,9 @@ threads = st.lists(
     main=st.fixed_dictionaries({}, optional={"sched": scalars, "work": values, "cpus": scalars}),
     threads=threads,
     duration=scalars,
-    expect=st.lists(st.fixed_dictionaries({"thread": texts, "metric": texts}, optional={"max": scalars, "min": scalars,
-                                                                                       "cells": values}), max_size=3),
+    expect=st.lists(
+        st.fixed_dictionaries({"thread": texts, "metric": texts}, optional={"max": scalars, "min": scalars, "cells": values}), max_size=3
+    ),
 )
 def test_generated_scenarios_never_crash(axes, include, exclude, name, instances, memory, main, threads, duration, expect):
     matrix: dict[str, Any] = dict(axes)

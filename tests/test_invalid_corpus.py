@@ -31,9 +31,9 @@ def test_each_problem_is_reported_at_its_line(path):
     reported = [str(p) for p in caught.value.problems]
     for expect in wanted:
         prefix = f"{path}:{expect}"
-        assert any(r.startswith(prefix) for r in reported + [str(w) for w in []]) or any(
-            prefix in r for r in reported
-        ), f"missing {prefix!r}\nreported:\n" + "\n".join(reported)
+        assert any(r.startswith(prefix) for r in reported + [str(w) for w in []]) or any(prefix in r for r in reported), (
+            f"missing {prefix!r}\nreported:\n" + "\n".join(reported)
+        )
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=os.path.basename)

@@ -34,11 +34,26 @@ SEED = {
     "middleware_threads": ("minimal_schedul", [("minimal_schedul", FF80)] + [(n, FF80) for n in MW], None),
     "spin_thread": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW] + [("spin_executor", FF80)], None),
     "callback_group": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW] + [("rt_sub", FF80)], None),
-    "real_time_executor": ("minimal_schedul", [("minimal_schedul", TS)] + [(n, TS) for n in MW]
-                           + [("minimal_sub1", TS), ("minimal_sub2", FF80)], None),
-    "cpu_affinity_main_thread": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], "main"),
-    "cpu_affinity_middleware_threads": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], (1,)),
-    "cpu_affinity_mask": ("minimal_cpu_aff", [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW], (1,)),
+    "real_time_executor": (
+        "minimal_schedul",
+        [("minimal_schedul", TS)] + [(n, TS) for n in MW] + [("minimal_sub1", TS), ("minimal_sub2", FF80)],
+        None,
+    ),
+    "cpu_affinity_main_thread": (
+        "minimal_cpu_aff",
+        [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW],
+        "main",
+    ),
+    "cpu_affinity_middleware_threads": (
+        "minimal_cpu_aff",
+        [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW],
+        (1,),
+    ),
+    "cpu_affinity_mask": (
+        "minimal_cpu_aff",
+        [("minimal_cpu_aff", TS)] + [(n.replace("minimal_schedul", "minimal_cpu_aff"), TS) for n in MW],
+        (1,),
+    ),
 }
 
 
@@ -52,12 +67,22 @@ def seed_runs(tmp_path_factory):
         try:
             pid = wait_for_threads(comm, len(rows))
             time.sleep(1.0)  # well inside the run: every setting applied, callbacks running
-            live = {"pid": pid, "rows": thread_rows(pid), "ps": ps_table(pid), "ours": render_ps(thread_rows(pid), pid_width=pid_width()),
-                    "cli_pid": _runner_ps(str(pid)), "cli_name": _runner_ps(comm),
-                    # procps 3 (the seed's) `ps -C NAME -L` listed every thread of the processes named NAME; procps 4
-                    # selects threads by their own name, so select the processes by PID, as runner ps NAME does
-                    "ps_name": subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", ",".join(map(str, find_pids(comm)))],
-                                              capture_output=True, text=True, check=True).stdout}
+            live = {
+                "pid": pid,
+                "rows": thread_rows(pid),
+                "ps": ps_table(pid),
+                "ours": render_ps(thread_rows(pid), pid_width=pid_width()),
+                "cli_pid": _runner_ps(str(pid)),
+                "cli_name": _runner_ps(comm),
+                # procps 3 (the seed's) `ps -C NAME -L` listed every thread of the processes named NAME; procps 4
+                # selects threads by their own name, so select the processes by PID, as runner ps NAME does
+                "ps_name": subprocess.run(
+                    ["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", ",".join(map(str, find_pids(comm)))],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                ).stdout,
+            }
         except BaseException:
             proc.kill()
             raise
@@ -124,8 +149,10 @@ def test_applied_settings_are_the_kernels_and_match_the_request(seed_runs, name)
 
 
 def test_headline_effect_other_loses_fifo_and_rr_do_not(seed_runs):
-    per_cb = {name: thread(seed_runs[name][1].results, "minimal_schedul", index=0)["figures"]["involuntary"]["per_callback_mean"]
-              for name in ("other", "fifo80", "rr80")}
+    per_cb = {
+        name: thread(seed_runs[name][1].results, "minimal_schedul", index=0)["figures"]["involuntary"]["per_callback_mean"]
+        for name in ("other", "fifo80", "rr80")
+    }
     assert per_cb["other"] >= 2.0, per_cb
     assert per_cb["fifo80"] <= 0.5 and per_cb["rr80"] <= 0.5, per_cb
     assert per_cb["other"] >= 5 * max(per_cb["fifo80"], per_cb["rr80"], 0.1), per_cb
@@ -140,7 +167,9 @@ def test_mixed_process_rt_thread_beats_its_sibling(seed_runs):
 
 
 def test_memory_lock_faults(tmp_path):
-    proc = start_runner(os.path.join(SCENARIOS, "memory_lock.yaml"), "--duration", "2s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path))
+    proc = start_runner(
+        os.path.join(SCENARIOS, "memory_lock.yaml"), "--duration", "2s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path)
+    )
     done = finish(proc, str(tmp_path))
     assert done.code == 0, done.out + done.err
     cells = {c["matrix"]["memory"]: c for c in done.results["cells"]}
@@ -163,14 +192,21 @@ def _unprivileged_prefix() -> tuple[tuple[str, ...], str]:
     """
     if os.geteuid() != 0:
         return ("prlimit", "--rtprio=0:0", "--nice=0:0"), f"uid {os.geteuid()} with RLIMIT_RTPRIO 0"
-    return ("setpriv", "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
-            "--bounding-set=-all", "--inh-caps=-all", "--ambient-caps=-all"), "root without capabilities"
+    return (
+        "setpriv",
+        "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
+        "--bounding-set=-all",
+        "--inh-caps=-all",
+        "--ambient-caps=-all",
+    ), "root without capabilities"
 
 
 def test_unprivileged_fifo_fails_before_starting_with_exit_3(tmp_path):
     prefix, who = _unprivileged_prefix()
     os.chmod(tmp_path, 0o777)
-    proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", str(tmp_path / "r"), cwd=str(tmp_path), prefix=prefix)
+    proc = start_runner(
+        os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", str(tmp_path / "r"), cwd=str(tmp_path), prefix=prefix
+    )
     done = finish(proc, str(tmp_path / "r"))
     assert done.code == 3, (who, done.err)
     assert "SCHED_FIFO priority 80" in done.err and "limits.conf" in done.err and "setcap cap_sys_nice" in done.err
@@ -182,8 +218,17 @@ def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
     prefix, who = _unprivileged_prefix()
     os.chmod(tmp_path, 0o777)
     out = str(tmp_path / "r")
-    proc = start_runner(os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", out, "--allow-degraded", "--quiet",
-                        cwd=str(tmp_path), prefix=prefix)
+    proc = start_runner(
+        os.path.join(SCENARIOS, "fifo80.yaml"),
+        "--duration",
+        "1s",
+        "--out",
+        out,
+        "--allow-degraded",
+        "--quiet",
+        cwd=str(tmp_path),
+        prefix=prefix,
+    )
     done = finish(proc, out)
     # degraded to SCHED_OTHER against a busy loop per CPU, fifo80's expectation (<= 0.5 involuntary switches per
     # callback) nearly always fails (exit 1); on a quiet second it may hold (exit 0, degraded). Either way the
@@ -214,7 +259,9 @@ def test_a_killed_worker_gives_an_error_cell_and_valid_results(tmp_path):
 
 
 def test_sigint_leaves_no_child_and_an_interrupted_results_file(tmp_path):
-    proc = start_runner(os.path.join(SCENARIOS, "policy_matrix.yaml"), "--duration", "3s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path))
+    proc = start_runner(
+        os.path.join(SCENARIOS, "policy_matrix.yaml"), "--duration", "3s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path)
+    )
     wait_for_threads("minimal_schedul", 10)
     time.sleep(1.0)
     proc.send_signal(signal.SIGINT)

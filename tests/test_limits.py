@@ -9,8 +9,9 @@ from runner.scenario import limits as lim
 from runner.scenario.loader import parse_scenario
 from runner.scenario.yamlsource import load_text
 
-ROOMY = lim.MachineLimits(pid_max=4_194_304, threads_max=1_000_000, memlock=None, cap_ipc_lock=True,
-                          mem_available=64 << 30, cpus=(0, 1, 2, 3))
+ROOMY = lim.MachineLimits(
+    pid_max=4_194_304, threads_max=1_000_000, memlock=None, cap_ipc_lock=True, mem_available=64 << 30, cpus=(0, 1, 2, 3)
+)
 
 
 def problems(text: str, machine: lim.MachineLimits | None) -> list[str]:
@@ -22,20 +23,26 @@ def problems(text: str, machine: lim.MachineLimits | None) -> list[str]:
 
 
 MANY_THREADS = "name: x\nprocesses:\n  - name: app\n    instances: 64\n    threads:\n" + "".join(
-    f"      - {{name: t{i}, count: 1024}}\n" for i in range(8))
+    f"      - {{name: t{i}, count: 1024}}\n" for i in range(8)
+)
 
 
 def test_thread_count_is_checked_against_pid_max_of_this_machine():
     small = lim.MachineLimits(pid_max=32768, threads_max=192_000, threads_running=100)
     found = problems(MANY_THREADS, small)
-    assert found == [("s.yaml:3:3: processes: the cell needs 524360 threads (instances x threads, hogs and the runner's own 8), "
-                     "but on this machine (pid_max 32768, 100 threads running) at most 32668 can start; lower count or instances")]
+    assert found == [
+        (
+            "s.yaml:3:3: processes: the cell needs 524360 threads (instances x threads, hogs and the runner's own 8), "
+            "but on this machine (pid_max 32768, 100 threads running) at most 32668 can start; lower count or instances"
+        )
+    ]
 
 
 def test_the_smallest_thread_limit_is_named():
     text = "name: x\nprocesses:\n  - name: app\n    threads: [{name: w, count: 100}]\nbackground:\n  hogs: [{count: 4, kind: thread}]\n"
     assert problems(text, lim.MachineLimits(pid_max=4_194_304, threads_max=120, threads_running=10))[0].endswith(
-        "(threads-max 120, 10 threads running) at most 110 can start; lower count or instances")
+        "(threads-max 120, 10 threads running) at most 110 can start; lower count or instances"
+    )
     assert "RLIMIT_NPROC 64" in problems(text, lim.MachineLimits(nproc=64))[0]
     assert "cgroup pids.max 50" in problems(text, lim.MachineLimits(cgroup_pids_max=50))[0]
     assert problems(text, ROOMY) == []
@@ -43,7 +50,8 @@ def test_the_smallest_thread_limit_is_named():
 
 def test_without_machine_limits_the_fixed_ceiling_still_holds():
     assert problems(MANY_THREADS, None) == [
-        "s.yaml:3:3: processes: the cell creates 524352 threads (instances x threads, and hogs); at most 131072 threads in a cell"]
+        "s.yaml:3:3: processes: the cell creates 524352 threads (instances x threads, and hogs); at most 131072 threads in a cell"
+    ]
 
 
 LOCKED = "name: x\nprocesses:\n  - name: app\n    memory: {lock: true, prealloc: 100GiB}\n    threads: [{name: t, count: 2}]\n"
@@ -52,23 +60,33 @@ LOCKED = "name: x\nprocesses:\n  - name: app\n    memory: {lock: true, prealloc:
 def test_locked_prealloc_beyond_rlimit_memlock_is_refused_even_for_root_without_cap_ipc_lock():
     # root in a container: uid 0 but no CAP_IPC_LOCK, so RLIMIT_MEMLOCK applies (read() keeps it)
     found = problems(LOCKED, lim.MachineLimits(memlock=8 << 20, mem_available=256 << 30))
-    assert found == [("s.yaml:4:13: processes[0].memory: process app locks its memory: prealloc 100GiB and 2 thread stacks pin "
-                     "at least 100.0GiB, but on this machine RLIMIT_MEMLOCK is 8MiB and the runner has no CAP_IPC_LOCK; lower "
-                     "prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', 'memlock unlimited' in "
-                     "/etc/security/limits.conf)")]
+    assert found == [
+        (
+            "s.yaml:4:13: processes[0].memory: process app locks its memory: prealloc 100GiB and 2 thread stacks pin "
+            "at least 100.0GiB, but on this machine RLIMIT_MEMLOCK is 8MiB and the runner has no CAP_IPC_LOCK; lower "
+            "prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', 'memlock unlimited' in "
+            "/etc/security/limits.conf)"
+        )
+    ]
 
 
 def test_unlimited_memlock_leaves_ram_as_the_bound():
     found = problems(LOCKED, lim.MachineLimits(memlock=None, cap_ipc_lock=True, mem_available=16 << 30))
-    assert found == [("s.yaml:3:3: processes: the cell keeps 100.0GiB resident (prealloc, locked stacks and per-callback "
-                     "alloc, times instances and counts), but on this machine MemAvailable is 16GiB; lower prealloc, "
-                     "alloc, count or instances")]
+    assert found == [
+        (
+            "s.yaml:3:3: processes: the cell keeps 100.0GiB resident (prealloc, locked stacks and per-callback "
+            "alloc, times instances and counts), but on this machine MemAvailable is 16GiB; lower prealloc, "
+            "alloc, count or instances"
+        )
+    ]
     assert problems(LOCKED, lim.MachineLimits(mem_available=200 << 30)) == []
 
 
 def test_per_callback_alloc_counts_against_ram_with_instances_and_counts():
-    text = ("name: x\nprocesses:\n  - name: app\n    instances: 4\n    threads:\n"
-            "      - {name: a, count: 8, work: {kind: periodic, period: 100ms, alloc: 1GiB}}\n")
+    text = (
+        "name: x\nprocesses:\n  - name: app\n    instances: 4\n    threads:\n"
+        "      - {name: a, count: 8, work: {kind: periodic, period: 100ms, alloc: 1GiB}}\n"
+    )
     assert "keeps 32GiB resident" in problems(text, lim.MachineLimits(mem_available=31 << 30))[0]
     assert problems(text, lim.MachineLimits(mem_available=33 << 30)) == []
 
@@ -77,12 +95,15 @@ def test_cpus_outside_this_machine_are_refused():
     text = "name: x\nprocesses:\n  - name: app\n    main: {cpus: [1, 7]}\n    threads: [{name: t, cpus: 2-3}]\n"
     assert problems(text, lim.MachineLimits(cpus=(0, 1))) == [
         "s.yaml:4:18: processes[0].main.cpus: CPU 7 is not available on this machine (the runner may use 0-1)",
-        "s.yaml:5:31: processes[0].threads[0].cpus: CPUs 2-3 are not available on this machine (the runner may use 0-1)"]
+        "s.yaml:5:31: processes[0].threads[0].cpus: CPUs 2-3 are not available on this machine (the runner may use 0-1)",
+    ]
 
 
 def test_a_limit_problem_in_some_cells_names_them():
-    text = ("name: x\nmatrix:\n  prealloc: [0B, 1MiB, 2GiB]\nprocesses:\n  - name: app\n"
-            "    memory: {lock: true, prealloc: '${{ matrix.prealloc }}'}\n")
+    text = (
+        "name: x\nmatrix:\n  prealloc: [0B, 1MiB, 2GiB]\nprocesses:\n  - name: app\n"
+        "    memory: {lock: true, prealloc: '${{ matrix.prealloc }}'}\n"
+    )
     found = problems(text, lim.MachineLimits(memlock=64 << 20))
     assert len(found) == 1 and found[0].endswith("(in cell prealloc=2GiB)")
 

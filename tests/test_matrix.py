@@ -24,8 +24,7 @@ def expand(block: dict):
 
 def test_product_in_declaration_order_with_readable_ids():
     cells, _ = expand({"policy": ["fifo", "rr"], "priority": [10, 80]})
-    assert [c.id for c in cells] == ["policy=fifo,priority=10", "policy=fifo,priority=80",
-                                     "policy=rr,priority=10", "policy=rr,priority=80"]
+    assert [c.id for c in cells] == ["policy=fifo,priority=10", "policy=fifo,priority=80", "policy=rr,priority=10", "policy=rr,priority=80"]
 
 
 def test_exclude_removes_partial_matches_and_warns_when_dead():
@@ -36,11 +35,19 @@ def test_exclude_removes_partial_matches_and_warns_when_dead():
 
 def test_include_extends_matching_cells_and_adds_the_rest():
     # GitHub's documented example: fruit x animal with include
-    cells, _ = expand({
-        "fruit": ["apple", "pear"], "animal": ["cat", "dog"],
-        "include": [{"color": "green"}, {"color": "pink", "animal": "cat"}, {"fruit": "apple", "shape": "circle"},
-                    {"fruit": "banana"}, {"fruit": "banana", "animal": "cat"}],
-    })
+    cells, _ = expand(
+        {
+            "fruit": ["apple", "pear"],
+            "animal": ["cat", "dog"],
+            "include": [
+                {"color": "green"},
+                {"color": "pink", "animal": "cat"},
+                {"fruit": "apple", "shape": "circle"},
+                {"fruit": "banana"},
+                {"fruit": "banana", "animal": "cat"},
+            ],
+        }
+    )
     assert [c.values for c in cells] == [
         {"fruit": "apple", "animal": "cat", "color": "pink", "shape": "circle"},
         {"fruit": "apple", "animal": "dog", "color": "green", "shape": "circle"},
@@ -111,20 +118,22 @@ def test_include_cannot_grow_the_matrix_past_its_cap():
     block = {f"a{i}": ["x", "y"] for i in range(12)}
     block["include"] = [{"a0": "z"}]
     cells = mx.expand(doc, mx.parse(doc, block, problems), problems, warnings)
-    assert cells == [] and [p.message for p in problems] == [
-        "the matrix has 4097 cells with its include entries; at most 4096"]
+    assert cells == [] and [p.message for p in problems] == ["the matrix has 4097 cells with its include entries; at most 4096"]
 
 
-@pytest.mark.parametrize("block, message", [
-    ({"include": [{"x": i} for i in range(257)]}, "257 include entries; at most 256"),
-    ({"a": [1], "exclude": [{"a": 2}] * 257}, "257 exclude entries; at most 256"),
-    ({"a": ["x\ny"]}, r"matrix value 'x\\ny' contains the control character '\\n'"),
-    ({"include": [{"a": "\x1b[2J"}]}, r"contains the control character '\\x1b'"),
-    ({"include": [{"bad key": 1}]}, "matrix key 'bad key' must be a letter"),
-    ({"a": ["${{ matrix.b }}"]}, "matrix values are not expanded again"),
-    ({"a": [float("nan")]}, "is not a finite number"),
-    ({f"k{i}": [1] for i in range(65)}, "the matrix has 65 keys; at most 64"),
-])
+@pytest.mark.parametrize(
+    "block, message",
+    [
+        ({"include": [{"x": i} for i in range(257)]}, "257 include entries; at most 256"),
+        ({"a": [1], "exclude": [{"a": 2}] * 257}, "257 exclude entries; at most 256"),
+        ({"a": ["x\ny"]}, r"matrix value 'x\\ny' contains the control character '\\n'"),
+        ({"include": [{"a": "\x1b[2J"}]}, r"contains the control character '\\x1b'"),
+        ({"include": [{"bad key": 1}]}, "matrix key 'bad key' must be a letter"),
+        ({"a": ["${{ matrix.b }}"]}, "matrix values are not expanded again"),
+        ({"a": [float("nan")]}, "is not a finite number"),
+        ({f"k{i}": [1] for i in range(65)}, "the matrix has 65 keys; at most 64"),
+    ],
+)
 def test_matrix_block_problems(block, message):
     doc = load_text("x: 1\n", "f")
     problems = []
@@ -135,10 +144,13 @@ def test_matrix_block_problems(block, message):
 def test_validation_is_linear_in_cells():
     """4096 cells used to take 37 s (cross checks searched every cell for every cell)."""
     axes = "".join(f"  a{i}: [{2 * i + 1}ms, {2 * i + 2}ms]\n" for i in range(12))
-    threads = "".join(f"      - {{name: t{i}, work: {{kind: periodic, period: 100ms, burn: '${{{{ matrix.a{i} }}}}'}}}}\n"
-                      for i in range(12))
-    text = (f"name: big\nmatrix:\n{axes}processes:\n  - name: app\n    threads:\n{threads}"
-            "expect:\n  - {thread: t0, metric: latency.p99, max: 2ms, cells: {a0: [1ms]}}\n")
+    threads = "".join(
+        f"      - {{name: t{i}, work: {{kind: periodic, period: 100ms, burn: '${{{{ matrix.a{i} }}}}'}}}}\n" for i in range(12)
+    )
+    text = (
+        f"name: big\nmatrix:\n{axes}processes:\n  - name: app\n    threads:\n{threads}"
+        "expect:\n  - {thread: t0, metric: latency.p99, max: 2ms, cells: {a0: [1ms]}}\n"
+    )
     start = time.perf_counter()
     assert len(parse_scenario(load_text(text, "big.yaml")).cells) == 4096
     took = time.perf_counter() - start
@@ -152,9 +164,11 @@ def test_cells_that_resolve_alike_are_validated_once(monkeypatch):
     real = sc._check_cell
     monkeypatch.setattr(sc, "_check_cell", lambda *a: calls.append(1) or real(*a))
     # `label` only names the cells (and selects them); `p` changes what runs
-    text = ("name: m\nmatrix:\n  include:\n    - {label: a, p: 10}\n    - {label: b, p: 10}\n    - {label: c, p: 20}\n"
-            "processes:\n  - name: app\n    main: {sched: 'fifo:${{ matrix.p }}', work: {kind: periodic, period: 10ms}}\n"
-            "expect:\n  - {thread: app, metric: callbacks, min: 1, cells: {label: [a, c]}}\n")
+    text = (
+        "name: m\nmatrix:\n  include:\n    - {label: a, p: 10}\n    - {label: b, p: 10}\n    - {label: c, p: 20}\n"
+        "processes:\n  - name: app\n    main: {sched: 'fifo:${{ matrix.p }}', work: {kind: periodic, period: 10ms}}\n"
+        "expect:\n  - {thread: app, metric: callbacks, min: 1, cells: {label: [a, c]}}\n"
+    )
     loaded = parse_scenario(load_text(text, "m.yaml"))
     assert [c.id for c in loaded.cells] == ["label=a,p=10", "label=b,p=10", "label=c,p=20"]
     assert len(calls) == 2

@@ -17,6 +17,7 @@ from runner.run.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 
+
 def small(tmp_path, duration="400ms", min_callbacks=1) -> str:
     text = f"""\
 name: small_matrix
@@ -133,8 +134,9 @@ def test_exit_code_2_for_invalid_input_before_anything_runs(tmp_path):
 
 def test_policy_matrix_report_end_to_end(tmp_path):
     out = str(tmp_path / "pm")
-    done = cli(os.path.join(SCENARIOS, "policy_matrix.yaml"), "--duration", "1s", "--settle", "100ms", "--out", out,
-               "--quiet", cwd=str(tmp_path))
+    done = cli(
+        os.path.join(SCENARIOS, "policy_matrix.yaml"), "--duration", "1s", "--settle", "100ms", "--out", out, "--quiet", cwd=str(tmp_path)
+    )
     results = json.load(open(os.path.join(out, "results.json")))
     # 1 only if a noisy latency expectation failed in 1 s per cell on the VM; the code must be the documented one
     assert done.returncode == documented_exit(results) and done.returncode in (0, 1), done.stderr
@@ -143,7 +145,9 @@ def test_policy_matrix_report_end_to_end(tmp_path):
     assert "## Matrix summary" in report and "## minimal_schedul/minimal_schedul (main) across cells" in report
     assert "| Involuntary switches per callback (mean)" in report
     assert sorted(os.listdir(os.path.join(out, "plots"))) == [
-        "minimal_schedul-minimal_schedul-main.involuntary.svg", "minimal_schedul-minimal_schedul-main.latency.svg"]
+        "minimal_schedul-minimal_schedul-main.involuntary.svg",
+        "minimal_schedul-minimal_schedul-main.latency.svg",
+    ]
     results = json.load(open(os.path.join(out, "results.json")))
     invol = {c["id"]: c["threads"][0]["figures"]["involuntary"]["per_callback_mean"] for c in results["cells"]}
     assert invol["policy=other,priority=0"] > 1.0 and invol["policy=fifo,priority=80"] < 0.5

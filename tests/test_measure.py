@@ -9,9 +9,23 @@ from runner.scenario.model import Expectation
 
 
 def slot(samples, finished=True):
-    return SlotData(tid=1, state="done" if finished else "running", count=len(samples), err_sched=0, err_nice=0,
-                    err_cpus=0, err_other=0, start_ru=(0, 0, 0, 0), end_ru=(7, 30, 12900, 0), loops=len(samples),
-                    missed=0, work_start_ns=0, work_end_ns=0, cpus_seen=(1,), samples=tuple(samples))
+    return SlotData(
+        tid=1,
+        state="done" if finished else "running",
+        count=len(samples),
+        err_sched=0,
+        err_nice=0,
+        err_cpus=0,
+        err_other=0,
+        start_ru=(0, 0, 0, 0),
+        end_ru=(7, 30, 12900, 0),
+        loops=len(samples),
+        missed=0,
+        work_start_ns=0,
+        work_end_ns=0,
+        cpus_seen=(1,),
+        samples=tuple(samples),
+    )
 
 
 def sample(i, lat_us, nivcsw, minflt=0):

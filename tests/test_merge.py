@@ -164,8 +164,7 @@ def _with_samples_file(tmp_path, value):
 @pytest.mark.parametrize("value", ["/etc/passwd", "../../x", "cells/../../outside.csv.gz"])
 def test_merge_refuses_samples_paths_outside_the_results_folder(tmp_path, value):
     shards, cell_id = _with_samples_file(tmp_path, value)
-    for argv in (("merge", *shards, "--out", str(tmp_path / "merged")), ("report", shards[1], "-o", "-"),
-                 ("compare", MATRIX, shards[1])):
+    for argv in (("merge", *shards, "--out", str(tmp_path / "merged")), ("report", shards[1], "-o", "-"), ("compare", MATRIX, shards[1])):
         done = run_cli(*argv)
         assert done.code == 2, (argv, done.err)
         where = os.path.join(shards[1], "results.json")
@@ -183,5 +182,6 @@ def test_merge_refuses_a_samples_file_that_is_a_symlink_out_of_the_folder(tmp_pa
     os.symlink("/etc/passwd", target)
     done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"))
     assert done.code == 2 and f"cells.{cell.id}.samples_file:" in done.err and "through a symlink" in done.err
-    assert not any("passwd" in Path(d, f).read_text(errors="replace")
-                   for d, _, fs in os.walk(tmp_path / "merged") for f in fs if f.endswith(".gz"))
+    assert not any(
+        "passwd" in Path(d, f).read_text(errors="replace") for d, _, fs in os.walk(tmp_path / "merged") for f in fs if f.endswith(".gz")
+    )

@@ -33,7 +33,9 @@ def test_own_settings_on_top_of_what_was_inherited():
 
 
 def test_explicit_defaults_opt_out():
-    p = proc(main={"sched": "fifo:80", "cpus": [1]}, threads=[{"name": "x", "inherit": False}, {"name": "y", "inherit": False, "sched": "batch"}])
+    p = proc(
+        main={"sched": "fifo:80", "cpus": [1]}, threads=[{"name": "x", "inherit": False}, {"name": "y", "inherit": False, "sched": "batch"}]
+    )
     _, x, y = plan_process(p, BASE)
     assert x.settings == Settings() and x.origin == "explicit"
     assert y.settings == Settings(Policy.BATCH, 0, 0, None) and y.origin == "explicit+own"

@@ -78,8 +78,13 @@ def layout(markdown: str) -> list[Block]:
 def test_golden_layout_ignores_padding_and_nothing_else():
     a = "# t\n\n| a   | b |\n|:----|--:|\n| ✅ x |  1 |\n\nend\n"
     assert layout(a) == layout(a.replace("| a   |", "| a |").replace("|  1 |", "| 1 |").replace(":----", ":--"))
-    for changed in (a.replace("✅ x", "✅ y"), a.replace("--:", "---"), a.replace("end", "end."),
-                    a.replace("| ✅ x |  1 |\n", "| ✅ x |  1 |\n| z | 2 |\n"), a.replace("# t", "## t")):
+    for changed in (
+        a.replace("✅ x", "✅ y"),
+        a.replace("--:", "---"),
+        a.replace("end", "end."),
+        a.replace("| ✅ x |  1 |\n", "| ✅ x |  1 |\n| z | 2 |\n"),
+        a.replace("# t", "## t"),
+    ):
         assert layout(changed) != layout(a), changed
 
 
@@ -193,8 +198,7 @@ def test_report_command_re_renders_without_running(tmp_path):
     shutil.copytree(MATRIX, tmp_path / "run")
     done = run_cli("report", str(tmp_path / "run"))
     assert done.code == 0, done.err
-    assert (tmp_path / "run" / "report.md").read_text() == report.render_run(
-        matrix(), {k: v for k, v in _plots(tmp_path / "run").items()})
+    assert (tmp_path / "run" / "report.md").read_text() == report.render_run(matrix(), {k: v for k, v in _plots(tmp_path / "run").items()})
     out = run_cli("report", os.path.join(MATRIX, "results.json"), "-o", "-")
     assert out.code == 0 and out.out == report.render_run(matrix())
 
@@ -204,8 +208,12 @@ def _plots(folder):  # the plot links write_report made, rebuilt from the files
 
     names = sorted(os.listdir(folder / "plots"))
     key = matrix().cells[0].threads[0].key
-    return {key: [Plot("wake-up latency histogram", f"plots/{names[1]}"),
-                  Plot("involuntary context switches per callback", f"plots/{names[0]}")]}
+    return {
+        key: [
+            Plot("wake-up latency histogram", f"plots/{names[1]}"),
+            Plot("involuntary context switches per callback", f"plots/{names[0]}"),
+        ]
+    }
 
 
 def test_report_of_a_file_that_is_not_results_is_a_user_error(tmp_path):
@@ -228,9 +236,20 @@ def test_step_summary_is_appended_without_plot_links(tmp_path):
     assert append_step_summary(text, {}) is None
 
 
-@pytest.mark.parametrize("value, text", [(None, "–"), (6040, "6.0 µs"), (56580, "56.6 µs"), (99_940, "99.9 µs"),
-                                         (142_000, "142 µs"), (999_400, "999 µs"), (6_122_100, "6.12 ms"),
-                                         (2_500_000_000, "2.50 s"), (0, "0.0 µs")])
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        (None, "–"),
+        (6040, "6.0 µs"),
+        (56580, "56.6 µs"),
+        (99_940, "99.9 µs"),
+        (142_000, "142 µs"),
+        (999_400, "999 µs"),
+        (6_122_100, "6.12 ms"),
+        (2_500_000_000, "2.50 s"),
+        (0, "0.0 µs"),
+    ],
+)
 def test_durations_are_stored_in_ns_and_shown_in_the_unit_that_reads_best(value, text):
     assert report.fmt_ns(value) == text
 
@@ -287,8 +306,14 @@ def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_p
 
 
 @settings(max_examples=200, derandomize=True, database=None)
-@given(st.lists(st.tuples(st.text(max_size=30), st.integers(-2, 12), st.integers(-2, 12), st.text(max_size=30)),
-                min_size=2, max_size=6, unique_by=lambda t: t))
+@given(
+    st.lists(
+        st.tuples(st.text(max_size=30), st.integers(-2, 12), st.integers(-2, 12), st.text(max_size=30)),
+        min_size=2,
+        max_size=6,
+        unique_by=lambda t: t,
+    )
+)
 def test_plot_names_are_injective_safe_and_bounded(threads):
     import re
 
@@ -335,6 +360,7 @@ def _json_edit(change):
         data = json.loads(text)
         change(data)
         return json.dumps(data)
+
     return edit
 
 
@@ -342,24 +368,39 @@ def _thread(data):
     return data["cells"][0]["threads"][0]
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda t: t.replace('"p99": 58.366', '"p99": NaN'), ":1:1: NaN is not a number"),
-    (lambda t: t.replace('"p99": 58.366', '"p99": Infinity'), "Infinity is not a number"),
-    (lambda t: t.replace('"p99": 58.366', '"p99": 1e400'), "1e400 is out of range"),
-    (lambda t: t.replace('"callbacks": 10,', '"callbacks": ' + "9" * 5000 + ",", 1), "not a usable number"),
-    (_json_edit(lambda d: _thread(d).update(callbacks="ten")), "cells[0].threads[0].callbacks: input should be a valid integer; got 'ten'"),
-    (_json_edit(lambda d: _thread(d).update(callbacks=True)), "cells[0].threads[0].callbacks: input should be a valid integer; got True"),
-    (_json_edit(lambda d: _thread(d)["latency_us"].update(p99=1e300)), "cells[0].threads[0].latency_us.p99: input should be less than or equal to"),
-    (_json_edit(lambda d: _thread(d).pop("faults")), "cells[0].threads[0].faults: field required"),
-    (_json_edit(lambda d: d["cells"][0].update(status="splendid")), "cells[0].status: input should be"),
-    (_json_edit(lambda d: d.update(cells={"a": 1})), "cells: input should be a valid list"),
-    (_json_edit(lambda d: d.update(command="runner x")), "command: input should be a valid list"),
-    (_json_edit(lambda d: d["cells"][0]["background"].append({"kind": "command", "argv": [1]})), "cells[0].background[2].argv[0]: input should be a valid string; got 1"),
-    (lambda t: "[" * 100 + "]" * 100, "nested more than 64 levels"),
-    (lambda t: "[]", "expected a runner.results/2 (or runner.results/1) results file, got None"),
-    (lambda t: '{"schema": "runner.results/1", "x": ' + "[" * 100 + "]" * 100 + "}", "nested more than 64 levels"),
-    (lambda t: "\xff", "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda t: t.replace('"p99": 58.366', '"p99": NaN'), ":1:1: NaN is not a number"),
+        (lambda t: t.replace('"p99": 58.366', '"p99": Infinity'), "Infinity is not a number"),
+        (lambda t: t.replace('"p99": 58.366', '"p99": 1e400'), "1e400 is out of range"),
+        (lambda t: t.replace('"callbacks": 10,', '"callbacks": ' + "9" * 5000 + ",", 1), "not a usable number"),
+        (
+            _json_edit(lambda d: _thread(d).update(callbacks="ten")),
+            "cells[0].threads[0].callbacks: input should be a valid integer; got 'ten'",
+        ),
+        (
+            _json_edit(lambda d: _thread(d).update(callbacks=True)),
+            "cells[0].threads[0].callbacks: input should be a valid integer; got True",
+        ),
+        (
+            _json_edit(lambda d: _thread(d)["latency_us"].update(p99=1e300)),
+            "cells[0].threads[0].latency_us.p99: input should be less than or equal to",
+        ),
+        (_json_edit(lambda d: _thread(d).pop("faults")), "cells[0].threads[0].faults: field required"),
+        (_json_edit(lambda d: d["cells"][0].update(status="splendid")), "cells[0].status: input should be"),
+        (_json_edit(lambda d: d.update(cells={"a": 1})), "cells: input should be a valid list"),
+        (_json_edit(lambda d: d.update(command="runner x")), "command: input should be a valid list"),
+        (
+            _json_edit(lambda d: d["cells"][0]["background"].append({"kind": "command", "argv": [1]})),
+            "cells[0].background[2].argv[0]: input should be a valid string; got 1",
+        ),
+        (lambda t: "[" * 100 + "]" * 100, "nested more than 64 levels"),
+        (lambda t: "[]", "expected a runner.results/2 (or runner.results/1) results file, got None"),
+        (lambda t: '{"schema": "runner.results/1", "x": ' + "[" * 100 + "]" * 100 + "}", "nested more than 64 levels"),
+        (lambda t: "\xff", "not valid JSON"),
+    ],
+)
 def test_bad_results_files_are_one_line_errors(tmp_path, edit, message):
     path = _edited(tmp_path, edit)
     for argv in (("report", path, "-o", "-"), ("compare", MATRIX, path), ("merge", path, "--out", str(tmp_path / "m"))):
@@ -376,13 +417,22 @@ def test_a_file_that_is_not_utf8_is_a_one_line_error(tmp_path):
     assert done.code == 2 and f"{path}:1:1: not UTF-8 text" in done.err
 
 
-@pytest.mark.parametrize("content, message", [
-    (lambda raw: raw[: len(raw) // 2], "cannot read samples"),
-    (lambda raw: b"not gzip at all", "cannot read samples"),
-    (lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n"), ":2:1: not a samples row: latency_ns is 'x'"),
-    (lambda raw: __import__("gzip").compress(b"thread,seq\nk,1\n"), "column latency_ns is missing"),
-    (lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1," + b"9" * 30 + b",0,0,0\n"), "out of range"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (lambda raw: raw[: len(raw) // 2], "cannot read samples"),
+        (lambda raw: b"not gzip at all", "cannot read samples"),
+        (
+            lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1,x,0,0,0\n"),
+            ":2:1: not a samples row: latency_ns is 'x'",
+        ),
+        (lambda raw: __import__("gzip").compress(b"thread,seq\nk,1\n"), "column latency_ns is missing"),
+        (
+            lambda raw: __import__("gzip").compress(b"thread,seq,latency_ns,nivcsw,minflt,cpu_end\nk,1," + b"9" * 30 + b",0,0,0\n"),
+            "out of range",
+        ),
+    ],
+)
 def test_bad_samples_files_are_one_line_errors(tmp_path, content, message):
     import shutil
 
@@ -402,8 +452,13 @@ def test_a_figure_that_is_not_a_number_is_written_as_null(tmp_path):
 
     doc = matrix()
     t = doc.cells[0].threads[0]
-    doc.cells[0].threads[0] = t.model_copy(update={"figures": t.figures.model_copy(update={
-        "involuntary": t.figures.involuntary.model_copy(update={"per_callback_mean": float("nan")})})})
+    doc.cells[0].threads[0] = t.model_copy(
+        update={
+            "figures": t.figures.model_copy(
+                update={"involuntary": t.figures.involuntary.model_copy(update={"per_callback_mean": float("nan")})}
+            )
+        }
+    )
     doc.cells[0].expectations[0] = doc.cells[0].expectations[0].model_copy(update={"measured": float("inf")})
     doc.save(str(tmp_path / "results.json"))
     text = (tmp_path / "results.json").read_text()
@@ -432,8 +487,14 @@ def report_load(path):
 
 # ---------------------------------------------------------------- names from the scenario stay text
 
-HOSTILE = st.lists(st.sampled_from(list("#|`*_[]()!<>&\\~-+=.:$ \n\r\t\x00\u2028a1") + [
-    "<script>", "](http://x)", "$\\foo$", "```", "<!--", "&amp;", "1. ", "> ", "- ", "## "]), min_size=1, max_size=12).map("".join)
+HOSTILE = st.lists(
+    st.sampled_from(
+        list("#|`*_[]()!<>&\\~-+=.:$ \n\r\t\x00\u2028a1")
+        + ["<script>", "](http://x)", "$\\foo$", "```", "<!--", "&amp;", "1. ", "> ", "- ", "## "]
+    ),
+    min_size=1,
+    max_size=12,
+).map("".join)
 
 
 def structure(markdown: str) -> list[str]:

@@ -129,30 +129,47 @@ def test_v1_problems_name_v1_keys(tmp_path):
 # ---------------------------------------------------------------- /2 files: strict, tolerant of newer keys
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda d: d["cells"][0]["threads"][0]["figures"].update(callbacks="10"),
-     "cells[0].threads[0].figures.callbacks: input should be a valid integer; got '10'"),
-    (lambda d: d["cells"][0]["threads"][0]["figures"].update(callbacks=True),
-     "cells[0].threads[0].figures.callbacks: input should be a valid integer; got True"),
-    (lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=58.366),
-     "cells[0].threads[0].figures.latency_ns.p99: input should be a valid integer; got 58.366"),
-    (lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=2**64),
-     "cells[0].threads[0].figures.latency_ns.p99: 18446744073709551616 is out of range; expected a 64-bit integer"),
-    (lambda d: d["cells"][0]["threads"][0]["figures"].pop("faults"), "cells[0].threads[0].figures.faults: field required"),
-    (lambda d: d["cells"][0]["threads"][0]["figures"]["faults"].update(extra=1),
-     "cells[0].threads[0].figures.faults.extra: extra inputs are not permitted"),
-    (lambda d: d["cells"][0]["expectations"][0].update(metric="latency.p98"), "did you mean 'latency.p99'"),
-    (lambda d: d["cells"][0].update(duration_ns=1.5), "cells[0].duration_ns: input should be a valid integer"),
-    (lambda d: d["cells"][0].update(status="splendid"), "cells[0].status: input should be"),
-    (lambda d: d["cells"][0]["threads"][0]["requested"].update(cpus="0-"), "cells[0].threads[0].requested.cpus: cannot read CPUs"),
-    (lambda d: d["cells"][0]["thread_table"][0].update(cpus=[0, "1"]),
-     "cells[0].thread_table[0].cpus[1]: input should be a valid integer"),
-    (lambda d: d["plan"].update(settle_ns=-1), "plan.settle_ns: input should be greater than or equal to 0"),
-    (lambda d: d.update(status="done"), "status: expected one of running, error"),
-    (lambda d: d.update(schema="runner.results/3"), "runner.results/3 is a newer results format than this runner"),
-    (lambda d: d.update(schema="runner.results/0"),
-     "expected a runner.results/2 (or runner.results/1) results file, got 'runner.results/0'"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (
+            lambda d: d["cells"][0]["threads"][0]["figures"].update(callbacks="10"),
+            "cells[0].threads[0].figures.callbacks: input should be a valid integer; got '10'",
+        ),
+        (
+            lambda d: d["cells"][0]["threads"][0]["figures"].update(callbacks=True),
+            "cells[0].threads[0].figures.callbacks: input should be a valid integer; got True",
+        ),
+        (
+            lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=58.366),
+            "cells[0].threads[0].figures.latency_ns.p99: input should be a valid integer; got 58.366",
+        ),
+        (
+            lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=2**64),
+            "cells[0].threads[0].figures.latency_ns.p99: 18446744073709551616 is out of range; expected a 64-bit integer",
+        ),
+        (lambda d: d["cells"][0]["threads"][0]["figures"].pop("faults"), "cells[0].threads[0].figures.faults: field required"),
+        (
+            lambda d: d["cells"][0]["threads"][0]["figures"]["faults"].update(extra=1),
+            "cells[0].threads[0].figures.faults.extra: extra inputs are not permitted",
+        ),
+        (lambda d: d["cells"][0]["expectations"][0].update(metric="latency.p98"), "did you mean 'latency.p99'"),
+        (lambda d: d["cells"][0].update(duration_ns=1.5), "cells[0].duration_ns: input should be a valid integer"),
+        (lambda d: d["cells"][0].update(status="splendid"), "cells[0].status: input should be"),
+        (lambda d: d["cells"][0]["threads"][0]["requested"].update(cpus="0-"), "cells[0].threads[0].requested.cpus: cannot read CPUs"),
+        (
+            lambda d: d["cells"][0]["thread_table"][0].update(cpus=[0, "1"]),
+            "cells[0].thread_table[0].cpus[1]: input should be a valid integer",
+        ),
+        (lambda d: d["plan"].update(settle_ns=-1), "plan.settle_ns: input should be greater than or equal to 0"),
+        (lambda d: d.update(status="done"), "status: expected one of running, error"),
+        (lambda d: d.update(schema="runner.results/3"), "runner.results/3 is a newer results format than this runner"),
+        (
+            lambda d: d.update(schema="runner.results/0"),
+            "expected a runner.results/2 (or runner.results/1) results file, got 'runner.results/0'",
+        ),
+    ],
+)
 def test_v2_files_are_read_strictly_with_one_line_problems(tmp_path, change, message):
     path = edited(tmp_path, change)
     text = refusal(path)
@@ -214,34 +231,77 @@ def test_samples_paths_stay_confined_in_v2_files(tmp_path):
 
 def figures(p99: int = 58_366) -> ThreadFigures:
     spread = Spread(min=1, p50=2, p90=3, p99=p99, p999=p99, max=p99)
-    return ThreadFigures(callbacks=10, missed_releases=0, involuntary=Involuntary(total=0, per_callback_mean=0.0,
-                         per_callback_max=0, callbacks_with_any=0), voluntary=Voluntary(total=10), latency_ns=spread,
-                         callback_wall_ns=spread, faults=Faults(minor=0, major=0), cpus_seen=(0,), complete=True)
+    return ThreadFigures(
+        callbacks=10,
+        missed_releases=0,
+        involuntary=Involuntary(total=0, per_callback_mean=0.0, per_callback_max=0, callbacks_with_any=0),
+        voluntary=Voluntary(total=10),
+        latency_ns=spread,
+        callback_wall_ns=spread,
+        faults=Faults(minor=0, major=0),
+        cpus_seen=(0,),
+        complete=True,
+    )
 
 
 def built_cell() -> CellResult:
     """A cell made with the keywords the evaluation core uses (the contract with it)."""
     fifo = Settings(Policy.FIFO, 80, 0, None)
-    thread = ThreadResult(process="p", instance=0, index=0, name="main", pid=10, tid=10, work="periodic 1ms",
-                          periodic=True, requested=fifo, applied=Settings(Policy.FIFO, 80, 0, (0, 1)), degraded=[],
-                          figures=figures())
-    verdict = Verdict(thread=thread_label("p", 0, 0, "main", show_instance=False), metric=Metric("latency.p99"),
-                      limit="<= 2ms", measured=58_366, passed=True, note="")
-    row = ThreadRow(pid=10, tid=10, comm="p", policy=1, rtprio=80, nice=0, psr=1, prio=-81, cpus=(0, 1),
-                    voluntary=3, involuntary=0)
-    return CellResult(id="c", matrix={"x": 1}, spec_hash="h", status=Status.PASSED, spec={"name": "s"}, reason="",
-                      started_at="2026-01-01T00:00:00+00:00", duration_s=1.25, thread_table=[row], threads=[thread],
-                      expectations=[verdict], background=[{"kind": "hog", "name": "hog", "pid": 11}],
-                      overhead_ns={"start_to_first_callback": 1_000, "last_callback_to_exit": None},
-                      samples_file="cells/c/samples.csv.gz", repeat=0)
+    thread = ThreadResult(
+        process="p",
+        instance=0,
+        index=0,
+        name="main",
+        pid=10,
+        tid=10,
+        work="periodic 1ms",
+        periodic=True,
+        requested=fifo,
+        applied=Settings(Policy.FIFO, 80, 0, (0, 1)),
+        degraded=[],
+        figures=figures(),
+    )
+    verdict = Verdict(
+        thread=thread_label("p", 0, 0, "main", show_instance=False),
+        metric=Metric("latency.p99"),
+        limit="<= 2ms",
+        measured=58_366,
+        passed=True,
+        note="",
+    )
+    row = ThreadRow(pid=10, tid=10, comm="p", policy=1, rtprio=80, nice=0, psr=1, prio=-81, cpus=(0, 1), voluntary=3, involuntary=0)
+    return CellResult(
+        id="c",
+        matrix={"x": 1},
+        spec_hash="h",
+        status=Status.PASSED,
+        spec={"name": "s"},
+        reason="",
+        started_at="2026-01-01T00:00:00+00:00",
+        duration_s=1.25,
+        thread_table=[row],
+        threads=[thread],
+        expectations=[verdict],
+        background=[{"kind": "hog", "name": "hog", "pid": 11}],
+        overhead_ns={"start_to_first_callback": 1_000, "last_callback_to_exit": None},
+        samples_file="cells/c/samples.csv.gz",
+        repeat=0,
+    )
 
 
 def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
     cell = built_cell()
     assert cell.duration_ns == 1_250_000_000 and cell.duration_s == 1.25
     assert cell.expectations[0].metric == "latency.p99" and cell.expectations[0].figure.words == "wake-up latency p99"
-    doc = RunDocument(scenario={"name": "s", "path": "s.yaml"}, command=["runner", "s.yaml"], started_at="t",
-                      cell_ids=["c"], matrix_cells=["c"], plan={"repeat": 1, "settle_ns": 0}, cells=[cell])
+    doc = RunDocument(
+        scenario={"name": "s", "path": "s.yaml"},
+        command=["runner", "s.yaml"],
+        started_at="t",
+        cell_ids=["c"],
+        matrix_cells=["c"],
+        plan={"repeat": 1, "settle_ns": 0},
+        cells=[cell],
+    )
     doc.save(str(tmp_path / "results.json"))
     stored = json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))["cells"][0]
     assert stored["duration_ns"] == 1_250_000_000
@@ -249,23 +309,32 @@ def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
     assert stored["threads"][0]["applied"]["cpus"] == "0-1"
     assert stored["threads"][0]["figures"]["latency_ns"]["p99"] == 58_366
     assert stored["thread_table"][0]["cpus"] == "0-1" and stored["thread_table"][0]["prio"] == -81
-    assert stored["expectations"][0] == {"thread": "p/main (main)", "metric": "latency.p99", "limit": "<= 2ms",
-                                         "measured": 58_366, "passed": True, "note": ""}
+    assert stored["expectations"][0] == {
+        "thread": "p/main (main)",
+        "metric": "latency.p99",
+        "limit": "<= 2ms",
+        "measured": 58_366,
+        "passed": True,
+        "note": "",
+    }
     again = load(str(tmp_path)).cells[0]
     assert again == cell
     assert again.threads[0].applied == Settings(Policy.FIFO, 80, 0, (0, 1))
     assert again.thread_table[0] == cell.thread_table[0]
 
 
-@pytest.mark.parametrize("make", [
-    lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_s={}),
-    lambda: Verdict(thread="t", metric="latency.p99", limit="x", measured=1, passed=True, unit="us"),
-    lambda: RunDocument(tool_version="1"),
-    lambda: RunDocument(plan={"repeat": 1, "settle_s": 0.5}),
-    lambda: RunDocument(machine={"hostname": "h", "rt_throttling": {"runtime_us": 950000, "period_us": 1000000}}),
-    lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, background=[{"kind": "hog", "comm": "hog"}]),
-    lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_ns={"start_to_first_callback_s": 1}),
-])
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_s={}),
+        lambda: Verdict(thread="t", metric="latency.p99", limit="x", measured=1, passed=True, unit="us"),
+        lambda: RunDocument(tool_version="1"),
+        lambda: RunDocument(plan={"repeat": 1, "settle_s": 0.5}),
+        lambda: RunDocument(machine={"hostname": "h", "rt_throttling": {"runtime_us": 950000, "period_us": 1000000}}),
+        lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, background=[{"kind": "hog", "comm": "hog"}]),
+        lambda: CellResult(id="c", spec_hash="h", status=Status.PASSED, overhead_ns={"start_to_first_callback_s": 1}),
+    ],
+)
 def test_a_misspelt_keyword_is_an_error_not_a_lost_field(make):
     with pytest.raises(TypeError, match="has no field"):
         make()
@@ -294,8 +363,7 @@ def test_thread_labels_have_one_form():
 
 def test_results_schema_file_in_the_repository_is_current():
     with open(os.path.join(REPO, "results.schema.json"), encoding="utf-8") as handle:
-        assert json.load(handle) == results_schema(), (
-            "regenerate with: runner schema --results > results.schema.json")
+        assert json.load(handle) == results_schema(), "regenerate with: runner schema --results > results.schema.json"
 
 
 @pytest.mark.parametrize("name", RUNS)
@@ -304,12 +372,15 @@ def test_what_runner_writes_satisfies_the_schema(tmp_path, name):
     jsonschema.validate(json.loads((tmp_path / "results.json").read_text(encoding="utf-8")), results_schema())
 
 
-@pytest.mark.parametrize("change", [
-    lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=58.366),
-    lambda d: d["cells"][0]["expectations"][0].update(metric="latency.p98"),
-    lambda d: d.update(schema="runner.results/1"),
-    lambda d: d["cells"][0]["threads"][0]["figures"].pop("complete"),
-])
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda d: d["cells"][0]["threads"][0]["figures"]["latency_ns"].update(p99=58.366),
+        lambda d: d["cells"][0]["expectations"][0].update(metric="latency.p98"),
+        lambda d: d.update(schema="runner.results/1"),
+        lambda d: d["cells"][0]["threads"][0]["figures"].pop("complete"),
+    ],
+)
 def test_the_schema_refuses_what_the_reader_refuses(tmp_path, change):
     load(MATRIX).save(str(tmp_path / "results.json"))
     data = json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))
@@ -322,7 +393,6 @@ def test_the_schema_refuses_what_the_reader_refuses(tmp_path, change):
 def test_rt_throttling_is_stored_in_ns_from_the_kernels_microseconds():
     from runner.results.document import RtThrottling
 
-    assert RtThrottling.from_sysctl(950_000, 1_000_000) == RtThrottling(runtime_ns=950_000_000, period_ns=1_000_000_000,
-                                                                         enabled=True)
+    assert RtThrottling.from_sysctl(950_000, 1_000_000) == RtThrottling(runtime_ns=950_000_000, period_ns=1_000_000_000, enabled=True)
     assert RtThrottling.from_sysctl(-1, 1_000_000) == RtThrottling(runtime_ns=None, period_ns=1_000_000_000, enabled=False)
     assert RtThrottling.from_sysctl(None, None) == RtThrottling()

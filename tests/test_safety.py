@@ -172,8 +172,9 @@ def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_pa
     assert cells[0]["status"] == "passed" and thread(done.results, "fulldisk")["figures"]["callbacks"] >= 15
     assert len(cells) == 2 and cells[1]["status"] == "error" and "No space left on device" in cells[1]["reason"]
     assert done.results["status"] == "error"
-    leftovers = [os.path.join(d, f) for d, _, files in os.walk(out) for f in files
-                 if f.startswith(".results-") or f.endswith((".tmp", ".smp"))]
+    leftovers = [
+        os.path.join(d, f) for d, _, files in os.walk(out) for f in files if f.startswith(".results-") or f.endswith((".tmp", ".smp"))
+    ]
     assert not leftovers
     assert not find_pids("fulldisk")
     with open(out / "results.json") as handle:

@@ -21,9 +21,20 @@ NAMES = {os.path.basename(p)[:-5] for p in SHIPPED}
 
 
 def test_every_example_of_the_issue_is_shipped():
-    assert {"fifo80", "rr80", "other", "middleware_threads", "spin_thread", "callback_group", "real_time_executor",
-            "cpu_affinity_main_thread", "cpu_affinity_middleware_threads", "cpu_affinity_mask", "memory_lock",
-            "policy_matrix"} <= NAMES
+    assert {
+        "fifo80",
+        "rr80",
+        "other",
+        "middleware_threads",
+        "spin_thread",
+        "callback_group",
+        "real_time_executor",
+        "cpu_affinity_main_thread",
+        "cpu_affinity_middleware_threads",
+        "cpu_affinity_mask",
+        "memory_lock",
+        "policy_matrix",
+    } <= NAMES
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)

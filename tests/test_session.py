@@ -52,12 +52,15 @@ def test_a_failed_expectation_exits_1(tmp_path):
     assert other["status"] == "failed" and not other["expectations"][0]["passed"]
 
 
-@pytest.mark.parametrize("act, words", [
-    (Act(failures=("process minimal_schedul[0] (pid 4242) was killed by SIGKILL",)), "killed by SIGKILL"),
-    (Act(failures=("the cell overran its deadline and was killed by the watchdog",)), "watchdog"),
-    (Act(incidents=("background hog hog[0] (pid 4343) killed by SIGKILL 1.0s into the cell",)), "background hog"),
-    (Act(incidents=("process minimal_schedul[0] (pid 4242) was stopped (SIGSTOP or a debugger) 0.5s into the cell",)), "stopped"),
-])
+@pytest.mark.parametrize(
+    "act, words",
+    [
+        (Act(failures=("process minimal_schedul[0] (pid 4242) was killed by SIGKILL",)), "killed by SIGKILL"),
+        (Act(failures=("the cell overran its deadline and was killed by the watchdog",)), "watchdog"),
+        (Act(incidents=("background hog hog[0] (pid 4343) killed by SIGKILL 1.0s into the cell",)), "background hog"),
+        (Act(incidents=("process minimal_schedul[0] (pid 4242) was stopped (SIGSTOP or a debugger) 0.5s into the cell",)), "stopped"),
+    ],
+)
 def test_a_run_error_in_a_cell_exits_4_with_its_reason(tmp_path, act, words):
     code, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": act}), "--duration", "1s")
     assert code == 4
@@ -70,8 +73,7 @@ def test_unapplied_settings_are_an_error_unless_degraded_runs_are_allowed(tmp_pa
     code, results = run(FIFO80, tmp_path / "a", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s")
     assert code == 4 and results["cells"][0]["status"] == "error"
     assert "fifo:80 requested, other applied (Operation not permitted)" in results["cells"][0]["reason"]
-    code, results = run(FIFO80, tmp_path / "b", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s",
-                        "--allow-degraded")
+    code, results = run(FIFO80, tmp_path / "b", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s", "--allow-degraded")
     assert code == 0 and results["cells"][0]["status"] == "degraded"
 
 
@@ -138,7 +140,14 @@ def test_follow_prints_the_backends_lines(tmp_path, capsys):
 
 def test_a_regression_against_the_baseline_exits_1(tmp_path):
     run(FIFO80, tmp_path / "base", FakeBackend({"default": Act(latency_ns=50_000)}), "--duration", "1s")
-    code, _ = run(FIFO80, tmp_path / "new", FakeBackend({"default": Act(latency_ns=900_000)}), "--duration", "1s",
-                  "--baseline", str(tmp_path / "base"))
+    code, _ = run(
+        FIFO80,
+        tmp_path / "new",
+        FakeBackend({"default": Act(latency_ns=900_000)}),
+        "--duration",
+        "1s",
+        "--baseline",
+        str(tmp_path / "base"),
+    )
     assert code == 1
     assert "regression" in open(tmp_path / "new" / "comparison.md").read()

@@ -5,14 +5,25 @@ import pytest
 from runner import units
 
 
-@pytest.mark.parametrize("text, ns", [("500ms", 500_000_000), ("200us", 200_000), ("1.5s", 1_500_000_000),
-                                      ("10m", 600_000_000_000), ("250 ns", 250), ("2h", 7_200_000_000_000)])
+@pytest.mark.parametrize(
+    "text, ns",
+    [
+        ("500ms", 500_000_000),
+        ("200us", 200_000),
+        ("1.5s", 1_500_000_000),
+        ("10m", 600_000_000_000),
+        ("250 ns", 250),
+        ("2h", 7_200_000_000_000),
+    ],
+)
 def test_durations(text, ns):
     assert units.parse_duration(text) == ns
 
 
-@pytest.mark.parametrize("value, message", [(500, "bare number 500 has no unit"), ("5 sec", "did you mean 's'"),
-                                            ("fast", "cannot read 'fast'"), (None, "got NoneType")])
+@pytest.mark.parametrize(
+    "value, message",
+    [(500, "bare number 500 has no unit"), ("5 sec", "did you mean 's'"), ("fast", "cannot read 'fast'"), (None, "got NoneType")],
+)
 def test_bad_durations(value, message):
     with pytest.raises(units.UnitError, match=message):
         units.parse_duration(value)
@@ -30,8 +41,9 @@ def test_sizes_refuse_bare_numbers_and_ambiguous_units():
         units.parse_size("50MB")
 
 
-@pytest.mark.parametrize("value, cpus", [([1, 0, 1], (0, 1)), ("0-1,3", (0, 1, 3)), ("0b1100", (2, 3)),
-                                         ("0x3", (0, 1)), (2, (2,)), ("1", (1,))])
+@pytest.mark.parametrize(
+    "value, cpus", [([1, 0, 1], (0, 1)), ("0-1,3", (0, 1, 3)), ("0b1100", (2, 3)), ("0x3", (0, 1)), (2, (2,)), ("1", (1,))]
+)
 def test_cpus(value, cpus):
     assert units.parse_cpus(value) == cpus
 
@@ -55,8 +67,10 @@ def test_zero_needs_no_unit(value):
     assert units.parse_duration(value) == 0
 
 
-@pytest.mark.parametrize("parse, text", [(units.parse_duration, "1" + "0" * 400 + "s"), (units.parse_size, "1" + "0" * 400 + "B"),
-                                         (units.parse_size, "1" + "0" * 5000 + "B")])
+@pytest.mark.parametrize(
+    "parse, text",
+    [(units.parse_duration, "1" + "0" * 400 + "s"), (units.parse_size, "1" + "0" * 400 + "B"), (units.parse_size, "1" + "0" * 5000 + "B")],
+)
 def test_overflowing_numbers_are_refused_with_a_message(parse, text):
     with pytest.raises(units.UnitError, match="has more than 24 digits"):
         parse(text)
@@ -67,8 +81,15 @@ def test_decimals_are_exact():
     assert units.parse_size("0.5KiB") == 512
 
 
-@pytest.mark.parametrize("value, message", [("0-99999999999", "beyond what Linux supports"), ("0x" + "f" * 100_000, "names CPU"),
-                                            ("1" * 5000, "beyond what Linux supports"), ("0-8192", "CPU 8192 is beyond")])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("0-99999999999", "beyond what Linux supports"),
+        ("0x" + "f" * 100_000, "names CPU"),
+        ("1" * 5000, "beyond what Linux supports"),
+        ("0-8192", "CPU 8192 is beyond"),
+    ],
+)
 def test_huge_cpu_sets_are_refused_without_expanding_them(value, message):
     with pytest.raises(units.UnitError, match=message):
         units.parse_cpus(value)

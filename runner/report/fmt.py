@@ -85,11 +85,13 @@ def md_text(value: object, in_table: bool = False) -> Markdown:
     for i, ch in enumerate(text):
         after = text[i + 1] if i + 1 < len(text) else " "
         before = text[i - 1] if i else " "
-        if (ch in _ALWAYS
-                or (ch == "|" and in_table)
-                or (ch == "_" and not before.isalnum())  # after a letter or digit `_` cannot open emphasis
-                or (ch == "<" and not (after.isspace() or (after == "=" and text[i + 2:i + 3] in ("", " "))))
-                or (ch == "&" and (after.isalnum() or after == "#"))):
+        if (
+            ch in _ALWAYS
+            or (ch == "|" and in_table)
+            or (ch == "_" and not before.isalnum())  # after a letter or digit `_` cannot open emphasis
+            or (ch == "<" and not (after.isspace() or (after == "=" and text[i + 2 : i + 3] in ("", " "))))
+            or (ch == "&" and (after.isalnum() or after == "#"))
+        ):
             out.append("\\" + ch)
         else:
             out.append(ch)
@@ -107,10 +109,10 @@ def _escape_line_start(text: str) -> str:
     else:
         digits = re.match(r"\d{1,9}([.)])( |$)", text)
         if digits:
-            text = text[: digits.start(1)] + "\\" + text[digits.start(1):]
+            text = text[: digits.start(1)] + "\\" + text[digits.start(1) :]
     closing = re.search(r"(?<=[ ])#+$", text)  # `## Cell x #`: a closing sequence would vanish from the heading
     if closing:
-        text = text[: closing.start()] + "\\" + text[closing.start():]
+        text = text[: closing.start()] + "\\" + text[closing.start() :]
     return text
 
 

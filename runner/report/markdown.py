@@ -41,8 +41,13 @@ if TYPE_CHECKING:
 
 MAX_SIDE_BY_SIDE = 12  # cells shown as columns in the comparison view; beyond that the summary table serves
 
-ICON = {Status.PASSED: "✅ passed", Status.DEGRADED: "⚠️ degraded", Status.FAILED: "❌ failed",
-        Status.ERROR: "💥 error", Status.INTERRUPTED: "⏸️ interrupted"}
+ICON = {
+    Status.PASSED: "✅ passed",
+    Status.DEGRADED: "⚠️ degraded",
+    Status.FAILED: "❌ failed",
+    Status.ERROR: "💥 error",
+    Status.INTERRUPTED: "⏸️ interrupted",
+}
 
 
 # ---------------------------------------------------------------- formatting
@@ -62,9 +67,15 @@ def policy_label(settings: Settings | None) -> str:
 
 def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Sequence[str] | None = None) -> Markdown:
     """A GitHub-flavoured markdown table; cells that are not already Markdown are text, escaped by `md_text`."""
-    return Markdown(tabulate([[md_text(c, in_table=True) for c in r] for r in rows],
-                             headers=[md_text(h, in_table=True) for h in headers],
-                             tablefmt="github", disable_numparse=True, colalign=align))
+    return Markdown(
+        tabulate(
+            [[md_text(c, in_table=True) for c in r] for r in rows],
+            headers=[md_text(h, in_table=True) for h in headers],
+            tablefmt="github",
+            disable_numparse=True,
+            colalign=align,
+        )
+    )
 
 
 # ---------------------------------------------------------------- findings
@@ -98,8 +109,10 @@ def _switches(f: ThreadFigures) -> str:
     inv = f.involuntary
     if not inv.total:
         return f"0 involuntary switches in {f.callbacks:,} callbacks"
-    return (f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
-            f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)")
+    return (
+        f"{fmt_mean(inv.per_callback_mean)} involuntary switches per callback "
+        f"({fmt_int(inv.callbacks_with_any)} of {f.callbacks:,} callbacks preempted)"
+    )
 
 
 def thread_finding(t: ThreadResult, label: str) -> Markdown:
@@ -141,8 +154,13 @@ def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[
         out.append(Markdown(f"**{md_text(labels[key])}**: " + "; ".join(_group_finding(name, ts) for name, ts in ranked) + "."))
         faults = [t.figures.faults.minor_after_first for _, t in entries]
         if len(set(faults)) > 1:
-            out.append(Markdown(f"**{md_text(labels[key])}**, minor page faults after the first callback: "
-                                + "; ".join(f"{fmt_int(n)} ({md_text(cell.id)})" for (cell, _), n in zip(entries, faults)) + "."))
+            out.append(
+                Markdown(
+                    f"**{md_text(labels[key])}**, minor page faults after the first callback: "
+                    + "; ".join(f"{fmt_int(n)} ({md_text(cell.id)})" for (cell, _), n in zip(entries, faults))
+                    + "."
+                )
+            )
     return out
 
 
@@ -191,9 +209,22 @@ class Table:
         return table(self.headers, self.rows, self.align)
 
 
-SWITCH_HEADERS = ["Thread", "Scheduling", "CPU", "Callbacks", "Involuntary / callback (mean)", "Involuntary / callback (max)",
-                  "Callbacks preempted", "Involuntary (total)", "Voluntary (total)", "Wake-up p50", "Wake-up p99",
-                  "Wake-up max", "Minor faults (1st callback / after)", "Major faults"]
+SWITCH_HEADERS = [
+    "Thread",
+    "Scheduling",
+    "CPU",
+    "Callbacks",
+    "Involuntary / callback (mean)",
+    "Involuntary / callback (max)",
+    "Callbacks preempted",
+    "Involuntary (total)",
+    "Voluntary (total)",
+    "Wake-up p50",
+    "Wake-up p99",
+    "Wake-up max",
+    "Minor faults (1st callback / after)",
+    "Major faults",
+]
 
 
 def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
@@ -201,22 +232,27 @@ def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
     rows = []
     for t in cell.threads:
         f = t.figures
-        faults = (f"{fmt_int(f.faults.minor_first_callback)} / {fmt_int(f.faults.minor_after_first)}"
-                  if t.periodic else f"{fmt_int(f.faults.minor)} (total)")
-        rows.append([
-            labels[t.key] + ("" if f.complete else " (did not finish)"),
-            policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
-            units.format_cpus(f.cpus_seen) or "–",
-            fmt_int(f.callbacks) if t.periodic else "–",
-            fmt_mean(f.involuntary.per_callback_mean),
-            fmt_int(f.involuntary.per_callback_max),
-            fmt_int(f.involuntary.callbacks_with_any),
-            fmt_int(f.involuntary.total),
-            fmt_int(f.voluntary.total),
-            *(fmt_ns(figure(t, name)) for name in ("latency.p50", "latency.p99", "latency.max")),
-            faults,
-            fmt_int(f.faults.major),
-        ])
+        faults = (
+            f"{fmt_int(f.faults.minor_first_callback)} / {fmt_int(f.faults.minor_after_first)}"
+            if t.periodic
+            else f"{fmt_int(f.faults.minor)} (total)"
+        )
+        rows.append(
+            [
+                labels[t.key] + ("" if f.complete else " (did not finish)"),
+                policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
+                units.format_cpus(f.cpus_seen) or "–",
+                fmt_int(f.callbacks) if t.periodic else "–",
+                fmt_mean(f.involuntary.per_callback_mean),
+                fmt_int(f.involuntary.per_callback_max),
+                fmt_int(f.involuntary.callbacks_with_any),
+                fmt_int(f.involuntary.total),
+                fmt_int(f.voluntary.total),
+                *(fmt_ns(figure(t, name)) for name in ("latency.p50", "latency.p99", "latency.max")),
+                faults,
+                fmt_int(f.faults.major),
+            ]
+        )
     return Table(SWITCH_HEADERS, rows, ["left", "left"] + ["right"] * (len(SWITCH_HEADERS) - 2))
 
 
@@ -226,8 +262,9 @@ def verdict_table(cell: CellResult) -> Table | None:
     rows = []
     for v in cell.expectations:
         measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-        rows.append(["✅ pass" if v.passed else "❌ FAIL", v.thread, v.figure.words, v.limit,
-                     measured + (f" ({v.note})" if v.note else "")])
+        rows.append(
+            ["✅ pass" if v.passed else "❌ FAIL", v.thread, v.figure.words, v.limit, measured + (f" ({v.note})" if v.note else "")]
+        )
     return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows)
 
 
@@ -240,23 +277,37 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
         p99s = [figure(t, "latency.p99") for t in threads]
         p99 = max((p for p in p99s if p is not None), default=None)
         passed = sum(v.passed for v in cell.expectations)
-        rows.append([
-            Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})"),
-            ICON[cell.status],
-            ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
-            fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
-            fmt_mean(worst_inv.figures.involuntary.per_callback_mean) if worst_inv else "–",
-            fmt_ns(p99),
-            f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
-            f"{cell.duration_s:.1f} s",
-        ])
-    return Table(["Cell", "Status", "Scheduling (periodic threads)", "Callbacks", "Involuntary / callback (worst thread)",
-                  "Wake-up p99 (worst thread)", "Expectations met", "Duration"], rows,
-                 ["left", "left", "left", "right", "right", "right", "right", "right"])
+        rows.append(
+            [
+                Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})"),
+                ICON[cell.status],
+                ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
+                fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
+                fmt_mean(worst_inv.figures.involuntary.per_callback_mean) if worst_inv else "–",
+                fmt_ns(p99),
+                f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
+                f"{cell.duration_s:.1f} s",
+            ]
+        )
+    return Table(
+        [
+            "Cell",
+            "Status",
+            "Scheduling (periodic threads)",
+            "Callbacks",
+            "Involuntary / callback (worst thread)",
+            "Wake-up p99 (worst thread)",
+            "Expectations met",
+            "Duration",
+        ],
+        rows,
+        ["left", "left", "left", "right", "right", "right", "right", "right"],
+    )
 
 
 def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -> Table:
     """The seed's comparison: one thread, one column per cell (other vs fifo vs rr)."""
+
     def row(name: str, value: Any) -> list[str]:
         return [name] + [value(t) for _, t in entries]
 
@@ -297,11 +348,20 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table |
 
     rows = []
     for (cell_id, key), ts in groups.items():
-        rows.append([cell_id, labels[key], str(len(ts)),
-                     spread([t.figures.involuntary.per_callback_mean for t in ts], fmt_mean),
-                     *(spread([figure(t, name) for t in ts], fmt_ns) for name in ("latency.p50", "latency.p99", "latency.max"))])
-    return Table(["Cell", "Thread", "Repeats", "Involuntary / callback", "Wake-up p50", "Wake-up p99", "Wake-up max"], rows,
-                 ["left", "left", "right", "right", "right", "right", "right"])
+        rows.append(
+            [
+                cell_id,
+                labels[key],
+                str(len(ts)),
+                spread([t.figures.involuntary.per_callback_mean for t in ts], fmt_mean),
+                *(spread([figure(t, name) for t in ts], fmt_ns) for name in ("latency.p50", "latency.p99", "latency.max")),
+            ]
+        )
+    return Table(
+        ["Cell", "Thread", "Repeats", "Involuntary / callback", "Wake-up p50", "Wake-up p99", "Wake-up max"],
+        rows,
+        ["left", "left", "right", "right", "right", "right", "right"],
+    )
 
 
 def section_title(cell: CellResult, repeated: bool) -> str:
@@ -327,10 +387,14 @@ def facts(doc: RunDocument) -> Table:
     else:
         rt = "off (an RT busy loop can starve a CPU)"
     preempt = Markdown("**yes**" if m.preempt_rt else f"no ({md_text(_known(m.preempt, 'unknown'), in_table=True)})")
-    caps = ", ".join(f"{name} {'yes' if held else 'no'}"
-                     for name, held in (("CAP_SYS_NICE", p.cap_sys_nice), ("CAP_IPC_LOCK", p.cap_ipc_lock)))
-    perms = md_text(f"{_known(p.user)} (uid {_known(p.uid)}): {caps}, RLIMIT_RTPRIO {_known(p.rlimit_rtprio)}, "
-                    f"RLIMIT_MEMLOCK {fmt_bytes(p.rlimit_memlock)}", in_table=True)
+    caps = ", ".join(
+        f"{name} {'yes' if held else 'no'}" for name, held in (("CAP_SYS_NICE", p.cap_sys_nice), ("CAP_IPC_LOCK", p.cap_ipc_lock))
+    )
+    perms = md_text(
+        f"{_known(p.user)} (uid {_known(p.uid)}): {caps}, RLIMIT_RTPRIO {_known(p.rlimit_rtprio)}, "
+        f"RLIMIT_MEMLOCK {fmt_bytes(p.rlimit_memlock)}",
+        in_table=True,
+    )
     if p.missing:
         perms = Markdown(perms + "; **missing:** " + "; ".join(md_text(why, in_table=True) for why in p.missing))
     counts: dict[Status, int] = {}
@@ -341,9 +405,14 @@ def facts(doc: RunDocument) -> Table:
     rows: list[list[str]] = [
         ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(_known(doc.scenario.path), in_table=True)})")],
         ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
-        ["Host", (f"{_known(m.hostname)}, {_known(m.arch)}, CPUs {_known(m.cpus_online)} online"
-                  f" ({_known(m.cpus_allowed)} usable), isolated CPUs: {m.isolated_cpus or 'none'},"
-                  f" memory {fmt_bytes(m.memory_total_bytes)}")],
+        [
+            "Host",
+            (
+                f"{_known(m.hostname)}, {_known(m.arch)}, CPUs {_known(m.cpus_online)} online"
+                f" ({_known(m.cpus_allowed)} usable), isolated CPUs: {m.isolated_cpus or 'none'},"
+                f" memory {fmt_bytes(m.memory_total_bytes)}"
+            ),
+        ],
         ["Kernel", Markdown(f"{md_text(_known(m.kernel), in_table=True)} {md_code(m.kernel_version, in_table=True)}")],
         ["PREEMPT_RT", preempt],
         ["RT throttling", rt],
@@ -351,8 +420,13 @@ def facts(doc: RunDocument) -> Table:
         ["Permissions", perms],
         ["Tool", f"runner {doc.tool_version}, Python {_known(m.python)}"],
         ["Command", md_code(" ".join(doc.command), in_table=True)],
-        ["Result", Markdown(f"**{md_text(doc.status, in_table=True)}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run "
-                            f"({outcome or 'none'})" + (f", {missing} not run" if missing else ""))],
+        [
+            "Result",
+            Markdown(
+                f"**{md_text(doc.status, in_table=True)}**: {len(doc.cells)} cell{'s' if len(doc.cells) != 1 else ''} run "
+                f"({outcome or 'none'})" + (f", {missing} not run" if missing else "")
+            ),
+        ],
     ]
     hosts: dict[str, int] = {}
     for cell in doc.cells:
@@ -431,8 +505,7 @@ def _load_line(cell: CellResult) -> Markdown:
     return Markdown(", ".join(parts) or "none")
 
 
-def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None,
-          pid_width: int = 5) -> ReportModel:
+def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None, pid_width: int = 5) -> ReportModel:
     """Everything the template shows, as text and tables; `plots` maps a thread key to its plot files."""
     plots = plots or {}
     order = {cell_id: i for i, cell_id in enumerate(doc.matrix_cells)}
@@ -447,10 +520,14 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
         threads.append(ThreadView(labels[key], side_by_side(key, shown) if matrix else None, plots.get(key, []), len(entries)))
     sections = [
         CellSection(
-            cell=cell, title=section_title(cell, repeated), anchor=anchor(cell, repeated), icon=ICON[cell.status],
+            cell=cell,
+            title=section_title(cell, repeated),
+            anchor=anchor(cell, repeated),
+            icon=ICON[cell.status],
             finding=cell_finding(cell, labels),
             ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
-            switches=switch_table(cell, labels), verdicts=verdict_table(cell),
+            switches=switch_table(cell, labels),
+            verdicts=verdict_table(cell),
             degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
             load=_load_line(cell),
         )
@@ -458,20 +535,30 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
     ]
     findings = matrix_finding(firsts, labels) if matrix else []
     if not findings:
-        findings = [Markdown(f"{md_text(cell.id)}: {cell_finding(cell, labels)}") if matrix else cell_finding(cell, labels)
-                    for cell in firsts]
+        findings = [
+            Markdown(f"{md_text(cell.id)}: {cell_finding(cell, labels)}") if matrix else cell_finding(cell, labels) for cell in firsts
+        ]
     if repeated:
-        findings.append(Markdown("Cells ran more than once: the side-by-side view and these findings show each cell's "
-                                 "first run; the spread table shows every repeat."))
+        findings.append(
+            Markdown(
+                "Cells ran more than once: the side-by-side view and these findings show each cell's "
+                "first run; the spread table shows every repeat."
+            )
+        )
     notes = []
     if any(len(v.side_by_side.rows[0]) - 1 < v.cells for v in threads if v.side_by_side):
         notes.append(f"The side-by-side view shows the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
     return ReportModel(
         title=f"{doc.name}: scheduling report",
         description=doc.scenario.description,
-        facts=facts(doc), findings=findings, summary=summary_table(cells, repeated) if len(cells) > 1 else None,
+        facts=facts(doc),
+        findings=findings,
+        summary=summary_table(cells, repeated) if len(cells) > 1 else None,
         spread=spread_table(cells, labels),
-        threads=threads, sections=sections, comparison=Markdown(comparison) if comparison else None, notes=notes,
+        threads=threads,
+        sections=sections,
+        comparison=Markdown(comparison) if comparison else None,
+        notes=notes,
     )
 
 
@@ -487,9 +574,15 @@ def environment() -> jinja2.Environment:
     """
     global _ENV
     if _ENV is None:
-        _ENV = jinja2.Environment(loader=jinja2.PackageLoader("runner.report", "templates"), autoescape=False,
-                                  trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
-                                  undefined=jinja2.StrictUndefined, finalize=md_text)
+        _ENV = jinja2.Environment(
+            loader=jinja2.PackageLoader("runner.report", "templates"),
+            autoescape=False,
+            trim_blocks=True,
+            lstrip_blocks=True,
+            keep_trailing_newline=True,
+            undefined=jinja2.StrictUndefined,
+            finalize=md_text,
+        )
     return _ENV
 
 
@@ -498,15 +591,19 @@ def render(model: ReportModel) -> str:
     return re.sub(r"\n{3,}", "\n\n", environment().get_template("report.md.j2").render(r=model))
 
 
-def render_run(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None,
-               pid_width: int = 5) -> str:
+def render_run(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None, pid_width: int = 5) -> str:
     return render(build(doc, plots, comparison, pid_width))
 
 
 # ---------------------------------------------------------------- comparison with a baseline
 
-VERDICT_ICON = {"regression": "❌ regression", "better": "🟢 better", "within threshold": "✅ within threshold",
-                "no baseline": "🆕 no baseline", "missing": "➖ missing"}
+VERDICT_ICON = {
+    "regression": "❌ regression",
+    "better": "🟢 better",
+    "within threshold": "✅ within threshold",
+    "no baseline": "🆕 no baseline",
+    "missing": "➖ missing",
+}
 
 
 @dataclass
@@ -524,34 +621,62 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
-    headline = (f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
-                f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}" if regressed
-                else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline.")
+    headline = (
+        f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
+        f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}"
+        if regressed
+        else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
+    )
     gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
     if gone:
         headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(map(md_text, gone))}."
     if new_cells:
         headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {', '.join(map(md_text, new_cells))}."
-    facts = Table(["", "Baseline", "This run"], [
-        ["Results", md_code(base_name, in_table=True), md_code(new_name, in_table=True)],
-        ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],
-        ["Host, kernel", f"{_known(cmp.base.machine.hostname)}, {_known(cmp.base.machine.kernel)}",
-         f"{_known(cmp.new.machine.hostname)}, {_known(cmp.new.machine.kernel)}"],
-    ])
-    notes = ["Regression thresholds: " + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds)
-             + "."] + list(cmp.notes)
+    facts = Table(
+        ["", "Baseline", "This run"],
+        [
+            ["Results", md_code(base_name, in_table=True), md_code(new_name, in_table=True)],
+            ["Started", _when(cmp.base.started_at), _when(cmp.new.started_at)],
+            [
+                "Host, kernel",
+                f"{_known(cmp.base.machine.hostname)}, {_known(cmp.base.machine.kernel)}",
+                f"{_known(cmp.new.machine.hostname)}, {_known(cmp.new.machine.kernel)}",
+            ],
+        ],
+    )
+    notes = ["Regression thresholds: " + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds) + "."] + list(
+        cmp.notes
+    )
 
     def figure_rows(items: Iterable[Any]) -> list[list[str]]:
-        return [[f.cell, labels.get(f.thread, f.thread), f.figure.words, format_value(f, "base"), format_value(f, "new"),
-                 change_text(f), f.threshold.describe(), VERDICT_ICON[f.verdict]] for f in items]
+        return [
+            [
+                f.cell,
+                labels.get(f.thread, f.thread),
+                f.figure.words,
+                format_value(f, "base"),
+                format_value(f, "new"),
+                change_text(f),
+                f.threshold.describe(),
+                VERDICT_ICON[f.verdict],
+            ]
+            for f in items
+        ]
 
     headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Threshold", "Verdict"]
     bad = [f for f in cmp.figures if f.verdict == "regression"]
-    status_rows = [[c.cell, c.base_status.value if c.base_status else "–", c.new_status.value if c.new_status else "–",
-                    VERDICT_ICON["regression" if c.cell in regressed else c.verdict] + (f" ({c.note})" if c.note else "")]
-                   for c in cmp.cells]
+    status_rows = [
+        [
+            c.cell,
+            c.base_status.value if c.base_status else "–",
+            c.new_status.value if c.new_status else "–",
+            VERDICT_ICON["regression" if c.cell in regressed else c.verdict] + (f" ({c.note})" if c.note else ""),
+        ]
+        for c in cmp.cells
+    ]
     return ComparisonModel(
-        headline=Markdown(headline), facts=facts,
+        headline=Markdown(headline),
+        facts=facts,
         regressions=Table(headers, figure_rows(bad)) if bad else None,
         cells=Table(["Cell", "Baseline status", "Status now", "Verdict"], status_rows),
         figures=Table(headers, figure_rows(cmp.figures)) if cmp.figures else None,

@@ -51,8 +51,7 @@ def collect(doc: RunDocument) -> dict[str, list[Series]]:
                 continue
             label = cell.id if not cell.repeat else f"{cell.id} #{cell.repeat + 1}"
             label = " " + label if label.startswith("_") else label  # matplotlib leaves `_...` labels out of the legend
-            out.setdefault(t.key, []).append(
-                Series(label, [r.latency_ns / 1000.0 for r in rows], [r.nivcsw for r in rows]))
+            out.setdefault(t.key, []).append(Series(label, [r.latency_ns / 1000.0 for r in rows], [r.nivcsw for r in rows]))
     return out
 
 
@@ -152,7 +151,7 @@ def plot_name(t: ThreadResult) -> str:
     thread 3): none of those parts holds a `-`, so the name splits back into them.  Any other
     thread is named after its exact key, through results.slug (readable part and a hash).
     """
-    plain = (_WORD.fullmatch(t.process) and _WORD.fullmatch(t.name) and t.instance >= 0 and t.index >= 0)
+    plain = _WORD.fullmatch(t.process) and _WORD.fullmatch(t.name) and t.instance >= 0 and t.index >= 0
     if not plain:
         return slug(t.key)
     parts = [t.process] + ([str(t.instance)] if t.instance else []) + [t.name, "main" if t.index == 0 else str(t.index)]

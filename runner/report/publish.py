@@ -19,8 +19,9 @@ from runner.results.read import load
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
 
-def write_report(doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True,
-                 pid_width: int = 5, name: str = "report.md") -> str:
+def write_report(
+    doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True, pid_width: int = 5, name: str = "report.md"
+) -> str:
     """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path."""
     links = {}
     if plots:
@@ -58,8 +59,9 @@ def comparison_text(base_path: str, doc: RunDocument, new_path: str, thresholds:
     return report.render_comparison(cmp, base_path, new_path), cmp.regressions
 
 
-def finish(doc: RunDocument, folder: str, baseline: Optional[str], thresholds: list[Threshold], write: bool,
-           plots: bool, env: dict[str, str]) -> int:
+def finish(
+    doc: RunDocument, folder: str, baseline: Optional[str], thresholds: list[Threshold], write: bool, plots: bool, env: dict[str, str]
+) -> int:
     """After a run or a merge: compare with the baseline, write report.md, append the job summary.
 
     Returns the number of regressions against the baseline (0 without one).

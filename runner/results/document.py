@@ -115,8 +115,9 @@ class _Record(BaseModel):
     def __init__(self, **data: Any) -> None:
         unknown = sorted(set(data) - self._keywords())
         if unknown:
-            raise TypeError(f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; "
-                            f"fields: {', '.join(type(self).model_fields)}")
+            raise TypeError(
+                f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; fields: {', '.join(type(self).model_fields)}"
+            )
         for name, value in data.items():  # records given as dicts are built as records, so their keys are checked too
             found = _record_type(type(self).model_fields[name].annotation) if name in type(self).model_fields else None
             if found and found[0] and isinstance(value, list):
@@ -153,9 +154,13 @@ def _figure_name(value: Any) -> Any:
     return value
 
 
-FigureName = Annotated[StrictStr, BeforeValidator(_figure_name),
-                       WithJsonSchema({"type": "string", "enum": [f.name for f in fg.REGISTRY],
-                                       "description": "a figure's name, as runner/figures.py declares it"})]
+FigureName = Annotated[
+    StrictStr,
+    BeforeValidator(_figure_name),
+    WithJsonSchema(
+        {"type": "string", "enum": [f.name for f in fg.REGISTRY], "description": "a figure's name, as runner/figures.py declares it"}
+    ),
+]
 Measured = Optional[Union[int, float]]  # int for counts and durations (ns), float for means
 
 
@@ -232,8 +237,11 @@ class RtThrottling(_Record):
     def from_sysctl(cls, runtime_us: Optional[int], period_us: Optional[int]) -> RtThrottling:
         """From the two sysctls as the kernel reports them (runtime -1: no throttling)."""
         enabled = runtime_us is not None and runtime_us >= 0
-        return cls(runtime_ns=runtime_us * 1000 if enabled and runtime_us is not None else None,
-                   period_ns=None if period_us is None else period_us * 1000, enabled=enabled)
+        return cls(
+            runtime_ns=runtime_us * 1000 if enabled and runtime_us is not None else None,
+            period_ns=None if period_us is None else period_us * 1000,
+            enabled=enabled,
+        )
 
 
 class MachineInfo(_Record):
@@ -298,8 +306,12 @@ def _run_status(value: str) -> str:
     return value
 
 
-RunStatus = Annotated[StrictStr, BeforeValidator(_status_value), AfterValidator(_run_status),
-                      WithJsonSchema({"type": "string", "enum": ["running"] + [s.value for s in Status]})]
+RunStatus = Annotated[
+    StrictStr,
+    BeforeValidator(_status_value),
+    AfterValidator(_run_status),
+    WithJsonSchema({"type": "string", "enum": ["running"] + [s.value for s in Status]}),
+]
 
 
 class CellResult(_Record):
@@ -397,8 +409,7 @@ def results_schema() -> dict[str, Any]:
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["$id"] = SCHEMA_ID
     schema["title"] = "runner results"
-    schema["description"] = (f"A run's results.json ({SCHEMA}): every duration an integer in nanoseconds, "
-                             "named *_ns; a figure that is not a number is null.")
+    schema["description"] = (
+        f"A run's results.json ({SCHEMA}): every duration an integer in nanoseconds, named *_ns; a figure that is not a number is null."
+    )
     return schema
-
-

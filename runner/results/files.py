@@ -116,10 +116,7 @@ def samples_path_problem(relative: str | None, folder: str) -> str:
     return ""
 
 
-
 def show_value(value: Any) -> str:
     """A value as a message quotes it: repr, or `dict of 3`, cut to 60 characters."""
     text = repr(value) if not isinstance(value, (dict, list)) else f"{type(value).__name__} of {len(value)}"
     return text if len(text) <= 60 else text[:57] + "..."
-
-

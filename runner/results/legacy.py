@@ -239,8 +239,7 @@ def _thread_v1(t: dict[str, Any]) -> dict[str, Any]:
         "voluntary": {"total": t["voluntary"]["total"]},
         "latency_ns": _spread_ns(t["latency_us"]),
         "callback_wall_ns": _spread_ns(t["callback_wall_us"]),
-        "faults": {k: faults[k] for k in ("minor", "major", "minor_first_callback", "minor_after_first",
-                                          "minor_per_callback_max")},
+        "faults": {k: faults[k] for k in ("minor", "major", "minor_first_callback", "minor_after_first", "minor_per_callback_max")},
         "cpus_seen": t["cpus_seen"],
         "complete": t["complete"],
     }
@@ -252,15 +251,29 @@ _POLICY_OF_CLS = {name: number for number, name in CLS.items()}
 
 
 def _row_v1(row: dict[str, Any]) -> dict[str, Any]:
-    return {"pid": row["pid"], "tid": row["tid"], "comm": row["comm"], "policy": _POLICY_OF_CLS.get(row["cls"], -1),
-            "rtprio": row["rtprio"], "nice": row["nice"], "psr": row["psr"], "prio": None, "cpus": row.get("cpus") or ""}
+    return {
+        "pid": row["pid"],
+        "tid": row["tid"],
+        "comm": row["comm"],
+        "policy": _POLICY_OF_CLS.get(row["cls"], -1),
+        "rtprio": row["rtprio"],
+        "nice": row["nice"],
+        "psr": row["psr"],
+        "prio": None,
+        "cpus": row.get("cpus") or "",
+    }
 
 
 def _verdict_v1(v: dict[str, Any]) -> dict[str, Any]:
     duration = fg.figure(v["metric"]).is_duration
-    return {"thread": v["thread"], "metric": v["metric"], "limit": v["limit"],
-            "measured": _scaled(v["measured"], 1000) if duration else v["measured"], "passed": v["passed"],
-            "note": v.get("note", "")}
+    return {
+        "thread": v["thread"],
+        "metric": v["metric"],
+        "limit": v["limit"],
+        "measured": _scaled(v["measured"], 1000) if duration else v["measured"],
+        "passed": v["passed"],
+        "note": v.get("note", ""),
+    }
 
 
 def _cell_v1(c: dict[str, Any]) -> dict[str, Any]:
@@ -287,9 +300,24 @@ def upgrade_v1(data: dict[str, Any]) -> dict[str, Any]:
     """
     data = copy.deepcopy(data)
     cells = data.get("cells", [])
-    out = _nulls_out({k: data.get(k) for k in ("tool", "scenario", "command", "started_at", "finished_at", "status",
-                                               "shard", "merged_from", "permissions", "start_settings",
-                                               "matrix_cells")})
+    out = _nulls_out(
+        {
+            k: data.get(k)
+            for k in (
+                "tool",
+                "scenario",
+                "command",
+                "started_at",
+                "finished_at",
+                "status",
+                "shard",
+                "merged_from",
+                "permissions",
+                "start_settings",
+                "matrix_cells",
+            )
+        }
+    )
     out["schema"] = SCHEMA
     out["tool"] = {"name": "runner", "version": (data.get("tool") or {}).get("version", "?")}
     if data.get("machine") is not None:
@@ -303,5 +331,3 @@ def upgrade_v1(data: dict[str, Any]) -> dict[str, Any]:
     out["plan"] = plan
     out["cells"] = [_cell_v1(c) for c in cells]
     return out
-
-

@@ -27,19 +27,34 @@ def merge(paths: list[str], out: str) -> RunDocument:
     for path, doc in docs:
         where = results_file(path)
         if doc.name != first.name:
-            problems.append(Problem(where, 1, 1, "scenario.name", f"is {doc.name!r}, but {results_file(first_path)} "
-                                    f"is {first.name!r}; merge shards of one scenario"))
+            problems.append(
+                Problem(
+                    where,
+                    1,
+                    1,
+                    "scenario.name",
+                    f"is {doc.name!r}, but {results_file(first_path)} is {first.name!r}; merge shards of one scenario",
+                )
+            )
             continue
         for cell in doc.cells:
             key = (cell.id, cell.repeat)
             if key in seen:
                 rep = f" (repeat {cell.repeat + 1})" if cell.repeat else ""
-                problems.append(Problem(where, 1, 1, f"cells.{cell.id}", f"cell{rep} is also in {seen[key]}; "
-                                        "each cell may come from one input only"))
+                problems.append(
+                    Problem(where, 1, 1, f"cells.{cell.id}", f"cell{rep} is also in {seen[key]}; each cell may come from one input only")
+                )
             seen.setdefault(key, where)
             if cell.id in specs and specs[cell.id][0] != cell.spec_hash:
-                problems.append(Problem(where, 1, 1, f"cells.{cell.id}", f"ran a different scenario spec than in "
-                                        f"{specs[cell.id][1]} (spec {cell.spec_hash} vs {specs[cell.id][0]})"))
+                problems.append(
+                    Problem(
+                        where,
+                        1,
+                        1,
+                        f"cells.{cell.id}",
+                        f"ran a different scenario spec than in {specs[cell.id][1]} (spec {cell.spec_hash} vs {specs[cell.id][0]})",
+                    )
+                )
             specs.setdefault(cell.id, (cell.spec_hash, where))
     if problems:
         raise ScenarioError(problems)
@@ -49,11 +64,19 @@ def merge(paths: list[str], out: str) -> RunDocument:
     os.makedirs(out, exist_ok=True)
     repeated = {c.id for _, c in cells if c.repeat}
     merged = RunDocument(
-        scenario=first.scenario, command=first.command, started_at=min(d.started_at for _, d in docs),
-        machine=first.machine, permissions=first.permissions, start_settings=first.start_settings,
-        tool=first.tool, finished_at=max((d.finished_at or "" for _, d in docs), default="") or None,
-        cell_ids=list(first.matrix_cells) or [c.id for _, c in cells], matrix_cells=list(first.matrix_cells),
-        plan=first.plan, merged_from=[results_file(p) for p, _ in docs], folder=os.path.abspath(out),
+        scenario=first.scenario,
+        command=first.command,
+        started_at=min(d.started_at for _, d in docs),
+        machine=first.machine,
+        permissions=first.permissions,
+        start_settings=first.start_settings,
+        tool=first.tool,
+        finished_at=max((d.finished_at or "" for _, d in docs), default="") or None,
+        cell_ids=list(first.matrix_cells) or [c.id for _, c in cells],
+        matrix_cells=list(first.matrix_cells),
+        plan=first.plan,
+        merged_from=[results_file(p) for p, _ in docs],
+        folder=os.path.abspath(out),
     )
     for doc, cell in cells:
         source = doc.samples_path(cell)

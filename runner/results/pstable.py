@@ -25,8 +25,9 @@ CpuList = Annotated[
     tuple[int, ...],
     BeforeValidator(units.parse_cpu_list),
     PlainSerializer(units.format_cpus, return_type=str),
-    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known",
-                    "examples": ["0-1,3"]}),
+    WithJsonSchema(
+        {"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known", "examples": ["0-1,3"]}
+    ),
 ]
 
 

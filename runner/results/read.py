@@ -56,8 +56,11 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
-    problems = [Problem(path, 1, 1, f"cells.{c.id}.samples_file", why) for c in doc.cells
-                if (why := samples_path_problem(c.samples_file, doc.folder))]
+    problems = [
+        Problem(path, 1, 1, f"cells.{c.id}.samples_file", why)
+        for c in doc.cells
+        if (why := samples_path_problem(c.samples_file, doc.folder))
+    ]
     if problems:
         raise ScenarioError(problems)
     return doc
@@ -70,8 +73,10 @@ def _schema_version(path: str, data: Any) -> int:
     if match and int(match.group(1)) in (1, 2):
         return int(match.group(1))
     if match and int(match.group(1)) > 2:
-        why = (f"{schema} is a newer results format than this runner ({__version__}) reads ({LEGACY_SCHEMA} and "
-               f"{SCHEMA}); read it with a newer runner")
+        why = (
+            f"{schema} is a newer results format than this runner ({__version__}) reads ({LEGACY_SCHEMA} and "
+            f"{SCHEMA}); read it with a newer runner"
+        )
     else:
         why = f"expected a {SCHEMA} (or {LEGACY_SCHEMA}) results file, got {show_value(schema)}"
     raise ScenarioError([Problem(path, 1, 1, "schema", why)])
@@ -79,6 +84,7 @@ def _schema_version(path: str, data: Any) -> int:
 
 def parse_json(path: str, raw: bytes) -> Any:
     """Strict JSON: UTF-8, no NaN/Infinity, numbers a float can hold, nesting at most MAX_DEPTH."""
+
     def where(exc: json.JSONDecodeError) -> Problem:
         return Problem(path, exc.lineno, exc.colno, "", f"not valid JSON: {exc.msg}")
 
@@ -173,5 +179,3 @@ def _message(err: Any) -> str:
     msg = msg[0].lower() + msg[1:] if msg else "invalid"
     msg = msg.removeprefix("value error, ")
     return msg if err.get("type") == "missing" else f"{msg}; got {show_value(err.get('input'))}"
-
-

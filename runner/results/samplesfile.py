@@ -11,8 +11,23 @@ from typing import Any
 from runner.errors import Problem, ScenarioError
 from runner.results.files import INT64, show_value
 
-SAMPLE_COLUMNS = ("thread", "tid", "seq", "scheduled_ns", "wake_ns", "end_ns", "latency_ns", "burn_wall_ns",
-                  "nivcsw", "nvcsw", "minflt", "majflt", "cpu_start", "cpu_end", "missed")
+SAMPLE_COLUMNS = (
+    "thread",
+    "tid",
+    "seq",
+    "scheduled_ns",
+    "wake_ns",
+    "end_ns",
+    "latency_ns",
+    "burn_wall_ns",
+    "nivcsw",
+    "nvcsw",
+    "minflt",
+    "majflt",
+    "cpu_start",
+    "cpu_end",
+    "missed",
+)
 
 
 @dataclass(frozen=True)
@@ -44,8 +59,9 @@ def read_samples(path: str) -> dict[str, list[SampleRow]]:
     except FileNotFoundError:
         return out
     except (OSError, EOFError, zlib.error) as exc:
-        raise ScenarioError([Problem(path, line, 1, "", f"cannot read samples: {exc}; expected a gzip'd CSV "
-                                     "as runner writes it")]) from None
+        raise ScenarioError(
+            [Problem(path, line, 1, "", f"cannot read samples: {exc}; expected a gzip'd CSV as runner writes it")]
+        ) from None
     except (ValueError, csv.Error) as exc:
         raise ScenarioError([Problem(path, line, 1, "", f"not a samples row: {exc}")]) from None
     return out
@@ -53,6 +69,7 @@ def read_samples(path: str) -> dict[str, list[SampleRow]]:
 
 def _sample_row(record: dict[Any, Any]) -> tuple[str, SampleRow]:
     """One CSV record as (thread key, SampleRow); ValueError saying which column is wrong."""
+
     def number(column: str) -> int:
         text = record.get(column)
         if text is None:

@@ -91,8 +91,14 @@ def _overhead(raw: RawCell) -> Overhead:
 
 def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> Evaluation:
     """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
-    result = CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.PASSED,
-                        spec=spec_json(cell.scenario), started_at=raw.started_at)
+    result = CellResult(
+        id=cell.id,
+        matrix=dict(cell.matrix),
+        spec_hash=cell.spec_hash,
+        status=Status.PASSED,
+        spec=spec_json(cell.scenario),
+        started_at=raw.started_at,
+    )
     stored: list[tuple[str, SlotData]] = []
     measured: list[tuple[PlannedThread, ThreadFigures]] = []
     for t in raw.threads:
@@ -100,9 +106,22 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         fig = _figures(t, raw.timeline, raw.interrupted)
         degraded = degradation(p.settings, t.applied, t.errors) if t.ready else []
         stored.append((thread_key(p.process, p.instance, p.index, p.name), t.slot))
-        result.threads.append(ThreadResult(process=p.process, instance=p.instance, index=p.index, name=p.name, pid=t.pid,
-                                           tid=t.slot.tid, work=describe_work(p.work), periodic=is_periodic(p.work),
-                                           requested=p.settings, applied=t.applied, degraded=degraded, figures=fig))
+        result.threads.append(
+            ThreadResult(
+                process=p.process,
+                instance=p.instance,
+                index=p.index,
+                name=p.name,
+                pid=t.pid,
+                tid=t.slot.tid,
+                work=describe_work(p.work),
+                periodic=is_periodic(p.work),
+                requested=p.settings,
+                applied=t.applied,
+                degraded=degraded,
+                figures=fig,
+            )
+        )
         measured.append((p, fig))
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
@@ -111,8 +130,12 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if id(t) in targets and (is_periodic(t.work) or not metric_figure(exp.metric).needs_callbacks):
                 result.expectations.append(check(exp, verdict_label(t, raw.processes), fig))
     result.thread_table = list(raw.table)
-    result.background = [Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid) if b.kind == "hog" else
-                         Background(kind=BackgroundKind.COMMAND, argv=list(b.argv), pid=b.pid) for b in raw.background]
+    result.background = [
+        Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)
+        if b.kind == "hog"
+        else Background(kind=BackgroundKind.COMMAND, argv=list(b.argv), pid=b.pid)
+        for b in raw.background
+    ]
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
     result.overhead_ns = _overhead(raw)
     result.status, result.reason = status(result, raw, allow_degraded)
@@ -139,8 +162,10 @@ def status(result: CellResult, raw: RawCell, allow_degraded: bool) -> tuple[Stat
     if any(t.degraded for t in result.threads):
         statuses.append(Status.DEGRADED if allow_degraded else Status.ERROR)
         if not allow_degraded and not reasons:
-            reasons = ["settings were not applied as requested: " + "; ".join(
-                f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)]
+            reasons = [
+                "settings were not applied as requested: "
+                + "; ".join(f"{t.process}/{t.name}: {', '.join(t.degraded)}" for t in result.threads if t.degraded)
+            ]
     return worst(statuses), "; ".join(reasons)
 
 
@@ -155,5 +180,12 @@ def with_write_error(result: CellResult, path: str, error: OSError) -> CellResul
 
 def unrun(cell: ResolvedCell, reason: str, started_at: str) -> CellResult:
     """The record of a cell that could not even start (its files could not be created)."""
-    return CellResult(id=cell.id, matrix=dict(cell.matrix), spec_hash=cell.spec_hash, status=Status.ERROR,
-                      spec=spec_json(cell.scenario), reason=reason, started_at=started_at)
+    return CellResult(
+        id=cell.id,
+        matrix=dict(cell.matrix),
+        spec_hash=cell.spec_hash,
+        status=Status.ERROR,
+        spec=spec_json(cell.scenario),
+        reason=reason,
+        started_at=started_at,
+    )

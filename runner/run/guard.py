@@ -56,9 +56,17 @@ class Guard:
     def __init__(self) -> None:
         self.proc: Optional[subprocess.Popen[str]] = None
         try:
-            self.proc = subprocess.Popen(python_module("runner.run.guard"), stdin=subprocess.PIPE,
-                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True,
-                                         start_new_session=True, close_fds=True, cwd="/", env=child_env())
+            self.proc = subprocess.Popen(
+                python_module("runner.run.guard"),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                text=True,
+                start_new_session=True,
+                close_fds=True,
+                cwd="/",
+                env=child_env(),
+            )
         except OSError:
             self.proc = None  # without a guard, PDEATHSIG still covers the workers
 

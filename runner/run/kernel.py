@@ -54,7 +54,7 @@ def _read(path: str) -> str:
 def parse_stat(text: str) -> tuple[str, list[str]]:
     """Split a /proc stat line into comm and the fields after it (field 3 onwards)."""
     start, end = text.index("("), text.rindex(")")
-    return text[start + 1:end], text[end + 2:].split()
+    return text[start + 1 : end], text[end + 2 :].split()
 
 
 def read_thread(pid: int, tid: int) -> Optional[ThreadRow]:
@@ -74,9 +74,17 @@ def read_thread(pid: int, tid: int) -> Optional[ThreadRow]:
         elif line.startswith("nonvoluntary_ctxt_switches:"):
             invol = int(line.split()[1])
     return ThreadRow(
-        pid=pid, tid=tid, comm=comm, policy=int(fields[41 - 3]), rtprio=int(fields[40 - 3]),
-        nice=int(fields[19 - 3]), psr=int(fields[39 - 3]), prio=int(fields[18 - 3]), cpus=cpus,
-        voluntary=vol, involuntary=invol,
+        pid=pid,
+        tid=tid,
+        comm=comm,
+        policy=int(fields[41 - 3]),
+        rtprio=int(fields[40 - 3]),
+        nice=int(fields[19 - 3]),
+        psr=int(fields[39 - 3]),
+        prio=int(fields[18 - 3]),
+        cpus=cpus,
+        voluntary=vol,
+        involuntary=invol,
     )
 
 
@@ -108,9 +116,9 @@ def process_state(pid: int) -> Optional[str]:
         stat = _read(f"/proc/{pid}/stat")
     except OSError:
         return None
-    return stat[stat.rfind(")") + 2:][:1] or None
+    return stat[stat.rfind(")") + 2 :][:1] or None
 
 
 def _zombie(pid: str) -> bool:
     stat = _read(f"/proc/{pid}/stat")
-    return stat[stat.rfind(")") + 2:][:1] in ("Z", "X")
+    return stat[stat.rfind(")") + 2 :][:1] in ("Z", "X")

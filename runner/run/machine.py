@@ -32,7 +32,9 @@ def machine_info() -> MachineInfo:
     runtime = _int(_read("/proc/sys/kernel/sched_rt_runtime_us"))
     period = _int(_read("/proc/sys/kernel/sched_rt_period_us"))
     realtime = _read("/sys/kernel/realtime") == "1" or "PREEMPT_RT" in uname.version
-    governors = sorted({g for cpu in range(os.cpu_count() or 0) if (g := _read(f"/sys/devices/system/cpu/cpu{cpu}/cpufreq/scaling_governor"))})
+    governors = sorted(
+        {g for cpu in range(os.cpu_count() or 0) if (g := _read(f"/sys/devices/system/cpu/cpu{cpu}/cpufreq/scaling_governor"))}
+    )
     return MachineInfo(
         hostname=socket.gethostname(),
         kernel=uname.release,

@@ -73,7 +73,8 @@ def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
     name = exp.metric.value
     value = fg.value(figs, fg.figure(name))
     if value is None:
-        return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False,
-                       note="not measured (no callbacks)")
+        return Verdict(
+            thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note="not measured (no callbacks)"
+        )
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)
     return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok)

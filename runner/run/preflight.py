@@ -66,8 +66,14 @@ def current_permissions() -> Permissions:
         user = pwd.getpwuid(uid).pw_name
     except KeyError:
         user = str(uid)
-    return Permissions(user, uid, bool(caps >> CAP_SYS_NICE & 1), bool(caps >> CAP_IPC_LOCK & 1),
-                       _limit(resource.RLIMIT_RTPRIO), _limit(resource.RLIMIT_MEMLOCK))
+    return Permissions(
+        user,
+        uid,
+        bool(caps >> CAP_SYS_NICE & 1),
+        bool(caps >> CAP_IPC_LOCK & 1),
+        _limit(resource.RLIMIT_RTPRIO),
+        _limit(resource.RLIMIT_MEMLOCK),
+    )
 
 
 def _try_on_thread(action) -> int:  # type: ignore[no-untyped-def]
@@ -136,8 +142,10 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
 
 def _refuse_cpus(where: str, cpus: tuple[int, ...] | None, online: set[int]) -> None:
     if cpus is not None and not set(cpus) <= online:
-        raise UsageError(f"{where} asks for CPUs {units.format_cpus(cpus)}, but this machine lets the runner use "
-                         f"{units.format_cpus(online)}; change the scenario's cpus")
+        raise UsageError(
+            f"{where} asks for CPUs {units.format_cpus(cpus)}, but this machine lets the runner use "
+            f"{units.format_cpus(online)}; change the scenario's cpus"
+        )
 
 
 def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:

@@ -33,8 +33,11 @@ class ApplyErrors:
 
     def failed(self) -> dict[str, int]:
         """The settings that failed, by name, with their errno."""
-        return {k: v for k, v in (("sched", self.sched), ("nice", self.nice), ("cpus", self.cpus),
-                                  ("memory", self.memory), ("other", self.other)) if v}
+        return {
+            k: v
+            for k, v in (("sched", self.sched), ("nice", self.nice), ("cpus", self.cpus), ("memory", self.memory), ("other", self.other))
+            if v
+        }
 
 
 @dataclass(frozen=True)

@@ -122,9 +122,21 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, capacity: int, with_samples: 
         base = at + SLOT_HEADER
         samples = tuple(Sample(*SAMPLE.unpack_from(buf, base + i * SAMPLE.size)) for i in range(count))
     return SlotData(
-        tid=f[0], state=STATES.get(f[1], "unknown"), count=count, err_sched=f[3], err_nice=f[4], err_cpus=f[5],
-        err_other=f[6], start_ru=tuple(f[7:11]), end_ru=tuple(f[11:15]), loops=f[15], missed=f[16],  # type: ignore[arg-type]
-        work_start_ns=f[17], work_end_ns=f[18], cpus_seen=_bits(tuple(f[19:35])), samples=samples,
+        tid=f[0],
+        state=STATES.get(f[1], "unknown"),
+        count=count,
+        err_sched=f[3],
+        err_nice=f[4],
+        err_cpus=f[5],
+        err_other=f[6],
+        start_ru=tuple(f[7:11]),
+        end_ru=tuple(f[11:15]),
+        loops=f[15],
+        missed=f[16],  # type: ignore[arg-type]
+        work_start_ns=f[17],
+        work_end_ns=f[18],
+        cpus_seen=_bits(tuple(f[19:35])),
+        samples=samples,
     )
 
 
@@ -177,6 +189,23 @@ def write_samples(path: str, slots: list[tuple[str, SlotData]]) -> None:
     out.writerow(list(SAMPLE_COLUMNS))
     for key, slot in slots:
         for seq, s in enumerate(slot.samples):
-            out.writerow([key, slot.tid, seq, s.scheduled_ns, s.wake_ns, s.end_ns, s.latency_ns, s.burn_wall_ns,
-                          s.nivcsw, s.nvcsw, s.minflt, s.majflt, s.cpu_start, s.cpu_end, s.missed])
+            out.writerow(
+                [
+                    key,
+                    slot.tid,
+                    seq,
+                    s.scheduled_ns,
+                    s.wake_ns,
+                    s.end_ns,
+                    s.latency_ns,
+                    s.burn_wall_ns,
+                    s.nivcsw,
+                    s.nvcsw,
+                    s.minflt,
+                    s.majflt,
+                    s.cpu_start,
+                    s.cpu_end,
+                    s.missed,
+                ]
+            )
     write_atomic(path, gzip.compress(buf.getvalue().encode("utf-8"), compresslevel=6))

@@ -36,8 +36,8 @@ from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Scenario, Sc
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
 
 READY_TIMEOUT_S = 20.0
-SETTLE_S = 0.1          # background load runs this long before the measured start
-START_MARGIN_S = 0.02   # time for every worker to receive `go` before the common start
+SETTLE_S = 0.1  # background load runs this long before the measured start
+START_MARGIN_S = 0.02  # time for every worker to receive `go` before the common start
 STOP_GRACE_S = 2.0
 
 
@@ -111,8 +111,14 @@ class Worker:
         log = open(self.log_path, "w")
         self.popen = subprocess.Popen(
             python_module("runner.run.worker"),
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
-            start_new_session=True, close_fds=True, cwd="/",
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+            bufsize=1,
+            start_new_session=True,
+            close_fds=True,
+            cwd="/",
             env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
         )
         log.close()
@@ -173,13 +179,22 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path
         "reset_on_fork": proc.reset_on_fork,
         "memory": {"lock": mem.lock, "prealloc": mem.prealloc, "stack_size": mem.stack_size},
         "main": {
-            "name": proc.main_name, "apply": proc.main.apply.value, "sched": _sched_json(proc.main.sched),
-            "cpus": list(proc.main.cpus) if proc.main.cpus else None, "work": work_tuple(proc.main.work),
+            "name": proc.main_name,
+            "apply": proc.main.apply.value,
+            "sched": _sched_json(proc.main.sched),
+            "cpus": list(proc.main.cpus) if proc.main.cpus else None,
+            "work": work_tuple(proc.main.work),
         },
         "threads": [
-            {"name": spec_name, "explicit": not spec.inherit, "sched": _sched_json(spec.sched),
-             "cpus": list(spec.cpus) if spec.cpus else None, "work": work_tuple(spec.work)}
-            for spec in proc.threads for spec_name in spec.names()
+            {
+                "name": spec_name,
+                "explicit": not spec.inherit,
+                "sched": _sched_json(spec.sched),
+                "cpus": list(spec.cpus) if spec.cpus else None,
+                "work": work_tuple(spec.work),
+            }
+            for spec in proc.threads
+            for spec_name in spec.names()
         ],
     }
 
@@ -194,9 +209,18 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
         for i in range(copies):
             path = os.path.join(folder, f"hog{h}-{i}.smp")
             spec = {
-                "comm": hog.name, "samples": path, "capacity": 1, "all_cpus": kernel.online_cpus(), "memory": {},
-                "main": {"name": hog.name, "apply": "before_threads", "sched": _sched_json(hog.sched),
-                         "cpus": list(hog.cpus) if hog.cpus else None, "work": spin if as_processes else work_tuple(SleepWork())},
+                "comm": hog.name,
+                "samples": path,
+                "capacity": 1,
+                "all_cpus": kernel.online_cpus(),
+                "memory": {},
+                "main": {
+                    "name": hog.name,
+                    "apply": "before_threads",
+                    "sched": _sched_json(hog.sched),
+                    "cpus": list(hog.cpus) if hog.cpus else None,
+                    "work": spin if as_processes else work_tuple(SleepWork()),
+                },
                 "threads": [{"name": hog.name, "work": spin} for _ in range(threads)],
             }
             out.append(Worker(f"hog {hog.name}[{i}]", spec, path, 1 + threads, 1, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
@@ -260,7 +284,9 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
             emit(f"[{level}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: Involuntary context switches: '{s.nivcsw}'")
             if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
                 lvl = "WARN" if s.minflt or s.majflt else "INFO"
-                emit(f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
+                emit(
+                    f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]"
+                )
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
@@ -307,8 +333,18 @@ class _CellRun:
         for (proc, inst), threads in self.by_process.items():
             cap = _capacity(threads, options.duration_ns)
             path = os.path.join(folder, f"{proc}.{inst}.smp")
-            self.workers.append(Worker(f"process {proc}[{inst}]", _process_spec(threads, self.scenario, path, cap), path,
-                                       len(threads), cap, threads, True, os.path.join(folder, f"{proc}.{inst}.log")))
+            self.workers.append(
+                Worker(
+                    f"process {proc}[{inst}]",
+                    _process_spec(threads, self.scenario, path, cap),
+                    path,
+                    len(threads),
+                    cap,
+                    threads,
+                    True,
+                    os.path.join(folder, f"{proc}.{inst}.log"),
+                )
+            )
         self.hogs = _hog_workers(self.scenario, folder)
         self.commands: list[subprocess.Popen[bytes]] = []
         self.table: list[ThreadRow] = []
@@ -340,8 +376,9 @@ class _CellRun:
         for cmd in self.scenario.background.commands:
             log = open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w")
             try:
-                self.commands.append(subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                                      start_new_session=True))
+                self.commands.append(
+                    subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+                )
                 self.guard.watch(self.commands[-1].pid)
             except OSError as exc:
                 self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
@@ -417,8 +454,9 @@ class _CellRun:
         for w in self.workers + self.hogs:
             assert w.popen is not None
             if w.label not in self.incidents and kernel.process_state(w.pid) in ("T", "t"):
-                self.incidents[w.label] = (f"{w.label} (pid {w.pid}) was stopped (SIGSTOP or a debugger) {at}; "
-                                           "its threads could not run while it was")
+                self.incidents[w.label] = (
+                    f"{w.label} (pid {w.pid}) was stopped (SIGSTOP or a debugger) {at}; its threads could not run while it was"
+                )
 
     def stop(self) -> None:
         """Stop the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
@@ -466,8 +504,17 @@ class _CellRun:
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
         background += [BackgroundProcess("command", str(c.args[0]), c.pid, tuple(str(a) for a in c.args)) for c in self.commands]
         timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
-        return RawCell(self.started_at, tuple(threads), len(self.by_process), timeline, tuple(self.table), tuple(failures),
-                       tuple(self.incidents.values()), self.interrupted, tuple(background))
+        return RawCell(
+            self.started_at,
+            tuple(threads),
+            len(self.by_process),
+            timeline,
+            tuple(self.table),
+            tuple(failures),
+            tuple(self.incidents.values()),
+            self.interrupted,
+            tuple(background),
+        )
 
 
 def _ready_report(w: Worker) -> Optional[ReadyReport]:

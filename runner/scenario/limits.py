@@ -115,8 +115,12 @@ def static_check(scenario: Scenario) -> list[Finding]:
     """Ceilings that hold on every machine (no limits needed): the thread count of a cell."""
     threads = cell_threads(scenario)
     if threads > MAX_THREADS:
-        return [Finding(("processes",), f"the cell creates {threads} threads (instances x threads, and hogs); "
-                                       f"at most {MAX_THREADS} threads in a cell")]
+        return [
+            Finding(
+                ("processes",),
+                f"the cell creates {threads} threads (instances x threads, and hogs); at most {MAX_THREADS} threads in a cell",
+            )
+        ]
     return []
 
 
@@ -144,10 +148,16 @@ def _check_threads(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     room, named = min(bounds)
     if needed <= room:
         return []
-    return [Finding(("processes",), (
-        f"the cell needs {needed} threads (instances x threads, hogs and the runner's own {RUNNER_THREADS}), "
-        f"but on this machine ({named}, {limits.threads_running} threads running) at most {max(room, 0)} can start; "
-        "lower count or instances"))]
+    return [
+        Finding(
+            ("processes",),
+            (
+                f"the cell needs {needed} threads (instances x threads, hogs and the runner's own {RUNNER_THREADS}), "
+                f"but on this machine ({named}, {limits.threads_running} threads running) at most {max(room, 0)} can start; "
+                "lower count or instances"
+            ),
+        )
+    ]
 
 
 def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
@@ -159,18 +169,30 @@ def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
         if pinned > limits.memlock:
             stacks = sum(t.count for t in proc.threads)
             what = f"prealloc {units.format_size(proc.memory.prealloc)}" + (f" and {stacks} thread stacks" if stacks else "")
-            out.append(Finding(("processes", i, "memory"), (
-                f"process {proc.name} locks its memory: {what} pin at least {approx_size(pinned)}, "
-                f"but on this machine RLIMIT_MEMLOCK is {approx_size(limits.memlock)} and the runner has no "
-                "CAP_IPC_LOCK; lower prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', "
-                "'memlock unlimited' in /etc/security/limits.conf)")))
+            out.append(
+                Finding(
+                    ("processes", i, "memory"),
+                    (
+                        f"process {proc.name} locks its memory: {what} pin at least {approx_size(pinned)}, "
+                        f"but on this machine RLIMIT_MEMLOCK is {approx_size(limits.memlock)} and the runner has no "
+                        "CAP_IPC_LOCK; lower prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', "
+                        "'memlock unlimited' in /etc/security/limits.conf)"
+                    ),
+                )
+            )
     if limits.mem_available is not None:
         total = sum(proc.instances * resident_bytes(proc, limits.default_stack) for proc in scenario.processes)
         if total > limits.mem_available:
-            out.append(Finding(("processes",), (
-                f"the cell keeps {approx_size(total)} resident (prealloc, locked stacks and per-callback alloc, "
-                f"times instances and counts), but on this machine MemAvailable is "
-                f"{approx_size(limits.mem_available)}; lower prealloc, alloc, count or instances")))
+            out.append(
+                Finding(
+                    ("processes",),
+                    (
+                        f"the cell keeps {approx_size(total)} resident (prealloc, locked stacks and per-callback alloc, "
+                        f"times instances and counts), but on this machine MemAvailable is "
+                        f"{approx_size(limits.mem_available)}; lower prealloc, alloc, count or instances"
+                    ),
+                )
+            )
     return out
 
 
@@ -188,8 +210,7 @@ def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
         if cpus is not None and not set(cpus) <= allowed:
             missing = sorted(set(cpus) - allowed)
             noun = f"CPU {missing[0]} is" if len(missing) == 1 else f"CPUs {units.format_cpus(missing)} are"
-            out.append(Finding(path, f"{noun} not available on this machine (the runner may use "
-                                     f"{units.format_cpus(limits.cpus)})"))
+            out.append(Finding(path, f"{noun} not available on this machine (the runner may use {units.format_cpus(limits.cpus)})"))
     return out
 
 

@@ -50,17 +50,30 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
         sched = hog.sched.label() if hog.sched else "inherited"
         where = units.format_cpus(hog.cpus) if hog.cpus else "any CPU"
         noun = {(True, True): "process", (True, False): "processes", (False, True): "thread", (False, False): "threads"}[
-            (hog.kind is HogKind.PROCESS, hog.count == 1)]
+            (hog.kind is HogKind.PROCESS, hog.count == 1)
+        ]
         lines.append(f"  background: {hog.count} busy {noun} {hog.name!r}, {sched}, {where}")
     for cmd in sc.background.commands:
         lines.append(f"  background: command {cmd.argv!r}")
     for proc in sc.processes:
         copies = f", {proc.instances} instances" if proc.instances > 1 else ""
         reset = ", reset-on-fork" if proc.reset_on_fork else ""
-        lines.append(f"  process {proc.name}{copies}{reset}; memory {describe_memory(proc)}; main thread settings {proc.main.apply.value.replace('_', ' ')}")
+        lines.append(
+            f"  process {proc.name}{copies}{reset}; memory {describe_memory(proc)}; main thread settings {proc.main.apply.value.replace('_', ' ')}"
+        )
         rows = []
         for t in plan_process(proc, start):
-            rows.append([t.index if t.index else "main", t.name, t.settings.label(), t.settings.nice, t.settings.cpus_label(online), t.origin, describe_work(t.work)])
+            rows.append(
+                [
+                    t.index if t.index else "main",
+                    t.name,
+                    t.settings.label(),
+                    t.settings.nice,
+                    t.settings.cpus_label(online),
+                    t.origin,
+                    describe_work(t.work),
+                ]
+            )
         table = tabulate(rows, headers=["#", "THREAD", "POLICY", "NICE", "CPUS", "SETTINGS", "WORK"], tablefmt="plain")
         lines.extend("    " + row for row in table.splitlines())
     for i in expectations_for(sc, cell):

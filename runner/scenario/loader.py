@@ -124,16 +124,16 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> L
 
     for problem, where in found.items():
         if len(cells) > 1 and len(where) < len(cells):
-            problem = Problem(problem.file, problem.line, problem.col, problem.path,
-                              problem.message + _cells_note(where, len(cells)))
+            problem = Problem(problem.file, problem.line, problem.col, problem.path, problem.message + _cells_note(where, len(cells)))
         problems.append(problem)
     if problems:
         raise ScenarioError(problems + warnings)
     return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
 
 
-def _check_cell(doc: Document, raw: dict[str, Any], index: MatrixIndex,
-                machine: lim.MachineLimits | None) -> tuple[Scenario | None, list[Problem], str]:
+def _check_cell(
+    doc: Document, raw: dict[str, Any], index: MatrixIndex, machine: lim.MachineLimits | None
+) -> tuple[Scenario | None, list[Problem], str]:
     """Validate one resolved cell: the model, cross-field checks, ceilings and (if given) this machine's limits."""
     cell_problems: list[Problem] = []
     for path, expr in mx.unresolved(raw):
@@ -174,8 +174,9 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
     return _cross_checks(doc, processes, expectations, index)
 
 
-def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]],
-                  index: MatrixIndex) -> list[Problem]:
+def _cross_checks(
+    doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]], index: MatrixIndex
+) -> list[Problem]:
     """Checks that span several fields: unique names, expectation targets and selectors."""
     out: list[Problem] = []
     seen: set[str] = set()
@@ -197,18 +198,28 @@ def _cross_checks(doc: Document, processes: list[ProcessSpec], expectations: lis
             out.append(doc.problem(path + ("thread",), f"no process named {proc!r}{did_you_mean(proc, names)}"))
         elif not targets:
             pool = names.get(proc, []) if sep else every
-            out.append(doc.problem(path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"))
+            out.append(
+                doc.problem(
+                    path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"
+                )
+            )
         elif metric_figure(exp.metric).needs_callbacks and not any(is_periodic(t.work) for t in targets):
-            out.append(doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work"))
+            out.append(
+                doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work")
+            )
         for key, wanted in exp.cells.items():
             if key not in keys:
                 known = ", ".join(keys) if keys else "none (there is no matrix)"
-                out.append(doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True))
+                out.append(
+                    doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True)
+                )
                 continue
             for value in wanted if isinstance(wanted, list) else [wanted]:
                 if mx.format_value(value) not in index.values[key]:
                     values = sorted(index.values[key])
-                    out.append(doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}"))
+                    out.append(
+                        doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}")
+                    )
     return out
 
 

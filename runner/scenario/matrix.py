@@ -155,8 +155,7 @@ def value_problem(value: Any) -> str | None:
         return f"matrix values must be strings, numbers or booleans, got {value!r}"
     char = control_character(value)
     if char is not None:
-        return (f"matrix value {value!r} contains the control character {char!r}; it would break cell ids "
-                "and report headings")
+        return f"matrix value {value!r} contains the control character {char!r}; it would break cell ids and report headings"
     if "${{" in value:
         return f"matrix value {value!r} contains a '${{{{' reference; matrix values are not expanded again"
     if len(value) > MAX_VALUE_CHARS:
@@ -222,8 +221,9 @@ def expand(doc: Document, spec: MatrixSpec, problems: list[Problem], warnings: l
         if not fitted:
             kept.append(dict(entry))
     if len(kept) > MAX_CELLS:
-        problems.append(doc.problem(("matrix", "include"), f"the matrix has {len(kept)} cells with its include entries; "
-                                                           f"at most {MAX_CELLS}"))
+        problems.append(
+            doc.problem(("matrix", "include"), f"the matrix has {len(kept)} cells with its include entries; at most {MAX_CELLS}")
+        )
         return []
 
     cells: list[Cell] = []
@@ -271,7 +271,11 @@ def check_references(doc: Document, data: Any, spec: MatrixSpec, problems: list[
     for axis in spec.axes:
         if axis not in referenced:
             problems.append(
-                doc.problem(("matrix", axis), f"axis {axis!r} is not referenced anywhere; use it as '${{{{ matrix.{axis} }}}}' or remove it", key=True)
+                doc.problem(
+                    ("matrix", axis),
+                    f"axis {axis!r} is not referenced anywhere; use it as '${{{{ matrix.{axis} }}}}' or remove it",
+                    key=True,
+                )
             )
 
 

@@ -160,7 +160,7 @@ POLICY_WORDS = ["other", "fifo", "rr", "batch", "idle"]
 def _policy_name(text: str) -> str:
     word = text.strip().lower()
     if word.startswith("sched_"):
-        word = word[len("sched_"):]
+        word = word[len("sched_") :]
     if word == "normal":
         word = "other"
     return word
@@ -255,8 +255,10 @@ class PeriodicWork(Strict):
         if self.period < MIN_PERIOD:
             raise ValueError(f"period {units.format_duration(self.period)} is too short; at least 50us")
         if self.period > MAX_PERIOD:
-            raise ValueError(f"period {units.format_duration(self.period)} is too long; at most "
-                             f"{units.format_duration(MAX_PERIOD)} (a callback released less often is not real-time work)")
+            raise ValueError(
+                f"period {units.format_duration(self.period)} is too long; at most "
+                f"{units.format_duration(MAX_PERIOD)} (a callback released less often is not real-time work)"
+            )
         if self.offset > MAX_OFFSET:
             raise ValueError(f"offset {units.format_duration(self.offset)} is too long; at most {units.format_duration(MAX_OFFSET)}")
         if self.burn >= self.period:
@@ -479,7 +481,8 @@ class _MetricValue(str):
 
 
 Metric = enum.Enum(  # type: ignore[misc]  # built from the registry: every figure is an expectation metric
-    "Metric", {f.name.upper().replace(".", "_"): f.name for f in figures.REGISTRY}, type=_MetricValue, module=__name__)
+    "Metric", {f.name.upper().replace(".", "_"): f.name for f in figures.REGISTRY}, type=_MetricValue, module=__name__
+)
 Metric.__doc__ = "Figures an expectation can check, named as in results.json (runner/figures.py declares them)."
 
 
@@ -524,9 +527,7 @@ class Expectation(Strict):
                 if given is None:
                     continue
                 if latency and not isinstance(given, str):
-                    raise ValueError(
-                        f"{bound}: bare number {given!r} for {metric}; expected {units.DURATION_EXPECTED}"
-                    )
+                    raise ValueError(f"{bound}: bare number {given!r} for {metric}; expected {units.DURATION_EXPECTED}")
                 if not latency and isinstance(given, str):
                     raise ValueError(f"{bound}: {metric or 'this metric'} is a count; expected a number, got {given!r}")
         return value
@@ -543,11 +544,12 @@ class Expectation(Strict):
             if bound < 0:
                 raise ValueError(f"{name}: {bound:g} is negative; {self.metric.value} is never below 0")
             if metric_figure(self.metric).is_duration and bound > MAX_LATENCY_LIMIT:
-                raise ValueError(f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
-                                 f"at most {units.format_duration(MAX_LATENCY_LIMIT)}")
+                raise ValueError(
+                    f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
+                    f"at most {units.format_duration(MAX_LATENCY_LIMIT)}"
+                )
         if self.min is not None and self.max is not None and self.min > self.max:
-            raise ValueError(f"min {self.describe_bound(self.min)} is above max {self.describe_bound(self.max)}; "
-                             "no run can meet both")
+            raise ValueError(f"min {self.describe_bound(self.min)} is above max {self.describe_bound(self.max)}; no run can meet both")
         return self
 
     def describe_bound(self, value: float) -> str:
@@ -583,8 +585,10 @@ class Scenario(Strict):
     @classmethod
     def _duration_range(cls, value: int) -> int:
         if not MIN_RUN <= value <= MAX_RUN:
-            raise ValueError(f"duration {units.format_duration(value)} is out of range; expected "
-                             f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}")
+            raise ValueError(
+                f"duration {units.format_duration(value)} is out of range; expected "
+                f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}"
+            )
         return value
 
     @field_validator("name")

@@ -28,8 +28,7 @@ AffinityCpus = Annotated[
     Optional[tuple[int, ...]],
     BeforeValidator(_cpus_in),
     PlainSerializer(lambda cpus: "all" if cpus is None else units.format_cpus(cpus), return_type=str),
-    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`",
-                    "examples": ["all", "0-1,3"]}),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`", "examples": ["all", "0-1,3"]}),
 ]
 
 

@@ -25,7 +25,9 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     path: list[str | int] = []
     node = data
     for elem in loc:
-        if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)):
+        if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (
+            isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)
+        ):
             node = node[elem]
             path.append(elem)
         elif isinstance(node, dict) and isinstance(elem, str) and not _is_tag(elem, node):
@@ -82,9 +84,7 @@ def _fields_at(root: type[BaseModel], loc: tuple[Any, ...]) -> list[str] | None:
     return None
 
 
-def problems_from(
-    exc: ValidationError, doc: Document, data: Any, root: type[BaseModel], prefix: Path = ()
-) -> list[Problem]:
+def problems_from(exc: ValidationError, doc: Document, data: Any, root: type[BaseModel], prefix: Path = ()) -> list[Problem]:
     """One Problem per pydantic error, located in `doc`."""
     out: list[Problem] = []
     for err in exc.errors(include_url=False):

@@ -48,9 +48,7 @@ def printable(text: str) -> str:
     """
     if text.isprintable():
         return text
-    return "".join(
-        repr(char)[1:-1] if unicodedata.category(char) in _UNPRINTABLE else char for char in text
-    )
+    return "".join(repr(char)[1:-1] if unicodedata.category(char) in _UNPRINTABLE else char for char in text)
 
 
 def _surrogate(text: str) -> str | None:
@@ -122,9 +120,20 @@ def load_text(text: str, file: str) -> Document:
         node = loader.get_single_node()
     except yaml.reader.ReaderError as exc:
         line, col = _position(text, exc.position)
-        raise ScenarioError([Problem(file, line, col, "", (
-            f"invalid YAML: character {chr(exc.character) if isinstance(exc.character, int) else exc.character!r}"
-            " is not allowed in YAML text; remove it, or write it as an escape inside double quotes"))]) from None
+        raise ScenarioError(
+            [
+                Problem(
+                    file,
+                    line,
+                    col,
+                    "",
+                    (
+                        f"invalid YAML: character {chr(exc.character) if isinstance(exc.character, int) else exc.character!r}"
+                        " is not allowed in YAML text; remove it, or write it as an escape inside double quotes"
+                    ),
+                )
+            ]
+        ) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
@@ -185,8 +194,11 @@ class _Builder:
     def build(self, node: Node, path: Path, depth: int = 0) -> Any:
         """Plain data for `node`, counting nodes and depth and refusing an alias inside its own anchor."""
         if id(node) in self.active:
-            self._fail(node, path, "an alias refers to a node that contains it (a recursive alias); "
-                                   "an alias must refer to a complete node outside itself")
+            self._fail(
+                node,
+                path,
+                "an alias refers to a node that contains it (a recursive alias); an alias must refer to a complete node outside itself",
+            )
             return None
         if isinstance(node, (MappingNode, SequenceNode)):
             self.active.add(id(node))
@@ -233,8 +245,7 @@ class _Builder:
         except _CONSTRUCT_ERRORS:
             kind = node.tag.rpartition(":")[2]
             shown = node.value if len(node.value) <= 40 else node.value[:20] + "…" + node.value[-10:]
-            self._fail(node, path, f"{shown!r} cannot be read as {kind} (too long, or not written as one); "
-                                   "quote it to make it a string")
+            self._fail(node, path, f"{shown!r} cannot be read as {kind} (too long, or not written as one); quote it to make it a string")
             return None
         if not isinstance(value, _PLAIN_TYPES):
             self._fail(node, path, f"value {node.value!r} reads as a {type(value).__name__}; quote it to make it a string")
