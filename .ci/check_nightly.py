@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+from pathlib import Path
 
 # README's exit-code table, written out so the check holds the tool to its documentation, not to its own code
 README_EXIT = {"interrupted": 130, "error": 4, "failed": 1, "degraded": 0, "passed": 0}
@@ -43,7 +44,7 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
     check(invol["policy=other,priority=0"] > 1.0, f"OTHER is preempted under contention ({invol['policy=other,priority=0']} per callback)")
     for cell_id in ("policy=fifo,priority=80", "policy=rr,priority=80", "policy=fifo,priority=10", "policy=rr,priority=10"):
         check(invol[cell_id] < 0.5, f"{cell_id} is not preempted ({invol[cell_id]} per callback)")
-    report = open(os.path.join(out, "full", "report.md"), encoding="utf-8").read()
+    report = Path(out, "full", "report.md").read_text(encoding="utf-8")
     for needle in (
         "## Matrix summary",
         "## minimal_schedul/minimal_schedul (main) across cells",
@@ -52,7 +53,7 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
     ):
         check(needle in report, f"full report has {needle.splitlines()[0]!r}")
     check(
-        "## Comparison with the baseline" in open(os.path.join(out, "merged", "report.md"), encoding="utf-8").read(),
+        "## Comparison with the baseline" in Path(out, "merged", "report.md").read_text(encoding="utf-8"),
         "merged report carries the comparison with the baseline",
     )
     print(f"nightly check: {len(failures)} failure(s)")

@@ -343,7 +343,12 @@ def _cell_loop(
     """Run the cells one after another, recording each as it finishes; stop at a stop request or a write error."""
     loop = _Loop([c.status for c in doc.cells])
     progress = Progress(len(units), options.settle_ns / 1e9, options.live, options.quiet)
-    follow = (lambda line: (progress.clear(), say(line))) if options.follow else None
+
+    def follow_line(line: str) -> None:
+        progress.clear()
+        say(line)
+
+    follow = follow_line if options.follow else None
     results_path = os.path.join(folder, "results.json")
     try:
         for n, unit in enumerate(units):

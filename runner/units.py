@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import re
+from collections.abc import Iterable
 from fractions import Fraction
 from typing import Any
 
@@ -48,7 +49,7 @@ def parse_duration(value: object) -> int:
     """Parse `500ms`, `200us`, `1.5s`, `10m` into integer nanoseconds; a bare 0 is 0 in every unit."""
     if (value == 0 and not isinstance(value, bool)) or (isinstance(value, str) and value.strip() == "0"):
         return 0
-    if isinstance(value, bool) or isinstance(value, (int, float)):
+    if isinstance(value, (bool, int, float)):
         raise UnitError(f"bare number {value!r} has no unit; expected {DURATION_EXPECTED}")
     if not isinstance(value, str):
         raise UnitError(f"expected {DURATION_EXPECTED}, got {type(value).__name__}")
@@ -64,7 +65,7 @@ def parse_duration(value: object) -> int:
 
 def parse_size(value: object) -> int:
     """Parse `50MiB`, `200KiB`, `0B` into integer bytes."""
-    if isinstance(value, bool) or isinstance(value, (int, float)):
+    if isinstance(value, (bool, int, float)):
         raise UnitError(f"bare number {value!r} has no unit; expected {SIZE_EXPECTED}")
     if not isinstance(value, str):
         raise UnitError(f"expected {SIZE_EXPECTED}, got {type(value).__name__}")
@@ -178,19 +179,15 @@ def format_size(nbytes: int) -> str:
 
 def format_cpus(cpus: tuple[int, ...] | list[int] | frozenset[int] | set[int]) -> str:
     """Write a CPU set taskset-style, runs folded: (0, 1, 2, 5) -> `0-2,5`."""
-    ordered = sorted(cpus)
-    parts: list[str] = []
-    start = prev = None
-    for cpu in ordered + [None]:  # type: ignore[operator]
-        if start is not None and (cpu is None or cpu != prev + 1):
-            parts.append(str(start) if start == prev else f"{start}-{prev}")
-            start = None
-        if cpu is not None and start is None:
-            start = cpu
-        prev = cpu
-    return ",".join(parts)
+    runs: list[list[int]] = []
+    for cpu in sorted(cpus):
+        if runs and cpu == runs[-1][1] + 1:
+            runs[-1][1] = cpu
+        else:
+            runs.append([cpu, cpu])
+    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
-def _did_you_mean(word: str, choices: object) -> str:
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)  # type: ignore[arg-type]
+def _did_you_mean(word: str, choices: Iterable[str]) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
     return f" (did you mean {close[0]!r}?)" if close else ""

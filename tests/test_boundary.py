@@ -111,7 +111,7 @@ def test_a_folder_with_results_is_refused_unless_resumed(tmp_path):
 
 def test_a_file_where_the_folder_should_be_is_refused(tmp_path):
     (tmp_path / "f").write_text("x")
-    with pytest.raises(UsageError, match="a file stands where a folder is expected|Not a directory"):
+    with pytest.raises(UsageError, match=r"a file stands where a folder is expected|Not a directory"):
         outdir.claim(str(tmp_path / "f"))
     with pytest.raises(UsageError):
         outdir.claim(str(tmp_path / "f" / "sub"))

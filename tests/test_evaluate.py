@@ -82,7 +82,7 @@ def test_a_cell_that_kept_up_passes():
     assert ev.result.status is Status.PASSED and ev.result.reason == ""
     assert main.figures.callbacks == 10 and main.figures.missed_releases == 0
     assert [v.passed for v in ev.result.expectations] == [True]
-    assert [key for key, _ in ev.samples][0] == "minimal_schedul[0]/minimal_schedul (main)"
+    assert next(key for key, _ in ev.samples) == "minimal_schedul[0]/minimal_schedul (main)"
 
 
 def test_failures_interrupts_and_degradations_decide_the_status_in_order():

@@ -111,7 +111,7 @@ def test_runner_ps_command_equals_real_ps_but_psr(seed_runs, name):
 
 @pytest.mark.parametrize("name", list(SEED))
 def test_seed_thread_table_pattern_from_the_kernel(seed_runs, name):
-    comm, expected, cpus = SEED[name]
+    _comm, expected, cpus = SEED[name]
     live, done = seed_runs[name]
     rows = live["rows"]
     got = [(r.comm, ("-" if r.policy == 0 else str(r.rtprio), r.cls)) for r in rows]

@@ -9,9 +9,12 @@ from pathlib import Path
 
 import pytest
 from conftest import run_cli
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from reportdata import MATRIX, matrix
 
 from runner.results.document import Status
+from runner.results.files import SLUG_MAX, cell_dir, slug
 from runner.results.read import load
 
 
@@ -96,10 +99,6 @@ def test_merge_exit_code_follows_the_cells(tmp_path):
 
 # ---------------------------------------------------------------- cell folder names
 
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from runner.results.files import SLUG_MAX, cell_dir, slug
 
 SAFE_NAME = r"[A-Za-z0-9_.=,+~-]+"
 
@@ -132,7 +131,7 @@ def test_matrix_values_that_read_alike_get_their_own_folders():
 
 def test_cells_whose_ids_read_alike_keep_their_own_samples_when_merged(tmp_path):
     shards = split(tmp_path, [[0], [1]])
-    for n, (shard, new_id) in enumerate(zip(shards, ["v=a/b", "v=a:b"])):
+    for shard, new_id in zip(shards, ["v=a/b", "v=a:b"]):
         doc = load(shard)
         doc.cells[0].id = new_id
         doc.matrix_cells = doc.cell_ids = []

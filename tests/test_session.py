@@ -78,7 +78,7 @@ def test_unapplied_settings_are_an_error_unless_degraded_runs_are_allowed(tmp_pa
 
 
 def test_missed_releases_are_counted_to_the_end_of_the_cell(tmp_path):
-    code, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": Act(served=0.25)}), "--duration", "2s")
+    _, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": Act(served=0.25)}), "--duration", "2s")
     main = next(t for t in results["cells"][0]["threads"] if t["index"] == 0)
     assert main["figures"]["callbacks"] == 5 and main["figures"]["missed_releases"] == 15  # 20 releases of 100 ms in 2 s, 5 served
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import mmap
-from typing import Optional, Sequence
+from collections.abc import Sequence
+from typing import Optional
 
 FILE_HEADER: int
 SLOT_HEADER: int

@@ -125,10 +125,10 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         measured.append((p, fig))
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
-        targets = {id(t) for t in match_threads([t for t, _ in measured], exp.thread)}
-        for t, fig in measured:
-            if id(t) in targets and (is_periodic(t.work) or not metric_figure(exp.metric).needs_callbacks):
-                result.expectations.append(check(exp, verdict_label(t, raw.processes), fig))
+        targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
+        for planned, fig in measured:
+            if id(planned) in targets and (is_periodic(planned.work) or not metric_figure(exp.metric).needs_callbacks):
+                result.expectations.append(check(exp, verdict_label(planned, raw.processes), fig))
     result.thread_table = list(raw.table)
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)

@@ -152,7 +152,7 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
     """Each right `wanted` that this user lacks, tried on a throwaway thread, with how to grant it."""
     missing: list[str] = []
     for (policy, priority), where in sorted(wanted.rt.items(), key=lambda kv: -kv[0][1]):
-        err = _try_on_thread(lambda: os.sched_setscheduler(0, policy.kernel_id, os.sched_param(priority)))
+        err = _try_on_thread(lambda p=policy, q=priority: os.sched_setscheduler(0, p.kernel_id, os.sched_param(q)))
         if err:
             missing.append(
                 f"{where} needs SCHED_{policy.value.upper()} priority {priority}, which this user may not set "

@@ -132,7 +132,7 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, capacity: int, with_samples: 
         start_ru=tuple(f[7:11]),
         end_ru=tuple(f[11:15]),
         loops=f[15],
-        missed=f[16],  # type: ignore[arg-type]
+        missed=f[16],
         work_start_ns=f[17],
         work_end_ns=f[18],
         cpus_seen=_bits(tuple(f[19:35])),

@@ -108,20 +108,19 @@ class Worker:
 
     def start(self, guard: Guard) -> None:
         samples.create(self.samples_path, self.nslots, self.capacity)
-        log = open(self.log_path, "w")
-        self.popen = subprocess.Popen(
-            python_module("runner.run.worker"),
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=log,
-            text=True,
-            bufsize=1,
-            start_new_session=True,
-            close_fds=True,
-            cwd="/",
-            env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
-        )
-        log.close()
+        with open(self.log_path, "w") as log:  # the worker holds its own copy of the descriptor
+            self.popen = subprocess.Popen(
+                python_module("runner.run.worker"),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                text=True,
+                bufsize=1,
+                start_new_session=True,
+                close_fds=True,
+                cwd="/",
+                env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
+            )
         guard.watch(self.popen.pid)
         assert self.popen.stdin is not None
         self.popen.stdin.write(json.dumps(self.spec) + "\n")
@@ -230,7 +229,7 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
 def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable[[], bool]) -> Optional[str]:
     """Read each worker's ready line; return a reason on failure; raise Interrupted when asked to stop."""
     sel = selectors.DefaultSelector()
-    pending = {}
+    pending: dict[Any, Worker] = {}
     for w in workers:
         assert w.popen is not None and w.popen.stdout is not None
         sel.register(w.popen.stdout, selectors.EVENT_READ, w)
@@ -280,13 +279,11 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
             s = w.poller.sample(t.index, w.seen[t.index])
             w.seen[t.index] += 1
             stamp = s.wake_ns + epoch_offset_ns
-            level = "WARN" if s.nivcsw else "INFO"
-            emit(f"[{level}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: Involuntary context switches: '{s.nivcsw}'")
+            when = f"[{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]"
+            emit(f"[{'WARN' if s.nivcsw else 'INFO'}] {when}: Involuntary context switches: '{s.nivcsw}'")
             if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
                 lvl = "WARN" if s.minflt or s.majflt else "INFO"
-                emit(
-                    f"[{lvl}] [{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]"
-                )
+                emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
@@ -374,16 +371,14 @@ class _CellRun:
                 except OSError:
                     self.applied[id(t)] = None
         for cmd in self.scenario.background.commands:
-            log = open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w")
-            try:
-                self.commands.append(
-                    subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
-                )
-                self.guard.watch(self.commands[-1].pid)
-            except OSError as exc:
-                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
-            finally:
-                log.close()
+            with open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w") as log:
+                try:
+                    self.commands.append(
+                        subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+                    )
+                    self.guard.watch(self.commands[-1].pid)
+                except OSError as exc:
+                    self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
 
     def supervise(self) -> None:
         """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
@@ -416,7 +411,7 @@ class _CellRun:
                 for w in workers:
                     _follow_lines(w, epoch_offset, options.follow)
             if options.progress:
-                done = sum(sum(w.poller.counts()) for w in workers)  # type: ignore[union-attr]
+                done = sum(sum(w.poller.counts()) for w in workers if w.poller)
                 left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
                 options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
         self.exit_time = time.monotonic_ns()
@@ -447,7 +442,7 @@ class _CellRun:
                 self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
         for n, c in enumerate(self.commands):
             code = c.poll()
-            label = f"command {c.args[0] if isinstance(c.args, list) else c.args}[{n}]"
+            label = f"command {_argv(c)[0]}[{n}]"
             if code is not None and label not in self.incidents:
                 how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
                 self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
@@ -502,7 +497,7 @@ class _CellRun:
                 errors = report.errors(t.index) if report else ApplyErrors()
                 threads.append(RawThread(t, w.pid if w.popen else 0, slot, self.applied.get(id(t)), errors, report is not None))
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
-        background += [BackgroundProcess("command", str(c.args[0]), c.pid, tuple(str(a) for a in c.args)) for c in self.commands]
+        background += [BackgroundProcess("command", _argv(c)[0], c.pid, tuple(_argv(c))) for c in self.commands]
         timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
         return RawCell(
             self.started_at,
@@ -525,3 +520,10 @@ def _ready_report(w: Worker) -> Optional[ReadyReport]:
         return ReadyReport.parse(w.ready, w.nslots)
     except ValueError:
         return None
+
+
+def _argv(command: subprocess.Popen[bytes]) -> list[str]:
+    """A background command's argv as text (it was started from a list of strings)."""
+    args: Any = command.args
+    items = list(args) if isinstance(args, (list, tuple)) else [args]
+    return [os.fsdecode(a) for a in items]

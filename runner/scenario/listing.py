@@ -58,9 +58,8 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
     for proc in sc.processes:
         copies = f", {proc.instances} instances" if proc.instances > 1 else ""
         reset = ", reset-on-fork" if proc.reset_on_fork else ""
-        lines.append(
-            f"  process {proc.name}{copies}{reset}; memory {describe_memory(proc)}; main thread settings {proc.main.apply.value.replace('_', ' ')}"
-        )
+        apply = proc.main.apply.value.replace("_", " ")
+        lines.append(f"  process {proc.name}{copies}{reset}; memory {describe_memory(proc)}; main thread settings {apply}")
         rows = []
         for t in plan_process(proc, start):
             rows.append(

@@ -193,11 +193,11 @@ def _cross_checks(
     for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
-        proc, sep, thread = exp.thread.rpartition("/")
-        if sep and proc not in names:
-            out.append(doc.problem(path + ("thread",), f"no process named {proc!r}{did_you_mean(proc, names)}"))
+        process, sep, thread = exp.thread.rpartition("/")
+        if sep and process not in names:
+            out.append(doc.problem(path + ("thread",), f"no process named {process!r}{did_you_mean(process, names)}"))
         elif not targets:
-            pool = names.get(proc, []) if sep else every
+            pool = names.get(process, []) if sep else every
             out.append(
                 doc.problem(
                     path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"

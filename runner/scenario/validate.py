@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import types
 import typing
-from typing import Any, Union, get_args, get_origin
+from typing import Any, Union, cast, get_args, get_origin
 
 from pydantic import BaseModel, ValidationError
 
@@ -23,12 +23,12 @@ _SCALARS = (str, int, float, bool)
 def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     """Follow `loc` through `data`, skipping union tags; return the path and the value found."""
     path: list[str | int] = []
-    node = data
+    node: Any = data
     for elem in loc:
         if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (
             isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)
         ):
-            node = node[elem]
+            node = cast(Any, node)[elem]  # a key of this dict or an index of this list, as just checked
             path.append(elem)
         elif isinstance(node, dict) and isinstance(elem, str) and not _is_tag(elem, node):
             path.append(elem)  # a missing or unknown key: point at the parent

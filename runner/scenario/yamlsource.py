@@ -225,6 +225,7 @@ class _Builder:
             return self._mapping(node, path, depth)
         if isinstance(node, SequenceNode):
             return [self.build(item, path + (i,), depth + 1) for i, item in enumerate(node.value)]
+        assert isinstance(node, ScalarNode), node
         return self._scalar(node, path)
 
     def _scalar(self, node: ScalarNode, path: Path) -> Any:
