@@ -16,7 +16,7 @@ from typing import Annotated, Any, Optional
 from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from runner import units
-from runner.scenario.model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Scenario, Sched, SpinWork, Work
+from runner.scenario.model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Scenario, Sched, Work
 
 
 def _cpus_in(value: Any) -> Any:
@@ -85,7 +85,6 @@ class PlannedThread:
     spec_name: str
     work: Work
     settings: Settings
-    inherited: bool  # True when the thread started with its creator's settings
     origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
 
 
@@ -94,7 +93,7 @@ def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[
     base = start.reset_on_fork() if proc.reset_on_fork else start
     main_final = base.with_sched(proc.main.sched, proc.main.cpus)
     creator = main_final if proc.main.apply is ApplyWhen.BEFORE_THREADS else base
-    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, True, "main")]
+    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main")]
     index = 1
     for spec in proc.threads:
         initial = creator if spec.inherit else EXPLICIT_DEFAULTS
@@ -102,7 +101,7 @@ def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[
         own = spec.sched is not None or spec.cpus is not None
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
         for name in spec.names():
-            out.append(PlannedThread(proc.name, instance, index, name, spec.name, spec.work, final, spec.inherit, origin))
+            out.append(PlannedThread(proc.name, instance, index, name, spec.name, spec.work, final, origin))
             index += 1
     return out
 
@@ -118,7 +117,3 @@ def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:
 
 def is_periodic(work: Work) -> bool:
     return isinstance(work, PeriodicWork)
-
-
-def is_busy(work: Work) -> bool:
-    return isinstance(work, SpinWork)
