@@ -291,7 +291,7 @@ def _run_units(
     doc: RunDocument,
     by_id: dict[str, ResolvedCell],
     folder: str,
-    start: Any,
+    start: Settings,
     stop: StopSignals,
     backend: Backend,
 ) -> int:
@@ -336,7 +336,7 @@ def _cell_loop(
     doc: RunDocument,
     by_id: dict[str, ResolvedCell],
     folder: str,
-    start: Any,
+    start: Settings,
     stop: StopSignals,
     backend: Backend,
 ) -> _Loop:
