@@ -381,7 +381,9 @@ def _cell_loop(
         progress.clear()
 
 
-def _one_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, backend: Backend) -> tuple[CellResult, Optional[OSError]]:
+def _one_cell(
+    cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, backend: Backend
+) -> tuple[CellResult, Optional[OSError]]:
     """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled."""
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     try:
