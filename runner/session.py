@@ -31,10 +31,12 @@ from runner.run.preflight import Permissions
 from runner.run.samples import write_samples
 from runner.runorder import Shard, Unit, plan_units
 from runner.scenario.loader import LoadedScenario, ResolvedCell
+from runner.scenario.model import MAX_RUN, MIN_RUN, NS_PER_HOUR
 from runner.scenario.plan import Settings
 from runner.terminal import Progress, note, render_cell, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
+MAX_SETTLE_NS = NS_PER_HOUR  # a pause between cells, not a way to park the runner
 
 
 @dataclass
@@ -60,8 +62,8 @@ class RunOptions:
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
-        duration = _duration(ns.duration, "--duration", 100_000_000) if ns.duration else None
-        settle = _duration(ns.settle, "--settle", 0) if ns.settle is not None else DEFAULT_SETTLE_NS
+        duration = _duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
+        settle = _duration(ns.settle, "--settle", 0, MAX_SETTLE_NS) if ns.settle is not None else DEFAULT_SETTLE_NS
         if ns.repeat < 1:
             raise UsageError("runner: --repeat must be at least 1")
         seed = None
@@ -95,13 +97,16 @@ class RunOptions:
         )
 
 
-def _duration(text: str, option: str, minimum: int) -> int:
+def _duration(text: str, option: str, minimum: int, maximum: int) -> int:
+    """A duration option in ns, held to the same range a scenario file is (a cell runs 100ms to 24h)."""
     try:
         value = units.parse_duration(text)
     except units.UnitError as exc:
         raise UsageError(f"runner: {option}: {exc}") from None
-    if value < minimum:
-        raise UsageError(f"runner: {option} must be at least {units.format_duration(minimum)}")
+    if not minimum <= value <= maximum:
+        raise UsageError(
+            f"runner: {option} {text} is out of range; expected {units.format_duration(minimum)} to {units.format_duration(maximum)}"
+        )
     return value
 
 

@@ -11,7 +11,7 @@ import json
 import os
 
 import pytest
-from conftest import SCENARIOS
+from conftest import SCENARIOS, run_cli
 from fakebackend import Act, FakeBackend
 
 from runner.cli import _run_parser
@@ -151,3 +151,15 @@ def test_a_regression_against_the_baseline_exits_1(tmp_path):
     )
     assert code == 1
     assert "regression" in open(tmp_path / "new" / "comparison.md").read()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "expected"),
+    [("--duration", "99999999h", "100ms to 24h"), ("--duration", "10ms", "100ms to 24h"), ("--settle", "2h", "0s to 1h")],
+)
+def test_duration_options_out_of_range_are_refused_before_anything_runs(tmp_path, option, value, expected):
+    """The CLI holds --duration to the range a scenario file is held to: a day-long buffer is not created to fail."""
+    done = run_cli(FIFO80, "--out", str(tmp_path / "r"), "--quiet", option, value)
+    assert done.code == 2, done.err
+    assert f"{option} {value} is out of range; expected {expected}" in done.err and "Traceback" not in done.err
+    assert not os.path.exists(tmp_path / "r" / "results.json")
