@@ -31,12 +31,11 @@ from runner.run.preflight import Permissions
 from runner.run.samples import write_samples
 from runner.runorder import Shard, Unit, plan_units
 from runner.scenario.loader import LoadedScenario, ResolvedCell
-from runner.scenario.model import MAX_RUN, MIN_RUN, NS_PER_HOUR
+from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN
 from runner.scenario.plan import Settings
 from runner.terminal import Progress, note, render_cell, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
-MAX_SETTLE_NS = NS_PER_HOUR  # a pause between cells, not a way to park the runner
 
 
 @dataclass
@@ -63,9 +62,9 @@ class RunOptions:
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
         duration = _duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
-        settle = _duration(ns.settle, "--settle", 0, MAX_SETTLE_NS) if ns.settle is not None else DEFAULT_SETTLE_NS
-        if ns.repeat < 1:
-            raise UsageError("runner: --repeat must be at least 1")
+        settle = _duration(ns.settle, "--settle", 0, MAX_SETTLE) if ns.settle is not None else DEFAULT_SETTLE_NS
+        if not 1 <= ns.repeat <= MAX_REPEAT:
+            raise UsageError(f"runner: --repeat {ns.repeat} is out of range; expected 1 to {MAX_REPEAT:,}")
         seed = None
         if ns.shuffle is not None:
             try:

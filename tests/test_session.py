@@ -15,6 +15,7 @@ from conftest import SCENARIOS, run_cli
 from fakebackend import Act, FakeBackend
 
 from runner.cli import _run_parser
+from runner.errors import ScenarioError
 from runner.scenario.loader import load_scenario
 from runner.session import RunOptions, run_scenario
 
@@ -155,7 +156,12 @@ def test_a_regression_against_the_baseline_exits_1(tmp_path):
 
 @pytest.mark.parametrize(
     ("option", "value", "expected"),
-    [("--duration", "99999999h", "100ms to 24h"), ("--duration", "10ms", "100ms to 24h"), ("--settle", "2h", "0s to 1h")],
+    [
+        ("--duration", "99999999h", "100ms to 24h"),
+        ("--duration", "10ms", "100ms to 24h"),
+        ("--settle", "2h", "0s to 1h"),
+        ("--repeat", "100000000000", "1 to 1,000,000"),
+    ],
 )
 def test_duration_options_out_of_range_are_refused_before_anything_runs(tmp_path, option, value, expected):
     """The CLI holds --duration to the range a scenario file is held to: a day-long buffer is not created to fail."""
@@ -163,3 +169,20 @@ def test_duration_options_out_of_range_are_refused_before_anything_runs(tmp_path
     assert done.code == 2, done.err
     assert f"{option} {value} is out of range; expected {expected}" in done.err and "Traceback" not in done.err
     assert not os.path.exists(tmp_path / "r" / "results.json")
+
+
+@pytest.mark.parametrize(("key", "value"), [("duration_ns", 10**18), ("settle_ns", 10**18), ("repeat", 10**11)])
+def test_resume_refuses_a_recorded_plan_out_of_range(tmp_path, key, value):
+    """--resume reuses the recorded plan: a plan no run could have written (hand-edited, corrupted) is refused, not run."""
+    out = tmp_path / "r"
+    run(FIFO80, out, FakeBackend({"default": Act(signals=1)}))
+    doc = json.loads((out / "results.json").read_text())
+    doc["plan"][key] = value
+    (out / "results.json").write_text(json.dumps(doc))
+    backend = FakeBackend({})
+    ns = _run_parser().parse_args([FIFO80, "--resume", str(out), "--quiet", "--no-plots"])
+    with pytest.raises(ScenarioError, match=f"plan.{key}"):
+        run_scenario(load_scenario(FIFO80), RunOptions.from_namespace(ns, env={}), backend)
+    assert backend.ran == []
+    done = run_cli(FIFO80, "--resume", str(out), "--quiet")  # as a user sees it: one line, exit 2
+    assert done.code == 2 and f"plan.{key}" in done.err and "Traceback" not in done.err, done.err

@@ -61,6 +61,7 @@ from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.figures import ThreadFigures
 from runner.results.files import samples_path_problem, write_atomic
 from runner.results.pstable import ThreadRow
+from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN
 from runner.scenario.plan import Settings
 
 SCHEMA: Final = "runner.results/2"
@@ -277,11 +278,11 @@ class PermissionsInfo(_Record):
 class Plan(_Record):
     """The run's options that `--resume` reuses."""
 
-    repeat: Annotated[int, Field(ge=1)] = 1
+    repeat: Annotated[int, Field(ge=1, le=MAX_REPEAT)] = 1
     shuffle_seed: Optional[int] = None
-    settle_ns: Optional[NonNegativeInt] = Field(None, description="pause between cells; null: the default")
+    settle_ns: Optional[Annotated[int, Field(ge=0, le=MAX_SETTLE)]] = Field(None, description="pause between cells; null: the default")
     cells: list[str] = Field(default_factory=list, description="the --cell globs")
-    duration_ns: Optional[NonNegativeInt] = None
+    duration_ns: Optional[Annotated[int, Field(ge=MIN_RUN, le=MAX_RUN)]] = Field(None, description="--duration; null: the scenario's")
 
 
 class ScenarioInfo(_Record):
@@ -321,7 +322,7 @@ class CellResult(_Record):
     matrix: dict[str, Any] = Field(default_factory=dict, description="the cell's matrix values")
     spec_hash: str
     spec: dict[str, Any] = Field(default_factory=dict, description="the resolved cell as hashed, to say what differs")
-    repeat: Annotated[int, Field(ge=0, le=1_000_000)] = 0
+    repeat: Annotated[int, Field(ge=0, le=MAX_REPEAT)] = 0
     status: Status
     reason: str = ""
     started_at: str = ""

@@ -35,6 +35,8 @@ COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
 # depends on the machine (RAM, RLIMIT_MEMLOCK, pid_max) is checked in runner.limits.
 NS_PER_HOUR = 3_600_000_000_000
 MIN_RUN, MAX_RUN = 100_000_000, 24 * NS_PER_HOUR  # a cell's run time
+MAX_SETTLE = NS_PER_HOUR  # the pause between cells: a pause, not a way to park the runner
+MAX_REPEAT = 1_000_000  # runs of each cell in one run (--repeat)
 MIN_PERIOD, MAX_PERIOD = 50_000, NS_PER_HOUR  # released less than hourly is not a real-time callback
 MAX_OFFSET = NS_PER_HOUR
 MAX_LATENCY_LIMIT = NS_PER_HOUR  # a latency bound above an hour checks nothing
