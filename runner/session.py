@@ -266,7 +266,7 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
         held = outdir.claim(folder, resume=True)
     try:
         with StopSignals() as stop:
-            return _run_units(loaded, options, doc, by_id, folder, start, stop, backend)
+            return _run_units(loaded, _Claimed(options, doc, by_id, folder, start, stop, backend))
     finally:
         held.release()
 
@@ -289,27 +289,32 @@ class _Loop:
         return self.statuses
 
 
-def _run_units(
-    loaded: LoadedScenario,
-    options: RunOptions,
-    doc: RunDocument,
-    by_id: dict[str, ResolvedCell],
-    folder: str,
-    start: Settings,
-    stop: StopSignals,
-    backend: Backend,
-) -> int:
+@dataclass
+class _Claimed:
+    """A run that holds its folder: what the cell loop and the conclusion share."""
+
+    options: RunOptions
+    doc: RunDocument
+    by_id: dict[str, ResolvedCell]
+    folder: str
+    start: Settings
+    stop: StopSignals
+    backend: Backend
+
+
+def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     """The cell loop of a claimed folder, then the report: every way out saves what finished."""
+    options, doc, folder, stop = run.options, run.doc, run.folder, run.stop
     doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
     try:
         doc.save(results_path)
     except OSError as exc:
         raise from_os_error(exc, "cannot write the results file") from None
-    units_left = plan_units(list(by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
+    units_left = plan_units(list(run.by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
     say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
-    loop = _cell_loop(units_left, options, doc, by_id, folder, start, stop, backend)
+    loop = _cell_loop(units_left, run)
     statuses = loop.final(stop.requested())
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value
@@ -334,17 +339,9 @@ def _run_units(
     return int(exit_code(statuses, regressions))
 
 
-def _cell_loop(
-    units: list[Unit],
-    options: RunOptions,
-    doc: RunDocument,
-    by_id: dict[str, ResolvedCell],
-    folder: str,
-    start: Settings,
-    stop: StopSignals,
-    backend: Backend,
-) -> _Loop:
+def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
     """Run the cells one after another, recording each as it finishes; stop at a stop request or a write error."""
+    options, doc, folder, stop, backend = run.options, run.doc, run.folder, run.stop, run.backend
     loop = _Loop([c.status for c in doc.cells])
     progress = Progress(len(units), options.settle_ns / 1e9, options.live, options.quiet)
 
@@ -360,7 +357,7 @@ def _cell_loop(
                 _settle(options.settle_ns, stop)
             if stop.requested():
                 return loop
-            cell = by_id[unit.cell]
+            cell = run.by_id[unit.cell]
             duration = options.duration_ns or cell.scenario.duration
             progress.start(unit, options.repeat, duration / 1e9)
             cell_options = CellOptions(
@@ -368,7 +365,7 @@ def _cell_loop(
             )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            result, loop.write_error = _one_cell(cell, cell_folder, start, cell_options, backend)
+            result, loop.write_error = _one_cell(cell, cell_folder, run.start, cell_options, backend)
             progress.finish(time.monotonic() - began)
             loop.statuses.append(result.status)
             try:
