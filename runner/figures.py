@@ -19,7 +19,7 @@ import enum
 from dataclasses import dataclass
 from typing import Optional, Union
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, model_validator
 
 Number = Union[int, float]
 
@@ -37,6 +37,13 @@ class Scope(str, enum.Enum):
 
     CALLBACKS = "callbacks"  # only threads with periodic callbacks (per-callback figures, latency)
     THREAD = "thread"  # every thread (whole-thread totals from getrusage)
+
+
+class Worse(str, enum.Enum):
+    """Which way a figure moves when things get worse: most grow (latency, misses), slack shrinks."""
+
+    HIGHER = "higher"
+    LOWER = "lower"
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,9 @@ class Figure:
     path: tuple[str, ...]  # where the value lives in ThreadFigures
     threshold: Optional[Threshold] = None  # compared against a baseline by default when set
     column: Optional[str] = None  # header in the terminal's per-thread table, when shown there
+    worse: Worse = Worse.HIGHER
+    signed: bool = False  # may be negative (slack of a callback that overran)
+    overload: bool = False  # tells whether a thread kept up: its column is shown when some thread did not
 
     @property
     def is_duration(self) -> bool:
@@ -86,7 +96,7 @@ class Voluntary(_Figures):
 
 
 class Spread(_Figures):
-    """Order statistics of per-callback durations, in ns (nearest rank: values that were observed)."""
+    """Order statistics of durations, in ns: min and max exact, percentiles by nearest rank to the histogram bucket."""
 
     min: int
     p50: int
@@ -94,6 +104,19 @@ class Spread(_Figures):
     p99: int
     p999: int
     max: int
+    mean: Optional[int] = None  # exact (a running mean), rounded to the ns
+    stddev: Optional[int] = None  # population standard deviation, rounded to the ns
+    above_bound: Optional[int] = None  # values above the scenario's latency_bound, when one is set
+
+
+class Slack(_Figures):
+    """Time from the end of each callback to its next release, in ns: negative when the callback overran."""
+
+    min: int
+    p1: int
+    p50: int
+    max: int
+    mean: int
 
 
 class Faults(_Figures):
@@ -109,23 +132,76 @@ class ThreadFigures(_Figures):
 
     callbacks: int
     missed_releases: int
+    releases: int = 0  # releases due in the cell (callbacks + missed), for periodic threads
+    overruns: int = 0  # callbacks that ended after their next release
     involuntary: Involuntary
     voluntary: Voluntary
     latency_ns: Optional[Spread] = None  # wake-up latency: actual wake minus scheduled release
     callback_wall_ns: Optional[Spread] = None  # wake to end of the callback, preemptions included
+    slack_ns: Optional[Slack] = None  # end of each callback to its next release
     faults: Faults
     cpus_seen: tuple[int, ...] = ()
     complete: bool  # False when the thread did not finish (killed, crashed, interrupted)
 
+    @model_validator(mode="after")
+    def _releases(self) -> ThreadFigures:
+        """Files from before `releases` was recorded: every release was either served or missed."""
+        if "releases" not in self.model_fields_set:
+            object.__setattr__(self, "releases", self.callbacks + self.missed_releases)  # frozen: set once, while validating
+        return self
 
-_QUANTILE_WORDS = {"min": "min", "p50": "p50", "p90": "p90", "p99": "p99", "p999": "p99.9", "max": "max"}
+
+_QUANTILE_WORDS = {
+    "min": "min",
+    "p50": "p50",
+    "p90": "p90",
+    "p99": "p99",
+    "p999": "p99.9",
+    "max": "max",
+    "mean": "mean",
+    "stddev": "std dev",
+}
 _LATENCY_THRESHOLD = {"p99": Threshold(relative=0.20, absolute=10_000)}
 _LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
 
 REGISTRY: tuple[Figure, ...] = (
     Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks"),
+    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",)),
     Figure(
-        "missed_releases", "releases missed (no callback ran for them)", Unit.COUNT, Scope.CALLBACKS, ("missed_releases",), column="missed"
+        "missed_releases",
+        "releases missed (no callback ran for them)",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("missed_releases",),
+        Threshold(absolute=0),
+        column="missed",
+        overload=True,
+    ),
+    Figure(
+        "overruns",
+        "callbacks that ran past their next release",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("overruns",),
+        Threshold(absolute=0),
+        column="overruns",
+        overload=True,
+    ),
+    Figure(
+        "slack.min",
+        "slack, worst (end of a callback to its next release)",
+        Unit.NS,
+        Scope.CALLBACKS,
+        ("slack_ns", "min"),
+        Threshold(relative=0.20, absolute=10_000),
+        column="slack min",
+        worse=Worse.LOWER,
+        signed=True,
+        overload=True,
+    ),
+    *(
+        Figure(f"slack.{q}", f"slack {q}", Unit.NS, Scope.CALLBACKS, ("slack_ns", q), worse=Worse.LOWER, signed=True)
+        for q in ("p1", "p50", "max", "mean")
     ),
     Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("involuntary", "total")),
     Figure(
@@ -165,6 +241,14 @@ REGISTRY: tuple[Figure, ...] = (
         )
         for q, words in _QUANTILE_WORDS.items()
     ),
+    Figure(
+        "latency.above_bound",
+        "releases with a wake-up latency above latency_bound",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("latency_ns", "above_bound"),
+        Threshold(absolute=0),
+    ),
     Figure("faults.minor", "minor page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "minor"), column="minor faults"),
     Figure("faults.major", "major page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "major"), Threshold(absolute=0)),
     Figure(
@@ -194,6 +278,11 @@ def value(figures: ThreadFigures, fig: Figure) -> Optional[Number]:
             return None
     assert isinstance(node, (int, float)) and not isinstance(node, bool), (fig.name, node)
     return node
+
+
+def kept_up(figures: ThreadFigures) -> bool:
+    """Whether a periodic thread served every release within its period: no release missed, no callback overran."""
+    return not figures.missed_releases and not figures.overruns
 
 
 def default_thresholds() -> dict[str, Threshold]:

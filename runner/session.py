@@ -15,7 +15,7 @@ import random
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, Optional
 
@@ -25,13 +25,15 @@ from runner.report.compare import Threshold, parse_threshold, thresholds_with
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file
 from runner.results.read import load
+from runner.results.samplesfile import SamplesWriter
 from runner.run.backend import Backend, CellOptions
 from runner.run.evaluate import evaluate, unrun, with_write_error
 from runner.run.preflight import Permissions
-from runner.run.samples import write_samples
+from runner.run.samples import Sample
+from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
 from runner.scenario.loader import LoadedScenario, ResolvedCell
-from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN
+from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.terminal import Progress, note, render_cell, say, warn
 
@@ -387,20 +389,36 @@ def _one_cell(
 ) -> tuple[CellResult, Optional[OSError]]:
     """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled."""
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    keep = cell.scenario.samples.mode is not SamplesMode.NONE
+    writer = SamplesWriter(os.path.join(folder, "samples.csv.gz")) if keep else None
+    options = replace(options, samples=_SamplesFile(writer) if writer else None)
     try:
         os.makedirs(folder, exist_ok=True)
         raw = backend.run_cell(cell, folder, start, options)
     except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
+        if writer is not None:
+            writer.abort()
         return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc
     scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
-    evaluation = evaluate(cell, scenario, raw, options.allow_degraded)
-    path = os.path.join(folder, "samples.csv.gz")
+    result = evaluate(cell, scenario, raw, options.allow_degraded)
+    if writer is None:
+        return result, None
     try:
-        write_samples(path, evaluation.samples)
+        writer.close()
     except OSError as exc:
-        return with_write_error(evaluation.result, path, exc), exc
-    evaluation.result.samples_file = path
-    return evaluation.result, None
+        return with_write_error(result, writer.path, exc), exc
+    result.samples_file = writer.path
+    return result, None
+
+
+class _SamplesFile:
+    """The cell's samples file as the shell's sink: callbacks in, rows of samples.csv.gz out."""
+
+    def __init__(self, writer: SamplesWriter):
+        self.writer = writer
+
+    def write(self, key: str, tid: int, period_ns: int, samples: list[Sample]) -> None:
+        self.writer.writerows(sample_rows(key, tid, period_ns, samples))
 
 
 def _settle(settle_ns: int, stop: StopSignals) -> None:

@@ -107,16 +107,19 @@ def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
 
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations."""
-    out = [f"cell {cell.id}: {_MARK[cell.status]} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
+    warned = f", {len(cell.warnings)} warning{'s' if len(cell.warnings) > 1 else ''}" if cell.warnings else ""
+    out = [f"cell {cell.id}: {_MARK[cell.status]}{warned} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
     if cell.thread_table:
         out.append("")
         out.extend("  " + line for line in render_ps(cell.thread_table, pid_width=pid_width).splitlines())
     periodic = [t for t in cell.threads if t.periodic]
     if periodic:
-        headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in TABLE_FIGURES]
+        overloaded = not all(fg.kept_up(t.figures) for t in periodic)
+        shown = [f for f in TABLE_FIGURES if overloaded or not f.overload]
+        headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in shown]
         rows = [
             [f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
-            + [_cell_value(fg.value(t.figures, f), f) for f in TABLE_FIGURES]
+            + [_cell_value(fg.value(t.figures, f), f) for f in shown]
             for t in periodic
         ]
         out.append("")
@@ -129,4 +132,5 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     for t in cell.threads:
         for why in t.degraded:
             out.append(f"  DEGRADED {t.process}/{t.name}: {why}")
+    out.extend(f"  WARNING {text}" for text in cell.warnings)
     return "\n".join(out) + "\n"

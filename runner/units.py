@@ -157,9 +157,11 @@ def parse_cpu_list(value: Any) -> Any:
 
 
 def format_duration(ns: int) -> str:
-    """Write nanoseconds back in the largest unit that keeps the value exact (`100ms`, `1.5s`)."""
+    """Write nanoseconds back in the largest unit that keeps the value exact (`100ms`, `1.5s`, `-2ms`)."""
     if ns == 0:
         return "0s"
+    if ns < 0:
+        return "-" + format_duration(-ns)
     for unit in ("h", "m", "s", "ms", "us"):
         scale = NS_PER[unit]
         if ns % scale == 0:
@@ -167,6 +169,17 @@ def format_duration(ns: int) -> str:
         if ns >= scale and (ns * 10) % scale == 0 and unit in ("s", "ms", "us"):
             return f"{ns / scale:g}{unit}"
     return f"{ns}ns"
+
+
+def human_duration(ns: float) -> str:
+    """A duration in ns, in the unit that reads best (`56.6 µs`, `142 µs`, `6.12 ms`, `1.20 s`), signed (`−118 ms`)."""
+    sign = "\u2212" if ns < 0 else ""
+    us = abs(ns) / 1000
+    if us < 1000:
+        return f"{sign}{us:.1f} µs" if us < 100 else f"{sign}{us:.0f} µs"
+    if us < 1_000_000:
+        return f"{sign}{us / 1000:.2f} ms"
+    return f"{sign}{us / 1_000_000:.2f} s"
 
 
 def format_size(nbytes: int) -> str:

@@ -13,11 +13,11 @@ import signal
 from dataclasses import dataclass, field
 from typing import Optional
 
-from runner.results.document import MachineInfo
+from runner.results.document import MachineInfo, thread_key
 from runner.run.backend import CellOptions
 from runner.run.preflight import Permissions
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
-from runner.run.samples import Sample, SlotData
+from runner.run.samples import Sample, slot_of
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import PeriodicWork, Policy, Scenario
 from runner.scenario.plan import Settings, is_periodic, plan_scenario
@@ -74,16 +74,18 @@ class FakeBackend:
         t_end = t0 + options.duration_ns
         threads = []
         for p in plan_scenario(scenario, start):
-            samples: tuple[Sample, ...] = ()
+            samples: list[Sample] = []
+            period = p.work.period if isinstance(p.work, PeriodicWork) else 0
             if isinstance(p.work, PeriodicWork):
-                due = options.duration_ns // p.work.period
+                due = options.duration_ns // period
                 served = int(due * act.served)
-                samples = tuple(
+                samples = [
                     Sample(
-                        t0 + k * p.work.period,
-                        t0 + k * p.work.period + act.latency_ns,
-                        t0 + k * p.work.period + act.latency_ns + p.work.burn,
+                        t0 + k * period,
+                        t0 + k * period + act.latency_ns,
+                        t0 + k * period + act.latency_ns + p.work.burn,
                         p.work.burn,
+                        k,
                         act.nivcsw,
                         1,
                         0,
@@ -93,26 +95,22 @@ class FakeBackend:
                         0,
                     )
                     for k in range(served)
-                )
-            slot = SlotData(
-                tid=10_000 + len(threads),
-                state="done",
-                count=len(samples),
-                err_sched=0,
-                err_nice=0,
-                err_cpus=0,
-                err_other=0,
-                start_ru=(0, 0, 0, 0),
+                ]
+            tid = 10_000 + len(threads)
+            slot = slot_of(
+                samples,
+                period,
+                tid=tid,
                 end_ru=(act.nivcsw * len(samples), len(samples), 0, 0),
-                loops=len(samples),
-                missed=0,
+                cpus_seen=(0,),
                 work_start_ns=t0,
                 work_end_ns=t_end,
-                cpus_seen=(0,),
-                samples=samples,
+                bound=scenario.latency_bound or 0,
             )
+            if samples and options.samples is not None:
+                options.samples.write(thread_key(p.process, p.instance, p.index, p.name), tid, period, samples)
             applied = Settings(Policy.OTHER, 0, p.settings.nice, p.settings.cpus) if act.degrade else p.settings
-            threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True))
+            threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True, len(samples)))
             assert is_periodic(p.work) or not samples
         timeline = Timeline(0, t0, t_end, t_end + 1_000_000, t_end + 2_000_000)
         return RawCell(

@@ -2,35 +2,27 @@
 
 from __future__ import annotations
 
+from runner import histogram as hg
 from runner.run.measure import check, thread_figures
-from runner.run.samples import Sample, SlotData
+from runner.run.samples import Sample, slot_of
 from runner.run.stats import nearest_rank, summarize
 from runner.scenario.model import Expectation
 
+PERIOD = 100_000_000
+
 
 def slot(samples, finished=True):
-    return SlotData(
-        tid=1,
-        state="done" if finished else "running",
-        count=len(samples),
-        err_sched=0,
-        err_nice=0,
-        err_cpus=0,
-        err_other=0,
-        start_ru=(0, 0, 0, 0),
-        end_ru=(7, 30, 12900, 0),
-        loops=len(samples),
-        missed=0,
-        work_start_ns=0,
-        work_end_ns=0,
-        cpus_seen=(1,),
-        samples=tuple(samples),
-    )
+    return slot_of(list(samples), PERIOD, state="done" if finished else "running", end_ru=(7, 30, 12900, 0), cpus_seen=(1,))
 
 
-def sample(i, lat_us, nivcsw, minflt=0):
-    due = i * 100_000_000
-    return Sample(due, due + lat_us * 1000, due + 40_000_000, 40_000_000, nivcsw, 0, minflt, 0, 1, 0, 0)
+def sample(i, lat_us, nivcsw, minflt=0, missed=0, end_ms=40):
+    due = i * PERIOD
+    return Sample(due, due + lat_us * 1000, due + end_ms * 1_000_000, 40_000_000, i, nivcsw, 0, minflt, 0, 1, 0, missed)
+
+
+def top(value):
+    """The value a percentile reports for `value`: the upper end of its histogram bucket."""
+    return hg.bounds(hg.index(value))[1]
 
 
 def test_nearest_rank_is_an_observed_value():
@@ -45,7 +37,17 @@ def test_figures_of_a_callback_thread():
     assert f.involuntary.total == 7 and f.involuntary.per_callback_mean == round(7 / 3, 4)
     assert f.involuntary.per_callback_max == 4 and f.involuntary.callbacks_with_any == 2
     assert f.latency_ns is not None
-    assert f.latency_ns.model_dump() == {"min": 10_000, "p50": 20_000, "p90": 30_000, "p99": 30_000, "p999": 30_000, "max": 30_000}
+    assert f.latency_ns.model_dump() == {
+        "min": 10_000,
+        "p50": top(20_000),
+        "p90": 30_000,  # the upper end of 30 us's bucket, clamped to the exact maximum
+        "p99": 30_000,
+        "p999": 30_000,
+        "max": 30_000,
+        "mean": 20_000,
+        "stddev": 8165,
+        "above_bound": None,
+    }
     assert f.faults.minor_first_callback == 12800 and f.faults.minor_after_first == 0
     assert f.cpus_seen == (0, 1)
 
@@ -64,7 +66,7 @@ def test_verdicts_carry_the_measured_value():
     f = thread_figures(slot([sample(0, 10, 0), sample(1, 500, 1)]), periodic=True)
     ok = check(Expectation.model_validate({"thread": "t", "metric": "latency.p50", "max": "100us"}), "t", f)
     bad = check(Expectation.model_validate({"thread": "t", "metric": "involuntary.per_callback_mean", "max": 0.1}), "t", f)
-    assert ok.passed and ok.measured == 10_000
+    assert ok.passed and ok.measured == top(10_000)
     assert not bad.passed and bad.measured == 0.5 and bad.limit == "<= 0.1"
 
 
@@ -72,3 +74,20 @@ def test_a_thread_without_callbacks_cannot_pass_a_callback_check():
     f = thread_figures(slot([]), periodic=False)
     v = check(Expectation.model_validate({"thread": "t", "metric": "latency.max", "max": "1ms"}), "t", f)
     assert not v.passed and "not measured" in v.note
+
+
+def test_a_thread_that_cannot_keep_up_shows_its_misses_overruns_and_negative_slack():
+    # callback 0 ends 130 ms after its release (30 ms into the next period): it overran;
+    # callback 1 serves release 2 after skipping release 1, whose latency runs to callback 1's wake-up.
+    f = thread_figures(slot([sample(0, 10, 0, end_ms=130), sample(2, 10, 0, missed=1)]), periodic=True, releases_due=3)
+    assert f.callbacks == 2 and f.releases == 3 and f.missed_releases == 1 and f.overruns == 1
+    assert f.slack_ns is not None and f.slack_ns.min == -30_000_000 and f.slack_ns.max == 60_000_000
+    assert f.latency_ns is not None and f.latency_ns.max == PERIOD + 10_000  # the skipped release waited a whole period
+    assert f.latency_ns.min == 10_000 and f.latency_ns.mean == round((10_000 * 2 + PERIOD + 10_000) / 3)
+
+
+def test_the_latency_bound_counts_the_releases_above_it():
+    samples = [sample(0, 10, 0), sample(1, 500, 0), sample(3, 20, 0, missed=1)]
+    f = thread_figures(slot_of(samples, PERIOD, bound=100_000), periodic=True, bound=100_000)
+    assert f.latency_ns is not None and f.latency_ns.above_bound == 2  # 500 us, and the release skipped before #3
+    assert thread_figures(slot_of(samples, PERIOD), periodic=True).latency_ns.above_bound is None  # type: ignore[union-attr]

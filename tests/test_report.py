@@ -117,8 +117,8 @@ def test_memory_lock_report_matches_golden_file():
 def test_every_table_parses_as_a_table_with_even_rows():
     text = report.render_run(matrix())
     found = tables(text)
-    # facts, summary, side-by-side, then per cell: switch counts and expectations
-    assert len(found) == 3 + 5 * 2
+    # facts, summary, side-by-side, then per cell: switch counts, releases and slack, expectations
+    assert len(found) == 3 + 5 * 3
     for t in found:
         assert len(t) >= 2 and len({len(r) for r in t}) == 1, t[0]
 

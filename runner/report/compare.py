@@ -37,18 +37,22 @@ class Threshold:
     absolute: Number | None = None  # in the figure's unit (ns for durations)
 
     def exceeded(self, base: float, new: float) -> bool:
+        """Whether `new` is worse than `base` by more than the threshold (worse: lower, for figures like slack)."""
         delta = new - base
+        if fg.figure(self.figure).worse is fg.Worse.LOWER:
+            delta = -delta
         if self.relative is None and self.absolute is None:
             return False
         return (self.relative is None or delta > self.relative * abs(base)) and (self.absolute is None or delta > self.absolute)
 
     def describe(self) -> str:
-        unit = fg.figure(self.figure).unit
+        fig = fg.figure(self.figure)
+        sign = "\u2212" if fig.worse is fg.Worse.LOWER else "+"
         parts = []
         if self.relative is not None:
-            parts.append(f"+{self.relative * 100:g}%")
+            parts.append(f"{sign}{self.relative * 100:g}%")
         if self.absolute is not None:
-            parts.append(f"+{fmt_figure(self.absolute, unit)}")
+            parts.append(f"{sign}{fmt_figure(self.absolute, fig.unit)}")
         return " and ".join(parts) if parts else "off"
 
 
@@ -70,6 +74,8 @@ def parse_threshold(text: str) -> Threshold:
     absolute: Number | None = None
     for part in spec.split(","):
         part = part.strip().lstrip("+")
+        if fg.figure(name).worse is fg.Worse.LOWER:
+            part = part.lstrip("-\u2212")  # slack.min=-10us: worse by 10 us, written either way
         try:
             if part.endswith("%"):
                 relative = _finite(part[:-1]) / 100.0

@@ -9,19 +9,13 @@ from __future__ import annotations
 
 import re
 
+from runner import units
 from runner.figures import Number, Unit
 
 
 def fmt_ns(value: Number | None) -> str:
-    """A duration given in nanoseconds, in the unit that reads best: `56.6 µs`, `142 µs`, `6.12 ms`, `1.20 s`."""
-    if value is None:
-        return "–"
-    us = value / 1000
-    if us < 1000:
-        return f"{us:.1f} µs" if us < 100 else f"{us:.0f} µs"
-    if us < 1_000_000:
-        return f"{us / 1000:.2f} ms"
-    return f"{us / 1_000_000:.2f} s"
+    """A duration given in nanoseconds, in the unit that reads best: `56.6 µs`, `142 µs`, `6.12 ms`, `1.20 s`, `−3.10 ms`."""
+    return "–" if value is None else units.human_duration(value)
 
 
 def fmt_mean(value: float | None) -> str:

@@ -125,7 +125,21 @@ def thread_finding(t: ThreadResult, label: str) -> Markdown:
     what = _switches(f)
     faults = f.faults.minor_after_first
     tail = f", {faults:,} minor page faults after the first callback" if faults else ""
-    return Markdown(f"{where}: {what}, wake-up latency p99 {fmt_ns(lat)}{tail}")
+    return Markdown(f"{where}: {_overload(f)}{what}, wake-up latency p99 {fmt_ns(lat)}{tail}")
+
+
+def _overload(f: ThreadFigures) -> str:
+    """`⚠️ could not keep up (missed 48 of 61 releases, 12 overruns, worst slack −118 ms); ` or nothing when it kept up."""
+    if fg.kept_up(f):
+        return ""
+    parts = []
+    if f.missed_releases:
+        parts.append(f"missed {f.missed_releases:,} of {f.releases:,} releases")
+    if f.overruns:
+        parts.append(f"{f.overruns:,} overrun{'s' if f.overruns != 1 else ''}")
+    if f.slack_ns is not None:
+        parts.append(f"worst slack {fmt_ns(f.slack_ns.min)}")
+    return f"⚠️ could not keep up ({', '.join(parts)}); "
 
 
 def cell_finding(cell: CellResult, labels: dict[str, str]) -> Markdown:
@@ -181,9 +195,16 @@ def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
     p99 = _span([figure(t, "latency.p99") for t in threads], fmt_ns)
     if len(threads) == 1:
         f = threads[0].figures
-        return f"{where}: no callback ran" if not f.callbacks else f"{where}: {_switches(f)}, wake-up p99 {p99}"
+        return f"{where}: no callback ran" if not f.callbacks else f"{where}: {_overload(f)}{_switches(f)}, wake-up p99 {p99}"
     inv_span = _span([t.figures.involuntary.per_callback_mean for t in threads], fmt_mean)
-    return f"{where}: {inv_span} involuntary switches per callback, wake-up p99 {p99}"
+    missed = [t.figures.missed_releases for t in threads if not fg.kept_up(t.figures)]
+    behind = ""
+    if missed:
+        slack = _span([figure(t, "slack.min") for t in threads if not fg.kept_up(t.figures)], fmt_ns)
+        missed_span = _span(list(missed), fmt_int)
+        worst = f", worst slack {slack}" if slack != "–" else ""
+        behind = f"⚠️ {len(missed)} of {len(threads)} cells could not keep up ({missed_span} releases missed{worst}); "
+    return f"{where}: {behind}{inv_span} involuntary switches per callback, wake-up p99 {p99}"
 
 
 def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, ThreadResult]]]:
@@ -256,6 +277,39 @@ def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
     return Table(SWITCH_HEADERS, rows, ["left", "left"] + ["right"] * (len(SWITCH_HEADERS) - 2))
 
 
+TIMING_HEADERS = [
+    "Thread",
+    "Releases",
+    "Callbacks",
+    "Missed",
+    "Overruns",
+    "Slack worst",
+    "Slack p1",
+    "Wake-up mean",
+    "Wake-up std dev",
+    "Above bound",
+]
+
+
+def timing_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
+    """Per periodic thread: releases, misses, overruns, slack, and latency mean and deviation (cyclictest's Avg)."""
+    rows = []
+    for t in periodic_threads(cell):
+        f = t.figures
+        rows.append(
+            [
+                labels[t.key],
+                fmt_int(f.releases),
+                fmt_int(f.callbacks),
+                fmt_int(f.missed_releases) + (" ⚠️" if f.missed_releases else ""),
+                fmt_int(f.overruns) + (" ⚠️" if f.overruns else ""),
+                *(fmt_ns(figure(t, name)) for name in ("slack.min", "slack.p1", "latency.mean", "latency.stddev")),
+                fmt_int(figure(t, "latency.above_bound")),  # type: ignore[arg-type]
+            ]
+        )
+    return Table(TIMING_HEADERS, rows, ["left"] + ["right"] * (len(TIMING_HEADERS) - 1)) if rows else None
+
+
 def verdict_table(cell: CellResult) -> Table | None:
     if not cell.expectations:
         return None
@@ -269,7 +323,8 @@ def verdict_table(cell: CellResult) -> Table | None:
 
 
 def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
-    """One row per cell: status, the worst periodic thread's key figures, expectations met."""
+    """One row per cell: status, the worst periodic thread's key figures, expectations met; misses when any cell had some."""
+    overloaded = any(not fg.kept_up(t.figures) for cell in cells for t in periodic_threads(cell))
     rows = []
     for cell in cells:
         threads = periodic_threads(cell)
@@ -277,6 +332,7 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
         p99s = [figure(t, "latency.p99") for t in threads]
         p99 = max((p for p in p99s if p is not None), default=None)
         passed = sum(v.passed for v in cell.expectations)
+        behind = [t.figures for t in threads if not fg.kept_up(t.figures)]
         rows.append(
             [
                 Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})"),
@@ -288,6 +344,7 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
                 f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
                 f"{cell.duration_s:.1f} s",
             ]
+            + ([_behind(behind)] if overloaded else [])
         )
     return Table(
         [
@@ -299,10 +356,19 @@ def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
             "Wake-up p99 (worst thread)",
             "Expectations met",
             "Duration",
-        ],
+        ]
+        + (["Missed releases (worst slack)"] if overloaded else []),
         rows,
-        ["left", "left", "left", "right", "right", "right", "right", "right"],
+        ["left", "left", "left", "right", "right", "right", "right", "right"] + (["right"] if overloaded else []),
     )
+
+
+def _behind(figures: list[ThreadFigures]) -> str:
+    """`48 ⚠️ (−118 ms)`: releases missed by the cell's periodic threads and their worst slack; `0` when all kept up."""
+    if not figures:
+        return "0"
+    slack = min((f.slack_ns.min for f in figures if f.slack_ns is not None), default=None)
+    return f"{sum(f.missed_releases for f in figures):,} ⚠️" + (f" ({fmt_ns(slack)})" if slack is not None else "")
 
 
 def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -> Table:
@@ -325,6 +391,10 @@ def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -
         row("Wake-up latency p50", lat("p50")),
         row("Wake-up latency p99", lat("p99")),
         row("Wake-up latency max", lat("max")),
+        row("Wake-up latency mean ± std dev", lambda t: f"{fmt_ns(figure(t, 'latency.mean'))} ± {fmt_ns(figure(t, 'latency.stddev'))}"),
+        row("Releases missed", lambda t: fmt_int(t.figures.missed_releases)),
+        row("Overruns", lambda t: fmt_int(t.figures.overruns)),
+        row("Slack, worst", lambda t: fmt_ns(figure(t, "slack.min"))),
         row("Minor page faults after the first callback", lambda t: fmt_int(t.figures.faults.minor_after_first)),
     ]
     return Table(["Figure"] + [cell.id for cell, _ in entries], rows, ["left"] + ["right"] * len(entries))
@@ -468,6 +538,7 @@ class CellSection:
     finding: Markdown
     ps: Markdown | None
     switches: Table
+    timing: Table | None
     verdicts: Table | None
     degraded: list[str]
     load: Markdown
@@ -527,6 +598,7 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
             finding=cell_finding(cell, labels),
             ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
             switches=switch_table(cell, labels),
+            timing=timing_table(cell, labels),
             verdicts=verdict_table(cell),
             degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
             load=_load_line(cell),

@@ -59,6 +59,7 @@ from runner import __version__
 from runner import figures as fg
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.figures import ThreadFigures
+from runner.histogram import Histogram
 from runner.results.files import samples_path_problem, write_atomic
 from runner.results.pstable import ThreadRow
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN
@@ -180,6 +181,14 @@ class Verdict(_Record):
         return fg.figure(self.metric)
 
 
+class ThreadHistograms(_Record):
+    """A periodic thread's distributions, exact to the bucket (runner/histogram.py): what its percentiles come from."""
+
+    latency: Optional[Histogram] = Field(None, description="wake-up latency of every release answered, in ns")
+    slack: Optional[Histogram] = Field(None, description="end of each callback to its next release, in ns (negative: overran)")
+    callback_wall: Optional[Histogram] = Field(None, description="wake to end of each callback, in ns")
+
+
 class ThreadResult(_Record):
     """One measured thread: identity, requested vs applied settings, figures."""
 
@@ -195,6 +204,9 @@ class ThreadResult(_Record):
     applied: Optional[Settings] = Field(description="as read back from the kernel; null when the thread was gone")
     degraded: list[str] = Field(default_factory=list, description="how the applied settings fell short, in words")
     figures: ThreadFigures
+    histograms: Optional[ThreadHistograms] = None
+    samples_written: NonNegativeInt = Field(0, description="per-callback rows written to the samples file")
+    samples_lost: NonNegativeInt = Field(0, description="rows the runner could not write in time (the figures still count them)")
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property
@@ -325,6 +337,7 @@ class CellResult(_Record):
     repeat: Annotated[int, Field(ge=0, le=MAX_REPEAT)] = 0
     status: Status
     reason: str = ""
+    warnings: list[str] = Field(default_factory=list, description="what the figures show went wrong without failing an expectation")
     started_at: str = ""
     duration_ns: NonNegativeInt = 0
     machine: Optional[MachineInfo] = None

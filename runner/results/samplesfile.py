@@ -1,12 +1,23 @@
-"""A cell's per-callback samples file (`samples.csv.gz`): its columns, and reading it back for plots and checks."""
+"""A cell's per-callback samples file (`samples.csv.gz`): its columns, writing it as a stream, reading it back.
+
+One row per callback: `scheduled_ns` is the release the callback served; `missed` the
+releases it skipped just before; `latency_ns` runs from the oldest release the wake-up
+answered (`scheduled_ns - missed * period`) to `wake_ns`; `slack_ns` from `end_ns` to the
+next release (negative: it overran).  Rows of several threads interleave in chunks, in
+order within each thread; `seq` numbers a thread's callbacks from 0, so a gap shows rows
+that were not written (`samples: outliers`, or a runner that fell behind).
+"""
 
 from __future__ import annotations
 
 import csv
 import gzip
+import io
+import os
 import zlib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, BinaryIO, Optional, TextIO
 
 from runner.errors import Problem, ScenarioError
 from runner.results.files import INT64, show_value
@@ -19,6 +30,7 @@ SAMPLE_COLUMNS = (
     "wake_ns",
     "end_ns",
     "latency_ns",
+    "slack_ns",
     "burn_wall_ns",
     "nivcsw",
     "nvcsw",
@@ -28,6 +40,76 @@ SAMPLE_COLUMNS = (
     "cpu_end",
     "missed",
 )
+
+
+class SamplesWriter:
+    """Streams rows into a gzip'd CSV while the cell runs; the file appears under its name only when complete.
+
+    Rows go to a temporary file beside the final one, renamed into place by `close`; a
+    write error (a full disk) is kept, not raised, so the run goes on (the figures do not
+    depend on this file), and `close` raises it after removing the partial file.
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        folder, name = os.path.split(path)
+        self._tmp = os.path.join(folder, f".{name}.{os.getpid()}.tmp")
+        self._raw: Optional[BinaryIO] = None
+        self._gz: Optional[TextIO] = None
+        self._csv: Any = None
+        self.error: Optional[OSError] = None
+
+    def _open(self) -> None:
+        self._raw = open(self._tmp, "wb")  # noqa: SIM115  # open across calls, closed by close() or abort()
+        self._gz = io.TextIOWrapper(gzip.GzipFile(fileobj=self._raw, mode="wb", compresslevel=1, mtime=0), encoding="utf-8", newline="")
+        self._csv = csv.writer(self._gz, lineterminator="\n")
+        self._csv.writerow(SAMPLE_COLUMNS)
+
+    def writerows(self, rows: Iterable[Sequence[object]]) -> None:
+        if self.error is not None:
+            return
+        try:
+            if self._csv is None:
+                self._open()
+            self._csv.writerows(rows)
+        except OSError as exc:
+            self.error = exc
+            self._discard()
+
+    def close(self) -> None:
+        """Finish the file and move it into place; raise the write error if there was one (nothing is left behind)."""
+        if self.error is None:
+            try:
+                if self._csv is None:
+                    self._open()
+                assert self._gz is not None and self._raw is not None
+                self._gz.close()
+                self._raw.flush()
+                os.fsync(self._raw.fileno())
+                self._raw.close()
+                os.replace(self._tmp, self.path)
+                return
+            except OSError as exc:
+                self.error = exc
+        self._discard()
+        raise self.error
+
+    def abort(self) -> None:
+        """Give up on the file: remove what was written."""
+        self._discard()
+
+    def _discard(self) -> None:
+        for handle in (self._gz, self._raw):
+            try:
+                if handle is not None:
+                    handle.close()
+            except OSError:
+                pass
+        self._gz = self._raw = self._csv = None
+        try:
+            os.unlink(self._tmp)
+        except OSError:
+            pass
 
 
 @dataclass(frozen=True)

@@ -12,12 +12,21 @@
  * buffer (layout below) that the runner reads while the run goes on and after
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
- * Buffer layout (little endian, all offsets in bytes):
- *   file header, 64 bytes:  magic "RSMP0001", u32 version, u32 nthreads,
- *                           u32 capacity, u32 thread_header_size, u32 sample_size
- *   per thread, at 64 + i * (256 + capacity * 56):
- *     thread header, 256 bytes (struct slot_header)
- *     capacity samples of 56 bytes (struct sample)
+ * Buffer layout (little endian, all offsets in bytes), version 2:
+ *   file header, 64 bytes:  magic "RSMP0002", u32 version, u32 nthreads,
+ *                           u32 capacity, u32 slot_header_size, u32 sample_size,
+ *                           u32 hist_buckets (0 when the group keeps none),
+ *                           u64 slot_stride
+ *   per thread, at 64 + i * slot_stride:
+ *     slot header, 512 bytes (struct slot_header): totals and running figures
+ *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
+ *     then a second block of hist_buckets u64: callback wall time
+ *     ring of capacity samples of 64 bytes (struct sample): sample n at n % capacity
+ *
+ * Memory does not grow with the run: the figures live in fixed log-linear
+ * histograms (HdrHistogram's layout: 128 sub-buckets per power of two, so a
+ * value is known to within 1/128 of itself, exactly below 256 ns), and raw
+ * samples go to a ring the runner drains to disk while the run goes on.
  */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
@@ -41,16 +50,27 @@
 #include <unistd.h>
 
 #define FILE_HEADER 64
-#define SLOT_HEADER 256
+#define SLOT_HEADER 512
+#define SAMPLE_BYTES 64
 #define MAX_CPU_WORDS 16
+
+/* Log-linear histogram: values below 2 * HIST_SUB are their own bucket; above, each
+ * power of two is split into HIST_SUB buckets.  Values from 2^HIST_TOP_BITS ns (about
+ * 18 minutes) up share the last bucket; the exact maximum is kept beside it. */
+#define HIST_SUB_BITS 7
+#define HIST_SUB (1 << HIST_SUB_BITS)
+#define HIST_TOP_BITS 40
+#define HIST_BUCKETS ((HIST_TOP_BITS - HIST_SUB_BITS + 1) * HIST_SUB)
+#define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
 
 enum work_kind { WORK_SLEEP = 0, WORK_PERIODIC = 1, WORK_SPIN = 2 };
 enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_FAILED = 4 };
+enum ring_mode { RING_NONE = 0, RING_ALL = 1, RING_OUTLIERS = 2 };
 
 struct slot_header {
     int32_t tid;
     int32_t state;
-    uint64_t count;        /* samples written; published after each sample */
+    uint64_t count;        /* samples written to the ring (all time); published after each sample */
     int32_t err_sched;     /* errno of applying the policy, 0 if fine or not asked */
     int32_t err_nice;
     int32_t err_cpus;
@@ -58,28 +78,57 @@ struct slot_header {
     int64_t start_ru[4];   /* nivcsw, nvcsw, minflt, majflt when the work starts */
     int64_t end_ru[4];     /* the same when it ends */
     uint64_t loops;        /* callbacks, or spin slices */
-    uint64_t missed;       /* releases skipped because a callback overran */
+    uint64_t missed;       /* releases skipped because a callback overran or woke late */
     int64_t work_start_ns;
     int64_t work_end_ns;
     uint64_t cpus_seen[MAX_CPU_WORDS];
+    /* running figures of the periodic work, updated after each callback */
+    uint64_t releases;     /* releases in the latency histogram: callbacks plus skipped releases */
+    uint64_t overruns;     /* callbacks that ended after their next release */
+    uint64_t above_bound;  /* releases whose latency exceeded the work's bound */
+    int64_t lat_min, lat_max;
+    double lat_mean, lat_m2;      /* Welford's running mean and sum of squared deviations */
+    int64_t slack_min, slack_max;
+    double slack_mean, slack_m2;
+    int64_t wall_min, wall_max;
+    uint64_t nivcsw_sum, nivcsw_max, with_nivcsw;
+    uint64_t minflt_sum, minflt_max;
+    int64_t minflt_first;         /* -1 until the first callback ran */
+    int64_t first_wake_ns, last_end_ns;
+    uint8_t reserved[SLOT_HEADER - 424];
 };
 
 struct sample {
-    int64_t scheduled_ns;  /* release time on the absolute grid */
+    int64_t scheduled_ns;  /* the release this callback served, on the absolute grid */
     int64_t wake_ns;       /* when the thread actually ran */
     int64_t end_ns;        /* end of the callback */
     int64_t burn_wall_ns;  /* wall time the burn took (grows when preempted) */
+    int64_t seq;           /* the callback's number, from 0 */
     int32_t nivcsw;        /* deltas over the callback, from getrusage(RUSAGE_THREAD) */
     int32_t nvcsw;
     int32_t minflt;
     int32_t majflt;
     int16_t cpu_start;
     int16_t cpu_end;
-    int32_t missed;        /* releases skipped before this one */
+    int32_t missed;        /* releases skipped just before this one */
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
-_Static_assert(sizeof(struct sample) == 56, "sample size");
+_Static_assert(sizeof(struct sample) == SAMPLE_BYTES, "sample size");
+
+static inline int hist_index(int64_t v) {
+    if (v < 0) v = 0;
+    if (v < 2 * HIST_SUB) return (int)v;
+    if (v >= (int64_t)1 << HIST_TOP_BITS) return HIST_BUCKETS - 1;
+    int shift = 63 - __builtin_clzll((unsigned long long)v) - HIST_SUB_BITS;
+    return (shift + 1) * HIST_SUB + (int)(v >> shift) - HIST_SUB;
+}
+
+static inline void welford(uint64_t n, double *mean, double *m2, int64_t value) {
+    double delta = (double)value - *mean;
+    *mean += delta / (double)n;
+    *m2 += delta * ((double)value - *mean);
+}
 
 static volatile sig_atomic_t g_stop = 0;
 static int g_stop_pipe[2] = {-1, -1};
@@ -190,6 +239,9 @@ struct work {
     int burn_wall;
     int64_t alloc_bytes;
     int64_t offset_ns;
+    int wait_spin;       /* wait for a release by spinning on the clock instead of sleeping */
+    int64_t bound_ns;    /* latency bound: releases above it are counted (0: none) */
+    int ring_mode;       /* which callbacks go to the sample ring */
 };
 
 struct group;
@@ -202,8 +254,10 @@ struct slot {
     struct settings own;
     int explicit_defaults;
     struct slot_header *hdr;
+    uint64_t *hist;      /* HIST_SETS * HIST_BUCKETS counters, NULL when the group keeps none */
     struct sample *samples;
     uint64_t capacity;
+    size_t stride;
     pthread_t thread;
     int started;
 };
@@ -213,6 +267,8 @@ struct group {
     Py_ssize_t size;
     uint32_t nslots;
     uint32_t capacity;
+    int with_hist;
+    size_t stride;
     struct slot *slots;
     pthread_mutex_t lock;
     pthread_cond_t cond;
@@ -238,6 +294,67 @@ static int touch_memory(int64_t bytes, long page) {
     return 0;
 }
 
+static inline void wait_until(const struct work *w, int64_t t) {
+    if (w->wait_spin) {
+        while (!g_stop && now_ns(CLOCK_MONOTONIC) < t) {
+        }
+    } else {
+        sleep_until(t);
+    }
+}
+
+/* A release's latency: from its place on the grid to the wake-up that answered it. */
+static inline void record_latency(struct slot *s, int64_t latency) {
+    struct slot_header *h = s->hdr;
+    uint64_t n = ++h->releases;
+    if (n == 1 || latency < h->lat_min) h->lat_min = latency;
+    if (n == 1 || latency > h->lat_max) h->lat_max = latency;
+    welford(n, &h->lat_mean, &h->lat_m2, latency);
+    if (s->work.bound_ns > 0 && latency > s->work.bound_ns) h->above_bound++;
+    if (s->hist) s->hist[hist_index(latency)]++;
+}
+
+/* Everything a callback adds to the running figures, after it ended (outside the measured span). */
+static void record_callback(struct slot *s, const struct sample *c) {
+    struct slot_header *h = s->hdr;
+    const struct work *w = &s->work;
+    /* Skipped releases were answered by this wake-up too: each is as late as the wait for it. */
+    for (int32_t k = c->missed; k >= 1; k--) record_latency(s, c->wake_ns - (c->scheduled_ns - k * w->period_ns));
+    record_latency(s, c->wake_ns - c->scheduled_ns);
+    uint64_t n = h->loops; /* this callback's number, from 1 */
+    int64_t slack = c->scheduled_ns + w->period_ns - c->end_ns;
+    int64_t wall = c->end_ns - c->wake_ns;
+    if (slack < 0) h->overruns++;
+    if (n == 1 || slack < h->slack_min) h->slack_min = slack;
+    if (n == 1 || slack > h->slack_max) h->slack_max = slack;
+    welford(n, &h->slack_mean, &h->slack_m2, slack);
+    if (n == 1 || wall < h->wall_min) h->wall_min = wall;
+    if (n == 1 || wall > h->wall_max) h->wall_max = wall;
+    h->nivcsw_sum += (uint64_t)c->nivcsw;
+    if ((uint64_t)c->nivcsw > h->nivcsw_max) h->nivcsw_max = (uint64_t)c->nivcsw;
+    if (c->nivcsw) h->with_nivcsw++;
+    h->minflt_sum += (uint64_t)c->minflt;
+    if ((uint64_t)c->minflt > h->minflt_max) h->minflt_max = (uint64_t)c->minflt;
+    if (n == 1) {
+        h->minflt_first = c->minflt;
+        h->first_wake_ns = c->wake_ns;
+    }
+    h->last_end_ns = c->end_ns;
+    if (s->hist) {
+        if (slack >= 0)
+            s->hist[HIST_BUCKETS + hist_index(slack)]++;
+        else
+            s->hist[2 * HIST_BUCKETS + hist_index(-slack)]++;
+        s->hist[3 * HIST_BUCKETS + hist_index(wall)]++;
+    }
+    if (s->capacity == 0 || w->ring_mode == RING_NONE) return;
+    if (w->ring_mode == RING_OUTLIERS && !(c->missed || slack < 0 || (w->bound_ns > 0 && c->wake_ns - c->scheduled_ns + c->missed * w->period_ns > w->bound_ns)))
+        return;
+    uint64_t at = h->count;
+    s->samples[at % s->capacity] = *c;
+    atomic_store_explicit((_Atomic uint64_t *)&h->count, at + 1, memory_order_release);
+}
+
 static void run_periodic(struct slot *s) {
     struct group *g = s->group;
     struct slot_header *h = s->hdr;
@@ -245,8 +362,10 @@ static void run_periodic(struct slot *s) {
     int64_t next = g->start_ns + w->offset_ns;
     int64_t ru0[4], ru1[4];
     int32_t missed = 0;
+    struct sample c;
+    memset(&c, 0, sizeof(c));
     while (!g_stop && next < g->end_ns) {
-        sleep_until(next);
+        wait_until(w, next);
         if (g_stop) break;
         int64_t wake = now_ns(CLOCK_MONOTONIC);
         int cpu0 = sched_getcpu();
@@ -260,31 +379,28 @@ static void run_periodic(struct slot *s) {
         int64_t b1 = now_ns(CLOCK_MONOTONIC);
         read_ru(ru1);
         int cpu1 = sched_getcpu();
-        uint64_t n = h->count;
-        if (n < s->capacity) {
-            struct sample *smp = &s->samples[n];
-            smp->scheduled_ns = next;
-            smp->wake_ns = wake;
-            smp->end_ns = b1;
-            smp->burn_wall_ns = b1 - b0;
-            smp->nivcsw = (int32_t)(ru1[0] - ru0[0]);
-            smp->nvcsw = (int32_t)(ru1[1] - ru0[1]);
-            smp->minflt = (int32_t)(ru1[2] - ru0[2]);
-            smp->majflt = (int32_t)(ru1[3] - ru0[3]);
-            smp->cpu_start = (int16_t)cpu0;
-            smp->cpu_end = (int16_t)cpu1;
-            smp->missed = missed;
-            atomic_store_explicit((_Atomic uint64_t *)&h->count, n + 1, memory_order_release);
-        }
+        c.scheduled_ns = next;
+        c.wake_ns = wake;
+        c.end_ns = b1;
+        c.burn_wall_ns = b1 - b0;
+        c.seq = (int64_t)h->loops;
+        c.nivcsw = (int32_t)(ru1[0] - ru0[0]);
+        c.nvcsw = (int32_t)(ru1[1] - ru0[1]);
+        c.minflt = (int32_t)(ru1[2] - ru0[2]);
+        c.majflt = (int32_t)(ru1[3] - ru0[3]);
+        c.cpu_start = (int16_t)cpu0;
+        c.cpu_end = (int16_t)cpu1;
+        c.missed = missed;
         note_cpu(h, cpu0);
         note_cpu(h, cpu1);
         h->loops++;
+        record_callback(s, &c);
         missed = 0;
         next += w->period_ns;
         int64_t now = now_ns(CLOCK_MONOTONIC);
-        while (next < now) { /* overran: skip missed releases, as ROS 2 timers do */
+        while (next < now) { /* overran or woke late: skip the releases already past, as ROS 2 timers do */
+            if (next < g->end_ns) missed++;
             next += w->period_ns;
-            missed++;
         }
         h->missed += (uint64_t)missed;
     }
@@ -335,10 +451,29 @@ static void run_slot(struct slot *s) {
     atomic_store((_Atomic int32_t *)&h->state, ST_DONE);
 }
 
+/*
+ * Write every page of the thread's own slot (header, histograms, ring) before it
+ * reports ready, so the faults of the runner's bookkeeping happen here and not in
+ * the measured work: a locked, preallocated thread then shows 0 minor faults in
+ * total.  The buffer is a memfd, so no writeback ever write-protects the pages
+ * again.  Only bytes inside the slot are rewritten (with their own value): the
+ * neighbours' bytes on a shared page belong to other threads.
+ */
+static void prefault_slot(struct slot *s) {
+    volatile uint8_t *lo = (volatile uint8_t *)s->hdr;
+    volatile uint8_t *hi = lo + s->stride;
+    long page = s->group->page_size;
+    for (volatile uint8_t *p = lo; p < hi;) {
+        *p = *p;
+        p = (volatile uint8_t *)(((uintptr_t)p / (uintptr_t)page + 1) * (uintptr_t)page);
+    }
+}
+
 static void *thread_main(void *arg) {
     struct slot *s = arg;
     prctl(PR_SET_NAME, s->name, 0, 0, 0);
     s->hdr->tid = (int32_t)syscall(SYS_gettid);
+    prefault_slot(s);
     if (s->explicit_defaults) {
         /* PTHREAD_EXPLICIT_SCHED set policy and CPUs from the attribute; nice is per thread. */
         if (setpriority(PRIO_PROCESS, (id_t)s->hdr->tid, 0) != 0) s->hdr->err_nice = errno;
@@ -387,14 +522,16 @@ static void Group_dealloc(GroupObject *self) {
 }
 
 static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
-    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", NULL};
+    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", "histograms", NULL};
     PyObject *buffer, *all_cpus;
     unsigned int nthreads, capacity;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO", kwlist, &buffer, &nthreads, &capacity, &all_cpus))
+    int with_hist = 1;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO|p", kwlist, &buffer, &nthreads, &capacity, &all_cpus, &with_hist))
         return -1;
     if (PyObject_GetBuffer(buffer, &self->view, PyBUF_WRITABLE) != 0) return -1;
     self->has_view = 1;
-    Py_ssize_t need = FILE_HEADER + (Py_ssize_t)nthreads * (SLOT_HEADER + (Py_ssize_t)capacity * (Py_ssize_t)sizeof(struct sample));
+    size_t stride = SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0) + (size_t)capacity * sizeof(struct sample);
+    Py_ssize_t need = FILE_HEADER + (Py_ssize_t)nthreads * (Py_ssize_t)stride;
     if (self->view.len < need) {
         PyErr_Format(PyExc_ValueError, "buffer holds %zd bytes, %zd needed", self->view.len, need);
         return -1;
@@ -405,6 +542,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
     g->size = self->view.len;
     g->nslots = nthreads;
     g->capacity = capacity;
+    g->with_hist = with_hist;
+    g->stride = stride;
     g->page_size = sysconf(_SC_PAGESIZE);
     pthread_mutex_init(&g->lock, NULL);
     pthread_cond_init(&g->cond, NULL);
@@ -419,29 +558,35 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0001", 8);
-    uint32_t meta[4] = {1, nthreads, capacity, SLOT_HEADER};
+    memcpy(g->base, "RSMP0002", 8);
+    uint32_t meta[6] = {2, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
-    uint32_t sample_size = sizeof(struct sample);
-    memcpy(g->base + 24, &sample_size, 4);
+    uint64_t stride64 = g->stride;
+    memcpy(g->base + 32, &stride64, sizeof(stride64));
     for (uint32_t i = 0; i < nthreads; i++) {
         struct slot *s = &g->slots[i];
-        char *at = g->base + FILE_HEADER + (Py_ssize_t)i * (SLOT_HEADER + (Py_ssize_t)capacity * sizeof(struct sample));
+        char *at = g->base + FILE_HEADER + (size_t)i * g->stride;
         s->group = g;
         s->index = (int)i;
         s->hdr = (struct slot_header *)at;
-        s->samples = (struct sample *)(at + SLOT_HEADER);
+        s->hist = with_hist ? (uint64_t *)(at + SLOT_HEADER) : NULL;
+        s->samples = (struct sample *)(at + SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0));
         s->capacity = capacity;
+        s->stride = g->stride;
         memset(s->hdr, 0, SLOT_HEADER);
+        s->hdr->minflt_first = -1;
     }
     return 0;
 }
 
 static int parse_work(PyObject *work, struct work *out) {
     memset(out, 0, sizeof(*out));
-    long long kind, period, burn_ns, alloc, offset;
-    int wall;
-    if (!PyArg_ParseTuple(work, "LLLpLL", &kind, &period, &burn_ns, &wall, &alloc, &offset)) return -1;
+    long long kind, period, burn_ns, alloc, offset, bound = 0;
+    int wall, spin = 0, ring = RING_ALL;
+    if (!PyArg_ParseTuple(work, "LLLpLL|pLi", &kind, &period, &burn_ns, &wall, &alloc, &offset, &spin, &bound, &ring)) return -1;
+    out->wait_spin = spin;
+    out->bound_ns = bound;
+    out->ring_mode = ring;
     out->kind = (int)kind;
     out->period_ns = period;
     out->burn_ns = burn_ns;
@@ -468,7 +613,8 @@ PyDoc_STRVAR(spawn_doc,
 "Create a thread from the calling thread (so it inherits the caller's settings\n"
 "unless explicit is true), name it, let it apply its own settings, and park it\n"
 "at the start gate.  work is (kind, period_ns, burn_ns, burn_wall, alloc_bytes,\n"
-"offset_ns).  Returns when the thread is created; see wait_ready().");
+"offset_ns[, wait_spin, bound_ns, ring_mode]).  Returns when the thread is created;\n"
+"see wait_ready().");
 
 static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
     unsigned int index;
@@ -525,6 +671,7 @@ static PyObject *Group_adopt(GroupObject *self, PyObject *args) {
     snprintf(s->name, sizeof(s->name), "%s", name);
     s->hdr->tid = (int32_t)syscall(SYS_gettid);
     s->own.policy = -1;
+    prefault_slot(s);
     atomic_store((_Atomic int32_t *)&s->hdr->state, ST_READY);
     Py_RETURN_NONE;
 }
@@ -895,6 +1042,12 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "FILE_HEADER", FILE_HEADER);
     PyModule_AddIntConstant(m, "SLOT_HEADER", SLOT_HEADER);
     PyModule_AddIntConstant(m, "SAMPLE_SIZE", sizeof(struct sample));
+    PyModule_AddIntConstant(m, "HIST_BUCKETS", HIST_BUCKETS);
+    PyModule_AddIntConstant(m, "HIST_SUB_BITS", HIST_SUB_BITS);
+    PyModule_AddIntConstant(m, "HIST_SETS", HIST_SETS);
+    PyModule_AddIntConstant(m, "RING_NONE", RING_NONE);
+    PyModule_AddIntConstant(m, "RING_ALL", RING_ALL);
+    PyModule_AddIntConstant(m, "RING_OUTLIERS", RING_OUTLIERS);
     PyModule_AddIntConstant(m, "WORK_SLEEP", WORK_SLEEP);
     PyModule_AddIntConstant(m, "WORK_PERIODIC", WORK_PERIODIC);
     PyModule_AddIntConstant(m, "WORK_SPIN", WORK_SPIN);

@@ -12,14 +12,20 @@ SAMPLE_SIZE: int
 WORK_SLEEP: int
 WORK_PERIODIC: int
 WORK_SPIN: int
+HIST_BUCKETS: int
+HIST_SUB_BITS: int
+HIST_SETS: int
+RING_NONE: int
+RING_ALL: int
+RING_OUTLIERS: int
 
-# (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns)
-WorkTuple = tuple[int, int, int, bool, int, int]
+# (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode)
+WorkTuple = tuple[int, int, int, bool, int, int, bool, int, int]
 
 class Group:
     """A worker's threads around one shared sample buffer and one start gate."""
 
-    def __init__(self, buffer: mmap.mmap, nthreads: int, capacity: int, all_cpus: Sequence[int]) -> None: ...
+    def __init__(self, buffer: mmap.mmap, nthreads: int, capacity: int, all_cpus: Sequence[int], histograms: bool = True) -> None: ...
     def spawn(
         self,
         index: int,

@@ -16,6 +16,7 @@ from typing import Optional, Protocol
 from runner.results.document import MachineInfo
 from runner.run.preflight import Permissions
 from runner.run.rawcell import RawCell
+from runner.run.samples import Sample
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import Scenario
 from runner.scenario.plan import Settings
@@ -38,6 +39,14 @@ class CellOptions:
     follow: Optional[Callable[[str], None]] = None  # one line per callback, as the ros2-realtime-examples log
     progress: Optional[Callable[[str], None]] = None  # a live status line
     stop_requested: Callable[[], bool] = _never  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
+    samples: Optional[SampleSink] = None  # per-callback samples, streamed while the cell runs; None: not kept
+
+
+class SampleSink(Protocol):
+    """Where per-callback samples go while a cell runs (the session's samples file)."""
+
+    def write(self, key: str, tid: int, period_ns: int, samples: list[Sample]) -> None:
+        """Take these callbacks of one thread, in order; never raises (a write error is kept for the end)."""
 
 
 class Backend(Protocol):

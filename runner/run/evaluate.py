@@ -9,11 +9,21 @@ tested with plain records, without processes or RT rights.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from typing import Optional
 
+from runner import units
 from runner.figures import ThreadFigures
-from runner.results.document import Background, BackgroundKind, CellResult, Overhead, Status, ThreadResult, thread_key, thread_label, worst
+from runner.results.document import (
+    Background,
+    BackgroundKind,
+    CellResult,
+    Overhead,
+    Status,
+    ThreadHistograms,
+    ThreadResult,
+    thread_label,
+    worst,
+)
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
@@ -23,14 +33,6 @@ from runner.scenario.model import PeriodicWork, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic
 
 INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
-
-
-@dataclass(frozen=True)
-class Evaluation:
-    """A cell's result, and the samples to store beside it (by thread key)."""
-
-    result: CellResult
-    samples: list[tuple[str, SlotData]]
 
 
 def releases_due(work: PeriodicWork, timeline: Timeline, interrupted: bool) -> int:
@@ -72,16 +74,49 @@ def verdict_label(t: PlannedThread, processes: int) -> str:
     return thread_label(t.process, t.instance, t.index, t.name, show_instance=processes > 1)
 
 
-def _figures(raw: RawThread, timeline: Timeline, interrupted: bool) -> ThreadFigures:
+def _figures(raw: RawThread, timeline: Timeline, interrupted: bool, bound: Optional[int]) -> ThreadFigures:
     work = raw.planned.work
     due = releases_due(work, timeline, interrupted) if isinstance(work, PeriodicWork) else 0
-    return thread_figures(raw.slot, is_periodic(work), due)
+    return thread_figures(raw.slot, is_periodic(work), due, bound)
+
+
+def _histograms(slot: SlotData) -> Optional[ThreadHistograms]:
+    st = slot.stats
+    if st.latency is None and st.slack is None and st.wall is None:
+        return None
+    return ThreadHistograms(latency=st.latency, slack=st.slack, callback_wall=st.wall)
+
+
+def warnings(threads: list[ThreadResult], processes: int) -> list[str]:
+    """What the figures show went wrong without an expectation failing, in words: never a silent `passed`.
+
+    A periodic thread that missed releases or overran could not keep up with its period; a
+    thread whose samples could not all be written has figures that still count every callback.
+    """
+    out = []
+    for t in threads:
+        f = t.figures
+        name = t.label(processes > 1)
+        if t.periodic and (f.missed_releases or f.overruns):
+            parts = []
+            if f.missed_releases:
+                parts.append(f"missed {f.missed_releases:,} of {f.releases:,} releases")
+            if f.overruns:
+                parts.append(f"{f.overruns:,} of {f.callbacks:,} callbacks overran their period")
+            worst = f" (worst slack {units.human_duration(f.slack_ns.min)})" if f.slack_ns else ""
+            out.append(f"{name} could not keep up: {', '.join(parts)}{worst}")
+        if t.samples_lost:
+            out.append(
+                f"{name}: {t.samples_lost:,} per-callback samples were overwritten before the runner could write them;"
+                " the figures still count every callback"
+            )
+    return out
 
 
 def _overhead(raw: RawCell) -> Overhead:
     """Start of the cell to its first callback, last callback to the workers' exit (ns)."""
-    wakes = [t.slot.samples[0].wake_ns for t in raw.threads if t.slot.samples]
-    ends = [t.slot.samples[-1].end_ns for t in raw.threads if t.slot.samples]
+    wakes = [t.slot.stats.first_wake_ns for t in raw.threads if t.slot.loops and t.slot.stats.first_wake_ns]
+    ends = [t.slot.stats.last_end_ns for t in raw.threads if t.slot.loops and t.slot.stats.last_end_ns]
     stopped = raw.timeline.stopped_ns
     return Overhead(
         start_to_first_callback=min(wakes) - raw.timeline.began_ns if wakes else None,
@@ -89,7 +124,7 @@ def _overhead(raw: RawCell) -> Overhead:
     )
 
 
-def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> Evaluation:
+def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> CellResult:
     """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
     result = CellResult(
         id=cell.id,
@@ -99,13 +134,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         spec=spec_json(cell.scenario),
         started_at=raw.started_at,
     )
-    stored: list[tuple[str, SlotData]] = []
     measured: list[tuple[PlannedThread, ThreadFigures]] = []
     for t in raw.threads:
         p = t.planned
-        fig = _figures(t, raw.timeline, raw.interrupted)
+        fig = _figures(t, raw.timeline, raw.interrupted, scenario.latency_bound)
         degraded = degradation(p.settings, t.applied, t.errors) if t.ready else []
-        stored.append((thread_key(p.process, p.instance, p.index, p.name), t.slot))
         result.threads.append(
             ThreadResult(
                 process=p.process,
@@ -120,6 +153,9 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 applied=t.applied,
                 degraded=degraded,
                 figures=fig,
+                histograms=_histograms(t.slot),
+                samples_written=t.samples_written,
+                samples_lost=t.samples_lost,
             )
         )
         measured.append((p, fig))
@@ -138,8 +174,9 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     ]
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
     result.overhead_ns = _overhead(raw)
+    result.warnings = warnings(result.threads, raw.processes)
     result.status, result.reason = status(result, raw, allow_degraded)
-    return Evaluation(result, stored)
+    return result
 
 
 def status(result: CellResult, raw: RawCell, allow_degraded: bool) -> tuple[Status, str]:

@@ -6,13 +6,15 @@ them from a native slot, `check` holds one against an expectation.
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 from runner import figures as fg
 from runner.figures import ThreadFigures
+from runner.histogram import Histogram
 from runner.results.document import Verdict
-from runner.run.samples import SlotData
-from runner.run.stats import mean, summarize
+from runner.run.samples import CallbackStats, SlotData
+from runner.run.stats import QUANTILES
 from runner.scenario.model import Expectation
 
 
@@ -20,49 +22,68 @@ def _round(value: Optional[float]) -> Optional[float]:
     return None if value is None else round(value, 4)
 
 
-def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0) -> ThreadFigures:
+def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0, bound: Optional[int] = None) -> ThreadFigures:
     """A thread's figures from its native slot, in integer ns; per-callback fields are None without callbacks.
 
     `releases_due` is how many releases the thread's period put in the cell: every one that no
-    callback served is missed, the ones after the last callback too.
+    callback served is missed, the ones after the last callback too.  Latency counts every
+    release answered, those a late callback skipped included (see README, "Latency").
     """
-    smp = slot.samples
+    st = slot.stats
+    callbacks = slot.loops if periodic else 0
     totals = slot.totals()
     if totals is None:  # the thread never finished: what its callbacks recorded is all there is
-        totals = (sum(s.nivcsw for s in smp), sum(s.nvcsw for s in smp), sum(s.minflt for s in smp), sum(s.majflt for s in smp))
-    nivcsw = [s.nivcsw for s in smp]
-    minflt = [s.minflt for s in smp]
-    cpus = set(slot.cpus_seen)
-    for s in smp:
-        cpus.update((s.cpu_start, s.cpu_end))
-    skipped = sum(s.missed for s in smp)
+        totals = (st.nivcsw_sum, 0, st.minflt_sum if st.minflt_first >= 0 else 0, 0)
+    has = periodic and callbacks > 0
     return ThreadFigures(
-        callbacks=len(smp),
-        missed_releases=max(skipped, releases_due - len(smp)) if periodic else 0,
+        callbacks=callbacks,
+        missed_releases=max(slot.missed, releases_due - callbacks) if periodic else 0,
+        releases=max(releases_due, callbacks + slot.missed) if periodic else 0,
+        overruns=st.overruns if periodic else 0,
         involuntary=fg.Involuntary(
             total=totals[0],
-            per_callback_mean=_round(mean(nivcsw)) if periodic else None,
-            per_callback_max=max(nivcsw) if periodic and nivcsw else None,
-            callbacks_with_any=sum(1 for n in nivcsw if n) if periodic else None,
+            per_callback_mean=_round(st.nivcsw_sum / callbacks) if has else None,
+            per_callback_max=st.nivcsw_max if has else None,
+            callbacks_with_any=st.with_nivcsw if has else None,
         ),
         voluntary=fg.Voluntary(total=totals[1]),
-        latency_ns=_spread([s.latency_ns for s in smp]) if periodic else None,
-        callback_wall_ns=_spread([s.end_ns - s.wake_ns for s in smp]) if periodic else None,
+        latency_ns=_spread(st.latency, st.lat_mean, st.lat_m2, st.releases, st.above_bound if bound else None) if has else None,
+        callback_wall_ns=_spread(st.wall) if has else None,
+        slack_ns=_slack(st) if has else None,
         faults=fg.Faults(
             minor=totals[2],
             major=totals[3],
-            minor_first_callback=minflt[0] if minflt else None,
-            minor_after_first=sum(minflt[1:]) if minflt else None,
-            minor_per_callback_max=max(minflt) if minflt else None,
+            minor_first_callback=st.minflt_first if has else None,
+            minor_after_first=st.minflt_sum - st.minflt_first if has else None,
+            minor_per_callback_max=st.minflt_max if has else None,
         ),
-        cpus_seen=tuple(sorted(c for c in cpus if c >= 0)),
+        cpus_seen=tuple(sorted(c for c in slot.cpus_seen if c >= 0)),
         complete=slot.finished,
     )
 
 
-def _spread(values: list[int]) -> Optional[fg.Spread]:
-    summary = summarize(values)
-    return None if summary is None else fg.Spread(**{k: int(v) for k, v in summary.items()})
+def _spread(
+    hist: Optional[Histogram], mean: Optional[float] = None, m2: float = 0.0, n: int = 0, above: Optional[int] = None
+) -> Optional[fg.Spread]:
+    if hist is None or not hist.count:
+        return None
+    return fg.Spread(
+        min=hist.min,
+        **{name: hist.quantile(q) for name, q in QUANTILES.items()},
+        max=hist.max,
+        mean=round(mean) if mean is not None and n else None,
+        stddev=round(math.sqrt(max(0.0, m2) / n)) if mean is not None and n else None,
+        above_bound=above,
+    )
+
+
+def _slack(st: CallbackStats) -> Optional[fg.Slack]:
+    hist = st.slack
+    if hist is None or not hist.count:
+        return None
+    return fg.Slack(
+        min=hist.min, p1=hist.quantile(0.01, low=True), p50=hist.quantile(0.5, low=True), max=hist.max, mean=round(st.slack_mean)
+    )
 
 
 def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:

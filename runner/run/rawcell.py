@@ -91,6 +91,8 @@ class RawThread:
     applied: Optional[Settings]  # read back from the kernel; None when it could not be read
     errors: ApplyErrors
     ready: bool  # its process reported ready (settings applied, threads created)
+    samples_written: int = 0  # per-callback rows drained to the samples file
+    samples_lost: int = 0  # rows overwritten in the ring before the runner could drain them
 
 
 @dataclass(frozen=True)

@@ -1,42 +1,45 @@
 """The shared sample buffer written by the native core, read from Python.
 
-Layout (see _probe.c): a 64-byte file header, then per thread a 256-byte header
-and `capacity` samples of 56 bytes.  The runner creates the file, the worker maps
-it and its threads write into it; the runner reads it while the cell runs (for
-progress) and after (for results), even when the worker was killed.
+Layout (see _probe.c, version 2): a 64-byte file header, then per thread a 512-byte
+header of totals and running figures, four log-linear histograms (latency, slack,
+negative slack, callback wall time; see runner/histogram.py) and a ring of 64-byte
+samples.  The runner creates the buffer as a memfd (RAM that no writeback ever
+write-protects, gone with the runner), the worker maps it and its threads write
+into it; the runner drains the ring to disk while the cell runs and reads the
+figures after, even when the worker was killed.  Nothing here grows with the run.
 """
 
 from __future__ import annotations
 
-import csv
-import errno
-import gzip
-import io
 import mmap
 import os
 import struct
-from dataclasses import dataclass
+from array import array
+from dataclasses import dataclass, field
 from typing import Optional
 
-from runner.results.files import write_atomic
-from runner.results.samplesfile import SAMPLE_COLUMNS
+from runner import histogram as hg
+from runner.histogram import Histogram
 
 FILE_HEADER = 64
-SLOT_HEADER = 256
-SAMPLE = struct.Struct("<qqqqiiiihhi")
-_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q")
+SLOT_HEADER = 512
+HIST_SETS = 4
+SAMPLE = struct.Struct("<qqqqqiiiihhi")
+_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq")
+_COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
-assert SAMPLE.size == 56 and _SLOT.size == SLOT_HEADER
+assert SAMPLE.size == 64 and _SLOT.size == 424
 
 
 @dataclass(frozen=True)
 class Sample:
-    """One callback: when it was due, when it ran, what happened during it."""
+    """One callback: the release it served, when it ran, what happened during it."""
 
     scheduled_ns: int
     wake_ns: int
     end_ns: int
     burn_wall_ns: int
+    seq: int
     nivcsw: int
     nvcsw: int
     minflt: int
@@ -47,16 +50,49 @@ class Sample:
 
     @property
     def latency_ns(self) -> int:
+        """From the release this callback served to its wake-up."""
         return self.wake_ns - self.scheduled_ns
+
+    def release_latency(self, period: int) -> int:
+        """From the oldest release this wake-up answered (the first of those skipped, if any) to the wake-up."""
+        return self.wake_ns - self.scheduled_ns + self.missed * period
+
+    def slack(self, period: int) -> int:
+        """From the end of the callback to its next release; negative when it overran."""
+        return self.scheduled_ns + period - self.end_ns
+
+
+@dataclass(frozen=True)
+class CallbackStats:
+    """A periodic thread's running figures, as the native core keeps them (ns; counts)."""
+
+    releases: int = 0  # releases answered: callbacks plus the releases they skipped
+    overruns: int = 0
+    above_bound: int = 0
+    lat_mean: float = 0.0
+    lat_m2: float = 0.0
+    slack_mean: float = 0.0
+    slack_m2: float = 0.0
+    nivcsw_sum: int = 0
+    nivcsw_max: int = 0
+    with_nivcsw: int = 0
+    minflt_sum: int = 0
+    minflt_max: int = 0
+    minflt_first: int = -1
+    first_wake_ns: int = 0
+    last_end_ns: int = 0
+    latency: Optional[Histogram] = None
+    slack: Optional[Histogram] = None
+    wall: Optional[Histogram] = None
 
 
 @dataclass(frozen=True)
 class SlotData:
-    """One thread's header and samples, as the native core left them."""
+    """One thread's header and figures, as the native core left them."""
 
     tid: int
     state: str
-    count: int
+    count: int  # samples written to the ring, all told
     err_sched: int
     err_nice: int
     err_cpus: int
@@ -68,7 +104,7 @@ class SlotData:
     work_start_ns: int
     work_end_ns: int
     cpus_seen: tuple[int, ...]
-    samples: tuple[Sample, ...]
+    stats: CallbackStats = field(default_factory=CallbackStats)
 
     @property
     def finished(self) -> bool:
@@ -81,131 +117,254 @@ class SlotData:
         return tuple(e - s for e, s in zip(self.end_ru, self.start_ru))  # type: ignore[return-value]
 
 
-def file_size(nthreads: int, capacity: int) -> int:
-    return FILE_HEADER + nthreads * (SLOT_HEADER + capacity * SAMPLE.size)
+def stats_of(samples: list[Sample], period: int, bound: int = 0) -> CallbackStats:
+    """What the native core computes from these callbacks, computed in Python: for fakes and cross-checks."""
+    if not samples:
+        return CallbackStats()
+    latencies = [s.wake_ns - s.scheduled_ns + k * period for s in samples for k in range(s.missed, -1, -1)]
+    slacks = [s.slack(period) for s in samples]
+    lat_mean, lat_m2 = _welford(latencies)
+    slack_mean, slack_m2 = _welford(slacks)
+    return CallbackStats(
+        releases=len(latencies),
+        overruns=sum(1 for v in slacks if v < 0),
+        above_bound=sum(1 for v in latencies if bound > 0 and v > bound),
+        lat_mean=lat_mean,
+        lat_m2=lat_m2,
+        slack_mean=slack_mean,
+        slack_m2=slack_m2,
+        nivcsw_sum=sum(s.nivcsw for s in samples),
+        nivcsw_max=max(s.nivcsw for s in samples),
+        with_nivcsw=sum(1 for s in samples if s.nivcsw),
+        minflt_sum=sum(s.minflt for s in samples),
+        minflt_max=max(s.minflt for s in samples),
+        minflt_first=samples[0].minflt,
+        first_wake_ns=samples[0].wake_ns,
+        last_end_ns=samples[-1].end_ns,
+        latency=hg.from_values(latencies),
+        slack=hg.from_values(slacks),
+        wall=hg.from_values(s.end_ns - s.wake_ns for s in samples),
+    )
 
 
-def slot_offset(index: int, capacity: int) -> int:
-    return FILE_HEADER + index * (SLOT_HEADER + capacity * SAMPLE.size)
+def slot_of(
+    samples: list[Sample],
+    period: int,
+    *,
+    tid: int = 1,
+    state: str = "done",
+    start_ru: tuple[int, int, int, int] = (0, 0, 0, 0),
+    end_ru: tuple[int, int, int, int] = (0, 0, 0, 0),
+    cpus_seen: tuple[int, ...] = (),
+    work_start_ns: int = 0,
+    work_end_ns: int = 0,
+    bound: int = 0,
+) -> SlotData:
+    """The slot the native core would have left after these callbacks: for fakes of the shell and for tests."""
+    return SlotData(
+        tid=tid,
+        state=state,
+        count=len(samples),
+        err_sched=0,
+        err_nice=0,
+        err_cpus=0,
+        err_other=0,
+        start_ru=start_ru,
+        end_ru=end_ru,
+        loops=len(samples),
+        missed=sum(s.missed for s in samples),
+        work_start_ns=work_start_ns,
+        work_end_ns=work_end_ns,
+        cpus_seen=tuple(sorted(set(cpus_seen) | {c for s in samples for c in (s.cpu_start, s.cpu_end)})),
+        stats=stats_of(samples, period, bound),
+    )
 
 
-def create(path: str, nthreads: int, capacity: int) -> None:
-    """Create the zero-filled buffer file the worker will map, with its disk space reserved.
+def _welford(values: list[int]) -> tuple[float, float]:
+    mean = m2 = 0.0
+    for n, v in enumerate(values, start=1):
+        delta = v - mean
+        mean += delta / n
+        m2 += delta * (v - mean)
+    return mean, m2
 
-    A page of a mapped sparse file that cannot be allocated kills the writer with SIGBUS
-    in the middle of the run; reserving the space up front turns a disk too small for the
-    run into an ENOSPC before anything starts.
+
+@dataclass(frozen=True)
+class Layout:
+    """Where things are in a buffer of `nthreads` slots with rings of `capacity` samples."""
+
+    nthreads: int
+    capacity: int
+    histograms: bool = True
+
+    @property
+    def hist_bytes(self) -> int:
+        return HIST_SETS * hg.BUCKETS * 8 if self.histograms else 0
+
+    @property
+    def stride(self) -> int:
+        return SLOT_HEADER + self.hist_bytes + self.capacity * SAMPLE.size
+
+    @property
+    def size(self) -> int:
+        return FILE_HEADER + self.nthreads * self.stride
+
+    def slot(self, index: int) -> int:
+        return FILE_HEADER + index * self.stride
+
+    def ring(self, index: int) -> int:
+        return self.slot(index) + SLOT_HEADER + self.hist_bytes
+
+
+def create(name: str, layout: Layout) -> int:
+    """A zero-filled memfd for the buffer, its memory reserved now; returns the descriptor (the caller closes it).
+
+    Reserving up front turns a machine too small for the buffer into an error before
+    anything starts, instead of a SIGBUS in the middle of the run.
     """
-    with open(path, "wb") as handle:
-        size = file_size(nthreads, capacity)
+    fd = os.memfd_create(f"runner-{name}", os.MFD_CLOEXEC)
+    try:
+        os.ftruncate(fd, layout.size)
         try:
-            os.posix_fallocate(handle.fileno(), 0, size)
+            os.posix_fallocate(fd, 0, layout.size)
         except OSError as exc:
-            if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL):
-                handle.close()
-                os.unlink(path)
-                raise OSError(exc.errno, exc.strerror, path) from None
-            handle.truncate(size)  # a file system that cannot reserve: sparse, as before
+            raise OSError(exc.errno, f"cannot reserve {layout.size} bytes for the sample buffer: {exc.strerror}") from None
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
     return tuple(w * 64 + b for w, word in enumerate(words) for b in range(64) if word >> b & 1)
 
 
-def parse_slot(buf: bytes | mmap.mmap, index: int, capacity: int, with_samples: bool = True) -> SlotData:
-    """Decode one thread's slot from the buffer."""
-    at = slot_offset(index, capacity)
+def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> array[int]:
+    counts = array("Q")
+    start = at + SLOT_HEADER + which * hg.BUCKETS * 8
+    counts.frombytes(bytes(buf[start : start + hg.BUCKETS * 8]))
+    return counts
+
+
+def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
+    """Decode one thread's slot from the buffer: header, running figures and histograms."""
+    at = layout.slot(index)
     f = _SLOT.unpack_from(buf, at)
-    count = min(f[2], capacity)
-    samples: tuple[Sample, ...] = ()
-    if with_samples and count:
-        base = at + SLOT_HEADER
-        samples = tuple(Sample(*SAMPLE.unpack_from(buf, base + i * SAMPLE.size)) for i in range(count))
+    releases, overruns, above, lat_min, lat_max, lat_mean, lat_m2 = f[35:42]
+    slack_min, slack_max, slack_mean, slack_m2, wall_min, wall_max = f[42:48]
+    nivcsw_sum, nivcsw_max, with_nivcsw, minflt_sum, minflt_max, minflt_first, first_wake, last_end = f[48:56]
+    loops = f[15]
+    latency = slack = wall = None
+    if layout.histograms and loops:
+        latency = hg.from_counts(_hist(buf, at, 0), lat_min, lat_max)
+        slack = hg.from_counts(_hist(buf, at, 1), slack_min, slack_max, _hist(buf, at, 2))
+        wall = hg.from_counts(_hist(buf, at, 3), wall_min, wall_max)
+    stats = CallbackStats(
+        releases=releases,
+        overruns=overruns,
+        above_bound=above,
+        lat_mean=lat_mean,
+        lat_m2=lat_m2,
+        slack_mean=slack_mean,
+        slack_m2=slack_m2,
+        nivcsw_sum=nivcsw_sum,
+        nivcsw_max=nivcsw_max,
+        with_nivcsw=with_nivcsw,
+        minflt_sum=minflt_sum,
+        minflt_max=minflt_max,
+        minflt_first=minflt_first,
+        first_wake_ns=first_wake,
+        last_end_ns=last_end,
+        latency=latency,
+        slack=slack,
+        wall=wall,
+    )
     return SlotData(
         tid=f[0],
         state=STATES.get(f[1], "unknown"),
-        count=count,
+        count=f[2],
         err_sched=f[3],
         err_nice=f[4],
         err_cpus=f[5],
         err_other=f[6],
         start_ru=tuple(f[7:11]),
         end_ru=tuple(f[11:15]),
-        loops=f[15],
+        loops=loops,
         missed=f[16],
         work_start_ns=f[17],
         work_end_ns=f[18],
         cpus_seen=_bits(tuple(f[19:35])),
-        samples=samples,
+        stats=stats,
     )
 
 
-def read(path: str, nthreads: int, capacity: int) -> list[SlotData]:
-    """Every slot of a buffer file; slots a worker never initialised read as empty.
+class Buffer:
+    """A read-only view of a worker's buffer (a memfd): live counts, ring draining, and the figures at the end."""
 
-    The file is sized for the whole planned run (sparse until written), so it is mapped and
-    only the samples each slot recorded are decoded: a long run stopped early reads what ran,
-    not the gigabytes it had room for.
-    """
-    size = file_size(nthreads, capacity)
-    with open(path, "rb") as handle:
-        if os.fstat(handle.fileno()).st_size < size:
-            data: bytes | mmap.mmap = handle.read().ljust(size, b"\0")
-        else:
-            data = mmap.mmap(handle.fileno(), size, prot=mmap.PROT_READ)
-    try:
-        return [parse_slot(data, i, capacity) for i in range(nthreads)]
-    finally:
-        if isinstance(data, mmap.mmap):
-            data.close()
+    def __init__(self, fd: int, layout: Layout):
+        self.layout = layout
+        self.map = mmap.mmap(fd, layout.size, prot=mmap.PROT_READ)
+        self.taken = [0] * layout.nthreads  # ring position read so far, per slot
+        self.lost = [0] * layout.nthreads  # samples overwritten before they could be read
 
+    def loops(self) -> list[int]:
+        """Callbacks (or spin slices) so far, per slot."""
+        return [struct.unpack_from("<Q", self.map, self.layout.slot(i) + _LOOPS_AT)[0] for i in range(self.layout.nthreads)]
 
-class Poller:
-    """Read-only view of a live buffer, to count callbacks while the cell runs."""
-
-    def __init__(self, path: str, nthreads: int, capacity: int):
-        self.nthreads, self.capacity = nthreads, capacity
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            self.map = mmap.mmap(fd, file_size(nthreads, capacity), prot=mmap.PROT_READ)
-        finally:
-            os.close(fd)
-
-    def counts(self) -> list[int]:
-        return [struct.unpack_from("<Q", self.map, slot_offset(i, self.capacity) + 8)[0] for i in range(self.nthreads)]
+    def written(self, index: int) -> int:
+        return int(struct.unpack_from("<Q", self.map, self.layout.slot(index) + _COUNT_AT)[0])
 
     def sample(self, index: int, n: int) -> Sample:
-        at = slot_offset(index, self.capacity) + SLOT_HEADER + n * SAMPLE.size
+        """Sample number n of a slot's ring (the caller makes sure it has not been overwritten yet)."""
+        at = self.layout.ring(index) + (n % self.layout.capacity) * SAMPLE.size
         return Sample(*SAMPLE.unpack_from(self.map, at))
+
+    def drain(self, index: int) -> list[Sample]:
+        """The samples written since the last call, in order; those the writer overwrote meanwhile are counted in `lost`."""
+        cap = self.layout.capacity
+        if cap == 0:
+            return []
+        end = self.written(index)
+        start = max(self.taken[index], end - cap)
+        base = self.layout.ring(index)
+        out = [Sample(*SAMPLE.unpack_from(self.map, base + (n % cap) * SAMPLE.size)) for n in range(start, end)]
+        # Sample n is being replaced once the writer reaches n + capacity, before it publishes that count.
+        overwritten = self.written(index) - cap + 1
+        if overwritten > start:
+            cut = min(overwritten, end)
+            out = out[cut - start :]
+            start = cut
+        self.lost[index] += start - self.taken[index]
+        self.taken[index] = end
+        return out
+
+    def slots(self) -> list[SlotData]:
+        return [parse_slot(self.map, i, self.layout) for i in range(self.layout.nthreads)]
 
     def close(self) -> None:
         self.map.close()
 
 
-def write_samples(path: str, slots: list[tuple[str, SlotData]]) -> None:
-    """Per-callback samples of a cell as gzip'd CSV (one row per callback), written atomically."""
-    buf = io.StringIO()
-    out = csv.writer(buf, lineterminator="\n")
-    out.writerow(list(SAMPLE_COLUMNS))
-    for key, slot in slots:
-        for seq, s in enumerate(slot.samples):
-            out.writerow(
-                [
-                    key,
-                    slot.tid,
-                    seq,
-                    s.scheduled_ns,
-                    s.wake_ns,
-                    s.end_ns,
-                    s.latency_ns,
-                    s.burn_wall_ns,
-                    s.nivcsw,
-                    s.nvcsw,
-                    s.minflt,
-                    s.majflt,
-                    s.cpu_start,
-                    s.cpu_end,
-                    s.missed,
-                ]
-            )
-    write_atomic(path, gzip.compress(buf.getvalue().encode("utf-8"), compresslevel=6))
+def rows(key: str, tid: int, period: int, taken: list[Sample]) -> list[tuple[object, ...]]:
+    """Samples as rows of the samples file, in SAMPLE_COLUMNS order (latency from the oldest release answered)."""
+    return [
+        (
+            key,
+            tid,
+            s.seq,
+            s.scheduled_ns,
+            s.wake_ns,
+            s.end_ns,
+            s.release_latency(period),
+            s.slack(period),
+            s.burn_wall_ns,
+            s.nivcsw,
+            s.nvcsw,
+            s.minflt,
+            s.majflt,
+            s.cpu_start,
+            s.cpu_end,
+            s.missed,
+        )
+        for s in taken
+    ]

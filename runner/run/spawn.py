@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from runner.results.document import MachineInfo
+from runner.results.document import MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
 from runner.run import _probe, kernel, samples
 from runner.run.backend import CellOptions, Interrupted
@@ -32,7 +32,7 @@ from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, Timeline
 from runner.scenario.loader import ResolvedCell
-from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Scenario, Sched, SleepWork, SpinWork, Work
+from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Samples, SamplesMode, Scenario, Sched, SleepWork, SpinWork, Wait, Work
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
 
 READY_TIMEOUT_S = 20.0
@@ -68,13 +68,28 @@ class KernelBackend:
         self.guard.close()
 
 
-def work_tuple(work: Work) -> tuple[int, int, int, bool, int, int]:
-    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns)."""
+RING_MAX = 1 << 17  # samples per thread's ring (8 MiB): 1.3 s of a 10 us period, 13 s of 100 us
+_RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
+
+
+def work_tuple(work: Work, bound_ns: int = 0, samples: Optional[Samples] = None) -> _probe.WorkTuple:
+    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode)."""
+    ring = _RING_MODES.get(samples.mode, _probe.RING_NONE) if samples else _probe.RING_ALL
     if isinstance(work, PeriodicWork):
-        return (_probe.WORK_PERIODIC, work.period, work.burn, work.burn_clock is BurnClock.WALL, work.alloc, work.offset)
+        return (
+            _probe.WORK_PERIODIC,
+            work.period,
+            work.burn,
+            work.burn_clock is BurnClock.WALL,
+            work.alloc,
+            work.offset,
+            work.wait is Wait.SPIN,
+            bound_ns,
+            ring,
+        )
     if isinstance(work, SpinWork):
-        return (_probe.WORK_SPIN, 0, 0, False, 0, 0)
-    return (_probe.WORK_SLEEP, 0, 0, False, 0, 0)
+        return (_probe.WORK_SPIN, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
+    return (_probe.WORK_SLEEP, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
 
 
 def _sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
@@ -89,38 +104,48 @@ class Worker:
 
     label: str
     spec: dict[str, Any]
-    samples_path: str
-    nslots: int
-    capacity: int
+    layout: samples.Layout
     planned: list[PlannedThread]
     measured: bool
     log_path: str
     popen: Optional[subprocess.Popen[str]] = None
     ready: Optional[dict[str, Any]] = None
     done: bool = False
-    poller: Optional[samples.Poller] = None
+    buffer: Optional[samples.Buffer] = None
     seen: list[int] = field(default_factory=list)
+    written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
 
     @property
     def pid(self) -> int:
         assert self.popen is not None
         return self.popen.pid
 
+    @property
+    def nslots(self) -> int:
+        return self.layout.nthreads
+
     def start(self, guard: Guard) -> None:
-        samples.create(self.samples_path, self.nslots, self.capacity)
-        with open(self.log_path, "w") as log:  # the worker holds its own copy of the descriptor
-            self.popen = subprocess.Popen(
-                python_module("runner.run.worker"),
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=log,
-                text=True,
-                bufsize=1,
-                start_new_session=True,
-                close_fds=True,
-                cwd="/",
-                env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
-            )
+        fd = samples.create(self.spec["comm"], self.layout)
+        try:
+            self.buffer = samples.Buffer(fd, self.layout)  # the mapping outlives the descriptor, and the worker
+            self.written = [0] * self.nslots
+            with open(self.log_path, "w") as log:  # the worker holds its own copies of the descriptors
+                self.popen = subprocess.Popen(
+                    python_module("runner.run.worker"),
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=log,
+                    text=True,
+                    bufsize=1,
+                    start_new_session=True,
+                    close_fds=True,
+                    pass_fds=(fd,),
+                    cwd="/",
+                    env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
+                )
+        finally:
+            os.close(fd)
+        self.spec["samples_fd"] = fd
         guard.watch(self.popen.pid)
         assert self.popen.stdin is not None
         self.popen.stdin.write(json.dumps(self.spec) + "\n")
@@ -162,17 +187,26 @@ def _tail(path: str, lines: int = 3) -> str:
     return " | ".join(text[-lines:])
 
 
-def _capacity(threads: list[PlannedThread], duration_ns: int) -> int:
+def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -> int:
+    """Samples each thread's ring holds: the whole cell when that is small, else enough for the runner to drain in time."""
     periods = [t.work.period for t in threads if isinstance(t.work, PeriodicWork)]
-    return max([16] + [duration_ns // p + 16 for p in periods])
+    if not periods or policy.mode is SamplesMode.NONE:
+        return 0
+    if policy.mode is SamplesMode.LAST:
+        return policy.last or 0
+    return min(RING_MAX, max(duration_ns // p + 16 for p in periods))
 
 
-def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path: str, capacity: int) -> dict[str, Any]:
+def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: int) -> dict[str, Any]:
     proc = next(p for p in scenario.processes if p.name == threads[0].process)
     mem = proc.memory
+    bound = scenario.latency_bound or 0
+
+    def work(w: Work) -> _probe.WorkTuple:
+        return work_tuple(w, bound, scenario.samples)
+
     return {
         "comm": proc.name,
-        "samples": samples_path,
         "capacity": capacity,
         "all_cpus": kernel.online_cpus(),
         "reset_on_fork": proc.reset_on_fork,
@@ -182,7 +216,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path
             "apply": proc.main.apply.value,
             "sched": _sched_json(proc.main.sched),
             "cpus": list(proc.main.cpus) if proc.main.cpus else None,
-            "work": work_tuple(proc.main.work),
+            "work": work(proc.main.work),
         },
         "threads": [
             {
@@ -190,7 +224,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, samples_path
                 "explicit": not spec.inherit,
                 "sched": _sched_json(spec.sched),
                 "cpus": list(spec.cpus) if spec.cpus else None,
-                "work": work_tuple(spec.work),
+                "work": work(spec.work),
             }
             for spec in proc.threads
             for spec_name in spec.names()
@@ -206,12 +240,11 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
         as_processes = hog.kind is HogKind.PROCESS
         copies, threads = (hog.count, 0) if as_processes else (1, hog.count)
         for i in range(copies):
-            path = os.path.join(folder, f"hog{h}-{i}.smp")
             spec = {
                 "comm": hog.name,
-                "samples": path,
-                "capacity": 1,
+                "capacity": 0,
                 "all_cpus": kernel.online_cpus(),
+                "histograms": False,
                 "memory": {},
                 "main": {
                     "name": hog.name,
@@ -222,7 +255,8 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
                 },
                 "threads": [{"name": hog.name, "work": spin} for _ in range(threads)],
             }
-            out.append(Worker(f"hog {hog.name}[{i}]", spec, path, 1 + threads, 1, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
+            layout = samples.Layout(1 + threads, 0, histograms=False)
+            out.append(Worker(f"hog {hog.name}[{i}]", spec, layout, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
     return out
 
 
@@ -269,14 +303,16 @@ def _read_done(w: Worker) -> None:
 
 
 def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
-    """Print new callbacks in the ros2-realtime-examples' log form."""
-    assert w.poller is not None
-    counts = w.poller.counts()
+    """Print new callbacks in the ros2-realtime-examples' log form (those still in the ring: --follow shows, the files keep)."""
+    assert w.buffer is not None
+    cap = w.layout.capacity
     for t in w.planned:
-        if not is_periodic(t.work):
+        if not is_periodic(t.work) or not cap:
             continue
-        while w.seen[t.index] < counts[t.index]:
-            s = w.poller.sample(t.index, w.seen[t.index])
+        written = w.buffer.written(t.index)
+        w.seen[t.index] = max(w.seen[t.index], written - cap + 1)
+        while w.seen[t.index] < written:
+            s = w.buffer.sample(t.index, w.seen[t.index])
             w.seen[t.index] += 1
             stamp = s.wake_ns + epoch_offset_ns
             when = f"[{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]"
@@ -284,6 +320,23 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
             if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
                 lvl = "WARN" if s.minflt or s.majflt else "INFO"
                 emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
+
+
+def _drain(w: Worker, options: CellOptions) -> None:
+    """Hand the samples written since the last call to the session's sink (the samples file), thread by thread."""
+    if w.buffer is None or options.samples is None or not w.layout.capacity:
+        return
+    for t in w.planned:
+        if isinstance(t.work, PeriodicWork):
+            taken = w.buffer.drain(t.index)
+            if taken:
+                options.samples.write(
+                    thread_key(t.process, t.instance, t.index, t.name),
+                    int(w.ready["tids"][t.index]) if w.ready else 0,
+                    t.work.period,
+                    taken,
+                )
+                w.written[t.index] += len(taken)
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
@@ -328,15 +381,12 @@ class _CellRun:
             self.by_process.setdefault((t.process, t.instance), []).append(t)
         self.workers: list[Worker] = []
         for (proc, inst), threads in self.by_process.items():
-            cap = _capacity(threads, options.duration_ns)
-            path = os.path.join(folder, f"{proc}.{inst}.smp")
+            cap = _capacity(threads, options.duration_ns, self.scenario.samples)
             self.workers.append(
                 Worker(
                     f"process {proc}[{inst}]",
-                    _process_spec(threads, self.scenario, path, cap),
-                    path,
-                    len(threads),
-                    cap,
+                    _process_spec(threads, self.scenario, cap),
+                    samples.Layout(len(threads), cap),
                     threads,
                     True,
                     os.path.join(folder, f"{proc}.{inst}.log"),
@@ -395,7 +445,6 @@ class _CellRun:
             h.send(f"go {now} {t_end + grace}")
         for w in workers:
             w.send(f"go {t0} {t_end}")
-            w.poller = samples.Poller(w.samples_path, w.nslots, w.capacity)
             w.seen = [0] * w.nslots
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
@@ -407,11 +456,12 @@ class _CellRun:
             if not self.table and time.monotonic() >= snapshot_at:
                 self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
             self._watch_for_incidents(t0, t_end)
-            if options.follow:
-                for w in workers:
+            for w in workers:
+                if options.follow:
                     _follow_lines(w, epoch_offset, options.follow)
+                _drain(w, options)
             if options.progress:
-                done = sum(sum(w.poller.counts()) for w in workers if w.poller)
+                done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
                 left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
                 options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
         self.exit_time = time.monotonic_ns()
@@ -421,12 +471,11 @@ class _CellRun:
             _read_done(w)
 
     def remove_buffers(self) -> None:
-        """Delete the cell's sample buffers (their contents are in the results by now, or never will be)."""
+        """Unmap the cell's sample buffers: their memory goes with the last mapping (the workers' are gone by now)."""
         for w in self.workers + self.hogs:
-            try:
-                os.unlink(w.samples_path)
-            except OSError:
-                pass
+            if w.buffer is not None:
+                w.buffer.close()
+                w.buffer = None
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -478,9 +527,6 @@ class _CellRun:
                 pass
             self.guard.forget(proc.pid)
         self.watchdog.disarm()
-        for w in self.workers:
-            if w.poller:
-                w.poller.close()
 
     def raw(self) -> RawCell:
         """Everything the processes left behind, read back: slots, settings, the table, what went wrong."""
@@ -491,11 +537,25 @@ class _CellRun:
                 failures.append("the cell overran its deadline and was killed by the watchdog")
         threads: list[RawThread] = []
         for w in self.workers:
-            slots = samples.read(w.samples_path, w.nslots, w.capacity)
+            if w.buffer is None:
+                continue
+            _drain(w, self.options)
+            slots = w.buffer.slots()
             report = _ready_report(w)
             for t, slot in zip(w.planned, slots):
                 errors = report.errors(t.index) if report else ApplyErrors()
-                threads.append(RawThread(t, w.pid if w.popen else 0, slot, self.applied.get(id(t)), errors, report is not None))
+                threads.append(
+                    RawThread(
+                        t,
+                        w.pid if w.popen else 0,
+                        slot,
+                        self.applied.get(id(t)),
+                        errors,
+                        report is not None,
+                        w.written[t.index],
+                        w.buffer.lost[t.index],
+                    )
+                )
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
         background += [BackgroundProcess("command", _argv(c)[0], c.pid, tuple(_argv(c))) for c in self.commands]
         timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())

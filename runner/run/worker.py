@@ -61,12 +61,12 @@ def run(spec: dict[str, Any]) -> int:
 
     threads = spec["threads"]
     nslots = 1 + len(threads)
-    fd = os.open(spec["samples"], os.O_RDWR)
+    fd = int(spec["samples_fd"])  # the runner's memfd, inherited
     try:
         buf = mmap.mmap(fd, 0)
     finally:
         os.close(fd)
-    group = _probe.Group(buf, nslots, spec["capacity"], spec["all_cpus"])
+    group = _probe.Group(buf, nslots, spec["capacity"], spec["all_cpus"], spec.get("histograms", True))
     main = spec["main"]
     group.adopt(0, main["name"], tuple(main["work"]))
 

@@ -37,12 +37,13 @@ NS_PER_HOUR = 3_600_000_000_000
 MIN_RUN, MAX_RUN = 100_000_000, 24 * NS_PER_HOUR  # a cell's run time
 MAX_SETTLE = NS_PER_HOUR  # the pause between cells: a pause, not a way to park the runner
 MAX_REPEAT = 1_000_000  # runs of each cell in one run (--repeat)
-MIN_PERIOD, MAX_PERIOD = 50_000, NS_PER_HOUR  # released less than hourly is not a real-time callback
+MIN_PERIOD, MAX_PERIOD = 10_000, NS_PER_HOUR  # released less than hourly is not a real-time callback
 MAX_OFFSET = NS_PER_HOUR
 MAX_LATENCY_LIMIT = NS_PER_HOUR  # a latency bound above an hour checks nothing
 MAX_ANY_SIZE = 1 << 40  # 1 TiB: above the RAM of any machine the runner is used on
 MIN_STACK, MAX_STACK = 16 << 10, 1 << 30  # per thread; the usual default is 8 MiB
 MAX_THREAD_COUNT, MAX_INSTANCES, MAX_HOGS = 1024, 64, 256
+MAX_LAST_SAMPLES = 1 << 22  # `samples: last N`: a ring of N samples (64 bytes each) per thread
 
 
 def _unit(parse: Any, ceiling: int | None = None, fmt: Any = None) -> Any:
@@ -242,6 +243,13 @@ class BurnClock(str, enum.Enum):
     WALL = "wall"
 
 
+class Wait(str, enum.Enum):
+    """How a periodic thread waits for its next release."""
+
+    SLEEP = "sleep"  # clock_nanosleep(TIMER_ABSTIME), as cyclictest and ROS 2 timers
+    SPIN = "spin"  # busy-wait on the clock: no wake-up path, but the CPU is never given up
+
+
 class PeriodicWork(Strict):
     """A periodic callback on absolute deadlines, as a ROS 2 wall timer: wake, burn, allocate, sleep."""
 
@@ -251,11 +259,15 @@ class PeriodicWork(Strict):
     burn_clock: BurnClock = Field(BurnClock.THREAD_CPU, description="thread_cpu (the seed's burn) or wall")
     alloc: Size = Field(0, description="memory to allocate, touch page by page and free per callback")
     offset: Duration = Field(0, description="delay of the first release after the common start")
+    wait: Wait = Field(
+        Wait.SLEEP,
+        description="sleep: clock_nanosleep to each release; spin: busy-wait on the clock (short periods; the CPU is never given up)",
+    )
 
     @model_validator(mode="after")
     def _fits(self) -> PeriodicWork:
         if self.period < MIN_PERIOD:
-            raise ValueError(f"period {units.format_duration(self.period)} is too short; at least 50us")
+            raise ValueError(f"period {units.format_duration(self.period)} is too short; at least {units.format_duration(MIN_PERIOD)}")
         if self.period > MAX_PERIOD:
             raise ValueError(
                 f"period {units.format_duration(self.period)} is too long; at most "
@@ -494,10 +506,13 @@ def metric_figure(metric: Metric) -> figures.Figure:
 
 
 def _limit(value: Any) -> Any:
-    """Latency limits are durations (kept as ns); counts are plain numbers."""
+    """Latency limits are durations (kept as ns), negative for slack (`-2ms`); counts are plain numbers."""
     if isinstance(value, str):
+        text = value.strip()
+        negative = text[:1] in ("-", "\u2212")
         try:
-            return units.parse_duration(value)
+            parsed = units.parse_duration(text[1:] if negative else text)
+            return -parsed if negative else parsed
         except units.UnitError as exc:
             raise ValueError(str(exc)) from None
     return value
@@ -543,9 +558,10 @@ class Expectation(Strict):
                 continue
             if not math.isfinite(bound):
                 raise ValueError(f"{name}: {bound!r} is not a finite number")
-            if bound < 0:
-                raise ValueError(f"{name}: {bound:g} is negative; {self.metric.value} is never below 0")
-            if metric_figure(self.metric).is_duration and bound > MAX_LATENCY_LIMIT:
+            fig = metric_figure(self.metric)
+            if bound < 0 and not fig.signed:
+                raise ValueError(f"{name}: {self.describe_bound(bound)} is negative; {self.metric.value} is never below 0")
+            if fig.is_duration and abs(bound) > MAX_LATENCY_LIMIT:
                 raise ValueError(
                     f"{name}: {units.format_duration(int(bound))} is too large for a latency bound; "
                     f"at most {units.format_duration(MAX_LATENCY_LIMIT)}"
@@ -567,6 +583,67 @@ class Expectation(Strict):
         return " and ".join(parts)
 
 
+# ------------------------------------------------------------------------ samples
+
+
+class SamplesMode(str, enum.Enum):
+    """Which per-callback samples are written to samples.csv.gz (the figures always cover every callback)."""
+
+    ALL = "all"
+    NONE = "none"
+    OUTLIERS = "outliers"  # callbacks that skipped releases, overran, or woke later than latency_bound
+    LAST = "last"  # the last N callbacks of each thread
+
+
+def _samples_text(value: Any) -> Any:
+    if isinstance(value, str):
+        word, _, count = value.strip().partition(" ")
+        if word == "last":
+            try:
+                return {"mode": "last", "last": int(count)}
+            except ValueError:
+                raise ValueError(f"samples {value!r}: expected 'last N' with a whole number N, e.g. 'last 10000'") from None
+        return {"mode": word}
+    return value
+
+
+class Samples(Strict):
+    """What goes to the samples file: `all`, `none`, `outliers` or `last N`."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": ["all", "outliers", "last 10000"]})
+
+    mode: SamplesMode = SamplesMode.ALL
+    last: Optional[int] = Field(None, ge=1, le=MAX_LAST_SAMPLES, description="with mode last: how many callbacks per thread")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _text(cls, value: Any) -> Any:
+        return _samples_text(value)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Samples:
+        if (self.mode is SamplesMode.LAST) != (self.last is not None):
+            raise ValueError("write 'last N' (e.g. 'last 10000'); N goes only with last")
+        return self
+
+    def label(self) -> str:
+        return f"last {self.last}" if self.mode is SamplesMode.LAST else self.mode.value
+
+
+SamplesSetting = Annotated[
+    Samples,
+    PlainSerializer(lambda s: s.label(), return_type=str),
+    WithJsonSchema(
+        {
+            "type": "string",
+            "pattern": "^(all|none|outliers|last [1-9][0-9]*)$",
+            "description": "per-callback samples to write: all, none, outliers or last N",
+            "examples": ["all", "outliers", "last 10000"],
+        }
+    ),
+]
+
+
 # ----------------------------------------------------------------------- scenario
 
 
@@ -580,6 +657,10 @@ class Scenario(Strict):
     background: Background = Field(default_factory=Background)
     matrix: Any = Field(None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
     expect: list[Expectation] = Field(default_factory=list)
+    latency_bound: Optional[Duration] = Field(
+        None, description="wake-up latency above which a release counts as an outlier (figure latency.above_bound; samples: outliers)"
+    )
+    samples: SamplesSetting = Field(default_factory=Samples, description="per-callback samples to write: all, none, outliers or last N")
 
     _text = field_validator("description")(lambda cls, v: _no_control("description", "\n\t")(v))
 
@@ -591,6 +672,13 @@ class Scenario(Strict):
                 f"duration {units.format_duration(value)} is out of range; expected "
                 f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}"
             )
+        return value
+
+    @field_validator("latency_bound")
+    @classmethod
+    def _bound_range(cls, value: Optional[int]) -> Optional[int]:
+        if value is not None and not 0 < value <= MAX_LATENCY_LIMIT:
+            raise ValueError(f"latency_bound {units.format_duration(value)} is out of range; expected above 0 and at most 1h")
         return value
 
     @field_validator("name")

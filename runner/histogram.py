@@ -1,0 +1,119 @@
+"""Log-linear histograms of durations, as the native core keeps them: bounded memory for runs of any length.
+
+The native core (run/_probe.c) counts every latency, slack and callback time into
+fixed buckets laid out as HdrHistogram does: values below 256 ns are their own
+bucket, and every power of two above is split into 128 buckets, so a bucket is
+never wider than 1/128 (0.78%) of the values in it.  Values from 2^40 ns (about
+18 minutes) up share the last bucket.  A histogram is 4352 counters whatever the
+run's length, and its percentiles are exact to the bucket: the nearest-rank value
+lies in the bucket whose upper bound is reported (HdrHistogram's "highest
+equivalent value"), clamped to the exact minimum and maximum kept beside it.
+
+Signed values (slack, which is negative when a callback overran) are two
+histograms in the native core, one of the value and one of its negation; here
+both become one list of signed bucket ranges.  Pure: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import Optional
+
+from pydantic import BaseModel, ConfigDict, Field
+
+SUB_BITS = 7
+SUB = 1 << SUB_BITS
+TOP_BITS = 40
+BUCKETS = (TOP_BITS - SUB_BITS + 1) * SUB
+RELATIVE_PRECISION = 1 / SUB  # the widest bucket, relative to the values in it
+
+
+def index(value: int) -> int:
+    """The bucket of a non-negative value in ns (negative values count as 0, as in the native core)."""
+    if value < 2 * SUB:
+        return max(0, value)
+    if value >= 1 << TOP_BITS:
+        return BUCKETS - 1
+    shift = value.bit_length() - 1 - SUB_BITS
+    return (shift + 1) * SUB + (value >> shift) - SUB
+
+
+def bounds(i: int) -> tuple[int, int]:
+    """The values bucket `i` holds, both ends included (the last bucket also holds everything above)."""
+    if i < 2 * SUB:
+        return i, i
+    shift = i // SUB - 1
+    low = (i % SUB + SUB) << shift
+    return low, low + (1 << shift) - 1
+
+
+class Histogram(BaseModel):
+    """Counts by bucket, as stored in results.json: `[low_ns, high_ns, count]` rows, ascending, non-empty buckets only.
+
+    `min` and `max` are exact; the rows are exact to the bucket.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    buckets: list[tuple[int, int, int]] = Field(description="[low, high, count]: `count` values in low..high ns, ascending")
+    min: int
+    max: int
+
+    @property
+    def count(self) -> int:
+        return sum(c for _, _, c in self.buckets)
+
+    def quantile(self, q: float, low: bool = False) -> int:
+        """The nearest-rank q-quantile, to the bucket, within [min, max].
+
+        The upper bound of its bucket, so a latency is never understated; with `low`, the
+        lower bound, for figures where low is bad (slack), so those are never flattered either.
+        """
+        total = self.count
+        if not total:
+            raise ValueError("an empty histogram has no quantiles")
+        rank = max(1, math.ceil(q * total))
+        seen = 0
+        for lo, hi, n in self.buckets:
+            seen += n
+            if seen >= rank:
+                return max(self.min, min(lo if low else hi, self.max))
+        return self.max
+
+    def above(self, bound: int) -> int:
+        """Values above `bound`, counting a bucket that straddles it as above (an upper estimate)."""
+        return sum(n for _low, high, n in self.buckets if high > bound)
+
+
+def from_counts(counts: Sequence[int], low: int, high: int, negative: Optional[Sequence[int]] = None) -> Optional[Histogram]:
+    """A histogram from native counters (`negative` counts the negation of values below 0); None when empty."""
+    rows: list[tuple[int, int, int]] = []
+    if negative is not None:
+        for i in range(len(negative) - 1, -1, -1):
+            if negative[i]:
+                lo, hi = bounds(i)
+                rows.append((-hi, -lo, int(negative[i])))
+    for i, n in enumerate(counts):
+        if n:
+            lo, hi = bounds(i)
+            rows.append((lo, hi, int(n)))
+    if not rows:
+        return None
+    return Histogram(buckets=rows, min=low, max=high)
+
+
+def from_values(values: Iterable[int]) -> Optional[Histogram]:
+    """The histogram the native core would have built from these values (signed allowed); None when empty."""
+    pos = [0] * BUCKETS
+    neg = [0] * BUCKETS
+    seen: list[int] = []
+    for v in values:
+        seen.append(v)
+        if v >= 0:
+            pos[index(v)] += 1
+        else:
+            neg[index(-v)] += 1
+    if not seen:
+        return None
+    return from_counts(pos, min(seen), max(seen), neg if any(neg) else None)
