@@ -27,6 +27,7 @@ SUB = 1 << SUB_BITS
 TOP_BITS = 40
 BUCKETS = (TOP_BITS - SUB_BITS + 1) * SUB
 RELATIVE_PRECISION = 1 / SUB  # the widest bucket, relative to the values in it
+QUANTILES = {"p50": 0.50, "p90": 0.90, "p99": 0.99, "p999": 0.999}  # the percentiles every duration figure reports
 
 
 def index(value: int) -> int:

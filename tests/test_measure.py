@@ -5,7 +5,6 @@ from __future__ import annotations
 from runner import histogram as hg
 from runner.run.measure import check, thread_figures
 from runner.run.samples import Sample, slot_of
-from runner.run.stats import nearest_rank, summarize
 from runner.scenario.model import Expectation
 
 PERIOD = 100_000_000
@@ -23,12 +22,6 @@ def sample(i, lat_us, nivcsw, minflt=0, missed=0, end_ms=40):
 def top(value):
     """The value a percentile reports for `value`: the upper end of its histogram bucket."""
     return hg.bounds(hg.index(value))[1]
-
-
-def test_nearest_rank_is_an_observed_value():
-    values = list(range(1, 101))
-    assert nearest_rank(values, 0.5) == 50 and nearest_rank(values, 0.99) == 99 and nearest_rank(values, 0.999) == 100
-    assert summarize([]) is None
 
 
 def test_figures_of_a_callback_thread():

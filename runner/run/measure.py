@@ -11,10 +11,9 @@ from typing import Optional
 
 from runner import figures as fg
 from runner.figures import ThreadFigures
-from runner.histogram import Histogram
+from runner.histogram import QUANTILES, Histogram
 from runner.results.document import Verdict
 from runner.run.samples import CallbackStats, SlotData
-from runner.run.stats import QUANTILES
 from runner.scenario.model import Expectation
 
 

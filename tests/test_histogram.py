@@ -1,0 +1,60 @@
+"""The log-linear histogram (pure): buckets, precision, and percentiles exact to the bucket."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from runner import histogram as hg
+from runner.run import _probe
+
+
+def test_the_python_layout_is_the_native_cores():
+    assert (hg.BUCKETS, hg.SUB_BITS) == (_probe.HIST_BUCKETS, _probe.HIST_SUB_BITS)
+
+
+def test_small_values_are_exact_and_buckets_tile_the_range_without_gaps():
+    assert [hg.bounds(hg.index(v)) for v in (0, 1, 255)] == [(0, 0), (1, 1), (255, 255)]
+    previous_high = -1
+    for i in range(hg.BUCKETS):
+        low, high = hg.bounds(i)
+        assert low == previous_high + 1 and high >= low
+        previous_high = high
+
+
+@given(st.integers(min_value=0, max_value=(1 << hg.TOP_BITS) - 1))
+def test_every_value_lies_in_its_bucket_within_the_stated_precision(value):
+    low, high = hg.bounds(hg.index(value))
+    assert low <= value <= high
+    assert high - low <= max(0, value * hg.RELATIVE_PRECISION)
+
+
+def test_values_past_the_top_share_the_last_bucket():
+    assert hg.index(1 << hg.TOP_BITS) == hg.index(1 << 62) == hg.BUCKETS - 1
+
+
+def _nearest_rank(values: list[int], q: float) -> int:
+    ordered = sorted(values)
+    return ordered[max(1, math.ceil(q * len(ordered))) - 1]
+
+
+@settings(max_examples=200)
+@given(
+    st.lists(st.integers(min_value=-(10**9), max_value=10**10), min_size=1, max_size=300), st.sampled_from([0.01, 0.5, 0.9, 0.99, 0.999])
+)
+def test_a_percentile_is_the_exact_one_to_the_bucket_and_never_flatters(values, q):
+    hist = hg.from_values(values)
+    assert hist is not None and hist.count == len(values) and (hist.min, hist.max) == (min(values), max(values))
+    exact = _nearest_rank(values, q)
+    high, low = hist.quantile(q), hist.quantile(q, low=True)
+    assert low <= exact <= high  # high never understates a latency, low never overstates a slack
+    width = abs(exact) * hg.RELATIVE_PRECISION + 1
+    assert high - exact <= width and exact - low <= width
+
+
+def test_above_counts_values_over_a_bound():
+    hist = hg.from_values([100, 200, 300, 5000])
+    assert hist is not None and hist.above(250) == 2 and hist.above(10_000) == 0
+    assert hg.from_values([]) is None
