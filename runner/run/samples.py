@@ -319,8 +319,11 @@ class Buffer:
         at = self.layout.ring(index) + (n % self.layout.capacity) * SAMPLE.size
         return Sample(*SAMPLE.unpack_from(self.map, at))
 
-    def drain(self, index: int) -> list[Sample]:
-        """The samples written since the last call, in order; those the writer overwrote meanwhile are counted in `lost`."""
+    def drain(self, index: int, stopped: bool = False) -> list[Sample]:
+        """The samples written since the last call, in order; those the writer overwrote meanwhile are counted in `lost`.
+
+        `stopped`: the writer has exited, so no sample is being replaced while this reads.
+        """
         cap = self.layout.capacity
         if cap == 0:
             return []
@@ -329,7 +332,7 @@ class Buffer:
         base = self.layout.ring(index)
         out = [Sample(*SAMPLE.unpack_from(self.map, base + (n % cap) * SAMPLE.size)) for n in range(start, end)]
         # Sample n is being replaced once the writer reaches n + capacity, before it publishes that count.
-        overwritten = self.written(index) - cap + 1
+        overwritten = self.written(index) - cap + (0 if stopped else 1)
         if overwritten > start:
             cut = min(overwritten, end)
             out = out[cut - start :]

@@ -322,13 +322,16 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
                 emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
 
 
-def _drain(w: Worker, options: CellOptions) -> None:
-    """Hand the samples written since the last call to the session's sink (the samples file), thread by thread."""
-    if w.buffer is None or options.samples is None or not w.layout.capacity:
+def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> None:
+    """Hand the samples written since the last call to the session's sink (the samples file), thread by thread.
+
+    With `samples: last N` the ring is the N callbacks to keep: it is read once, at the end.
+    """
+    if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
         return
     for t in w.planned:
         if isinstance(t.work, PeriodicWork):
-            taken = w.buffer.drain(t.index)
+            taken = w.buffer.drain(t.index, stopped=final)
             if taken:
                 options.samples.write(
                     thread_key(t.process, t.instance, t.index, t.name),
@@ -393,6 +396,7 @@ class _CellRun:
                 )
             )
         self.hogs = _hog_workers(self.scenario, folder)
+        self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
         self.table: list[ThreadRow] = []
         self.applied: dict[int, Optional[Settings]] = {}
@@ -459,7 +463,7 @@ class _CellRun:
             for w in workers:
                 if options.follow:
                     _follow_lines(w, epoch_offset, options.follow)
-                _drain(w, options)
+                _drain(w, options, self.last_only, final=False)
             if options.progress:
                 done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
                 left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
@@ -539,7 +543,7 @@ class _CellRun:
         for w in self.workers:
             if w.buffer is None:
                 continue
-            _drain(w, self.options)
+            _drain(w, self.options, self.last_only, final=True)
             slots = w.buffer.slots()
             report = _ready_report(w)
             for t, slot in zip(w.planned, slots):
@@ -553,7 +557,7 @@ class _CellRun:
                         errors,
                         report is not None,
                         w.written[t.index],
-                        w.buffer.lost[t.index],
+                        0 if self.last_only else w.buffer.lost[t.index],
                     )
                 )
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]

@@ -1,0 +1,178 @@
+"""Honest figures against the real kernel: a thread that cannot keep up, clean fault counts, the sample ring.
+
+Every scenario here runs for a second or two with process names of its own, so it never
+meets the seed scenarios' processes.  The effects asserted are large (0 against many,
+negative against positive), never exact timings.
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+
+import pytest
+import yaml
+from kernelrun import can_use_rt, finish, start_runner, thread
+
+from runner import histogram as hg
+from runner.results.samplesfile import SAMPLE_COLUMNS
+from runner.run.samples import Sample, stats_of
+
+pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+
+PERIOD = 30_000_000
+
+
+def run(tmp_path, scenario: dict, *args: str):
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = tmp_path / f"{scenario['name']}.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    out = tmp_path / "out"
+    done = finish(start_runner(str(path), "--out", str(out), "--settle", "0", *args, cwd=str(tmp_path)), str(out))
+    assert done.results is not None, done.err
+    return done, str(out)
+
+
+def rows(out: str, results: dict) -> dict[str, list[dict[str, int]]]:
+    """The samples file's rows by thread key, as integers."""
+    cell = results["cells"][0]
+    by: dict[str, list[dict[str, int]]] = {}
+    if not cell["samples_file"]:
+        return by
+    with gzip.open(os.path.join(out, cell["samples_file"]), "rt") as handle:
+        header = handle.readline().strip().split(",")
+        assert tuple(header) == SAMPLE_COLUMNS
+        for line in handle:
+            fields = line.strip().split(",")
+            by.setdefault(fields[0], []).append({k: int(v) for k, v in zip(header[1:], fields[1:])})
+    return by
+
+
+OVERLOADED = {
+    "name": "overload",
+    "duration": "2s",
+    "processes": [
+        {
+            "name": "ovl",
+            "main": {"cpus": [0], "work": {"kind": "periodic", "period": "30ms", "burn": "20ms"}},
+            "threads": [{"name": "ovl_peer", "cpus": [0], "work": {"kind": "periodic", "period": "30ms", "burn": "20ms"}}],
+        }
+    ],
+    "expect": [{"thread": "ovl", "metric": "missed_releases", "max": 0}],
+}
+
+
+def test_a_thread_that_cannot_keep_up_says_so_and_fails_its_expectation(tmp_path):
+    # Two threads on one CPU, each burning 20 ms of CPU per 30 ms period: each gets half the CPU, so a
+    # callback takes about 40 ms of wall time and every other release is skipped.
+    done, _ = run(tmp_path, OVERLOADED)
+    main = thread(done.results, "ovl")["figures"]
+    assert done.code == 1 and "could not keep up" in done.out
+    assert main["missed_releases"] >= 10 and main["overruns"] >= 10 and main["slack_ns"]["min"] < 0
+    assert main["releases"] == main["callbacks"] + main["missed_releases"]
+    # latency counts the skipped releases: they waited about a period for the next wake-up
+    assert main["latency_ns"]["max"] > PERIOD // 2
+    cell = done.results["cells"][0]
+    assert cell["status"] == "failed" and any("could not keep up" in w for w in cell["warnings"])
+    assert [v["passed"] for v in cell["expectations"]] == [False]
+
+
+def test_the_native_figures_are_the_documented_definitions_of_the_rows_written(tmp_path):
+    """The histograms the native core kept equal those recomputed in Python from every sample row it wrote."""
+    done, out = run(tmp_path, OVERLOADED)
+    written = rows(out, done.results)
+    for t in done.results["cells"][0]["threads"]:
+        samples = [
+            Sample(
+                r["scheduled_ns"],
+                r["wake_ns"],
+                r["end_ns"],
+                r["burn_wall_ns"],
+                r["seq"],
+                r["nivcsw"],
+                r["nvcsw"],
+                r["minflt"],
+                r["majflt"],
+                r["cpu_start"],
+                r["cpu_end"],
+                r["missed"],
+            )
+            for r in written[t["key"]]
+        ]
+        assert len(samples) == t["figures"]["callbacks"] == t["samples_written"] and t["samples_lost"] == 0
+        assert [r["latency_ns"] for r in written[t["key"]]] == [s.release_latency(PERIOD) for s in samples]
+        mirror = stats_of(samples, PERIOD)
+        assert mirror.latency is not None and mirror.slack is not None
+        assert hg.Histogram.model_validate(t["histograms"]["latency"]) == mirror.latency
+        assert hg.Histogram.model_validate(t["histograms"]["slack"]) == mirror.slack
+        assert t["figures"]["overruns"] == mirror.overruns
+        assert t["figures"]["latency_ns"]["mean"] == round(mirror.lat_mean)
+
+
+def test_a_locked_preallocated_thread_shows_no_minor_fault_at_all(tmp_path):
+    # 3000 callbacks write 3000 samples (47 pages of ring) and their histogram counters: the thread
+    # wrote every page of its slot before the start gate, so none of them faults during the run.
+    scenario = {
+        "name": "nofaults",
+        "duration": "3s",
+        "processes": [
+            {
+                "name": "nf",
+                "memory": {"lock": True, "prealloc": "16MiB"},
+                "main": {"sched": "fifo:80", "work": {"kind": "periodic", "period": "1ms"}},
+            }
+        ],
+    }
+    done, out = run(tmp_path, scenario)
+    f = thread(done.results, "nf")["figures"]
+    assert done.code == 0 and f["callbacks"] >= 2000
+    assert f["faults"]["minor"] == 0 and f["faults"]["major"] == 0
+    assert len(rows(out, done.results)["nf[0]/nf (main)"]) == f["callbacks"]
+
+
+def _sampled(samples: str, **extra) -> dict:
+    return {
+        "name": "sampled",
+        "duration": "1s",
+        "samples": samples,
+        **extra,
+        "processes": [{"name": "smp", "main": {"sched": "fifo:70", "work": {"kind": "periodic", "period": "2ms"}}}],
+    }
+
+
+def test_samples_last_n_keeps_the_last_callbacks_and_none_keeps_no_file(tmp_path):
+    done, out = run(tmp_path / "last", _sampled("last 50"))
+    kept = rows(out, done.results)["smp[0]/smp (main)"]
+    callbacks = thread(done.results, "smp")["figures"]["callbacks"]
+    assert callbacks > 100 and [r["seq"] for r in kept] == list(range(callbacks - 50, callbacks))
+    done, out = run(tmp_path / "none", _sampled("none"))
+    assert done.code == 0 and done.results["cells"][0]["samples_file"] is None
+    assert thread(done.results, "smp")["figures"]["latency_ns"]["p99"] > 0  # the figures do not need the rows
+
+
+def test_samples_outliers_writes_only_callbacks_past_the_bound(tmp_path):
+    done, out = run(tmp_path, _sampled("outliers", latency_bound="1us"))  # every wake-up takes longer than 1 us
+    kept = rows(out, done.results)["smp[0]/smp (main)"]
+    f = thread(done.results, "smp")["figures"]
+    assert f["latency_ns"]["above_bound"] == f["releases"] and len(kept) == f["callbacks"]
+    done, out = run(tmp_path / "high", _sampled("outliers", latency_bound="1s"))
+    f = thread(done.results, "smp")["figures"]
+    kept = rows(out, done.results).get("smp[0]/smp (main)", [])
+    assert f["latency_ns"]["above_bound"] == 0 and f["callbacks"] > 300
+    assert len(kept) < 10 and all(r["missed"] or r["slack_ns"] < 0 for r in kept)  # only a callback that fell behind
+
+
+def test_spin_waiting_gives_up_the_cpu_never_while_sleeping_does_every_period(tmp_path):
+    def spec(wait: str) -> dict:
+        return {
+            "name": f"wait_{wait}",
+            "duration": "1s",
+            "processes": [{"name": f"w{wait}", "main": {"work": {"kind": "periodic", "period": "100us", "wait": wait}}}],
+        }
+
+    sleeping, _ = run(tmp_path / "sleep", spec("sleep"))
+    spinning, _ = run(tmp_path / "spin", spec("spin"))
+    slept = thread(sleeping.results, "wsleep")["figures"]
+    spun = thread(spinning.results, "wspin")["figures"]
+    assert slept["voluntary"]["total"] >= 1000 and spun["voluntary"]["total"] <= 10
+    assert spun["callbacks"] >= 5000  # 10,000 releases in the second
