@@ -68,7 +68,8 @@ class KernelBackend:
         self.guard.close()
 
 
-RING_MAX = 1 << 17  # samples per thread's ring (8 MiB): 1.3 s of a 10 us period, 13 s of 100 us
+RING_MAX = 1 << 17  # samples per thread's ring at most (8 MiB): 1.3 s of a 10 us period
+RING_SECONDS = 2  # otherwise, the ring holds this long of callbacks: the runner drains it five times a second
 _RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
 
 
@@ -194,7 +195,8 @@ def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -
         return 0
     if policy.mode is SamplesMode.LAST:
         return policy.last or 0
-    return min(RING_MAX, max(duration_ns // p + 16 for p in periods))
+    rate = max(1_000_000_000 // p for p in periods)  # callbacks per second of the fastest thread
+    return min(RING_MAX, max(duration_ns // p + 16 for p in periods), max(4096, RING_SECONDS * rate))
 
 
 def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: int) -> dict[str, Any]:
