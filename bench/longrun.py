@@ -136,9 +136,8 @@ def main() -> int:
                 ours, exact = f["latency_ns"][name], _nearest_rank(ordered, q)
                 error = (ours - exact) / exact if exact else 0.0
                 worst = max(worst, abs(error))
-                print(
-                    f"{t['key']:<24} {f['callbacks']:>10} {f['missed_releases']:>7} {name:>7} {ours / 1000:>13.2f} {exact / 1000:>10.2f} {error:>+8.2%}"
-                )
+                key, n, missed = t["key"], f["callbacks"], f["missed_releases"]
+                print(f"{key:<24} {n:>10} {missed:>7} {name:>7} {ours / 1000:>13.2f} {exact / 1000:>10.2f} {error:>+8.2%}")
         print(f"largest percentile error: {worst:.2%} (histogram precision {1 / 128:.2%})")
         return 0 if worst <= 1 / 128 else 1
 
