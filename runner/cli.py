@@ -13,6 +13,7 @@ import tempfile
 import time
 import traceback
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from runner import __version__
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
@@ -243,6 +244,13 @@ def _cmd_report(argv: list[str]) -> int:
     p.add_argument("--baseline", metavar="RESULTS", help="add a comparison with an earlier run")
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    x = p.add_argument_group("cyclictest formats (instead of the report, unless -o is given too)")
+    x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
+    x.add_argument(
+        "--histogram-max", type=int, default=1000, metavar="US", help="histogram size in microseconds (cyclictest -h US; default 1000)"
+    )
+    x.add_argument("--json", metavar="FILE", help="latency summary in the shape of `cyclictest --json`; - for stdout")
+    x.add_argument("--cell", metavar="ID", help="the cell to export, when the run has several")
     ns = p.parse_args(argv)
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.markdown import render_run
@@ -251,6 +259,10 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.session import exit_code
 
     doc = load(ns.results)
+    if ns.histogram or ns.json:
+        _export(doc, ns)
+        if not ns.output:
+            return 0
     section, regressions = None, 0
     if ns.baseline:
         section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds_with(parse_threshold(t) for t in ns.threshold))
@@ -264,6 +276,30 @@ def _cmd_report(argv: list[str]) -> int:
             raise from_os_error(exc, "cannot write the report", path=target) from None
         say(f"report: {path}")
     return int(exit_code([], regressions))
+
+
+def _export(doc: Any, ns: argparse.Namespace) -> None:
+    """Write the cyclictest-format histogram and/or JSON summary of one cell."""
+    from runner.report.export import histogram_text, json_summary, pick_cell
+    from runner.results.files import write_atomic
+
+    if not 1 <= ns.histogram_max <= 1_000_000:
+        raise UsageError(f"runner report: --histogram-max {ns.histogram_max} is out of range; expected 1 to 1000000 (us)")
+    cell = pick_cell(doc, ns.cell)
+    for target, text in (
+        (ns.histogram, lambda: histogram_text(cell, ns.histogram_max)),
+        (ns.json, lambda: json.dumps(json_summary(doc, cell), indent=2) + "\n"),
+    ):
+        if not target:
+            continue
+        if target == "-":
+            sys.stdout.write(text())
+            continue
+        try:
+            write_atomic(target, text().encode("utf-8"))
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the export", path=target) from None
+        say(f"wrote {target}")
 
 
 def _cmd_compare(argv: list[str]) -> int:

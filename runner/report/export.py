@@ -1,0 +1,108 @@
+"""A cell's latency in cyclictest's own formats, so plotting scripts written for cyclictest keep working.  Pure.
+
+`histogram_text` is what `cyclictest -h US -q` prints (the format OSADL's latency plots
+read): one line per microsecond, `%06d` then one `%06d` count per thread, then the
+`# Total / Min / Avg / Max Latencies / Histogram Overflows` trailer.  `json_summary` has
+the shape of `cyclictest --json` (rt-tests 2.x, including its `cmdline:` key).
+
+Both come from the native histograms of every release answered (runner/histogram.py), one
+column (or `thread` entry) per periodic thread in the cell's order.  A bucket wider than a
+microsecond (values above 131 us) is counted in the microsecond of its upper end, so a
+latency is never shown smaller than it was; values are microseconds, truncated as
+cyclictest truncates them.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from runner.errors import UsageError, did_you_mean
+from runner.histogram import Histogram
+from runner.results.document import CellResult, RunDocument, ThreadResult
+
+DEFAULT_HISTOGRAM_US = 1000
+
+
+def pick_cell(doc: RunDocument, cell_id: str | None) -> CellResult:
+    """The cell to export: the one named, or the only one."""
+    if cell_id is None:
+        if len({c.id for c in doc.cells}) != 1:
+            raise UsageError(
+                f"runner report: this run has {len(doc.cells)} cells; choose one with --cell ({', '.join(c.id for c in doc.cells)})"
+            )
+        return doc.cells[0]
+    for cell in doc.cells:
+        if cell.id == cell_id:
+            return cell
+    raise UsageError(f"runner report: no cell {cell_id!r}{did_you_mean(cell_id, [c.id for c in doc.cells])}")
+
+
+def _threads(cell: CellResult) -> list[tuple[ThreadResult, Histogram]]:
+    out = [(t, t.histograms.latency) for t in cell.threads if t.periodic and t.histograms and t.histograms.latency]
+    if not out:
+        raise UsageError(f"runner report: cell {cell.id!r} has no latency histogram (no periodic thread ran, or the results predate them)")
+    return out
+
+
+def _bins(hist: Histogram, size: int) -> tuple[list[int], int]:
+    """Counts per whole microsecond below `size`, and the count at or above it (overflows)."""
+    counts = [0] * size
+    over = 0
+    for _low, high, n in hist.buckets:
+        us = min(high, hist.max) // 1000
+        if us < size:
+            counts[max(0, us)] += n
+        else:
+            over += n
+    return counts, over
+
+
+def _avg_us(t: ThreadResult, hist: Histogram) -> float:
+    mean = t.figures.latency_ns.mean if t.figures.latency_ns else None
+    return (mean if mean is not None else hist.quantile(0.5)) / 1000
+
+
+def histogram_text(cell: CellResult, size: int = DEFAULT_HISTOGRAM_US) -> str:
+    """The cell's latency as `cyclictest -h SIZE -q` prints it."""
+    threads = _threads(cell)
+    columns = [_bins(h, size) for _, h in threads]
+    lines = ["# Histogram"]
+    for us in range(size):
+        lines.append(f"{us:06d} " + "\t".join(f"{counts[us]:06d}" for counts, _ in columns))
+    lines.append("# Total: " + " ".join(f"{sum(counts):09d}" for counts, _ in columns))
+    lines.append("# Min Latencies: " + " ".join(f"{h.min // 1000:05d}" for _, h in threads))
+    lines.append("# Avg Latencies: " + " ".join(f"{int(_avg_us(t, h)):05d}" for t, h in threads))
+    lines.append("# Max Latencies: " + " ".join(f"{h.max // 1000:05d}" for _, h in threads))
+    lines.append("# Histogram Overflows: " + " ".join(f"{over:05d}" for _, over in columns))
+    lines.append("# Histogram Overflow at cycle number:")
+    lines.extend(f"# Thread {i}:" for i in range(len(threads)))  # the histograms do not keep which cycles overflowed
+    return "\n".join(lines) + "\n"
+
+
+def json_summary(doc: RunDocument, cell: CellResult) -> dict[str, Any]:
+    """The cell's latency in the shape of `cyclictest --json` (microseconds), with the runner's thread names beside."""
+    threads = _threads(cell)
+    out: dict[str, Any] = {
+        "file_version": 1,
+        "cmdline:": " ".join(doc.command),
+        "rt_test_version:": f"runner {doc.tool.version}",
+        "start_time": cell.started_at,
+        "end_time": doc.finished_at or "",
+        "return_code": 0 if cell.status.value in ("passed", "degraded") else 1,
+        "num_threads": len(threads),
+        "resolution_in_ns": 0,
+        "thread": {},
+    }
+    for i, (t, hist) in enumerate(threads):
+        counts, _ = _bins(hist, max(1, hist.max // 1000 + 1))
+        out["thread"][str(i)] = {
+            "histogram": {str(us): n for us, n in enumerate(counts) if n},
+            "cycles": hist.count,
+            "min": hist.min // 1000,
+            "max": hist.max // 1000,
+            "avg": round(_avg_us(t, hist), 2),
+            "cpu": t.figures.cpus_seen[0] if len(t.figures.cpus_seen) == 1 else -1,
+            "node": 0,
+            "name": t.key,
+        }
+    return out
