@@ -10,10 +10,11 @@ from __future__ import annotations
 import os
 
 import pytest
-from conftest import SCENARIOS
+from conftest import SCENARIOS, run_cli
 
 from runner.errors import ScenarioError
 from runner.scenario import limits as lim
+from runner.scenario.listing import render_cell
 from runner.scenario.loader import LoadedScenario, match_threads, parse_scenario, spec_json
 from runner.scenario.model import Policy, ProcessSpec, ThreadSpec
 from runner.scenario.plan import Settings, plan_scenario
@@ -196,6 +197,41 @@ def test_the_worker_is_told_each_threads_own_cpu_priority_and_period():
         ("cyclic-2", [2], [1, 78, None], 2_000_000),
         ("cyclic-3", [3], [1, 77, None], 2_500_000),
     ]
+
+
+def test_list_shows_each_thread_and_where_the_count_came_from():
+    text = render_cell(scenario(CYCLICTEST).cells[0], Settings(), (0, 1, 2, 3))
+    assert "cyclic-3    fifo:77        0  3       own         periodic 2.5ms" in text
+    assert (
+        "cyclic: 4 threads (count: cpus, one per CPU: the 4 CPUs the runner may use (0-3)), each pinned to its own CPU "
+        "and named by it, priorities fifo:80 down to fifo:77 (priospread), periods 1ms to 2.5ms (distance 500us)"
+    ) in text
+
+
+def test_validate_shows_the_expansion_on_this_machine(write_scenario):
+    path = write_scenario(f"name: x\nprocesses:\n  - name: cyclictest\n    threads:\n      - {CYCLICTEST.replace('fifo:80', 'fifo:98')}\n")
+    outcome = run_cli("validate", path)
+    cpus = sorted(os.sched_getaffinity(0))
+    assert outcome.code == 0, outcome.err
+    lines = outcome.out.splitlines()
+    assert lines[0] == f"{path}: ok (1 cell)"
+    assert lines[1].startswith(f"  cyclictest/cyclic: {len(cpus)} thread")
+    assert [line.split() for line in lines[2:]] == [
+        [f"cyclic-{cpu}", "CPU", str(cpu), f"fifo:{98 - i}", "periodic", f"{1 + i * 0.5:g}ms"] for i, cpu in enumerate(cpus)
+    ]
+
+
+def test_validate_says_nothing_more_for_plain_threads(write_scenario):
+    path = write_scenario("name: x\nprocesses:\n  - name: app\n    threads: [{name: w, count: 3}]\n")
+    assert run_cli("validate", path).out == f"{path}: ok (1 cell)\n"
+
+
+def test_validate_names_the_cells_where_the_expansion_differs(write_scenario):
+    text = "name: x\nmatrix: {prio: [80, 40]}\nprocesses:\n  - name: app\n    threads:\n"
+    text += "      - {name: c, count: 2, sched: 'fifo:${{ matrix.prio }}', priospread: true}\n"
+    out = run_cli("validate", write_scenario(text)).out.splitlines()
+    assert "  in cell prio=80:" in out and "  in cell prio=40:" in out
+    assert any("fifo:39" in line for line in out)
 
 
 def test_hogs_and_threads_resolve_count_cpus_against_the_same_cpus():
