@@ -245,3 +245,15 @@ def test_without_a_machine_the_model_falls_back_to_the_runners_affinity():
     assert spec.cpus == tuple(sorted(os.sched_getaffinity(0))) and spec.count == len(spec.cpus)
     proc = ProcessSpec.model_validate({"name": "p", "threads": [{"name": "c", "count": "cpus"}]}, context={"cpus": (5, 6, 7)})
     assert proc.threads[0].count == 3
+
+
+def test_the_shipped_cyclictest_scenario_is_one_pinned_thread_per_cpu():
+    from runner.scenario.loader import load_scenario
+
+    loaded = load_scenario(os.path.join(SCENARIOS, "cyclictest_smp.yaml"))
+    cpus = tuple(sorted(os.sched_getaffinity(0)))
+    rows = measured(loaded)
+    assert [(name, policy, prio, c) for name, policy, prio, c, _ in rows] == [
+        (f"cyclic-{cpu}", Policy.FIFO, 80 - i, (cpu,)) for i, cpu in enumerate(cpus)
+    ]
+    assert {period for *_, period in rows} == {1_000_000}
