@@ -159,6 +159,7 @@ def _cmd_validate(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="runner validate", description="Check scenario files; print every problem as file:line:col.")
     p.add_argument("files", nargs="+", metavar="FILE")
     ns = p.parse_args(argv)
+    from runner.scenario.listing import expansion
     from runner.scenario.loader import load_scenario
 
     worst = ExitCode.OK
@@ -172,6 +173,8 @@ def _cmd_validate(argv: list[str]) -> int:
         _print_warnings(loaded.warnings)
         count = len(loaded.cells)
         say(f"{path}: ok ({count} cell{'s' if count != 1 else ''})")
+        for line in expansion(loaded):  # count: cpus, pin: each, priospread, distance: what they resolve to here
+            say("  " + line)
     return worst
 
 

@@ -18,6 +18,7 @@ import pytest
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, documented_exit, env, failed_metrics, finish, ps_table, start_runner, thread, wait_for_threads
 
+from runner import units
 from runner.results.pstable import render_ps
 from runner.run.kernel import find_pids, pid_width, thread_rows
 
@@ -180,6 +181,44 @@ def test_memory_lock_faults(tmp_path):
     assert locked["figures"]["faults"]["minor_first_callback"] >= 12_000 and locked["figures"]["faults"]["minor_after_first"] == 0
     prealloc = thread({"cells": [cells["locked+prealloc"]]}, "minimal_memory_", index=0)
     assert prealloc["figures"]["faults"]["minor"] == 0 and prealloc["figures"]["callbacks"] >= 10
+
+
+def test_count_cpus_threads_land_one_per_cpu(tmp_path):
+    """cyclictest -t -a -p80 --priospread as a scenario: one thread per allowed CPU, each held to its CPU by the kernel."""
+    allowed = sorted(os.sched_getaffinity(0))
+    out = str(tmp_path)
+    proc = start_runner(os.path.join(SCENARIOS, "cyclictest_smp.yaml"), "--duration", "1s", "--out", out, "--quiet", cwd=out)
+    try:
+        pid = wait_for_threads("cyclictest", 1 + len(allowed))
+        # the kernel's affinity of each thread while they run; a thread names itself just before it pins
+        # itself, so read until every one has done both (they all have once the start gate opens)
+        until = time.monotonic() + 10
+        while True:
+            live = {r.comm: r for r in thread_rows(pid)}
+            rows = [live.get(f"cyclic-{cpu}") for cpu in allowed]
+            if all(r is not None and len(r.cpus) == 1 for r in rows) or time.monotonic() > until:
+                break
+            time.sleep(0.02)
+    except BaseException:
+        proc.kill()
+        raise
+    done = finish(proc, out)
+    # 0, or 1 when the scenario's expectation (~0 involuntary switches per callback) met a noisy second on the VM
+    assert done.code == documented_exit(done.results) and done.code in (0, 1), done.err
+    assert failed_metrics(done.results) <= {"involuntary.per_callback_mean"}
+    measured = [t for t in done.results["cells"][0]["threads"] if t["index"] > 0]
+    assert len(measured) == len(allowed)
+    seen: list[int] = []
+    for i, t in enumerate(measured):
+        cpus = units.parse_cpu_list(t["applied"]["cpus"])  # read back from the kernel after the thread set it
+        assert len(cpus) == 1, t["applied"]
+        (cpu,) = cpus
+        seen.append(cpu)
+        assert t["name"] == f"cyclic-{cpu}" and t["name"] in live, sorted(live)
+        assert live[t["name"]].cpus == (cpu,), "the kernel held it to its CPU while it ran"
+        assert (t["applied"]["policy"], t["applied"]["priority"]) == ("fifo", 80 - i), "priospread: 80, 79, ..."
+        assert t["figures"]["callbacks"] >= 500 and t["figures"]["cpus_seen"] == [cpu], "it ran on its own CPU only"
+    assert sorted(seen) == allowed and len(set(seen)) == len(seen), "one thread per CPU, every allowed CPU covered"
 
 
 def _unprivileged_prefix() -> tuple[tuple[str, ...], str]:

@@ -222,14 +222,14 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: in
         },
         "threads": [
             {
-                "name": spec_name,
+                "name": member.name,
                 "explicit": not spec.inherit,
-                "sched": _sched_json(spec.sched),
-                "cpus": list(spec.cpus) if spec.cpus else None,
-                "work": work(spec.work),
+                "sched": _sched_json(member.sched),
+                "cpus": list(member.cpus) if member.cpus else None,
+                "work": work(member.work),
             }
             for spec in proc.threads
-            for spec_name in spec.names()
+            for member in spec.members()  # pin: each, priospread and distance give each thread its own settings
         ],
     }
 

@@ -10,7 +10,7 @@ from tabulate import tabulate
 
 from runner import units
 from runner.scenario.loader import LoadedScenario, ResolvedCell, expectations_for
-from runner.scenario.model import BurnClock, HogKind, PeriodicWork, ProcessSpec, Scenario, SleepWork, SpinWork, Work
+from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Pin, ProcessSpec, Scenario, SleepWork, SpinWork, ThreadSpec, Work
 from runner.scenario.plan import Settings, plan_process
 
 
@@ -40,6 +40,61 @@ def describe_memory(proc: ProcessSpec) -> str:
     if mem.stack_size is not None:
         parts.append(f"stack {units.format_size(mem.stack_size)}")
     return ", ".join(parts)
+
+
+def describe_spread(spec: ThreadSpec) -> str:
+    """How the threads of a spec differ, in words, e.g. `cyclic: 2 threads (count: cpus, one per CPU: the 2 CPUs
+    the runner may use (0-1)), each pinned to its own CPU, priorities fifo:80 down to fifo:79`."""
+    text = f"{spec.name}: {spec.count} thread{'s' if spec.count != 1 else ''}{spec.count_source()}"
+    members = spec.members()
+    first, last = members[0], members[-1]
+    if spec.pin is Pin.EACH:
+        text += ", each pinned to its own CPU and named by it"
+    if spec.priospread and first.sched is not None and last.sched is not None:
+        text += f", priorities {first.sched.label()} down to {last.sched.label()} (priospread)"
+    if spec.distance and isinstance(first.work, PeriodicWork) and isinstance(last.work, PeriodicWork):
+        text += (
+            f", periods {units.format_duration(first.work.period)} to {units.format_duration(last.work.period)}"
+            f" (distance {units.format_duration(spec.distance)})"
+        )
+    return text
+
+
+def spread_lines(proc: ProcessSpec) -> list[str]:
+    """Each spec of `proc` whose threads differ or depend on the machine: its description, then thread by thread."""
+    out: list[str] = []
+    for spec in proc.threads:
+        if not spec.varies:
+            continue
+        out.append(f"{proc.name}/{describe_spread(spec)}")
+        rows = [
+            [
+                m.name,
+                ("CPU " if m.cpus is not None and len(m.cpus) == 1 else "CPUs ") + (units.format_cpus(m.cpus) if m.cpus else "as created"),
+                m.sched.label() if m.sched is not None else "sched as created",
+                describe_work(m.work),
+            ]
+            for m in spec.members()
+        ]
+        out.extend("  " + row for row in tabulate(rows, tablefmt="plain").splitlines())
+    return out
+
+
+def expansion(loaded: LoadedScenario) -> list[str]:
+    """What `runner validate` shows below `ok`: thread specs that spread over CPUs, priorities or periods, resolved
+    on this machine (`count: cpus` is its CPUs), thread by thread; said once when every cell resolves alike."""
+    blocks: dict[str, list[str]] = {}
+    for cell in loaded.cells:
+        lines = [line for proc in cell.scenario.processes for line in spread_lines(proc)]
+        if lines:
+            blocks.setdefault("\n".join(lines), []).append(cell.id)
+    out: list[str] = []
+    for text, ids in blocks.items():
+        if len(blocks) > 1 or len(ids) < len(loaded.cells):
+            named = ", ".join(ids[:3]) + (f" and {len(ids) - 3} more" if len(ids) > 3 else "")
+            out.append(f"in cell{'s' if len(ids) != 1 else ''} {named}:")
+        out.extend(text.splitlines())
+    return out
 
 
 def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) -> str:
@@ -75,6 +130,7 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
             )
         table = tabulate(rows, headers=["#", "THREAD", "POLICY", "NICE", "CPUS", "SETTINGS", "WORK"], tablefmt="plain")
         lines.extend("    " + row for row in table.splitlines())
+        lines.extend(f"    {describe_spread(spec)}" for spec in proc.threads if spec.varies)
     for i in expectations_for(sc, cell):
         exp = sc.expect[i]
         lines.append(f"  expect {exp.thread}: {exp.metric.value} {exp.describe_limit()}")

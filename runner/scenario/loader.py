@@ -24,7 +24,7 @@ from pydantic import TypeAdapter, ValidationError
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
-from runner.scenario.model import Expectation, ProcessSpec, Scenario, metric_figure
+from runner.scenario.model import CPUS_CONTEXT, Expectation, ProcessSpec, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from
 from runner.scenario.yamlsource import Document, load_file
@@ -138,16 +138,22 @@ def _check_cell(
     cell_problems: list[Problem] = []
     for path, expr in mx.unresolved(raw):
         cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
+    context = validation_context(machine)
     try:
-        scenario = Scenario.model_validate(raw)
+        scenario = Scenario.model_validate(raw, context=context)
     except ValidationError as exc:
         cell_problems.extend(problems_from(exc, doc, raw, Scenario))
-        cell_problems.extend(_partial_cross_checks(doc, raw, index))
+        cell_problems.extend(_partial_cross_checks(doc, raw, index, context))
         return None, cell_problems, ""
     cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index))
     findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
     cell_problems.extend(doc.problem(f.path, f.message) for f in findings)
     return scenario, cell_problems, spec_hash(scenario)
+
+
+def validation_context(machine: lim.MachineLimits | None) -> dict[str, Any] | None:
+    """What the models resolve `count: cpus` and `pin: each` against: the machine's CPUs, when known."""
+    return {CPUS_CONTEXT: machine.cpus} if machine is not None and machine.cpus else None
 
 
 def _cells_note(where: list[str], total: int) -> str:
@@ -159,10 +165,10 @@ def _cells_note(where: list[str], total: int) -> str:
     return f" (in {len(where)} of {total} cells: {named}{more})"
 
 
-def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex) -> list[Problem]:
+def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex, context: dict[str, Any] | None) -> list[Problem]:
     """Cross-field checks on the parts that did validate, so one bad field does not hide the rest."""
     try:
-        processes = _PROCESSES.validate_python(raw.get("processes"))
+        processes = _PROCESSES.validate_python(raw.get("processes"), context=context)
     except ValidationError:
         return []
     expectations = []

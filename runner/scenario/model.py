@@ -13,6 +13,7 @@ import math
 import os
 import re
 import unicodedata
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Optional, Union
 
 from pydantic import (
@@ -20,9 +21,14 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    ModelWrapValidatorHandler,
     PlainSerializer,
+    PrivateAttr,
+    SerializerFunctionWrapHandler,
+    ValidationInfo,
     WithJsonSchema,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -44,6 +50,36 @@ MAX_ANY_SIZE = 1 << 40  # 1 TiB: above the RAM of any machine the runner is used
 MIN_STACK, MAX_STACK = 16 << 10, 1 << 30  # per thread; the usual default is 8 MiB
 MAX_THREAD_COUNT, MAX_INSTANCES, MAX_HOGS = 1024, 64, 256
 MAX_LAST_SAMPLES = 1 << 22  # `samples: last N`: a ring of N samples (64 bytes each) per thread
+
+
+CPUS_CONTEXT = "cpus"
+"""Key of the validation context holding the CPUs `count: cpus` and `pin: each` resolve against."""
+
+
+class KeyProblem(ValueError):
+    """A problem a model validator finds that belongs at one key of the object it checks.
+
+    A rule spanning several fields (`priospread` with `count` and `sched`) can only be checked
+    once they are all validated, on the whole object; raising this instead of a plain ValueError
+    lets the validator's report point at the key to change (its line), not at the object.
+    """
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+def context_cpus(info: Optional[ValidationInfo]) -> tuple[int, ...]:
+    """The CPUs per-CPU counts and pinning resolve against: the validation context's, else the runner's affinity.
+
+    The loader passes this machine's CPUs (read once with its other limits) so that the model
+    stays pure and tests can pretend to be a 4-CPU machine; a model validated without them
+    (a script, a test of one model) falls back to the CPUs this process may use, as hogs did.
+    """
+    context = info.context if info is not None else None
+    if isinstance(context, dict) and context.get(CPUS_CONTEXT):
+        return tuple(context[CPUS_CONTEXT])
+    return tuple(sorted(os.sched_getaffinity(0)))
 
 
 def _unit(parse: Any, ceiling: int | None = None, fmt: Any = None) -> Any:
@@ -347,19 +383,99 @@ class MainThread(Strict):
     work: Work = Field(default_factory=SleepWork, description="what the main thread runs after creating its threads")
 
 
-class ThreadSpec(Strict):
-    """A thread created by the main thread, in declared order."""
+class Pin(str, enum.Enum):
+    """How the threads of one spec are spread over its CPUs."""
 
-    name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...)")
-    count: int = Field(1, ge=1, le=MAX_THREAD_COUNT, description="how many such threads")
+    EACH = "each"
+
+
+@dataclass(frozen=True)
+class ThreadMember:
+    """One thread a `ThreadSpec` creates: its name, the settings it applies to itself, and its work.
+
+    Threads of one spec differ when it pins each to its own CPU, spreads priorities or spaces
+    periods apart; the plan and the worker both take each thread's settings from here.
+    """
+
+    name: str
+    sched: Optional[Sched]
+    cpus: Optional[tuple[int, ...]]
+    work: Work
+
+
+class ThreadSpec(Strict):
+    """A thread created by the main thread, in declared order; with `count`, that many such threads."""
+
+    name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...; with pin: each, the CPU)")
+    count: int = Field(
+        1,
+        ge=1,
+        le=MAX_THREAD_COUNT,
+        description="how many such threads; 'cpus': one per CPU of cpus, or per CPU the runner may use (cyclictest -t)",
+    )
     inherit: bool = Field(
         True,
         description="true: start with the creator's settings (PTHREAD_INHERIT_SCHED); false: start with "
         "explicit defaults (SCHED_OTHER, nice 0, all CPUs) as PTHREAD_EXPLICIT_SCHED does",
     )
     sched: Optional[Sched] = Field(None, description="settings the thread applies to itself when it starts")
-    cpus: Optional[CpuSet] = Field(None, description="CPU affinity the thread applies to itself when it starts")
+    cpus: Optional[CpuSet] = Field(
+        None,
+        description="CPU affinity the thread applies to itself when it starts; with pin: each, the CPUs to pin to "
+        "(default: every CPU the runner may use)",
+    )
+    pin: Optional[Pin] = Field(
+        None,
+        description="each: thread i is pinned to the i-th CPU of cpus alone and named by it (cyclictest -t -a)",
+    )
     work: Work = Field(default_factory=SleepWork)
+    priospread: bool = Field(
+        False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
+    )
+    distance: Duration = Field(0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
+
+    _per_cpu: bool = PrivateAttr(False)
+    _machine_cpus: Optional[tuple[int, ...]] = PrivateAttr(None)
+
+    @model_validator(mode="wrap")
+    @classmethod
+    def _per_cpu_count(cls, value: Any, handler: ModelWrapValidatorHandler[ThreadSpec], info: ValidationInfo) -> ThreadSpec:
+        """Resolve `count: cpus` (and `pin: each` without cpus) against the CPUs of the machine, then check the spread.
+
+        The resolved count and CPUs are what the model keeps (and what a cell's spec hash covers):
+        the same file makes 2 threads on a 2-CPU machine and 8 on an 8-CPU one.
+        """
+        if not isinstance(value, dict):
+            return handler(value)
+        per_cpu = value.get("count") == "cpus"
+        pinned = value.get("pin") in (Pin.EACH, Pin.EACH.value)
+        machine: Optional[tuple[int, ...]] = None
+        if per_cpu or (pinned and value.get("cpus") is None):
+            value = dict(value)
+            chosen = machine = context_cpus(info)
+            if value.get("cpus") is not None:
+                try:
+                    chosen, machine = units.parse_cpus(value["cpus"]), None
+                except units.UnitError:
+                    pass  # the cpus key reports its own problem; count it as the machine's CPUs meanwhile
+            elif pinned:
+                value["cpus"] = list(machine)
+            if per_cpu:
+                value["count"] = len(chosen)
+        spec = handler(value)
+        spec._per_cpu, spec._machine_cpus = per_cpu, machine
+        spec._check_spread()
+        return spec
+
+    @model_serializer(mode="wrap")
+    def _without_unused_spread(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Leave pin, priospread and distance out while unused, so a cell's spec (and the hash results store
+        and `compare` / `--resume` check) reads as it did before they existed: old baselines still compare."""
+        data: dict[str, Any] = handler(self)
+        for key, unused in (("pin", None), ("priospread", False), ("distance", 0)):
+            if getattr(self, key) == unused:
+                data.pop(key, None)
+        return data
 
     @model_validator(mode="after")
     def _names_fit(self) -> ThreadSpec:
@@ -367,11 +483,95 @@ class ThreadSpec(Strict):
             _check_comm(name)
         return self
 
+    def _check_spread(self) -> None:
+        """The rules that span count, cpus, sched and work: one CPU per pinned thread, priorities >= 1, periods in range."""
+        if self.pin is Pin.EACH and self.cpus is not None and self.count > len(self.cpus):
+            raise KeyProblem(
+                "pin",
+                f"pin: each gives every thread a CPU of its own, but count {self.count} is more than "
+                f"{self.cpus_source()}; lower count, or write count: cpus for one thread per CPU",
+            )
+        if self.priospread:
+            sched = self.sched
+            if sched is None or not sched.policy.is_realtime:
+                raise KeyProblem(
+                    "priospread",
+                    "priospread lowers the RT priority by one per thread; it needs this thread's own sched: fifo:N or rr:N",
+                )
+            lowest = sched.rt_priority - (self.count - 1)
+            if lowest < 1:
+                raise KeyProblem(
+                    "priospread",
+                    f"priospread takes thread {self.names()[-1]} to priority {lowest} (thread i runs at "
+                    f"{sched.policy.value}:{sched.rt_priority} minus i) and RT priorities stop at 1; "
+                    f"{self.count} threads{self.count_source()} need {sched.policy.value}:{self.count} or more, "
+                    "or a lower count",
+                )
+        if self.distance:
+            if not isinstance(self.work, PeriodicWork):
+                raise KeyProblem(
+                    "distance",
+                    f"distance spaces the periods of periodic work apart, but this thread's work is {self.work.kind}; "
+                    "remove distance or use kind: periodic",
+                )
+            longest = self.work.period + (self.count - 1) * self.distance
+            if self.distance > MAX_PERIOD or longest > MAX_PERIOD:
+                raise KeyProblem(
+                    "distance",
+                    f"distance {units.format_duration(self.distance)} gives thread {self.names()[-1]} a period of "
+                    f"{units.format_duration(longest)}; at most {units.format_duration(MAX_PERIOD)}, lower distance or count",
+                )
+
+    @property
+    def per_cpu(self) -> bool:
+        """Whether the file wrote `count: cpus` (the count is then this machine's, already resolved)."""
+        return self._per_cpu
+
+    @property
+    def machine_cpus(self) -> Optional[tuple[int, ...]]:
+        """The machine's CPUs when count or pinning was resolved against them (no cpus given); None otherwise."""
+        return self._machine_cpus
+
+    def cpus_source(self) -> str:
+        """The CPUs a per-CPU count or pinning uses, in words: `the 2 CPUs of cpus 2-3`, `the 2 CPUs the runner may use (0-1)`."""
+        cpus = self._machine_cpus if self._machine_cpus is not None else (self.cpus or ())
+        noun = f"the {len(cpus)} CPU{'s' if len(cpus) != 1 else ''}"
+        if self._machine_cpus is not None:
+            return f"{noun} the runner may use ({units.format_cpus(cpus)})"
+        return f"{noun} of cpus {units.format_cpus(cpus)}"
+
+    def count_source(self) -> str:
+        """` (count: cpus, one per CPU: the 2 CPUs ...)` when the count was resolved per CPU; empty otherwise."""
+        return f" (count: cpus, one per CPU: {self.cpus_source()})" if self._per_cpu else ""
+
+    @property
+    def varies(self) -> bool:
+        """Whether its threads differ from one another, or their number depends on the machine."""
+        return self._per_cpu or self.pin is not None or self.priospread or bool(self.distance)
+
     def names(self) -> list[str]:
-        """The thread names this spec creates."""
+        """The thread names this spec creates: by CPU when each is pinned to one, else numbered when several."""
+        if self.pin is Pin.EACH and self.cpus is not None:
+            return [f"{self.name}-{cpu}" for cpu in self.cpus[: self.count]]
         if self.count == 1:
             return [self.name]
         return [f"{self.name}-{i}" for i in range(self.count)]
+
+    def members(self) -> list[ThreadMember]:
+        """Every thread this spec creates, with the settings each applies to itself and its own work."""
+        out = []
+        for i, name in enumerate(self.names()):
+            sched = self.sched
+            if self.priospread and sched is not None:
+                sched = sched.model_copy(update={"priority": sched.rt_priority - i})
+            cpus = self.cpus
+            if self.pin is Pin.EACH and cpus is not None:
+                cpus = (cpus[i],)
+            work = self.work
+            if self.distance and isinstance(work, PeriodicWork):
+                work = work.model_copy(update={"period": work.period + i * self.distance})
+            out.append(ThreadMember(name, sched, tuple(cpus) if cpus is not None else None, work))
+        return out
 
 
 class Memory(Strict):
@@ -432,9 +632,9 @@ class Hog(Strict):
 
     @model_validator(mode="before")
     @classmethod
-    def _per_cpu(cls, value: Any) -> Any:
+    def _per_cpu(cls, value: Any, info: ValidationInfo) -> Any:
         if isinstance(value, dict) and value.get("count") == "cpus":
-            return {**value, "count": len(os.sched_getaffinity(0))}
+            return {**value, "count": len(context_cpus(info))}
         return value
 
     _name = field_validator("name")(lambda cls, v: _check_comm(v))

@@ -97,11 +97,11 @@ def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[
     index = 1
     for spec in proc.threads:
         initial = creator if spec.inherit else EXPLICIT_DEFAULTS
-        final = initial.with_sched(spec.sched, spec.cpus)
         own = spec.sched is not None or spec.cpus is not None
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
-        for name in spec.names():
-            out.append(PlannedThread(proc.name, instance, index, name, spec.name, spec.work, final, origin))
+        for member in spec.members():  # each its own CPU, priority and period when the spec spreads them
+            final = initial.with_sched(member.sched, member.cpus)
+            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin))
             index += 1
     return out
 

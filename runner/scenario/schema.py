@@ -1,7 +1,7 @@
 """JSON Schema of the scenario format, for editors (yaml-language-server) and `runner schema`.
 
 Generated from the pydantic models, then widened where the YAML accepts shorthands
-the models read before validation: `sched: fifo:80`, `work: spin`, `count: cpus`,
+the models read before validation: `sched: fifo:80`, `work: spin`, `count: cpus` (hogs and threads),
 and a `${{ matrix.NAME }}` reference in place of any value.
 """
 
@@ -48,6 +48,11 @@ def scenario_schema() -> dict[str, Any]:
     defs["Hog"]["properties"]["count"] = {
         "anyOf": [defs["Hog"]["properties"]["count"], {"const": "cpus"}],
         "description": "how many hogs; 'cpus' for one per online CPU",
+    }
+    count = defs["ThreadSpec"]["properties"]["count"]
+    defs["ThreadSpec"]["properties"]["count"] = {
+        "anyOf": [{k: v for k, v in count.items() if k != "description"}, {"const": "cpus"}],
+        "description": count["description"],
     }
     schema["properties"]["matrix"] = {
         "type": "object",

@@ -15,6 +15,7 @@ from typing import Any, Union, cast, get_args, get_origin
 from pydantic import BaseModel, ValidationError
 
 from runner.errors import Problem, did_you_mean
+from runner.scenario.model import KeyProblem
 from runner.scenario.yamlsource import Document, Path
 
 _SCALARS = (str, int, float, bool)
@@ -117,7 +118,10 @@ def problems_from(exc: ValidationError, doc: Document, data: Any, root: type[Bas
             choices = [c.strip("' ") for c in str(ctx.get("expected", "")).replace(" or ", ", ").split(",") if c.strip()]
             message = f"{given!r} is not valid{did_you_mean(str(given), choices)}; expected one of: {', '.join(choices)}"
         elif kind == "value_error":
-            message = str(ctx.get("error", err["msg"]))
+            error = ctx.get("error")
+            message = str(error if error is not None else err["msg"])
+            if isinstance(error, KeyProblem) and isinstance(value, dict) and error.key in value:
+                full = full + (error.key,)  # a rule checked on the whole object, caused by this key
         else:
             message = err["msg"][0].lower() + err["msg"][1:]
             if isinstance(given, _SCALARS) and not isinstance(given, dict):
