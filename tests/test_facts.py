@@ -16,8 +16,9 @@ import sys
 import time
 
 import pytest
+from reportdata import system_facts
 
-from runner.results.document import Irq, IrqThread, MachineInfo, RunDocument
+from runner.results.document import MachineInfo, RunDocument
 from runner.results.read import load
 from runner.run import machine
 
@@ -102,22 +103,13 @@ def test_results_without_the_facts_still_load_and_read_as_not_recorded(tmp_path)
 
 
 def test_the_facts_round_trip_through_results_json(tmp_path):
-    info = MachineInfo(
-        hostname="h",
-        cmdline="isolcpus=2-3 nohz_full=2-3",
-        clocksource="tsc",
-        nohz_full_cpus="2-3",
-        smt_siblings=["0,2", "1,3"],
-        cpufreq_governor_cpus={"performance": "0-3"},
-        irqs=[Irq(irq=24, name="ACPI:Ged", affinity="0-3", effective="0")],
-        irq_threads=[IrqThread(pid=50, name="irq/24-ACPI:Ged", irq=24, policy="fifo", priority=50, cpus="0")],
-        dma_latency={"requested_us": 0, "held": True, "reads_us": 0},
-    )
+    info = system_facts()
     path = str(tmp_path / "results.json")
     RunDocument(machine=info).save(path)
     assert load(path).machine == info
     stored = json.load(open(path))["machine"]
-    assert stored["irq_threads"][0] == {"pid": 50, "name": "irq/24-ACPI:Ged", "irq": 24, "policy": "fifo", "priority": 50, "cpus": "0"}
+    assert stored["irq_threads"][2] == {"pid": 50, "name": "irq/24-ACPI:Ged", "irq": 24, "policy": "fifo", "priority": 50, "cpus": "0"}
+    assert stored["dma_latency"] == {"requested_us": 0, "held": True, "reads_us": 0, "note": ""}
 
 
 # ---------------------------------------------------------------- against the kernel

@@ -277,6 +277,9 @@ class IrqThread(_Record):
     cpus: str = Field(description="CPUs it may run on, e.g. `0-3`")
 
 
+DMA_LATENCY_NO_LIMIT_US = 2_000_000_000  # what /dev/cpu_dma_latency reads when no one asks for less: 2000 s
+
+
 class DmaLatency(_Record):
     """/dev/cpu_dma_latency (the CPU latency PM QoS) as the run held it: how deep the CPUs could sleep while cells ran."""
 

@@ -19,10 +19,10 @@ import struct
 from collections.abc import Iterator
 from typing import Optional
 
-from runner.results.document import DmaLatency
+from runner.results.document import DMA_LATENCY_NO_LIMIT_US, DmaLatency
 
 DEVICE = "/dev/cpu_dma_latency"
-MAX_US = 2_000_000_000  # PM_QOS_CPU_LATENCY_DEFAULT_VALUE: 2000 s, "no limit"
+MAX_US = DMA_LATENCY_NO_LIMIT_US  # PM_QOS_CPU_LATENCY_DEFAULT_VALUE: the largest value, "no limit"
 _VALUE = struct.Struct("=i")  # the kernel's s32, in this machine's byte order
 
 
