@@ -27,6 +27,7 @@ from runner.results.files import cell_dir, results_file
 from runner.results.read import load
 from runner.results.samplesfile import SamplesWriter
 from runner.run.backend import Backend, CellOptions
+from runner.run.dmalatency import MAX_US as MAX_DMA_LATENCY_US
 from runner.run.evaluate import evaluate, unrun, with_write_error
 from runner.run.preflight import Permissions
 from runner.run.samples import Sample
@@ -60,6 +61,7 @@ class RunOptions:
     report: bool = True
     plots: bool = True
     live: bool = True  # a live progress line (a terminal, not CI)
+    dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
@@ -76,6 +78,7 @@ class RunOptions:
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
         in_ci = env.get("CI", "") not in ("", "0", "false")
+        dma_latency = None if ns.no_dma_latency else _dma_latency(ns.dma_latency)
         return cls(
             duration,
             ns.cell,
@@ -95,6 +98,7 @@ class RunOptions:
             report=not ns.no_report,
             plots=not ns.no_plots,
             live=not (ns.quiet or in_ci),
+            dma_latency_us=dma_latency,
         )
 
 
@@ -109,6 +113,19 @@ def _duration(text: str, option: str, minimum: int, maximum: int) -> int:
             f"runner: {option} {text} is out of range; expected {units.format_duration(minimum)} to {units.format_duration(maximum)}"
         )
     return value
+
+
+def _dma_latency(text: Optional[str]) -> int:
+    """--dma-latency US: whole microseconds the CPU latency QoS accepts (0, the default, keeps CPUs out of deep idle)."""
+    if text is None:
+        return 0
+    digits = text.strip().removesuffix("us")
+    if not digits.isdigit() or int(digits) > MAX_DMA_LATENCY_US:
+        raise UsageError(
+            f"runner: --dma-latency {text}: expected whole microseconds from 0 to {MAX_DMA_LATENCY_US:,}, e.g. 0 or 10us; "
+            "--no-dma-latency leaves /dev/cpu_dma_latency alone"
+        )
+    return int(digits)
 
 
 def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
@@ -316,7 +333,11 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     units_left = plan_units(list(run.by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
     say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
-    loop = _cell_loop(units_left, run)
+    with run.backend.hold_dma_latency(options.dma_latency_us) as dma:
+        doc.machine.dma_latency = dma  # the cells this run records carry the hold they ran under
+        if options.dma_latency_us is not None and not dma.held:
+            warn(f"{dma.note}; CPUs may enter deep idle states during the run (--no-dma-latency to not try)")
+        loop = _cell_loop(units_left, run)
     statuses = loop.final(stop.requested())
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value

@@ -8,12 +8,14 @@ exit codes run in milliseconds.  What each cell does is set per cell id with `Ac
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Optional
 
-from runner.results.document import MachineInfo, thread_key
+from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.run.backend import CellOptions
 from runner.run.preflight import Permissions
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, Timeline
@@ -45,6 +47,10 @@ class FakeBackend:
     acts: dict[str, Act] = field(default_factory=dict)
     ran: list[str] = field(default_factory=list)
     closed: bool = False
+    dma_refused: str = ""  # why the fake /dev/cpu_dma_latency cannot be held; "" holds it
+    dma_requests: list[Optional[int]] = field(default_factory=list)
+    dma_held_during: list[str] = field(default_factory=list)  # the cells that ran while the fake device was held
+    dma_holding: bool = False
 
     def start_settings(self) -> Settings:
         return START
@@ -55,12 +61,27 @@ class FakeBackend:
     def machine(self) -> MachineInfo:
         return MachineInfo(kernel="6.0.0-fake", preempt_rt=False, cpus_online="0-1", hostname="fake")
 
+    @contextlib.contextmanager
+    def hold_dma_latency(self, request_us: Optional[int]) -> Iterator[DmaLatency]:
+        """The device held as the real one is, without touching /dev/cpu_dma_latency."""
+        self.dma_requests.append(request_us)
+        if request_us is None or self.dma_refused:
+            yield DmaLatency(requested_us=request_us, note=self.dma_refused or "left alone (--no-dma-latency)")
+            return
+        self.dma_holding = True
+        try:
+            yield DmaLatency(requested_us=request_us, held=True, reads_us=request_us)
+        finally:
+            self.dma_holding = False
+
     def pid_width(self) -> int:
         return 5
 
     def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
         act = self.acts.get(cell.id, Act())
         self.ran.append(cell.id)
+        if self.dma_holding:
+            self.dma_held_during.append(cell.id)
         if act.oserror is not None:
             raise OSError(act.oserror, os.strerror(act.oserror), os.path.join(folder, "p.0.smp"))
         for _ in range(act.signals):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 import os
 
-from runner.results.document import CellResult, RunDocument, ThreadResult
+from runner.results.document import CellResult, DmaLatency, Irq, IrqThread, MachineInfo, RunDocument, ThreadResult
 from runner.results.read import load
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
@@ -79,3 +79,28 @@ def renamed(folder: str, names: list[tuple[str, str]], cell_ids: list[str] | Non
         doc.matrix_cells = doc.cell_ids = [c.id for c in doc.cells]
     doc.save(os.path.join(folder, "results.json"))
     return load(folder)
+
+
+def system_facts() -> MachineInfo:
+    """A machine with every system fact recorded: SMT, isolated-ready CPUs, FIFO 50 interrupt threads, the DMA hold."""
+    return MachineInfo(
+        cpus_online="0-3",
+        cmdline="quiet isolcpus=2-3 nohz_full=2-3",
+        clocksource="tsc",
+        nohz_full_cpus="2-3",
+        smt_siblings=["0,2", "1,3"],
+        cpufreq_governors=["performance", "powersave"],
+        cpufreq_governor_cpus={"performance": "2-3", "powersave": "0-1"},
+        dma_latency=DmaLatency(requested_us=0, held=True, reads_us=0),
+        irqs=[
+            Irq(irq=24, name="ACPI:Ged", affinity="0-3", effective="0"),
+            Irq(irq=25, name="ACPI:Ged", affinity="0-3", effective="1"),
+            Irq(irq=30, name="eth0", affinity="1", effective="1"),
+        ],
+        irq_threads=[
+            IrqThread(pid=14, name="ksoftirqd/0", policy="other", priority=0, cpus="0"),
+            IrqThread(pid=22, name="ksoftirqd/1", policy="other", priority=0, cpus="1"),
+            IrqThread(pid=50, name="irq/24-ACPI:Ged", irq=24, policy="fifo", priority=50, cpus="0"),
+            IrqThread(pid=51, name="irq/30-eth0", irq=30, policy="fifo", priority=50, cpus="1"),
+        ],
+    )

@@ -20,6 +20,7 @@ from tabulate import tabulate
 from runner import figures as fg
 from runner import units
 from runner.figures import Number, ThreadFigures
+from runner.report import system
 from runner.report.fmt import (
     Markdown,
     fmt_bytes,
@@ -498,6 +499,11 @@ def facts(doc: RunDocument) -> Table:
             ),
         ],
     ]
+    system_rows = system.system_rows(m)
+    if any(name == "CPU frequency governor" for name, _ in system_rows):  # the per-CPU form replaces the plain list
+        rows = [row for row in rows if row[0] != "CPU frequency governor"]
+    at = next(i for i, row in enumerate(rows) if row[0] == "Permissions")
+    rows[at:at] = system_rows
     hosts: dict[str, int] = {}
     for cell in doc.cells:
         name = _known(cell.machine.hostname if cell.machine else None)
@@ -610,6 +616,7 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
         findings = [
             Markdown(f"{md_text(cell.id)}: {cell_finding(cell, labels)}") if matrix else cell_finding(cell, labels) for cell in firsts
         ]
+    findings += system.placement_findings(cells, doc.machine, labels, matrix)
     if repeated:
         findings.append(
             Markdown(

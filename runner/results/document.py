@@ -257,8 +257,46 @@ class RtThrottling(_Record):
         )
 
 
+class Irq(_Record):
+    """One interrupt line as the kernel routes it (/proc/irq/N, /sys/kernel/irq/N)."""
+
+    irq: NonNegativeInt
+    name: Optional[str] = Field(None, description="its handlers, comma-separated, as /proc/interrupts names them; null: not readable")
+    affinity: Optional[str] = Field(None, description="CPUs it may be delivered to (smp_affinity_list), e.g. `0-3`")
+    effective: Optional[str] = Field(None, description="CPUs it is delivered to now (effective_affinity_list); null: not exposed")
+
+
+class IrqThread(_Record):
+    """A kernel thread that runs interrupt work (`irq/N-name`, `ksoftirqd/N`), scheduled as the kernel holds it."""
+
+    pid: int
+    name: str = Field(description="its comm, e.g. `irq/24-ACPI:Ged` (the kernel cuts it at 15 characters)")
+    irq: Optional[int] = Field(None, description="the interrupt it serves; null for ksoftirqd")
+    policy: str = Field(description="`other`, `fifo`, `rr`, `batch`, `idle`, `deadline`, or `policy N` for another")
+    priority: int = Field(description="RT priority (0 unless fifo or rr)")
+    cpus: str = Field(description="CPUs it may run on, e.g. `0-3`")
+
+
+DMA_LATENCY_NO_LIMIT_US = 2_000_000_000  # what /dev/cpu_dma_latency reads when no one asks for less: 2000 s
+
+
+class DmaLatency(_Record):
+    """/dev/cpu_dma_latency (the CPU latency PM QoS) as the run held it: how deep the CPUs could sleep while cells ran."""
+
+    requested_us: Optional[int] = Field(None, description="the latency asked for, in us; null: left alone (--no-dma-latency)")
+    held: bool = Field(False, description="the runner held the device open at `requested_us` for the whole cell loop")
+    reads_us: Optional[int] = Field(
+        None, description="what the device read while held (the lowest any holder asks for), in us; null: not readable"
+    )
+    note: str = Field("", description="why it was not held, in words")
+
+
 class MachineInfo(_Record):
-    """Facts about the machine a run (or a cell) ran on: what a reader needs to trust or compare its numbers."""
+    """Facts about the machine a run (or a cell) ran on: what a reader needs to trust or compare its numbers.
+
+    The fields from `cmdline` on (rteval's system facts, and the DMA latency hold) were added within
+    runner.results/2: an older file has none of them, and they read as null (not recorded), never as "none".
+    """
 
     hostname: Optional[str] = None
     kernel: Optional[str] = None
@@ -273,6 +311,14 @@ class MachineInfo(_Record):
     cpufreq_governors: list[str] = Field(default_factory=list)
     memory_total_bytes: Optional[int] = None
     python: Optional[str] = None
+    cmdline: Optional[str] = Field(None, description="the kernel command line (/proc/cmdline)")
+    clocksource: Optional[str] = Field(None, description="the current clocksource, e.g. `tsc`")
+    nohz_full_cpus: Optional[str] = Field(None, description="CPUs without a scheduler tick; null: the kernel has no nohz_full")
+    smt_siblings: Optional[list[str]] = Field(None, description="hardware threads that share a core, one CPU list per core, e.g. `0,4`")
+    cpufreq_governor_cpus: Optional[dict[str, str]] = Field(None, description="each CPU frequency governor and the CPUs it governs")
+    irqs: Optional[list[Irq]] = None
+    irq_threads: Optional[list[IrqThread]] = None
+    dma_latency: Optional[DmaLatency] = None
 
 
 class PermissionsInfo(_Record):

@@ -10,10 +10,11 @@ one, in milliseconds and without RT rights.
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Optional, Protocol
 
-from runner.results.document import MachineInfo
+from runner.results.document import DmaLatency, MachineInfo
 from runner.run.preflight import Permissions
 from runner.run.rawcell import RawCell
 from runner.run.samples import Sample
@@ -60,6 +61,9 @@ class Backend(Protocol):
 
     def machine(self) -> MachineInfo:
         """The machine's facts for the results: kernel, CPUs, RT throttling, memory."""
+
+    def hold_dma_latency(self, request_us: Optional[int]) -> AbstractContextManager[DmaLatency]:
+        """Hold the CPU latency QoS at `request_us` (None: leave it) while the block runs; never raises for the device."""
 
     def pid_width(self) -> int:
         """Digits of the largest PID, to lay out thread tables as procps does."""

@@ -17,13 +17,14 @@ import signal
 import subprocess
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
-from runner.results.document import MachineInfo, thread_key
+from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
-from runner.run import _probe, kernel, samples
+from runner.run import _probe, dmalatency, kernel, samples
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import child_env, python_module
 from runner.run.guard import Guard
@@ -56,6 +57,9 @@ class KernelBackend:
 
     def machine(self) -> MachineInfo:
         return machine_info()
+
+    def hold_dma_latency(self, request_us: Optional[int]) -> AbstractContextManager[DmaLatency]:
+        return dmalatency.hold(request_us)
 
     def pid_width(self) -> int:
         return kernel.pid_width()
