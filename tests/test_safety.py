@@ -144,10 +144,10 @@ def test_a_hog_killed_mid_cell_is_an_error(tmp_path):
 
 @pytest.fixture
 def small_disk(tmp_path):
-    """A 2 MiB tmpfs: room for a run's results, not for a large sample buffer."""
+    """A 1 MiB tmpfs: room for a run's results, not for the samples of a fast thread."""
     mount = tmp_path / "disk"
     mount.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)], capture_output=True, text=True)
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount)], capture_output=True, text=True)
     if done.returncode != 0:
         if os.environ.get("CI"):
             pytest.fail(f"cannot mount a tmpfs for the full-disk test: {done.stderr.strip()}")
@@ -157,10 +157,11 @@ def small_disk(tmp_path):
 
 
 def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_path, small_disk):
-    # cell 1: 10 callbacks of 100 ms, a buffer of a few KiB; cell 2: a 50 us period for 2 s, a buffer of 2.2 MB
+    # cell 1: 20 callbacks of 100 ms, a samples file of a few KiB; cell 2: a 20 us period for 2 s, up to 100,000
+    # rows streamed to samples.csv.gz (a few MiB even compressed): the disk fills while the cell runs
     scenario = tmp_path / "s.yaml"
     scenario.write_text(
-        "name: fulldisk\nduration: 1s\nmatrix:\n  period: [100ms, 50us]\nprocesses:\n  - name: fulldisk\n    main:\n"
+        "name: fulldisk\nduration: 1s\nmatrix:\n  period: [100ms, 20us]\nprocesses:\n  - name: fulldisk\n    main:\n"
         "      sched: fifo:80\n      work: {kind: periodic, period: '${{ matrix.period }}'}\n"
     )
     out = small_disk / "r"
