@@ -116,3 +116,12 @@ def test_the_readme_format_example_validates(tmp_path):
     path = tmp_path / "example.yaml"
     path.write_text(example)
     assert run_cli("validate", str(path)).code == 0
+
+
+@pytest.mark.parametrize("name", ["policy_matrix", "memory_lock"])
+def test_baselines_recorded_by_earlier_versions_still_compare(name):
+    """A new scenario key left at its default must not change a cell's spec hash, or every stored baseline is refused."""
+    with open(os.path.join(REPO, "tests", "data", name, "results.json")) as handle:
+        stored = {c["id"]: c["spec_hash"] for c in json.load(handle)["cells"]}
+    ours = {c.id: c.spec_hash for c in load_scenario(os.path.join(SCENARIOS, f"{name}.yaml")).cells}
+    assert stored == {cell: ours[cell] for cell in stored}

@@ -300,6 +300,14 @@ class PeriodicWork(Strict):
         description="sleep: clock_nanosleep to each release; spin: busy-wait on the clock (short periods; the CPU is never given up)",
     )
 
+    @model_serializer(mode="wrap")
+    def _without_default_wait(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Leave `wait` out while it is the default, so a cell's spec hash reads as before it existed: old baselines still compare."""
+        data: dict[str, Any] = handler(self)
+        if self.wait is Wait.SLEEP:
+            data.pop("wait", None)
+        return data
+
     @model_validator(mode="after")
     def _fits(self) -> PeriodicWork:
         if self.period < MIN_PERIOD:
@@ -873,6 +881,16 @@ class Scenario(Strict):
                 f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}"
             )
         return value
+
+    @model_serializer(mode="wrap")
+    def _without_default_keeping(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Leave `latency_bound` and `samples` out while unset, so a cell's spec hash reads as before they existed."""
+        data: dict[str, Any] = handler(self)
+        if self.latency_bound is None:
+            data.pop("latency_bound", None)
+        if self.samples.mode is SamplesMode.ALL:
+            data.pop("samples", None)
+        return data
 
     @field_validator("latency_bound")
     @classmethod
