@@ -97,7 +97,10 @@ def main() -> int:
         out = os.path.join(tmp, "out")
         began = time.monotonic()
         proc = subprocess.Popen(
-            [sys.executable, "-m", "runner", path, "--out", out, "--quiet", "--no-plots"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+            [sys.executable, "-m", "runner", path, "--out", out, "--quiet", "--no-plots"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            cwd=tmp,  # not the checkout: `-m runner` must find the installed package, native core built
         )
         peak = [0]
 
