@@ -48,11 +48,6 @@ class Sample:
     cpu_end: int
     missed: int
 
-    @property
-    def latency_ns(self) -> int:
-        """From the release this callback served to its wake-up."""
-        return self.wake_ns - self.scheduled_ns
-
     def release_latency(self, period: int) -> int:
         """From the oldest release this wake-up answered (the first of those skipped, if any) to the wake-up."""
         return self.wake_ns - self.scheduled_ns + self.missed * period
