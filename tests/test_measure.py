@@ -46,8 +46,10 @@ def test_figures_of_a_callback_thread():
 
 
 def test_an_unfinished_thread_counts_what_its_callbacks_recorded():
-    f = thread_figures(slot([sample(0, 10, 2), sample(1, 10, 5)], finished=False), periodic=True)
-    assert f.involuntary.total == 7 and not f.complete
+    late = Sample(PERIOD, PERIOD + 10_000, PERIOD + 40_000_000, 40_000_000, 1, 5, 3, 4, 1, 1, 0, 0)  # 3 voluntary, 4 + 1 faults
+    f = thread_figures(slot([sample(0, 10, 2, minflt=6), late], finished=False), periodic=True)
+    assert not f.complete and f.involuntary.total == 7 and f.voluntary.total == 3
+    assert (f.faults.minor, f.faults.major) == (10, 1)
 
 
 def test_releases_no_callback_served_are_missed_up_to_the_end_of_the_cell():

@@ -95,7 +95,8 @@ struct slot_header {
     uint64_t minflt_sum, minflt_max;
     int64_t minflt_first;         /* -1 until the first callback ran */
     int64_t first_wake_ns, last_end_ns;
-    uint8_t reserved[SLOT_HEADER - 424];
+    uint64_t nvcsw_sum, majflt_sum; /* with nivcsw_sum and minflt_sum: the totals of a thread that never finished */
+    uint8_t reserved[SLOT_HEADER - 440];
 };
 
 struct sample {
@@ -334,6 +335,8 @@ static void record_callback(struct slot *s, const struct sample *c) {
     if ((uint64_t)c->nivcsw > h->nivcsw_max) h->nivcsw_max = (uint64_t)c->nivcsw;
     if (c->nivcsw) h->with_nivcsw++;
     h->minflt_sum += (uint64_t)c->minflt;
+    h->nvcsw_sum += (uint64_t)c->nvcsw;
+    h->majflt_sum += (uint64_t)c->majflt;
     if ((uint64_t)c->minflt > h->minflt_max) h->minflt_max = (uint64_t)c->minflt;
     if (n == 1) {
         h->minflt_first = c->minflt;

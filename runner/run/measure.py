@@ -32,7 +32,7 @@ def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0, bound:
     callbacks = slot.loops if periodic else 0
     totals = slot.totals()
     if totals is None:  # the thread never finished: what its callbacks recorded is all there is
-        totals = (st.nivcsw_sum, 0, st.minflt_sum if st.minflt_first >= 0 else 0, 0)
+        totals = (st.nivcsw_sum, st.nvcsw_sum, st.minflt_sum, st.majflt_sum)
     has = periodic and callbacks > 0
     return ThreadFigures(
         callbacks=callbacks,

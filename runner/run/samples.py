@@ -25,10 +25,10 @@ FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhi")
-_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq")
+_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
-assert SAMPLE.size == 64 and _SLOT.size == 424
+assert SAMPLE.size == 64 and _SLOT.size == 440
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,8 @@ class CallbackStats:
     minflt_first: int = -1
     first_wake_ns: int = 0
     last_end_ns: int = 0
+    nvcsw_sum: int = 0
+    majflt_sum: int = 0
     latency: Optional[Histogram] = None
     slack: Optional[Histogram] = None
     wall: Optional[Histogram] = None
@@ -136,6 +138,8 @@ def stats_of(samples: list[Sample], period: int, bound: int = 0) -> CallbackStat
         minflt_first=samples[0].minflt,
         first_wake_ns=samples[0].wake_ns,
         last_end_ns=samples[-1].end_ns,
+        nvcsw_sum=sum(s.nvcsw for s in samples),
+        majflt_sum=sum(s.majflt for s in samples),
         latency=hg.from_values(latencies),
         slack=hg.from_values(slacks),
         wall=hg.from_values(s.end_ns - s.wake_ns for s in samples),
@@ -248,6 +252,7 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
     releases, overruns, above, lat_min, lat_max, lat_mean, lat_m2 = f[35:42]
     slack_min, slack_max, slack_mean, slack_m2, wall_min, wall_max = f[42:48]
     nivcsw_sum, nivcsw_max, with_nivcsw, minflt_sum, minflt_max, minflt_first, first_wake, last_end = f[48:56]
+    nvcsw_sum, majflt_sum = f[56:58]
     loops = f[15]
     latency = slack = wall = None
     if layout.histograms and loops:
@@ -270,6 +275,8 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
         minflt_first=minflt_first,
         first_wake_ns=first_wake,
         last_end_ns=last_end,
+        nvcsw_sum=nvcsw_sum,
+        majflt_sum=majflt_sum,
         latency=latency,
         slack=slack,
         wall=wall,
