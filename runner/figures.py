@@ -37,6 +37,7 @@ class Scope(str, enum.Enum):
 
     CALLBACKS = "callbacks"  # only threads with periodic callbacks (per-callback figures, latency)
     THREAD = "thread"  # every thread (whole-thread totals from getrusage)
+    EVENTS = "events"  # only threads whose program has the events the figure is about (locks, waits, chains)
 
 
 class Worse(str, enum.Enum):
@@ -142,6 +143,11 @@ class ThreadFigures(_Figures):
     faults: Faults
     cpus_seen: tuple[int, ...] = ()
     complete: bool  # False when the thread did not finish (killed, crashed, interrupted)
+    lock_wait_ns: Optional[Spread] = None  # programs: time to acquire a mutex, every lock event of the thread
+    cond_wait_ns: Optional[Spread] = None  # programs: time blocked in wait on a condition
+    barrier_wait_ns: Optional[Spread] = None  # programs: time waiting at a barrier
+    resume_latency_ns: Optional[Spread] = None  # programs: from a resume (or the suspend, if later) to running again
+    chain_ns: Optional[Spread] = None  # programs: from the release that started a chain to the end of this thread's part
 
     @model_validator(mode="after")
     def _releases(self) -> ThreadFigures:
@@ -259,6 +265,26 @@ REGISTRY: tuple[Figure, ...] = (
         ("faults", "minor_after_first"),
         Threshold(relative=0.20, absolute=0),
     ),
+)
+
+_EVENT_FIGURES = (
+    ("lock_wait", "lock_wait_ns", "time to acquire a mutex"),
+    ("cond_wait", "cond_wait_ns", "time blocked waiting on a condition"),
+    ("barrier_wait", "barrier_wait_ns", "time waiting at a barrier"),
+    ("resume_latency", "resume_latency_ns", "wake-up latency after a resume"),
+    ("chain", "chain_ns", "chain latency (first release to the end of this thread's part)"),
+)
+REGISTRY = REGISTRY + tuple(
+    Figure(
+        f"{name}.{q}",
+        f"{words} {_QUANTILE_WORDS[q]}",
+        Unit.NS,
+        Scope.EVENTS,
+        (field, q),
+        Threshold(relative=0.20, absolute=10_000) if q == "p99" and name in ("lock_wait", "chain") else None,
+    )
+    for name, field, words in _EVENT_FIGURES
+    for q in ("p50", "p99", "max", "mean")
 )
 
 BY_NAME: dict[str, Figure] = {f.name: f for f in REGISTRY}

@@ -104,6 +104,19 @@ def from_counts(counts: Sequence[int], low: int, high: int, negative: Optional[S
     return Histogram(buckets=rows, min=low, max=high)
 
 
+def merge(histograms: Iterable[Optional[Histogram]]) -> Optional[Histogram]:
+    """One histogram of all values of these (same bucket layout): exact to the bucket, min and max exact; None when empty."""
+    rows: dict[tuple[int, int], int] = {}
+    present = [h for h in histograms if h is not None and h.buckets]
+    for h in present:
+        for lo, hi, n in h.buckets:
+            rows[(lo, hi)] = rows.get((lo, hi), 0) + n
+    if not present:
+        return None
+    buckets = [(lo, hi, n) for (lo, hi), n in sorted(rows.items())]
+    return Histogram(buckets=buckets, min=min(h.min for h in present), max=max(h.max for h in present))
+
+
 def from_values(values: Iterable[int]) -> Optional[Histogram]:
     """The histogram the native core would have built from these values (signed allowed); None when empty."""
     pos = [0] * BUCKETS

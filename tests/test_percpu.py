@@ -190,12 +190,12 @@ def test_the_worker_is_told_each_threads_own_cpu_priority_and_period():
 
     sc = scenario(CYCLICTEST).cells[0].scenario
     threads = plan_scenario(sc, Settings())
-    spec = _process_spec(threads, sc, 16)
+    spec = _process_spec(threads, sc, 16, {id(t): n for n, t in enumerate(threads)})
     assert [(t["name"], t["cpus"], t["sched"], t["work"][1]) for t in spec["threads"]] == [
-        ("cyclic-0", [0], [1, 80, None], 1_000_000),
-        ("cyclic-1", [1], [1, 79, None], 1_500_000),
-        ("cyclic-2", [2], [1, 78, None], 2_000_000),
-        ("cyclic-3", [3], [1, 77, None], 2_500_000),
+        ("cyclic-0", [0], [1, 80, None, None], 1_000_000),
+        ("cyclic-1", [1], [1, 79, None, None], 1_500_000),
+        ("cyclic-2", [2], [1, 78, None, None], 2_000_000),
+        ("cyclic-3", [3], [1, 77, None, None], 2_500_000),
     ]
 
 

@@ -49,8 +49,10 @@ from pydantic import (
     ConfigDict,
     Field,
     NonNegativeInt,
+    SerializerFunctionWrapHandler,
     StrictStr,
     WithJsonSchema,
+    WrapSerializer,
     computed_field,
 )
 from pydantic.json_schema import SkipJsonSchema
@@ -62,7 +64,7 @@ from runner.figures import ThreadFigures
 from runner.histogram import Histogram
 from runner.results.files import samples_path_problem, write_atomic
 from runner.results.pstable import ThreadRow
-from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN
+from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
 
 SCHEMA: Final = "runner.results/2"
@@ -189,6 +191,60 @@ class ThreadHistograms(_Record):
     callback_wall: Optional[Histogram] = Field(None, description="wake to end of each callback, in ns")
 
 
+def _settings_out(value: Settings, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    """Settings as stored: the SCHED_DEADLINE parameters only for deadline threads, so other records read as before."""
+    data: dict[str, Any] = handler(value)
+    if value.policy is not Policy.DEADLINE:
+        for key in ("runtime", "deadline", "period"):
+            data.pop(key, None)
+    return data
+
+
+StoredSettings = Annotated[Settings, WrapSerializer(_settings_out)]
+"""A thread's settings in results.json: `{policy, priority, nice, cpus}`, plus `runtime, deadline, period` (ns) for deadline."""
+
+
+class Holder(_Record):
+    """A thread that held a mutex when another had to wait for it."""
+
+    thread: str = Field(description="the holder, as the report names threads")
+    contentions: NonNegativeInt = Field(description="acquisitions that found it holding the mutex")
+    wait_ns: NonNegativeInt = Field(description="time the waiter spent on those acquisitions")
+
+
+class EventResult(_Record):
+    """One event of a thread's program, as the native core measured it."""
+
+    phase: str
+    index: NonNegativeInt = Field(description="the event's position in the thread's program, from 0")
+    event: str = Field(description="the event in words: `lock data`, `timer 1ms`, `run 200us`")
+    kind: str = Field(description="run, runtime, sleep, timer, lock, unlock, wait, signal, broadcast, barrier, suspend, resume, ...")
+    resource: Optional[str] = None
+    measures: str = Field(description="what its figures are: wait (lock, wait, barrier), latency (timer, suspend) or wall time")
+    count: NonNegativeInt
+    total_ns: int = 0
+    spread_ns: Optional[fg.Spread] = None
+    contended: NonNegativeInt = Field(0, description="lock: acquisitions that had to wait")
+    holders: list[Holder] = Field(default_factory=list, description="lock: who held the mutex when this thread waited")
+
+
+class PhaseResult(_Record):
+    """One phase of a thread's program: how often it ran, what it cost, and its settings as the kernel reported them."""
+
+    name: str
+    passes: NonNegativeInt = Field(description="passes over the phase's events")
+    entered: NonNegativeInt = 0
+    time_ns: NonNegativeInt = 0
+    involuntary: NonNegativeInt = 0
+    voluntary: NonNegativeInt = 0
+    minor_faults: NonNegativeInt = 0
+    major_faults: NonNegativeInt = 0
+    cpus_seen: list[int] = Field(default_factory=list)
+    applied: Optional[StoredSettings] = Field(None, description="read back by the thread itself (sched_getattr, affinity) on entering")
+    requested: Optional[StoredSettings] = Field(None, description="what the phase applies on entry; null when it applies nothing")
+    degraded: list[str] = Field(default_factory=list)
+
+
 class ThreadResult(_Record):
     """One measured thread: identity, requested vs applied settings, figures."""
 
@@ -200,13 +256,15 @@ class ThreadResult(_Record):
     tid: int
     work: str = Field(description="the thread's work, in words")
     periodic: bool
-    requested: Settings
-    applied: Optional[Settings] = Field(description="as read back from the kernel; null when the thread was gone")
+    requested: StoredSettings
+    applied: Optional[StoredSettings] = Field(description="as read back from the kernel; null when the thread was gone")
     degraded: list[str] = Field(default_factory=list, description="how the applied settings fell short, in words")
     figures: ThreadFigures
     histograms: Optional[ThreadHistograms] = None
     samples_written: NonNegativeInt = Field(0, description="per-callback rows written to the samples file")
     samples_lost: NonNegativeInt = Field(0, description="rows the runner could not write in time (the figures still count them)")
+    events: list[EventResult] = Field(default_factory=list, description="programs (kind: phases): per event")
+    phases: list[PhaseResult] = Field(default_factory=list, description="programs (kind: phases): per phase")
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property
@@ -421,7 +479,7 @@ class RunDocument(_Record):
     merged_from: list[str] = Field(default_factory=list)
     machine: MachineInfo = Field(default_factory=MachineInfo)
     permissions: PermissionsInfo = Field(default_factory=PermissionsInfo)
-    start_settings: Settings = Field(default_factory=Settings, description="what the processes the runner starts inherit")
+    start_settings: StoredSettings = Field(default_factory=Settings, description="what the processes the runner starts inherit")
     cell_ids: list[str] = Field(default_factory=list, description="every cell this run was asked to run, in order")
     matrix_cells: list[str] = Field(default_factory=list, description="every cell of the scenario, in expansion order")
     plan: Plan = Field(default_factory=Plan)

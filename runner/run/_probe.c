@@ -63,7 +63,7 @@
 #define HIST_BUCKETS ((HIST_TOP_BITS - HIST_SUB_BITS + 1) * HIST_SUB)
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
 
-enum work_kind { WORK_SLEEP = 0, WORK_PERIODIC = 1, WORK_SPIN = 2 };
+enum work_kind { WORK_SLEEP = 0, WORK_PERIODIC = 1, WORK_SPIN = 2, WORK_PROGRAM = 3 };
 enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_FAILED = 4 };
 enum ring_mode { RING_NONE = 0, RING_ALL = 1, RING_OUTLIERS = 2 };
 
@@ -96,7 +96,11 @@ struct slot_header {
     int64_t minflt_first;         /* -1 until the first callback ran */
     int64_t first_wake_ns, last_end_ns;
     uint64_t nvcsw_sum, majflt_sum; /* with nivcsw_sum and minflt_sum: the totals of a thread that never finished */
-    uint8_t reserved[SLOT_HEADER - 440];
+    /* where a program (kind: phases) is, for the runner's stall and deadlock report */
+    int32_t cur_phase;            /* -1 before the first phase */
+    int32_t cur_event;            /* index in the program's event list, -1 between events */
+    int64_t blocked_since_ns;     /* when the current blocking event (lock, wait, barrier, suspend) began; 0 if none */
+    uint8_t reserved[SLOT_HEADER - 456];
 };
 
 struct sample {
@@ -182,15 +186,53 @@ struct settings {
     int priority;
     int has_nice;
     int nice;
+    int64_t dl_runtime, dl_deadline, dl_period; /* SCHED_DEADLINE parameters, ns */
+    int util_min, util_max;                     /* uclamp, -1: leave as is */
     int ncpus;           /* 0: leave as is */
     int cpus[1024];
 };
 
+/* struct sched_attr of sched_setattr(2); glibc has no wrapper. */
+struct sched_attr_k {
+    uint32_t size;
+    uint32_t sched_policy;
+    uint64_t sched_flags;
+    int32_t sched_nice;
+    uint32_t sched_priority;
+    uint64_t sched_runtime, sched_deadline, sched_period;
+    uint32_t sched_util_min, sched_util_max;
+};
+
+#define SCHED_DEADLINE_ID 6
+#define FLAG_KEEP_ALL 0x18 /* SCHED_FLAG_KEEP_POLICY | SCHED_FLAG_KEEP_PARAMS */
+#define FLAG_UTIL_CLAMP_MIN 0x20
+#define FLAG_UTIL_CLAMP_MAX 0x40
+
+static int sched_setattr_k(pid_t tid, struct sched_attr_k *a) { return (int)syscall(SYS_sched_setattr, tid, a, 0); }
+
 static void apply_settings(const struct settings *s, int32_t errs[3]) {
     errs[0] = errs[1] = errs[2] = 0;
-    if (s->policy >= 0) {
+    if (s->policy == SCHED_DEADLINE_ID) {
+        struct sched_attr_k a = {.size = sizeof(a), .sched_policy = SCHED_DEADLINE_ID};
+        a.sched_runtime = (uint64_t)s->dl_runtime;
+        a.sched_deadline = (uint64_t)s->dl_deadline;
+        a.sched_period = (uint64_t)s->dl_period;
+        if (sched_setattr_k(0, &a) != 0) errs[0] = errno;
+    } else if (s->policy >= 0) {
         struct sched_param p = {.sched_priority = s->priority};
         if (sched_setscheduler(0, s->policy, &p) != 0) errs[0] = errno;
+    }
+    if (s->util_min >= 0 || s->util_max >= 0) {
+        struct sched_attr_k a = {.size = sizeof(a), .sched_flags = FLAG_KEEP_ALL};
+        if (s->util_min >= 0) {
+            a.sched_flags |= FLAG_UTIL_CLAMP_MIN;
+            a.sched_util_min = (uint32_t)s->util_min;
+        }
+        if (s->util_max >= 0) {
+            a.sched_flags |= FLAG_UTIL_CLAMP_MAX;
+            a.sched_util_max = (uint32_t)s->util_max;
+        }
+        if (sched_setattr_k(0, &a) != 0 && !errs[0]) errs[0] = errno;
     }
     if (s->has_nice) {
         if (setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), s->nice) != 0) errs[1] = errno;
@@ -203,10 +245,19 @@ static void apply_settings(const struct settings *s, int32_t errs[3]) {
     }
 }
 
-/* Fill a settings struct from Python values; returns -1 with an exception set. */
-static int parse_settings(PyObject *policy, PyObject *priority, PyObject *nice, PyObject *cpus, struct settings *out) {
+/* Fill a settings struct from Python values; returns -1 with an exception set.
+ * `extra` is None or (dl_runtime, dl_deadline, dl_period, util_min, util_max), -1 for a uclamp left as is. */
+static int parse_settings(PyObject *policy, PyObject *priority, PyObject *nice, PyObject *cpus, PyObject *extra, struct settings *out) {
     memset(out, 0, sizeof(*out));
     out->policy = -1;
+    out->util_min = out->util_max = -1;
+    if (extra && extra != Py_None) {
+        long long rt, dl, per;
+        if (!PyArg_ParseTuple(extra, "LLLii", &rt, &dl, &per, &out->util_min, &out->util_max)) return -1;
+        out->dl_runtime = rt;
+        out->dl_deadline = dl;
+        out->dl_period = per;
+    }
     if (policy != Py_None) {
         out->policy = (int)PyLong_AsLong(policy);
         out->priority = priority == Py_None ? 0 : (int)PyLong_AsLong(priority);
@@ -245,6 +296,129 @@ struct work {
     int ring_mode;       /* which callbacks go to the sample ring */
 };
 
+/* ------------------------------------------------------------ programs (kind: phases) */
+
+/*
+ * A program is a thread's work as rt-app describes one: phases of events, each
+ * phase with a loop count and its own scheduling applied on entry.  Events that
+ * block (lock, wait, barrier, suspend) wait on objects in a shared segment the
+ * runner creates, so threads of different processes synchronise too.  Every
+ * blocking wait is cut into 100 ms slices that check for the end of the run, so
+ * a scenario that deadlocks still ends with its cell, and the slot tells where
+ * each thread stood.
+ *
+ * Per event the slot keeps its running figures and a histogram (time waited for
+ * a lock, a condition, a barrier; wake-up latency of a timer or a resume; wall
+ * time of a run), plus who held a contended lock; per phase, its passes, time,
+ * switches, faults, CPUs and the settings the kernel reported on entry.  A timer
+ * opens an activation that ends at the next timer: activations are the thread's
+ * callbacks (releases, latency, slack, overruns and samples as periodic work).
+ */
+#define MAX_PHASES 32
+#define MAX_EVENTS 128
+#define EV_HDR 192
+#define PHASE_BYTES 384
+#define RES_BYTES 1024
+#define QDEPTH 32
+#define SLICE_NS 100000000LL
+
+enum ev_type {
+    EV_RUN = 1, EV_RUNTIME, EV_SLEEP, EV_TIMER, EV_LOCK, EV_UNLOCK, EV_WAIT, EV_SIGNAL, EV_BROADCAST,
+    EV_BARRIER, EV_SUSPEND, EV_RESUME, EV_YIELD, EV_MEM, EV_ALLOC
+};
+enum res_kind { RES_MUTEX = 1, RES_COND, RES_BARRIER, RES_QUEUE, RES_TIMER };
+enum overrun_mode { OVR_SKIP = 0, OVR_REBASE = 1, OVR_CATCHUP = 2 };
+
+struct event {
+    int type;
+    int res;       /* resource index, -1 if none */
+    int res2;      /* wait: the mutex */
+    int mode;      /* timer: overrun mode */
+    int key;       /* timer: index of the first event of the same timer (its state) */
+    int64_t arg;   /* ns or bytes; timer: period */
+};
+
+struct phase {
+    int64_t loop;
+    int first, nevents;
+    int has_settings;
+    struct settings set;
+};
+
+struct program {
+    int32_t gid;   /* the thread's number in the cell, what resources record as owner */
+    int64_t delay_ns;
+    int64_t loop;  /* passes over the phases, 0: until the end of the run */
+    int nphases, nevents;
+    struct phase phases[MAX_PHASES];
+    struct event events[MAX_EVENTS];
+    int64_t mem_bytes;
+};
+
+/* Figures of one event (and, after the last event, of the thread's chain latency). */
+struct event_stats {
+    uint64_t count;
+    int64_t sum, min, max;
+    double mean, m2;
+    uint64_t contended;          /* lock: acquisitions that had to wait */
+    int32_t holder[4];           /* lock: gids seen holding it on contention, -1 unused */
+    uint64_t holder_count[4];
+    int64_t holder_wait[4];
+    uint64_t other_holders;      /* contentions by holders beyond the four above */
+    uint8_t reserved[EV_HDR - 144];
+};
+
+struct phase_stats {
+    uint64_t passes;             /* passes over the phase's events, loops counted */
+    int64_t time_ns;
+    int64_t ru[4];               /* nivcsw, nvcsw, minflt, majflt over the phase */
+    uint64_t cpus_seen[MAX_CPU_WORDS];
+    int32_t entered;
+    int32_t policy, priority, nice;      /* read back from the kernel on the first entry */
+    int32_t err_sched, err_nice, err_cpus, read_back;
+    int64_t dl_runtime, dl_deadline, dl_period;
+    uint64_t affinity[MAX_CPU_WORDS];
+    uint8_t reserved[PHASE_BYTES - 360];
+};
+
+/* One synchronisation object in the shared segment; pthread objects are process-shared. */
+struct resource {
+    int32_t kind, parties, owner, protocol;
+    int64_t period;
+    int64_t arrived, generation, pending, dropped, head, origin;
+    uint64_t acquisitions, contended;
+    pthread_mutex_t m;
+    pthread_cond_t c;
+    int64_t q_origin[QDEPTH], q_time[QDEPTH];
+    uint8_t reserved[RES_BYTES - 176 - 2 * QDEPTH * 8];
+};
+
+_Static_assert(sizeof(struct event_stats) == EV_HDR, "event stats size");
+_Static_assert(sizeof(struct phase_stats) == PHASE_BYTES, "phase stats size");
+_Static_assert(sizeof(struct resource) == RES_BYTES, "resource size");
+
+struct timer_state {
+    int started;
+    int64_t origin, last;
+};
+
+/* What a running program keeps to itself (not in the shared buffer). */
+struct program_state {
+    struct timer_state timers[MAX_EVENTS];
+    int act_open;
+    int64_t act_release, act_wake, act_period;
+    int32_t act_missed;
+    int act_cpu;
+    int act_timer;
+    int64_t act_ru[4];
+    int64_t origin;              /* release that started this activation's chain, 0 if none */
+    int chain_open;
+    uint8_t *mem;
+    int64_t phase_t0, phase_ru[4];
+    int held[MAX_EVENTS];        /* mutexes this thread holds, by resource index, for a clean exit */
+    int nheld;
+};
+
 struct group;
 
 struct slot {
@@ -257,6 +431,10 @@ struct slot {
     struct slot_header *hdr;
     uint64_t *hist;      /* HIST_SETS * HIST_BUCKETS counters, NULL when the group keeps none */
     struct sample *samples;
+    struct program *prog;       /* kind: phases, else NULL */
+    struct program_state *pstate;
+    char *evbase;               /* event stats, prog->nevents + 1 of them (the last: chain latency) */
+    char *phbase;               /* phase stats */
     uint64_t capacity;
     size_t stride;
     pthread_t thread;
@@ -278,6 +456,9 @@ struct group {
     int64_t end_ns;
     cpu_set_t all_cpus;
     long page_size;
+    uint32_t nstats, nphases;   /* event and phase stats per slot */
+    char *res;                  /* the shared resources segment, NULL if none */
+    Py_ssize_t nres;
 };
 
 static void burn(const struct work *w) {
@@ -316,14 +497,14 @@ static inline void record_latency(struct slot *s, int64_t latency) {
 }
 
 /* Everything a callback adds to the running figures, after it ended (outside the measured span). */
-static void record_callback(struct slot *s, const struct sample *c) {
+static void record_callback(struct slot *s, const struct sample *c, int64_t period) {
     struct slot_header *h = s->hdr;
     const struct work *w = &s->work;
     /* Skipped releases were answered by this wake-up too: each is as late as the wait for it. */
-    for (int32_t k = c->missed; k >= 1; k--) record_latency(s, c->wake_ns - (c->scheduled_ns - k * w->period_ns));
+    for (int32_t k = c->missed; k >= 1; k--) record_latency(s, c->wake_ns - (c->scheduled_ns - k * period));
     record_latency(s, c->wake_ns - c->scheduled_ns);
     uint64_t n = h->loops; /* this callback's number, from 1 */
-    int64_t slack = c->scheduled_ns + w->period_ns - c->end_ns;
+    int64_t slack = c->scheduled_ns + period - c->end_ns;
     int64_t wall = c->end_ns - c->wake_ns;
     if (slack < 0) h->overruns++;
     if (n == 1 || slack < h->slack_min) h->slack_min = slack;
@@ -351,7 +532,7 @@ static void record_callback(struct slot *s, const struct sample *c) {
         s->hist[3 * HIST_BUCKETS + hist_index(wall)]++;
     }
     if (s->capacity == 0 || w->ring_mode == RING_NONE) return;
-    if (w->ring_mode == RING_OUTLIERS && !(c->missed || slack < 0 || (w->bound_ns > 0 && c->wake_ns - c->scheduled_ns + c->missed * w->period_ns > w->bound_ns)))
+    if (w->ring_mode == RING_OUTLIERS && !(c->missed || slack < 0 || (w->bound_ns > 0 && c->wake_ns - c->scheduled_ns + c->missed * period > w->bound_ns)))
         return;
     uint64_t at = h->count;
     s->samples[at % s->capacity] = *c;
@@ -397,7 +578,7 @@ static void run_periodic(struct slot *s) {
         note_cpu(h, cpu0);
         note_cpu(h, cpu1);
         h->loops++;
-        record_callback(s, &c);
+        record_callback(s, &c, w->period_ns);
         missed = 0;
         next += w->period_ns;
         int64_t now = now_ns(CLOCK_MONOTONIC);
@@ -433,6 +614,424 @@ static void run_sleep(struct slot *s) {
     }
 }
 
+/* ------------------------------------------------------------ program interpreter */
+
+static inline struct event_stats *ev_stats(struct slot *s, int i) {
+    return (struct event_stats *)(s->evbase + (size_t)i * (EV_HDR + HIST_BUCKETS * sizeof(uint64_t)));
+}
+
+static inline struct phase_stats *ph_stats(struct slot *s, int i) {
+    return (struct phase_stats *)(s->phbase + (size_t)i * PHASE_BYTES);
+}
+
+static inline struct resource *res_at(struct slot *s, int i) { return (struct resource *)(s->group->res + (size_t)i * RES_BYTES); }
+
+static inline int live(const struct group *g) { return !g_stop && now_ns(CLOCK_MONOTONIC) < g->end_ns; }
+
+static void ev_record(struct slot *s, int i, int64_t v) {
+    struct event_stats *e = ev_stats(s, i);
+    uint64_t n = ++e->count;
+    if (n == 1 || v < e->min) e->min = v;
+    if (n == 1 || v > e->max) e->max = v;
+    e->sum += v;
+    welford(n, &e->mean, &e->m2, v);
+    uint64_t *hist = (uint64_t *)((char *)e + EV_HDR);
+    hist[hist_index(v)]++;
+}
+
+static void ev_holder(struct slot *s, int i, int32_t holder, int64_t wait) {
+    struct event_stats *e = ev_stats(s, i);
+    e->contended++;
+    for (int k = 0; k < 4; k++) {
+        if (e->holder[k] == holder || e->holder[k] == -1) {
+            e->holder[k] = holder;
+            e->holder_count[k]++;
+            e->holder_wait[k] += wait;
+            return;
+        }
+    }
+    e->other_holders++;
+}
+
+/* A CLOCK_REALTIME instant one slice from now, for pthread_mutex_timedlock. */
+static struct timespec slice_realtime(void) { return to_ts(now_ns(CLOCK_REALTIME) + SLICE_NS); }
+
+static struct timespec slice_monotonic(const struct group *g) {
+    int64_t t = now_ns(CLOCK_MONOTONIC) + SLICE_NS;
+    return to_ts(t < g->end_ns ? t : g->end_ns);
+}
+
+/* Burn thread CPU time (run) or wall time (runtime); gives up at the end of the run. */
+static void burn_until_end(const struct group *g, int64_t ns, int wall) {
+    clockid_t clock = wall ? CLOCK_MONOTONIC : CLOCK_THREAD_CPUTIME_ID;
+    int64_t until = now_ns(clock) + ns;
+    unsigned k = 0;
+    while (now_ns(clock) < until) {
+        if ((++k & 255) == 0 && (g_stop || now_ns(CLOCK_MONOTONIC) >= g->end_ns)) break;
+    }
+}
+
+static void activation_close(struct slot *s, struct program_state *ps, int64_t end) {
+    if (!ps->act_open) return;
+    ps->act_open = 0;
+    int64_t ru1[4];
+    read_ru(ru1);
+    struct sample c;
+    memset(&c, 0, sizeof(c));
+    c.scheduled_ns = ps->act_release;
+    c.wake_ns = ps->act_wake;
+    c.end_ns = end;
+    c.burn_wall_ns = end - ps->act_wake;
+    c.seq = (int64_t)s->hdr->loops;
+    c.nivcsw = (int32_t)(ru1[0] - ps->act_ru[0]);
+    c.nvcsw = (int32_t)(ru1[1] - ps->act_ru[1]);
+    c.minflt = (int32_t)(ru1[2] - ps->act_ru[2]);
+    c.majflt = (int32_t)(ru1[3] - ps->act_ru[3]);
+    c.cpu_start = (int16_t)ps->act_cpu;
+    c.cpu_end = (int16_t)sched_getcpu();
+    c.missed = ps->act_missed;
+    note_cpu(s->hdr, c.cpu_end);
+    s->hdr->loops++;
+    record_callback(s, &c, ps->act_period);
+}
+
+static void chain_close(struct slot *s, struct program_state *ps, int64_t end) {
+    if (!ps->chain_open) return;
+    ps->chain_open = 0;
+    if (ps->origin > 0) ev_record(s, s->prog->nevents, end - ps->origin);
+}
+
+static void ev_timer(struct slot *s, struct program_state *ps, int i, const struct event *e) {
+    struct group *g = s->group;
+    struct timer_state *t = &ps->timers[e->key]; /* one state per timer: the first event naming it */
+    int64_t now = now_ns(CLOCK_MONOTONIC);
+    activation_close(s, ps, now);
+    int64_t period = e->arg, next, rebased = 0;
+    int32_t missed = 0;
+    if (!t->started) {
+        /* A named timer's grid starts at the common start, a private one's at its first use. */
+        t->started = 1;
+        t->origin = e->res >= 0 ? g->start_ns : now;
+        next = t->origin + ((now - t->origin) / period + 1) * period;
+    } else {
+        next = t->last + period;
+        if (next < now) { /* the activation overran, or the thread came late */
+            if (e->mode == OVR_SKIP) {
+                while (next < now) { /* as periodic work and ROS 2 timers: skip the releases already past */
+                    if (next < g->end_ns) missed++;
+                    next += period;
+                }
+            } else if (e->mode == OVR_REBASE) {
+                rebased = now; /* run now for the late release; the grid restarts here */
+            } /* OVR_CATCHUP: keep the grid, run every late release at once */
+        }
+    }
+    if (next >= g->end_ns) { /* no release left in the run: the program is over */
+        sleep_until(g->end_ns);
+        return;
+    }
+    s->hdr->missed += (uint64_t)missed;
+    wait_until(&s->work, next);
+    int64_t wake = now_ns(CLOCK_MONOTONIC);
+    t->last = rebased ? rebased : next;
+    ev_record(s, i, wake - next);
+    ps->act_open = 1;
+    ps->act_release = next;
+    ps->act_wake = wake;
+    ps->act_period = period;
+    ps->act_missed = missed;
+    ps->act_cpu = sched_getcpu();
+    note_cpu(s->hdr, ps->act_cpu);
+    read_ru(ps->act_ru);
+    if (!ps->chain_open) ps->origin = next;
+}
+
+static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
+    struct resource *m = res_at(s, r);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    int rc = pthread_mutex_trylock(&m->m);
+    if (rc == EBUSY) {
+        int32_t holder = m->owner;
+        s->hdr->blocked_since_ns = t0;
+        for (;;) {
+            struct timespec ts = slice_realtime();
+            rc = pthread_mutex_timedlock(&m->m, &ts);
+            if (rc != ETIMEDOUT || !live(s->group)) break;
+        }
+        s->hdr->blocked_since_ns = 0;
+        if (rc == 0 && i >= 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
+        if (rc == 0) __atomic_add_fetch(&m->contended, 1, __ATOMIC_RELAXED);
+    }
+    if (rc != 0) return rc;
+    m->owner = s->prog->gid;
+    __atomic_add_fetch(&m->acquisitions, 1, __ATOMIC_RELAXED);
+    if (i >= 0) ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+    if (ps->nheld < MAX_EVENTS) ps->held[ps->nheld++] = r;
+    return 0;
+}
+
+static void unlock_mutex(struct slot *s, struct program_state *ps, int r) {
+    struct resource *m = res_at(s, r);
+    for (int k = ps->nheld - 1; k >= 0; k--) {
+        if (ps->held[k] == r) {
+            ps->held[k] = ps->held[--ps->nheld];
+            m->owner = -1;
+            pthread_mutex_unlock(&m->m);
+            return;
+        }
+    }
+}
+
+static void ev_wait(struct slot *s, struct program_state *ps, int i, const struct event *e) {
+    struct resource *c = res_at(s, e->res), *m = res_at(s, e->res2);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    int64_t gen = c->generation;
+    s->hdr->blocked_since_ns = t0;
+    m->owner = -1;
+    while (c->generation == gen && live(s->group)) {
+        struct timespec ts = slice_monotonic(s->group);
+        pthread_cond_timedwait(&c->c, &m->m, &ts);
+    }
+    m->owner = s->prog->gid;
+    s->hdr->blocked_since_ns = 0;
+    if (c->generation == gen) return; /* the run ended while waiting */
+    int64_t now = now_ns(CLOCK_MONOTONIC);
+    ev_record(s, i, now - t0);
+    chain_close(s, ps, t0);
+    if (c->origin > 0) {
+        ps->origin = c->origin;
+        ps->chain_open = 1;
+    }
+}
+
+/* signal and broadcast are called with the cond's mutex held (rt-app's rule) or not; both are fine for pthreads. */
+static void ev_signal(struct slot *s, struct program_state *ps, int i, const struct event *e, int all) {
+    struct resource *c = res_at(s, e->res);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    c->origin = ps->origin > 0 ? ps->origin : t0;
+    __atomic_add_fetch(&c->generation, 1, __ATOMIC_RELEASE);
+    if (all)
+        pthread_cond_broadcast(&c->c);
+    else
+        pthread_cond_signal(&c->c);
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+}
+
+static void ev_barrier(struct slot *s, int i, const struct event *e) {
+    struct resource *b = res_at(s, e->res);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    s->hdr->blocked_since_ns = t0;
+    pthread_mutex_lock(&b->m);
+    int64_t gen = b->generation;
+    if (++b->arrived >= b->parties) {
+        b->arrived = 0;
+        b->generation++;
+        pthread_cond_broadcast(&b->c);
+    } else {
+        while (b->generation == gen && live(s->group)) {
+            struct timespec ts = slice_monotonic(s->group);
+            pthread_cond_timedwait(&b->c, &b->m, &ts);
+        }
+        if (b->generation == gen) b->arrived--; /* gave up at the end of the run */
+    }
+    int passed = b->generation != gen;
+    pthread_mutex_unlock(&b->m);
+    s->hdr->blocked_since_ns = 0;
+    if (passed) ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+}
+
+static void ev_resume(struct slot *s, struct program_state *ps, int i, const struct event *e) {
+    struct resource *q = res_at(s, e->res);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    pthread_mutex_lock(&q->m);
+    if (q->pending < QDEPTH) {
+        int64_t at = (q->head + q->pending) % QDEPTH;
+        q->q_origin[at] = ps->origin > 0 ? ps->origin : t0;
+        q->q_time[at] = t0;
+        q->pending++;
+        pthread_cond_signal(&q->c);
+    } else {
+        q->dropped++; /* the consumer is QDEPTH activations behind */
+    }
+    pthread_mutex_unlock(&q->m);
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+}
+
+static void ev_suspend(struct slot *s, struct program_state *ps, int i, const struct event *e) {
+    struct resource *q = res_at(s, e->res);
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    chain_close(s, ps, t0);
+    s->hdr->blocked_since_ns = t0;
+    pthread_mutex_lock(&q->m);
+    while (q->pending == 0 && live(s->group)) {
+        struct timespec ts = slice_monotonic(s->group);
+        pthread_cond_timedwait(&q->c, &q->m, &ts);
+    }
+    int64_t origin = 0, resumed = 0;
+    int got = q->pending > 0;
+    if (got) {
+        origin = q->q_origin[q->head];
+        resumed = q->q_time[q->head];
+        q->head = (q->head + 1) % QDEPTH;
+        q->pending--;
+    }
+    pthread_mutex_unlock(&q->m);
+    s->hdr->blocked_since_ns = 0;
+    if (!got) return;
+    int64_t wake = now_ns(CLOCK_MONOTONIC);
+    /* Wake-up latency of the hop: from the resume (or from this wait, if the resume came first) to running. */
+    ev_record(s, i, wake - (resumed > t0 ? resumed : t0));
+    ps->origin = origin;
+    ps->chain_open = 1;
+}
+
+static void run_event(struct slot *s, struct program_state *ps, int i) {
+    const struct event *e = &s->prog->events[i];
+    struct group *g = s->group;
+    int64_t t0;
+    s->hdr->cur_event = i;
+    switch (e->type) {
+        case EV_RUN:
+        case EV_RUNTIME:
+            t0 = now_ns(CLOCK_MONOTONIC);
+            burn_until_end(g, e->arg, e->type == EV_RUNTIME);
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        case EV_SLEEP: {
+            t0 = now_ns(CLOCK_MONOTONIC);
+            int64_t until = t0 + e->arg;
+            sleep_until(until < g->end_ns ? until : g->end_ns);
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        }
+        case EV_TIMER: ev_timer(s, ps, i, e); break;
+        case EV_LOCK: lock_mutex(s, ps, i, e->res); break;
+        case EV_UNLOCK:
+            t0 = now_ns(CLOCK_MONOTONIC);
+            unlock_mutex(s, ps, e->res);
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        case EV_WAIT: ev_wait(s, ps, i, e); break;
+        case EV_SIGNAL: ev_signal(s, ps, i, e, 0); break;
+        case EV_BROADCAST: ev_signal(s, ps, i, e, 1); break;
+        case EV_BARRIER: ev_barrier(s, i, e); break;
+        case EV_SUSPEND: ev_suspend(s, ps, i, e); break;
+        case EV_RESUME: ev_resume(s, ps, i, e); break;
+        case EV_YIELD:
+            t0 = now_ns(CLOCK_MONOTONIC);
+            sched_yield();
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        case EV_MEM:
+            t0 = now_ns(CLOCK_MONOTONIC);
+            if (ps->mem) memset(ps->mem, (int)(s->hdr->loops & 0xff), (size_t)e->arg);
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        case EV_ALLOC: {
+            t0 = now_ns(CLOCK_MONOTONIC);
+            int err = touch_memory(e->arg, g->page_size);
+            if (err) s->hdr->err_other = err;
+            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            break;
+        }
+        default: break;
+    }
+    s->hdr->cur_event = -1;
+}
+
+static void read_back(struct phase_stats *st) {
+    struct sched_attr_k a;
+    memset(&a, 0, sizeof(a));
+    if (syscall(SYS_sched_getattr, 0, &a, sizeof(a), 0) == 0) {
+        st->policy = (int32_t)a.sched_policy;
+        st->priority = (int32_t)a.sched_priority;
+        st->nice = a.sched_nice;
+        st->dl_runtime = (int64_t)a.sched_runtime;
+        st->dl_deadline = (int64_t)a.sched_deadline;
+        st->dl_period = (int64_t)a.sched_period;
+    }
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    if (sched_getaffinity(0, sizeof(set), &set) == 0) {
+        for (int c = 0; c < MAX_CPU_WORDS * 64 && c < CPU_SETSIZE; c++)
+            if (CPU_ISSET(c, &set)) st->affinity[c / 64] |= 1ULL << (c % 64);
+    }
+    st->read_back = 1;
+}
+
+/* Add the time and rusage since the current phase was entered to its figures. */
+static void phase_account(struct slot *s, struct program_state *ps) {
+    int k = s->hdr->cur_phase;
+    if (k < 0) return;
+    struct phase_stats *st = ph_stats(s, k);
+    int64_t ru1[4];
+    read_ru(ru1);
+    st->time_ns += now_ns(CLOCK_MONOTONIC) - ps->phase_t0;
+    for (int r = 0; r < 4; r++) st->ru[r] += ru1[r] - ps->phase_ru[r];
+}
+
+static void run_program(struct slot *s, struct program_state *ps) {
+    struct group *g = s->group;
+    const struct program *p = s->prog;
+    if (p->delay_ns > 0) {
+        int64_t until = g->start_ns + p->delay_ns;
+        sleep_until(until < g->end_ns ? until : g->end_ns);
+    }
+    for (int64_t pass = 0; (p->loop == 0 || pass < p->loop) && live(g); pass++) {
+        for (int k = 0; k < p->nphases && live(g); k++) {
+            const struct phase *ph = &p->phases[k];
+            struct phase_stats *st = ph_stats(s, k);
+            if (k != s->hdr->cur_phase) { /* a phase change: account the last one, apply this one's settings */
+                phase_account(s, ps);
+                s->hdr->cur_phase = k;
+                if (ph->has_settings) {
+                    int32_t errs[3];
+                    apply_settings(&ph->set, errs);
+                    if (errs[0]) st->err_sched = errs[0];
+                    if (errs[1]) st->err_nice = errs[1];
+                    if (errs[2]) st->err_cpus = errs[2];
+                }
+                if (st->entered++ == 0) read_back(st);
+                read_ru(ps->phase_ru);
+                ps->phase_t0 = now_ns(CLOCK_MONOTONIC);
+            }
+            for (int64_t n = 0; n < ph->loop && live(g); n++) {
+                for (int i = ph->first; i < ph->first + ph->nevents && live(g); i++) run_event(s, ps, i);
+                st->passes++;
+                int cpu = sched_getcpu();
+                if (cpu >= 0 && cpu < MAX_CPU_WORDS * 64) st->cpus_seen[cpu / 64] |= 1ULL << (cpu % 64);
+                note_cpu(s->hdr, cpu);
+            }
+        }
+    }
+    phase_account(s, ps);
+    int64_t end = now_ns(CLOCK_MONOTONIC);
+    activation_close(s, ps, end);
+    chain_close(s, ps, end);
+    while (ps->nheld > 0) unlock_mutex(s, ps, ps->held[ps->nheld - 1]);
+}
+
+/* Before the thread reports ready: its private state, the mem buffer faulted in, stats cleared. */
+static struct program_state *program_prepare(struct slot *s) {
+    struct program_state *ps = calloc(1, sizeof(*ps));
+    if (!ps) return NULL;
+    if (s->prog->mem_bytes > 0) {
+        ps->mem = malloc((size_t)s->prog->mem_bytes);
+        if (ps->mem) memset(ps->mem, 0, (size_t)s->prog->mem_bytes);
+    }
+    for (int i = 0; i <= s->prog->nevents; i++)
+        for (int k = 0; k < 4; k++) ev_stats(s, i)->holder[k] = -1;
+    s->hdr->cur_phase = -1;
+    s->hdr->cur_event = -1;
+    return ps;
+}
+
+static void program_release(struct program_state *ps) {
+    if (!ps) return;
+    free(ps->mem);
+    free(ps);
+}
+
 /* Wait for the gate, run the work, record totals.  Called with the GIL released. */
 static void run_slot(struct slot *s) {
     struct group *g = s->group;
@@ -447,6 +1046,9 @@ static void run_slot(struct slot *s) {
     switch (s->work.kind) {
         case WORK_PERIODIC: run_periodic(s); break;
         case WORK_SPIN: run_spin(s); break;
+        case WORK_PROGRAM:
+            if (s->pstate) run_program(s, s->pstate);
+            break;
         default: run_sleep(s); break;
     }
     read_ru(h->end_ru);
@@ -486,8 +1088,11 @@ static void *thread_main(void *arg) {
     if (errs[0]) s->hdr->err_sched = errs[0];
     if (errs[1]) s->hdr->err_nice = errs[1];
     if (errs[2]) s->hdr->err_cpus = errs[2];
+    if (s->prog && !(s->pstate = program_prepare(s))) s->hdr->err_other = ENOMEM;
     atomic_store((_Atomic int32_t *)&s->hdr->state, ST_READY);
     run_slot(s);
+    program_release(s->pstate);
+    s->pstate = NULL;
     return NULL;
 }
 
@@ -498,6 +1103,8 @@ typedef struct {
     struct group g;
     Py_buffer view;
     int has_view;
+    Py_buffer res_view;
+    int has_res;
 } GroupObject;
 
 static void Group_dealloc(GroupObject *self) {
@@ -516,24 +1123,40 @@ static void Group_dealloc(GroupObject *self) {
                 Py_END_ALLOW_THREADS
             }
         }
+        for (uint32_t i = 0; i < self->g.nslots; i++) {
+            program_release(self->g.slots[i].pstate);
+            PyMem_Free(self->g.slots[i].prog);
+        }
         PyMem_Free(self->g.slots);
     }
     if (self->has_view) PyBuffer_Release(&self->view);
+    if (self->has_res) PyBuffer_Release(&self->res_view);
     pthread_mutex_destroy(&self->g.lock);
     pthread_cond_destroy(&self->g.cond);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
 static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
-    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", "histograms", NULL};
-    PyObject *buffer, *all_cpus;
-    unsigned int nthreads, capacity;
+    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", "histograms", "events", "phases", "resources", NULL};
+    PyObject *buffer, *all_cpus, *resources = Py_None;
+    unsigned int nthreads, capacity, nstats = 0, nphases = 0;
     int with_hist = 1;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO|p", kwlist, &buffer, &nthreads, &capacity, &all_cpus, &with_hist))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO|pIIO", kwlist, &buffer, &nthreads, &capacity, &all_cpus, &with_hist, &nstats,
+                                     &nphases, &resources))
         return -1;
+    if (nstats > MAX_EVENTS + 1 || nphases > MAX_PHASES) {
+        PyErr_Format(PyExc_ValueError, "at most %d events and %d phases per thread", MAX_EVENTS, MAX_PHASES);
+        return -1;
+    }
     if (PyObject_GetBuffer(buffer, &self->view, PyBUF_WRITABLE) != 0) return -1;
     self->has_view = 1;
-    size_t stride = SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0) + (size_t)capacity * sizeof(struct sample);
+    if (resources != Py_None) {
+        if (PyObject_GetBuffer(resources, &self->res_view, PyBUF_WRITABLE) != 0) return -1;
+        self->has_res = 1;
+    }
+    size_t ring_bytes = (size_t)capacity * sizeof(struct sample);
+    size_t stat_bytes = (size_t)nstats * (EV_HDR + HIST_BUCKETS * sizeof(uint64_t)) + (size_t)nphases * PHASE_BYTES;
+    size_t stride = SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0) + ring_bytes + stat_bytes;
     Py_ssize_t need = FILE_HEADER + (Py_ssize_t)nthreads * (Py_ssize_t)stride;
     if (self->view.len < need) {
         PyErr_Format(PyExc_ValueError, "buffer holds %zd bytes, %zd needed", self->view.len, need);
@@ -547,6 +1170,10 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
     g->capacity = capacity;
     g->with_hist = with_hist;
     g->stride = stride;
+    g->nstats = nstats;
+    g->nphases = nphases;
+    g->res = self->has_res ? self->res_view.buf : NULL;
+    g->nres = self->has_res ? self->res_view.len / RES_BYTES : 0;
     g->page_size = sysconf(_SC_PAGESIZE);
     pthread_mutex_init(&g->lock, NULL);
     pthread_cond_init(&g->cond, NULL);
@@ -561,11 +1188,13 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0002", 8);
-    uint32_t meta[6] = {2, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
+    memcpy(g->base, "RSMP0003", 8);
+    uint32_t meta[6] = {3, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));
+    uint32_t meta2[2] = {nstats, nphases};
+    memcpy(g->base + 40, meta2, sizeof(meta2));
     for (uint32_t i = 0; i < nthreads; i++) {
         struct slot *s = &g->slots[i];
         char *at = g->base + FILE_HEADER + (size_t)i * g->stride;
@@ -575,6 +1204,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         s->hist = with_hist ? (uint64_t *)(at + SLOT_HEADER) : NULL;
         s->samples = (struct sample *)(at + SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0));
         s->capacity = capacity;
+        s->evbase = (char *)s->samples + ring_bytes;
+        s->phbase = s->evbase + (size_t)nstats * (EV_HDR + HIST_BUCKETS * sizeof(uint64_t));
         s->stride = g->stride;
         memset(s->hdr, 0, SLOT_HEADER);
         s->hdr->minflt_first = -1;
@@ -582,11 +1213,92 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
     return 0;
 }
 
-static int parse_work(PyObject *work, struct work *out) {
+/* Parse a program: (gid, delay_ns, loop, mem_bytes, phases, events); phases are
+ * (loop, first, nevents, settings or None), settings (policy, priority, nice, cpus, extra),
+ * events (type, res, res2, mode, arg).  Indexes are checked against the group's sizes. */
+static struct program *parse_program(const struct group *g, PyObject *spec) {
+    long long gid, delay, loop, mem;
+    PyObject *phases, *events;
+    if (!PyArg_ParseTuple(spec, "LLLLOO", &gid, &delay, &loop, &mem, &phases, &events)) return NULL;
+    PyObject *ph = PySequence_Fast(phases, "phases must be a sequence");
+    if (!ph) return NULL;
+    PyObject *ev = PySequence_Fast(events, "events must be a sequence");
+    if (!ev) {
+        Py_DECREF(ph);
+        return NULL;
+    }
+    struct program *p = PyMem_Calloc(1, sizeof(struct program));
+    Py_ssize_t np = PySequence_Fast_GET_SIZE(ph), ne = PySequence_Fast_GET_SIZE(ev);
+    if (!p) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    if (np < 1 || np > (Py_ssize_t)g->nphases || ne + 1 > (Py_ssize_t)g->nstats) {
+        PyErr_Format(PyExc_ValueError, "program of %zd phases and %zd events does not fit the group (%u phases, %u event stats)", np, ne,
+                     g->nphases, g->nstats);
+        goto fail;
+    }
+    p->gid = (int32_t)gid;
+    p->delay_ns = delay;
+    p->loop = loop;
+    p->mem_bytes = mem;
+    p->nphases = (int)np;
+    p->nevents = (int)ne;
+    for (Py_ssize_t i = 0; i < ne; i++) {
+        struct event *e = &p->events[i];
+        long long arg;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(ev, i), "iiiiL", &e->type, &e->res, &e->res2, &e->mode, &arg)) goto fail;
+        e->arg = arg;
+        int needs = e->type == EV_LOCK || e->type == EV_UNLOCK || e->type == EV_WAIT || e->type == EV_SIGNAL || e->type == EV_BROADCAST ||
+                    e->type == EV_BARRIER || e->type == EV_SUSPEND || e->type == EV_RESUME;
+        if ((needs && (e->res < 0 || e->res >= g->nres)) || (e->type == EV_WAIT && (e->res2 < 0 || e->res2 >= g->nres)) ||
+            (e->type == EV_TIMER && e->arg <= 0) || e->type < EV_RUN || e->type > EV_ALLOC) {
+            PyErr_Format(PyExc_ValueError, "event %zd (type %d) names resource %d of %zd, or has no period", i, e->type, e->res, g->nres);
+            goto fail;
+        }
+        e->key = (int)i;
+        if (e->type == EV_TIMER && e->res >= 0) {
+            for (Py_ssize_t k = 0; k < i; k++)
+                if (p->events[k].type == EV_TIMER && p->events[k].res == e->res) {
+                    e->key = (int)k;
+                    break;
+                }
+        }
+    }
+    for (Py_ssize_t i = 0; i < np; i++) {
+        struct phase *f = &p->phases[i];
+        long long floop;
+        PyObject *set;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(ph, i), "LiiO", &floop, &f->first, &f->nevents, &set)) goto fail;
+        f->loop = floop;
+        if (f->first < 0 || f->nevents < 0 || f->first + f->nevents > p->nevents) {
+            PyErr_Format(PyExc_ValueError, "phase %zd has events outside the program", i);
+            goto fail;
+        }
+        if (set != Py_None) {
+            PyObject *policy, *priority, *nice, *cpus, *extra;
+            if (!PyArg_ParseTuple(set, "OOOOO", &policy, &priority, &nice, &cpus, &extra)) goto fail;
+            if (parse_settings(policy, priority, nice, cpus, extra, &f->set)) goto fail;
+            f->has_settings = 1;
+        }
+    }
+    Py_DECREF(ph);
+    Py_DECREF(ev);
+    return p;
+fail:
+    PyMem_Free(p);
+    Py_DECREF(ph);
+    Py_DECREF(ev);
+    return NULL;
+}
+
+static int parse_work(const struct group *g, struct slot *s, PyObject *work) {
+    struct work *out = &s->work;
     memset(out, 0, sizeof(*out));
     long long kind, period, burn_ns, alloc, offset, bound = 0;
     int wall, spin = 0, ring = RING_ALL;
-    if (!PyArg_ParseTuple(work, "LLLpLL|pLi", &kind, &period, &burn_ns, &wall, &alloc, &offset, &spin, &bound, &ring)) return -1;
+    PyObject *program = Py_None;
+    if (!PyArg_ParseTuple(work, "LLLpLL|pLiO", &kind, &period, &burn_ns, &wall, &alloc, &offset, &spin, &bound, &ring, &program)) return -1;
     out->wait_spin = spin;
     out->bound_ns = bound;
     out->ring_mode = ring;
@@ -600,6 +1312,15 @@ static int parse_work(PyObject *work, struct work *out) {
         PyErr_SetString(PyExc_ValueError, "periodic work needs a positive period");
         return -1;
     }
+    PyMem_Free(s->prog);
+    s->prog = NULL;
+    if (out->kind == WORK_PROGRAM) {
+        if (program == Py_None) {
+            PyErr_SetString(PyExc_ValueError, "program work needs a program");
+            return -1;
+        }
+        if (!(s->prog = parse_program(g, program))) return -1;
+    }
     return 0;
 }
 
@@ -612,19 +1333,20 @@ static struct slot *get_slot(GroupObject *self, unsigned int index) {
 }
 
 PyDoc_STRVAR(spawn_doc,
-"spawn(index, name, work, policy, priority, nice, cpus, explicit)\n\n"
+"spawn(index, name, work, policy, priority, nice, cpus, explicit[, extra])\n\n"
 "Create a thread from the calling thread (so it inherits the caller's settings\n"
 "unless explicit is true), name it, let it apply its own settings, and park it\n"
 "at the start gate.  work is (kind, period_ns, burn_ns, burn_wall, alloc_bytes,\n"
-"offset_ns[, wait_spin, bound_ns, ring_mode]).  Returns when the thread is created;\n"
+"offset_ns[, wait_spin, bound_ns, ring_mode, program]); extra is (dl_runtime,\n"
+"dl_deadline, dl_period, util_min, util_max).  Returns when the thread is created;\n"
 "see wait_ready().");
 
 static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
     unsigned int index;
     const char *name;
-    PyObject *work, *policy, *priority, *nice, *cpus;
+    PyObject *work, *policy, *priority, *nice, *cpus, *extra = Py_None;
     int explicit_defaults;
-    if (!PyArg_ParseTuple(args, "IsOOOOOp", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults))
+    if (!PyArg_ParseTuple(args, "IsOOOOOp|O", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults, &extra))
         return NULL;
     struct slot *s = get_slot(self, index);
     if (!s) return NULL;
@@ -632,7 +1354,7 @@ static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
         PyErr_Format(PyExc_ValueError, "slot %u already has a thread", index);
         return NULL;
     }
-    if (parse_work(work, &s->work) || parse_settings(policy, priority, nice, cpus, &s->own)) return NULL;
+    if (parse_work(&self->g, s, work) || parse_settings(policy, priority, nice, cpus, extra, &s->own)) return NULL;
     snprintf(s->name, sizeof(s->name), "%s", name);
     s->explicit_defaults = explicit_defaults;
     pthread_attr_t attr;
@@ -670,11 +1392,12 @@ static PyObject *Group_adopt(GroupObject *self, PyObject *args) {
     PyObject *work;
     if (!PyArg_ParseTuple(args, "IsO", &index, &name, &work)) return NULL;
     struct slot *s = get_slot(self, index);
-    if (!s || parse_work(work, &s->work)) return NULL;
+    if (!s || parse_work(&self->g, s, work)) return NULL;
     snprintf(s->name, sizeof(s->name), "%s", name);
     s->hdr->tid = (int32_t)syscall(SYS_gettid);
     s->own.policy = -1;
     prefault_slot(s);
+    if (s->prog && !(s->pstate = program_prepare(s))) s->hdr->err_other = ENOMEM;
     atomic_store((_Atomic int32_t *)&s->hdr->state, ST_READY);
     Py_RETURN_NONE;
 }
@@ -725,6 +1448,8 @@ static PyObject *Group_run_main(GroupObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     run_slot(s);
     Py_END_ALLOW_THREADS
+    program_release(s->pstate);
+    s->pstate = NULL;
     Py_RETURN_NONE;
 }
 
@@ -778,13 +1503,86 @@ static PyTypeObject GroupType = {
 /* ----------------------------------------------------------- module functions */
 
 static PyObject *probe_apply(PyObject *mod, PyObject *args) {
-    PyObject *policy, *priority, *nice, *cpus;
-    if (!PyArg_ParseTuple(args, "OOOO", &policy, &priority, &nice, &cpus)) return NULL;
+    PyObject *policy, *priority, *nice, *cpus, *extra = Py_None;
+    if (!PyArg_ParseTuple(args, "OOOO|O", &policy, &priority, &nice, &cpus, &extra)) return NULL;
     struct settings s;
-    if (parse_settings(policy, priority, nice, cpus, &s)) return NULL;
+    if (parse_settings(policy, priority, nice, cpus, extra, &s)) return NULL;
     int32_t errs[3];
     apply_settings(&s, errs);
     return Py_BuildValue("(iii)", errs[0], errs[1], errs[2]);
+}
+
+PyDoc_STRVAR(init_resources_doc,
+"init_resources(buffer, specs)\n\n"
+"Initialise the shared resources segment: specs is a sequence of (kind, protocol, parties, period_ns),\n"
+"one per RES_BYTES record.  Mutexes, conditions and their internal locks are process-shared;\n"
+"protocol 1 makes a mutex priority-inheriting.  Conditions wait on CLOCK_MONOTONIC.");
+
+static PyObject *probe_init_resources(PyObject *mod, PyObject *args) {
+    PyObject *buffer, *specs;
+    if (!PyArg_ParseTuple(args, "OO", &buffer, &specs)) return NULL;
+    Py_buffer view;
+    if (PyObject_GetBuffer(buffer, &view, PyBUF_WRITABLE) != 0) return NULL;
+    PyObject *seq = PySequence_Fast(specs, "specs must be a sequence");
+    if (!seq) {
+        PyBuffer_Release(&view);
+        return NULL;
+    }
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    int rc = 0;
+    if (view.len < n * RES_BYTES) {
+        PyErr_Format(PyExc_ValueError, "resources segment holds %zd bytes, %zd needed", view.len, n * RES_BYTES);
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        struct resource *r = (struct resource *)((char *)view.buf + i * RES_BYTES);
+        int kind, protocol, parties;
+        long long period;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, i), "iiiL", &kind, &protocol, &parties, &period)) goto done;
+        memset(r, 0, RES_BYTES);
+        r->kind = kind;
+        r->protocol = protocol;
+        r->parties = parties;
+        r->period = period;
+        r->owner = -1;
+        pthread_mutexattr_t ma;
+        pthread_mutexattr_init(&ma);
+        pthread_mutexattr_setpshared(&ma, PTHREAD_PROCESS_SHARED);
+        if (kind != RES_MUTEX || protocol == 1) rc = pthread_mutexattr_setprotocol(&ma, PTHREAD_PRIO_INHERIT);
+        if (!rc) rc = pthread_mutex_init(&r->m, &ma);
+        pthread_mutexattr_destroy(&ma);
+        pthread_condattr_t ca;
+        pthread_condattr_init(&ca);
+        pthread_condattr_setpshared(&ca, PTHREAD_PROCESS_SHARED);
+        pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
+        if (!rc) rc = pthread_cond_init(&r->c, &ca);
+        pthread_condattr_destroy(&ca);
+        if (rc) {
+            errno = rc;
+            PyErr_SetFromErrno(PyExc_OSError);
+            goto done;
+        }
+    }
+done:
+    Py_DECREF(seq);
+    PyBuffer_Release(&view);
+    if (PyErr_Occurred()) return NULL;
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(getattr_doc,
+"sched_getattr(tid) -> (policy, flags, nice, priority, runtime_ns, deadline_ns, period_ns, util_min, util_max)\n\n"
+"A thread's scheduling attributes as the kernel holds them (sched_getattr(2)), SCHED_DEADLINE's included.");
+
+static PyObject *probe_sched_getattr(PyObject *mod, PyObject *args) {
+    int tid;
+    if (!PyArg_ParseTuple(args, "i", &tid)) return NULL;
+    struct sched_attr_k a;
+    memset(&a, 0, sizeof(a));
+    if (syscall(SYS_sched_getattr, tid, &a, sizeof(a), 0) != 0) return PyErr_SetFromErrno(PyExc_OSError);
+    return Py_BuildValue("(iKiiKKKII)", (int)a.sched_policy, (unsigned long long)a.sched_flags, a.sched_nice, (int)a.sched_priority,
+                         (unsigned long long)a.sched_runtime, (unsigned long long)a.sched_deadline, (unsigned long long)a.sched_period,
+                         a.sched_util_min, a.sched_util_max);
 }
 
 static PyObject *probe_set_name(PyObject *mod, PyObject *args) {
@@ -1018,7 +1816,9 @@ static PyTypeObject WatchdogType = {
 };
 
 static PyMethodDef module_methods[] = {
-    {"apply", probe_apply, METH_VARARGS, "apply(policy, priority, nice, cpus) -> (err_sched, err_nice, err_cpus) for the calling thread"},
+    {"apply", probe_apply, METH_VARARGS, "apply(policy, priority, nice, cpus[, extra]) -> (err_sched, err_nice, err_cpus) for the calling thread"},
+    {"init_resources", probe_init_resources, METH_VARARGS, init_resources_doc},
+    {"sched_getattr", probe_sched_getattr, METH_VARARGS, getattr_doc},
     {"set_name", probe_set_name, METH_VARARGS, "set_name(name): prctl(PR_SET_NAME) on the calling thread"},
     {"lock_memory", probe_lock_memory, METH_NOARGS, "mlockall(MCL_CURRENT|MCL_FUTURE), no heap trimming, no mmap'd blocks"},
     {"preallocate", probe_preallocate, METH_VARARGS, "preallocate(bytes): grow the heap by bytes, fault it in, keep it"},
@@ -1054,5 +1854,35 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "WORK_SLEEP", WORK_SLEEP);
     PyModule_AddIntConstant(m, "WORK_PERIODIC", WORK_PERIODIC);
     PyModule_AddIntConstant(m, "WORK_SPIN", WORK_SPIN);
+    PyModule_AddIntConstant(m, "WORK_PROGRAM", WORK_PROGRAM);
+    PyModule_AddIntConstant(m, "MAX_PHASES", MAX_PHASES);
+    PyModule_AddIntConstant(m, "MAX_EVENTS", MAX_EVENTS);
+    PyModule_AddIntConstant(m, "EV_HDR", EV_HDR);
+    PyModule_AddIntConstant(m, "PHASE_BYTES", PHASE_BYTES);
+    PyModule_AddIntConstant(m, "RES_BYTES", RES_BYTES);
+    PyModule_AddIntConstant(m, "QDEPTH", QDEPTH);
+    PyModule_AddIntConstant(m, "EV_RUN", EV_RUN);
+    PyModule_AddIntConstant(m, "EV_RUNTIME", EV_RUNTIME);
+    PyModule_AddIntConstant(m, "EV_SLEEP", EV_SLEEP);
+    PyModule_AddIntConstant(m, "EV_TIMER", EV_TIMER);
+    PyModule_AddIntConstant(m, "EV_LOCK", EV_LOCK);
+    PyModule_AddIntConstant(m, "EV_UNLOCK", EV_UNLOCK);
+    PyModule_AddIntConstant(m, "EV_WAIT", EV_WAIT);
+    PyModule_AddIntConstant(m, "EV_SIGNAL", EV_SIGNAL);
+    PyModule_AddIntConstant(m, "EV_BROADCAST", EV_BROADCAST);
+    PyModule_AddIntConstant(m, "EV_BARRIER", EV_BARRIER);
+    PyModule_AddIntConstant(m, "EV_SUSPEND", EV_SUSPEND);
+    PyModule_AddIntConstant(m, "EV_RESUME", EV_RESUME);
+    PyModule_AddIntConstant(m, "EV_YIELD", EV_YIELD);
+    PyModule_AddIntConstant(m, "EV_MEM", EV_MEM);
+    PyModule_AddIntConstant(m, "EV_ALLOC", EV_ALLOC);
+    PyModule_AddIntConstant(m, "RES_MUTEX", RES_MUTEX);
+    PyModule_AddIntConstant(m, "RES_COND", RES_COND);
+    PyModule_AddIntConstant(m, "RES_BARRIER", RES_BARRIER);
+    PyModule_AddIntConstant(m, "RES_QUEUE", RES_QUEUE);
+    PyModule_AddIntConstant(m, "RES_TIMER", RES_TIMER);
+    PyModule_AddIntConstant(m, "OVR_SKIP", OVR_SKIP);
+    PyModule_AddIntConstant(m, "OVR_REBASE", OVR_REBASE);
+    PyModule_AddIntConstant(m, "OVR_CATCHUP", OVR_CATCHUP);
     return m;
 }

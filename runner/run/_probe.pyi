@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import mmap
 from collections.abc import Sequence
-from typing import Optional
+from typing import Optional, Union
 
 FILE_HEADER: int
 SLOT_HEADER: int
@@ -19,13 +19,60 @@ RING_NONE: int
 RING_ALL: int
 RING_OUTLIERS: int
 
-# (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode)
-WorkTuple = tuple[int, int, int, bool, int, int, bool, int, int]
+WORK_PROGRAM: int
+MAX_PHASES: int
+MAX_EVENTS: int
+EV_HDR: int
+PHASE_BYTES: int
+RES_BYTES: int
+QDEPTH: int
+EV_RUN: int
+EV_RUNTIME: int
+EV_SLEEP: int
+EV_TIMER: int
+EV_LOCK: int
+EV_UNLOCK: int
+EV_WAIT: int
+EV_SIGNAL: int
+EV_BROADCAST: int
+EV_BARRIER: int
+EV_SUSPEND: int
+EV_RESUME: int
+EV_YIELD: int
+EV_MEM: int
+EV_ALLOC: int
+RES_MUTEX: int
+RES_COND: int
+RES_BARRIER: int
+RES_QUEUE: int
+RES_TIMER: int
+OVR_SKIP: int
+OVR_REBASE: int
+OVR_CATCHUP: int
+
+# (dl_runtime_ns, dl_deadline_ns, dl_period_ns, util_min, util_max); -1: a uclamp left as is
+Extra = tuple[int, int, int, int, int]
+# settings applied on entering a phase: (policy, priority, nice, cpus, extra)
+PhaseSettings = tuple[Optional[int], Optional[int], Optional[int], Optional[Sequence[int]], Optional[Extra]]
+# (gid, delay_ns, loop, mem_bytes, phases: (loop, first, nevents, settings), events: (type, res, res2, mode, arg))
+Program = tuple[int, int, int, int, tuple[tuple[int, int, int, Optional[PhaseSettings]], ...], tuple[tuple[int, int, int, int, int], ...]]
+# (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode[, program])
+WorkTuple = Union[tuple[int, int, int, bool, int, int, bool, int, int], tuple[int, int, int, bool, int, int, bool, int, int, Program]]
 
 class Group:
     """A worker's threads around one shared sample buffer and one start gate."""
 
-    def __init__(self, buffer: mmap.mmap, nthreads: int, capacity: int, all_cpus: Sequence[int], histograms: bool = True) -> None: ...
+    def __init__(
+        self,
+        buffer: mmap.mmap,
+        nthreads: int,
+        capacity: int,
+        all_cpus: Sequence[int],
+        histograms: bool = True,
+        events: int = 0,
+        phases: int = 0,
+        resources: Optional[mmap.mmap] = None,
+    ) -> None: ...
     def spawn(
         self,
         index: int,
@@ -36,6 +83,7 @@ class Group:
         nice: Optional[int],
         cpus: Optional[Sequence[int]],
         explicit_defaults: bool,
+        extra: Optional[Extra] = None,
     ) -> None: ...
     def adopt(self, index: int, name: str, work: WorkTuple) -> None: ...
     def wait_ready(self, timeout: float) -> bool: ...
@@ -55,7 +103,11 @@ class Watchdog:
     def disarm(self) -> None: ...
     def close(self) -> None: ...
 
-def apply(policy: Optional[int], priority: Optional[int], nice: Optional[int], cpus: Optional[Sequence[int]]) -> tuple[int, int, int]: ...
+def apply(
+    policy: Optional[int], priority: Optional[int], nice: Optional[int], cpus: Optional[Sequence[int]], extra: Optional[Extra] = None
+) -> tuple[int, int, int]: ...
+def init_resources(buffer: mmap.mmap, specs: Sequence[tuple[int, int, int, int]]) -> None: ...
+def sched_getattr(tid: int) -> tuple[int, int, int, int, int, int, int, int, int]: ...
 def set_name(name: str) -> None: ...
 def lock_memory() -> None: ...
 def preallocate(bytes: int) -> None: ...

@@ -8,6 +8,7 @@ tested with plain records, without processes or RT rights.
 
 from __future__ import annotations
 
+import errno
 import os
 from typing import Optional
 
@@ -17,21 +18,25 @@ from runner.results.document import (
     Background,
     BackgroundKind,
     CellResult,
+    EventResult,
     Overhead,
+    PhaseResult,
     Status,
     ThreadHistograms,
     ThreadResult,
     thread_label,
     worst,
 )
+from runner.run import programs
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
-from runner.scenario.model import PeriodicWork, Scenario, metric_figure
+from runner.scenario.model import PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic
 
+QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
 INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
 
 
@@ -50,14 +55,28 @@ def releases_due(work: PeriodicWork, timeline: Timeline, interrupted: bool) -> i
     return 0 if end <= first else (end - first + work.period - 1) // work.period
 
 
-def degradation(requested: Settings, applied: Optional[Settings], errors: ApplyErrors) -> list[str]:
-    """How a thread's settings fell short of the request, in words, with the kernel's reason where it gave one."""
+def degradation(requested: Settings, applied: Optional[Settings], errors: ApplyErrors, admission: str = "") -> list[str]:
+    """How a thread's settings fell short of the request, in words, with the kernel's reason where it gave one.
+
+    `admission` explains a SCHED_DEADLINE refusal (EBUSY) with the cell's bandwidth and the kernel's limit.
+    """
     if applied is None:
         return ["the thread was gone before its settings could be read back"]
     why = {k: f" ({os.strerror(v)})" for k, v in errors.failed().items()}
+    if requested.policy is Policy.DEADLINE and errors.sched == errno.EBUSY and admission:
+        why["sched"] = f" ({admission})"
     out = []
-    if (requested.policy, requested.priority) != (applied.policy, applied.priority):
-        out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
+    if (requested.policy, requested.priority, requested.runtime, requested.deadline, requested.period) != (
+        applied.policy,
+        applied.priority,
+        applied.runtime,
+        applied.deadline,
+        applied.period,
+    ):
+        if requested.policy is Policy.DEADLINE or applied.policy is Policy.DEADLINE:
+            out.append(f"policy {requested.label()} requested, {applied.label().split(' nice')[0]} applied{why.get('sched', '')}")
+        else:
+            out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
     if requested.nice != applied.nice:
         out.append(f"nice {requested.nice} requested, {applied.nice} applied{why.get('nice', '')}")
     if requested.cpus != applied.cpus:
@@ -135,10 +154,22 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         started_at=raw.started_at,
     )
     measured: list[tuple[PlannedThread, ThreadFigures]] = []
+    names = {gid: verdict_label(t.planned, raw.processes) for gid, t in enumerate(raw.threads)}
+    admission = programs.deadline_admission(scenario, raw.rt_limit_us[0], raw.rt_limit_us[1], len(raw.online_cpus))
+    stalls: list[str] = []
     for t in raw.threads:
         p = t.planned
         fig = _figures(t, raw.timeline, raw.interrupted, scenario.latency_bound)
-        degraded = degradation(p.settings, t.applied, t.errors) if t.ready else []
+        degraded = degradation(p.settings, t.applied, t.errors, admission) if t.ready else []
+        events: list[EventResult] = []
+        phases: list[PhaseResult] = []
+        if isinstance(p.work, PhasesWork):
+            events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
+            fig = fig.model_copy(update=extra)
+            degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
+            stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, raw.timeline.start_ns, verdict_label(p, raw.processes))
+            if stuck and not raw.interrupted:
+                stalls.append(stuck)
         result.threads.append(
             ThreadResult(
                 process=p.process,
@@ -156,6 +187,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 histograms=_histograms(t.slot),
                 samples_written=t.samples_written,
                 samples_lost=t.samples_lost,
+                events=events,
+                phases=phases,
             )
         )
         measured.append((p, fig))
@@ -174,12 +207,19 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     ]
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
     result.overhead_ns = _overhead(raw)
-    result.warnings = warnings(result.threads, raw.processes)
-    result.status, result.reason = status(result, raw, allow_degraded)
+    result.warnings = warnings(result.threads, raw.processes) + [
+        f"queue {r.name}: {r.dropped:,} resumes were dropped because the thread suspending on it was "
+        f"{QUEUE_DEPTH} activations behind; chain figures cover the activations that ran"
+        for r in raw.resources
+        if r.dropped
+    ]
+    if stalls:
+        stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")
+    result.status, result.reason = status(result, raw, allow_degraded, stalls)
     return result
 
 
-def status(result: CellResult, raw: RawCell, allow_degraded: bool) -> tuple[Status, str]:
+def status(result: CellResult, raw: RawCell, allow_degraded: bool, stalls: Optional[list[str]] = None) -> tuple[Status, str]:
     """The cell's status and the reason given for it, most severe first.
 
     Interrupted beats everything (the figures are partial); a failure of the run itself (a
@@ -187,7 +227,7 @@ def status(result: CellResult, raw: RawCell, allow_degraded: bool) -> tuple[Stat
     error; then failed expectations; then settings that were not applied, which are an error
     unless the user allowed degraded runs.
     """
-    reasons = list(raw.failures) + list(raw.incidents)
+    reasons = list(raw.failures) + list(raw.incidents) + ([": ".join([stalls[0], "; ".join(stalls[1:])])] if stalls else [])
     statuses = []
     if raw.interrupted:
         statuses.append(Status.INTERRUPTED)

@@ -11,6 +11,7 @@ import os
 from typing import Optional
 
 from runner.results.pstable import ThreadRow
+from runner.run import _probe
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
 
@@ -20,6 +21,18 @@ RESET_ON_FORK = 0x40000000
 def online_cpus() -> tuple[int, ...]:
     """CPUs this process may use (its affinity: cgroup cpusets and taskset included)."""
     return tuple(sorted(os.sched_getaffinity(0)))
+
+
+def rt_limit() -> tuple[Optional[int], Optional[int]]:
+    """(sched_rt_runtime_us, sched_rt_period_us): the share of each CPU real-time and deadline tasks may take; None if unreadable."""
+    out: list[Optional[int]] = []
+    for name in ("sched_rt_runtime_us", "sched_rt_period_us"):
+        try:
+            with open(f"/proc/sys/kernel/{name}") as handle:
+                out.append(int(handle.read()))
+        except (OSError, ValueError):
+            out.append(None)
+    return out[0], out[1]
 
 
 def pid_width() -> int:
@@ -38,7 +51,10 @@ def thread_settings(tid: int, all_cpus: Optional[tuple[int, ...]] = None) -> Set
     nice = os.getpriority(os.PRIO_PROCESS, tid)
     cpus = tuple(sorted(os.sched_getaffinity(tid)))
     every = all_cpus if all_cpus is not None else online_cpus()
-    return Settings(Policy.from_kernel(policy), priority, nice, None if set(cpus) >= set(every) else cpus)
+    runtime = deadline = period = 0
+    if policy == Policy.DEADLINE.kernel_id:  # its parameters only sched_getattr(2) reports
+        _, _, _, _, runtime, deadline, period, _, _ = _probe.sched_getattr(tid)
+    return Settings(Policy.from_kernel(policy), priority, nice, None if set(cpus) >= set(every) else cpus, runtime, deadline, period)
 
 
 def current_settings() -> Settings:

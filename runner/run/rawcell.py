@@ -106,6 +106,17 @@ class BackgroundProcess:
 
 
 @dataclass(frozen=True)
+class ResourceState:
+    """A shared resource after the run, read from the segment the runner created (programs' mutexes, queues, ...)."""
+
+    name: str
+    kind: str
+    acquisitions: int = 0  # mutex: locks taken
+    contended: int = 0  # mutex: locks that had to wait
+    dropped: int = 0  # queue: resumes lost because the consumer was QDEPTH behind
+
+
+@dataclass(frozen=True)
 class Timeline:
     """CLOCK_MONOTONIC instants (ns) of the cell; None for what never happened."""
 
@@ -129,3 +140,6 @@ class RawCell:
     incidents: tuple[str, ...] = ()  # background load that ended early, processes that were stopped
     interrupted: bool = False
     background: tuple[BackgroundProcess, ...] = field(default=())
+    online_cpus: tuple[int, ...] = ()  # the CPUs the runner may use: an affinity of all of them reads as "all"
+    rt_limit_us: tuple[Optional[int], Optional[int]] = (None, None)  # sched_rt_runtime_us, sched_rt_period_us
+    resources: tuple[ResourceState, ...] = ()

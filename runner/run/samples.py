@@ -1,9 +1,10 @@
 """The shared sample buffer written by the native core, read from Python.
 
-Layout (see _probe.c, version 2): a 64-byte file header, then per thread a 512-byte
+Layout (see _probe.c, version 3): a 64-byte file header, then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
-negative slack, callback wall time; see runner/histogram.py) and a ring of 64-byte
-samples.  The runner creates the buffer as a memfd (RAM that no writeback ever
+negative slack, callback wall time; see runner/histogram.py), a ring of 64-byte
+samples, and for programs (`kind: phases`) the figures of each event (with its
+histogram; one more for the chain latency) and of each phase.  The runner creates the buffer as a memfd (RAM that no writeback ever
 write-protects, gone with the runner), the worker maps it and its threads write
 into it; the runner drains the ring to disk while the cell runs and reads the
 figures after, even when the worker was killed.  Nothing here grows with the run.
@@ -25,10 +26,14 @@ FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhi")
-_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ")
+_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiq")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
-assert SAMPLE.size == 64 and _SLOT.size == 440
+EV_HDR = 192
+PHASE_BYTES = 384
+_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q")
+_PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
+assert SAMPLE.size == 64 and _SLOT.size == 456 and _EVENT.size == 144 and _PHASE.size == 360
 
 
 @dataclass(frozen=True)
@@ -84,6 +89,43 @@ class CallbackStats:
 
 
 @dataclass(frozen=True)
+class EventStats:
+    """One event of a program as the native core counted it: how often it ran and what it took (ns).
+
+    The value per event is what the event is about: the wait of a lock, a condition, a
+    barrier; the wake-up latency of a timer or of a resume; the wall time of anything else.
+    The extra entry after a program's last event holds its chain latency.
+    """
+
+    count: int = 0
+    total: int = 0
+    mean: float = 0.0
+    m2: float = 0.0
+    contended: int = 0  # lock: acquisitions that had to wait
+    holders: tuple[tuple[int, int, int], ...] = ()  # lock: (gid of the holder, contentions, wait ns) on contention
+    other_holders: int = 0
+    histogram: Optional[Histogram] = None
+
+
+@dataclass(frozen=True)
+class PhaseStats:
+    """One phase of a program: passes, time and rusage in it, CPUs, and its settings as the kernel reported them on entry."""
+
+    passes: int = 0
+    time_ns: int = 0
+    ru: tuple[int, int, int, int] = (0, 0, 0, 0)  # nivcsw, nvcsw, minflt, majflt
+    cpus_seen: tuple[int, ...] = ()
+    entered: int = 0
+    policy: int = 0
+    priority: int = 0
+    nice: int = 0
+    errors: tuple[int, int, int] = (0, 0, 0)  # errno of sched, nice, cpus applied on entry
+    read_back: bool = False
+    deadline: tuple[int, int, int] = (0, 0, 0)  # runtime, deadline, period ns (SCHED_DEADLINE)
+    affinity: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
 class SlotData:
     """One thread's header and figures, as the native core left them."""
 
@@ -102,6 +144,11 @@ class SlotData:
     work_end_ns: int
     cpus_seen: tuple[int, ...]
     stats: CallbackStats = field(default_factory=CallbackStats)
+    events: tuple[EventStats, ...] = ()  # programs: per event, then the chain latency
+    phases: tuple[PhaseStats, ...] = ()
+    cur_phase: int = -1  # where a program stood when the slot was read
+    cur_event: int = -1
+    blocked_since_ns: int = 0
 
     @property
     def finished(self) -> bool:
@@ -195,14 +242,20 @@ class Layout:
     nthreads: int
     capacity: int
     histograms: bool = True
+    events: int = 0  # event stats per slot: the longest program's events plus one (its chain latency)
+    phases: int = 0  # phase stats per slot
 
     @property
     def hist_bytes(self) -> int:
         return HIST_SETS * hg.BUCKETS * 8 if self.histograms else 0
 
     @property
+    def event_bytes(self) -> int:
+        return EV_HDR + hg.BUCKETS * 8
+
+    @property
     def stride(self) -> int:
-        return SLOT_HEADER + self.hist_bytes + self.capacity * SAMPLE.size
+        return SLOT_HEADER + self.hist_bytes + self.capacity * SAMPLE.size + self.events * self.event_bytes + self.phases * PHASE_BYTES
 
     @property
     def size(self) -> int:
@@ -213,6 +266,12 @@ class Layout:
 
     def ring(self, index: int) -> int:
         return self.slot(index) + SLOT_HEADER + self.hist_bytes
+
+    def event(self, index: int, event: int) -> int:
+        return self.ring(index) + self.capacity * SAMPLE.size + event * self.event_bytes
+
+    def phase(self, index: int, phase: int) -> int:
+        return self.event(index, self.events) + phase * PHASE_BYTES
 
 
 def create(name: str, layout: Layout) -> int:
@@ -243,6 +302,45 @@ def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> array[int]:
     start = at + SLOT_HEADER + which * hg.BUCKETS * 8
     counts.frombytes(bytes(buf[start : start + hg.BUCKETS * 8]))
     return counts
+
+
+def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
+    f = _EVENT.unpack_from(buf, at)
+    count, total, low, high, mean, m2, contended = f[:7]
+    gids, counts, waits, other = f[7:11], f[11:15], f[15:19], f[19]
+    histogram = None
+    if count:
+        counts_arr = array("Q")
+        counts_arr.frombytes(bytes(buf[at + EV_HDR : at + EV_HDR + hg.BUCKETS * 8]))
+        histogram = hg.from_counts(counts_arr, low, high)
+    return EventStats(
+        count=count,
+        total=total,
+        mean=mean,
+        m2=m2,
+        contended=contended,
+        holders=tuple((g, c, w) for g, c, w in zip(gids, counts, waits) if g >= 0 and c),
+        other_holders=other,
+        histogram=histogram,
+    )
+
+
+def _phase(buf: bytes | mmap.mmap, at: int) -> PhaseStats:
+    f = _PHASE.unpack_from(buf, at)
+    return PhaseStats(
+        passes=f[0],
+        time_ns=f[1],
+        ru=tuple(f[2:6]),
+        cpus_seen=_bits(tuple(f[6:22])),
+        entered=f[22],
+        policy=f[23],
+        priority=f[24],
+        nice=f[25],
+        errors=tuple(f[26:29]),
+        read_back=bool(f[29]),
+        deadline=tuple(f[30:33]),
+        affinity=_bits(tuple(f[33:49])),
+    )
 
 
 def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
@@ -297,6 +395,11 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
         work_end_ns=f[18],
         cpus_seen=_bits(tuple(f[19:35])),
         stats=stats,
+        events=tuple(_event(buf, layout.event(index, e)) for e in range(layout.events)),
+        phases=tuple(_phase(buf, layout.phase(index, k)) for k in range(layout.phases)),
+        cur_phase=f[58],
+        cur_event=f[59],
+        blocked_since_ns=f[60],
     )
 
 

@@ -11,9 +11,11 @@ what the kernel and the native core recorded, and `evaluate` makes results of it
 from __future__ import annotations
 
 import json
+import mmap
 import os
 import selectors
 import signal
+import struct
 import subprocess
 import time
 from collections.abc import Callable
@@ -31,9 +33,28 @@ from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
-from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, ResourceState, Timeline
+from runner.scenario import program as programs
 from runner.scenario.loader import ResolvedCell
-from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Samples, SamplesMode, Scenario, Sched, SleepWork, SpinWork, Wait, Work
+from runner.scenario.model import (
+    BurnClock,
+    EventKind,
+    HogKind,
+    Overrun,
+    PeriodicWork,
+    PhasesWork,
+    Policy,
+    Protocol,
+    ResourceKind,
+    Samples,
+    SamplesMode,
+    Scenario,
+    Sched,
+    SleepWork,
+    SpinWork,
+    Wait,
+    Work,
+)
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
 
 READY_TIMEOUT_S = 20.0
@@ -77,9 +98,81 @@ RING_SECONDS = 2  # otherwise, the ring holds this long of callbacks: the runner
 _RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
 
 
-def work_tuple(work: Work, bound_ns: int = 0, samples: Optional[Samples] = None) -> _probe.WorkTuple:
-    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode)."""
+_EVENT_TYPES = {
+    EventKind.RUN: _probe.EV_RUN,
+    EventKind.RUNTIME: _probe.EV_RUNTIME,
+    EventKind.SLEEP: _probe.EV_SLEEP,
+    EventKind.TIMER: _probe.EV_TIMER,
+    EventKind.LOCK: _probe.EV_LOCK,
+    EventKind.UNLOCK: _probe.EV_UNLOCK,
+    EventKind.WAIT: _probe.EV_WAIT,
+    EventKind.SIGNAL: _probe.EV_SIGNAL,
+    EventKind.BROADCAST: _probe.EV_BROADCAST,
+    EventKind.BARRIER: _probe.EV_BARRIER,
+    EventKind.SUSPEND: _probe.EV_SUSPEND,
+    EventKind.RESUME: _probe.EV_RESUME,
+    EventKind.YIELD: _probe.EV_YIELD,
+    EventKind.MEM: _probe.EV_MEM,
+    EventKind.ALLOC: _probe.EV_ALLOC,
+}
+_RESOURCE_KINDS = {
+    ResourceKind.MUTEX: _probe.RES_MUTEX,
+    ResourceKind.COND: _probe.RES_COND,
+    ResourceKind.BARRIER: _probe.RES_BARRIER,
+    ResourceKind.QUEUE: _probe.RES_QUEUE,
+    ResourceKind.TIMER: _probe.RES_TIMER,
+}
+_OVERRUN = {Overrun.SKIP: _probe.OVR_SKIP, Overrun.REBASE: _probe.OVR_REBASE, Overrun.CATCHUP: _probe.OVR_CATCHUP}
+
+
+def resource_specs(scenario: Scenario) -> list[tuple[int, int, int, int]]:
+    """The native core's (kind, protocol, parties, period_ns) of each declared resource, in declaration order."""
+    parties = programs.barrier_parties(scenario.processes)
+    return [
+        (_RESOURCE_KINDS[r.kind], 1 if r.protocol is Protocol.INHERIT else 0, parties.get(name, 0), r.period or 0)
+        for name, r in scenario.resources.items()
+    ]
+
+
+def program_tuple(work: PhasesWork, gid: int, scenario: Scenario) -> _probe.Program:
+    """A program as the native core takes it: resources by their index in the scenario's declaration."""
+    index = {name: i for i, name in enumerate(scenario.resources)}
+    events: list[tuple[int, int, int, int, int]] = []
+    phases: list[tuple[int, int, int, Optional[_probe.PhaseSettings]]] = []
+    for phase in work.phases:
+        first = len(events)
+        for e in phase.events:
+            res = res2 = -1
+            mode, arg = _probe.OVR_SKIP, e.duration or e.size or 0
+            if e.event is EventKind.WAIT:
+                res, res2 = index[e.cond or ""], index[e.mutex or ""]
+            elif e.event is EventKind.TIMER:
+                named = scenario.resources.get(e.timer or "")
+                res = index[e.timer] if e.timer is not None else -1
+                arg = named.period or 0 if named is not None else e.period or 0
+                overrun = named.overrun if named is not None else (e.overrun or Overrun.SKIP)
+                mode = _OVERRUN[overrun]
+            elif e.resource is not None:
+                res = index[e.resource]
+            events.append((_EVENT_TYPES[e.event], res, res2, mode, arg))
+        settings = None
+        if phase.sched is not None or phase.cpus is not None:
+            sched = _sched_json(phase.sched)
+            policy, priority, nice, extra = sched if sched else (None, None, None, None)
+            settings = (policy, priority, nice, list(phase.cpus) if phase.cpus else None, extra)
+        phases.append((phase.loop, first, len(events) - first, settings))
+    mem = max((e.size or 0 for _, e in work.events() if e.event is EventKind.MEM), default=0)
+    return (gid, work.delay, work.loop, mem, tuple(phases), tuple(events))
+
+
+def work_tuple(
+    work: Work, bound_ns: int = 0, samples: Optional[Samples] = None, program: Optional[_probe.Program] = None
+) -> _probe.WorkTuple:
+    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode[, program])."""
     ring = _RING_MODES.get(samples.mode, _probe.RING_NONE) if samples else _probe.RING_ALL
+    if isinstance(work, PhasesWork):
+        assert program is not None, "a program's work needs its program tuple"
+        return (_probe.WORK_PROGRAM, 0, 0, False, 0, 0, False, bound_ns, ring, program)
     if isinstance(work, PeriodicWork):
         return (
             _probe.WORK_PERIODIC,
@@ -98,9 +191,19 @@ def work_tuple(work: Work, bound_ns: int = 0, samples: Optional[Samples] = None)
 
 
 def _sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
+    """[policy, priority, nice, extra]: extra is (runtime, deadline, period, util_min, util_max) for deadline or uclamp, else None."""
     if sched is None:
         return None
-    return [sched.policy.kernel_id, sched.rt_priority, sched.nice]
+    extra = None
+    if sched.policy is Policy.DEADLINE or sched.util_min is not None or sched.util_max is not None:
+        extra = (
+            sched.runtime or 0,
+            sched.deadline or 0,
+            sched.period or 0,
+            -1 if sched.util_min is None else sched.util_min,
+            -1 if sched.util_max is None else sched.util_max,
+        )
+    return [sched.policy.kernel_id, sched.rt_priority, sched.nice, extra]
 
 
 @dataclass
@@ -129,7 +232,7 @@ class Worker:
     def nslots(self) -> int:
         return self.layout.nthreads
 
-    def start(self, guard: Guard) -> None:
+    def start(self, guard: Guard, resources_fd: Optional[int] = None) -> None:
         fd = samples.create(self.spec["comm"], self.layout)
         try:
             self.buffer = samples.Buffer(fd, self.layout)  # the mapping outlives the descriptor, and the worker
@@ -144,13 +247,14 @@ class Worker:
                     bufsize=1,
                     start_new_session=True,
                     close_fds=True,
-                    pass_fds=(fd,),
+                    pass_fds=(fd,) if resources_fd is None else (fd, resources_fd),
                     cwd="/",
                     env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
                 )
         finally:
             os.close(fd)
         self.spec["samples_fd"] = fd
+        self.spec["resources_fd"] = resources_fd
         guard.watch(self.popen.pid)
         assert self.popen.stdin is not None
         self.popen.stdin.write(json.dumps(self.spec) + "\n")
@@ -194,7 +298,7 @@ def _tail(path: str, lines: int = 3) -> str:
 
 def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -> int:
     """Samples each thread's ring holds: the whole cell when that is small, else enough for the runner to drain in time."""
-    periods = [t.work.period for t in threads if isinstance(t.work, PeriodicWork)]
+    periods = [t.period for t in threads if t.period]
     if not periods or policy.mode is SamplesMode.NONE:
         return 0
     if policy.mode is SamplesMode.LAST:
@@ -203,13 +307,16 @@ def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -
     return min(RING_MAX, max(duration_ns // p + 16 for p in periods), max(4096, RING_SECONDS * rate))
 
 
-def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: int) -> dict[str, Any]:
+def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: int, gids: dict[int, int]) -> dict[str, Any]:
+    """What one worker process is told to create; `gids` numbers every planned thread of the cell (by id)."""
     proc = next(p for p in scenario.processes if p.name == threads[0].process)
     mem = proc.memory
     bound = scenario.latency_bound or 0
+    by_index = {t.index: t for t in threads}
 
-    def work(w: Work) -> _probe.WorkTuple:
-        return work_tuple(w, bound, scenario.samples)
+    def work(w: Work, index: int) -> _probe.WorkTuple:
+        program = program_tuple(w, gids[id(by_index[index])], scenario) if isinstance(w, PhasesWork) else None
+        return work_tuple(w, bound, scenario.samples, program)
 
     return {
         "comm": proc.name,
@@ -222,7 +329,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: in
             "apply": proc.main.apply.value,
             "sched": _sched_json(proc.main.sched),
             "cpus": list(proc.main.cpus) if proc.main.cpus else None,
-            "work": work(proc.main.work),
+            "work": work(proc.main.work, 0),
         },
         "threads": [
             {
@@ -230,12 +337,23 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: in
                 "explicit": not spec.inherit,
                 "sched": _sched_json(member.sched),
                 "cpus": list(member.cpus) if member.cpus else None,
-                "work": work(member.work),
+                "work": work(member.work, index),
             }
-            for spec in proc.threads
-            for member in spec.members()  # pin: each, priospread and distance give each thread its own settings
+            for index, (spec, member) in enumerate(
+                ((spec, member) for spec in proc.threads for member in spec.members()), start=1
+            )  # pin: each, priospread and distance give each thread its own settings
         ],
+        "events": _program_sizes(threads)[0],
+        "phases": _program_sizes(threads)[1],
     }
+
+
+def _program_sizes(threads: list[PlannedThread]) -> tuple[int, int]:
+    """Event stats (events plus the chain entry) and phase stats each slot of a worker holds: its longest program's."""
+    works = [t.work for t in threads if isinstance(t.work, PhasesWork)]
+    if not works:
+        return 0, 0
+    return max(len(w.events()) for w in works) + 1, max(len(w.phases) for w in works)
 
 
 def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
@@ -336,13 +454,13 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> Non
     if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
         return
     for t in w.planned:
-        if isinstance(t.work, PeriodicWork):
+        if t.period:
             taken = w.buffer.drain(t.index, stopped=final)
             if taken:
                 options.samples.write(
                     thread_key(t.process, t.instance, t.index, t.name),
                     int(w.ready["tids"][t.index]) if w.ready else 0,
-                    t.work.period,
+                    t.period,
                     taken,
                 )
                 w.written[t.index] += len(taken)
@@ -389,18 +507,21 @@ class _CellRun:
         for t in self.planned:
             self.by_process.setdefault((t.process, t.instance), []).append(t)
         self.workers: list[Worker] = []
+        gids = {id(t): gid for gid, t in enumerate(self.planned)}
         for (proc, inst), threads in self.by_process.items():
             cap = _capacity(threads, options.duration_ns, self.scenario.samples)
+            events, phases = _program_sizes(threads)
             self.workers.append(
                 Worker(
                     f"process {proc}[{inst}]",
-                    _process_spec(threads, self.scenario, cap),
-                    samples.Layout(len(threads), cap),
+                    _process_spec(threads, self.scenario, cap, gids),
+                    samples.Layout(len(threads), cap, events=events, phases=phases),
                     threads,
                     True,
                     os.path.join(folder, f"{proc}.{inst}.log"),
                 )
             )
+        self.resources: Optional[mmap.mmap] = None
         self.hogs = _hog_workers(self.scenario, folder)
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
@@ -416,8 +537,15 @@ class _CellRun:
     def start(self) -> None:
         """Start every process; once all are ready, read back each thread's settings and start background commands."""
         everyone = self.workers + self.hogs
-        for w in everyone:
-            w.start(self.guard)
+        res_fd = self._create_resources()
+        try:
+            for w in self.workers:
+                w.start(self.guard, res_fd)
+            for w in self.hogs:
+                w.start(self.guard)
+        finally:
+            if res_fd is not None:
+                os.close(res_fd)
         self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
         self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
         if self.reason:
@@ -440,6 +568,21 @@ class _CellRun:
                 except OSError as exc:
                     self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
 
+    def _create_resources(self) -> Optional[int]:
+        """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
+        specs = resource_specs(self.scenario)
+        if not specs:
+            return None
+        fd = os.memfd_create(f"runner-res-{self.cell.id}"[:200], os.MFD_CLOEXEC)
+        try:
+            os.ftruncate(fd, len(specs) * _probe.RES_BYTES)
+            self.resources = mmap.mmap(fd, len(specs) * _probe.RES_BYTES)
+            _probe.init_resources(self.resources, specs)
+        except BaseException:
+            os.close(fd)
+            raise
+        return fd
+
     def supervise(self) -> None:
         """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
         options, workers, hogs = self.options, self.workers, self.hogs
@@ -448,7 +591,7 @@ class _CellRun:
         t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
         t_end = t0 + options.duration_ns
         self.t0, self.t_end = t0, t_end
-        periods = [t.work.period for t in self.planned if isinstance(t.work, PeriodicWork)]
+        periods = [t.period for t in self.planned if t.period]
         grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
         self.watchdog.arm(t_end + grace + int(1e9), pids)
         for h in hogs:
@@ -458,7 +601,7 @@ class _CellRun:
             w.seen = [0] * w.nslots
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
-        total_expected = sum(options.duration_ns // t.work.period for t in self.planned if isinstance(t.work, PeriodicWork))
+        total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
         while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
             time.sleep(0.05 if options.follow else 0.2)
             if options.stop_requested():
@@ -486,6 +629,9 @@ class _CellRun:
             if w.buffer is not None:
                 w.buffer.close()
                 w.buffer = None
+        if self.resources is not None:
+            self.resources.close()
+            self.resources = None
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -579,7 +725,20 @@ class _CellRun:
             tuple(self.incidents.values()),
             self.interrupted,
             tuple(background),
+            kernel.online_cpus(),
+            kernel.rt_limit(),
+            self._resource_states(),
         )
+
+    def _resource_states(self) -> tuple[ResourceState, ...]:
+        """Counters of the shared resources: (kind, parties, owner, protocol, period, ..., dropped, ..., acquisitions, contended)."""
+        if self.resources is None:
+            return ()
+        out = []
+        for i, (name, res) in enumerate(self.scenario.resources.items()):
+            f = struct.unpack_from("<iiiiq6q2Q", self.resources, i * _probe.RES_BYTES)
+            out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8]))
+        return tuple(out)
 
 
 def _ready_report(w: Worker) -> Optional[ReadyReport]:

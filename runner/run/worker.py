@@ -38,10 +38,20 @@ def _reset_on_fork() -> dict[str, int]:
     return {"sched": errs[0], "nice": errs[1]}
 
 
-def _sched_args(entry: dict[str, Any]) -> tuple[Any, Any, Any, Any]:
+def _sched_args(entry: dict[str, Any]) -> tuple[Any, Any, Any, Any, Any]:
+    """(policy, priority, nice, cpus, extra): extra carries SCHED_DEADLINE's parameters and uclamp, else None."""
     sched = entry.get("sched")
-    policy, priority, nice = sched if sched else (None, None, None)
-    return policy, priority, nice, entry.get("cpus")
+    policy, priority, nice, extra = sched if sched else (None, None, None, None)
+    return policy, priority, nice, entry.get("cpus"), tuple(extra) if extra else None
+
+
+def _program(work: list[Any]) -> tuple[Any, ...]:
+    """A work tuple from JSON: lists back to the tuples the native core parses (a program nests them)."""
+
+    def tup(value: Any) -> Any:
+        return tuple(tup(v) for v in value) if isinstance(value, list) else value
+
+    return tup(work)
 
 
 def _send(message: dict[str, Any]) -> None:
@@ -66,16 +76,32 @@ def run(spec: dict[str, Any]) -> int:
         buf = mmap.mmap(fd, 0)
     finally:
         os.close(fd)
-    group = _probe.Group(buf, nslots, spec["capacity"], spec["all_cpus"], spec.get("histograms", True))
+    resources = None
+    if spec.get("resources_fd") is not None:  # the scenario's shared mutexes, conditions, barriers and queues
+        rfd = int(spec["resources_fd"])
+        try:
+            resources = mmap.mmap(rfd, 0)
+        finally:
+            os.close(rfd)
+    group = _probe.Group(
+        buf,
+        nslots,
+        spec["capacity"],
+        spec["all_cpus"],
+        spec.get("histograms", True),
+        spec.get("events", 0),
+        spec.get("phases", 0),
+        resources,
+    )
     main = spec["main"]
-    group.adopt(0, main["name"], tuple(main["work"]))
+    group.adopt(0, main["name"], _program(main["work"]))
 
     main_errs = (0, 0, 0)
     if main["apply"] == "before_threads":
         main_errs = _probe.apply(*_sched_args(main))
     for index, thread in enumerate(threads, start=1):
-        policy, priority, nice, cpus = _sched_args(thread)
-        group.spawn(index, thread["name"], tuple(thread["work"]), policy, priority, nice, cpus, thread.get("explicit", False))
+        policy, priority, nice, cpus, extra = _sched_args(thread)
+        group.spawn(index, thread["name"], _program(thread["work"]), policy, priority, nice, cpus, thread.get("explicit", False), extra)
     if main["apply"] == "after_threads":
         main_errs = _probe.apply(*_sched_args(main))
     errors["main"] = dict(zip(("sched", "nice", "cpus"), main_errs))

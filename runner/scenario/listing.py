@@ -10,7 +10,19 @@ from tabulate import tabulate
 
 from runner import units
 from runner.scenario.loader import LoadedScenario, ResolvedCell, expectations_for
-from runner.scenario.model import BurnClock, HogKind, PeriodicWork, Pin, ProcessSpec, Scenario, SleepWork, SpinWork, ThreadSpec, Work
+from runner.scenario.model import (
+    BurnClock,
+    HogKind,
+    PeriodicWork,
+    PhasesWork,
+    Pin,
+    ProcessSpec,
+    Scenario,
+    SleepWork,
+    SpinWork,
+    ThreadSpec,
+    Work,
+)
 from runner.scenario.plan import Settings, plan_process
 
 
@@ -28,6 +40,19 @@ def describe_work(work: Work) -> str:
         return text
     if isinstance(work, SpinWork):
         return "spin"
+    if isinstance(work, PhasesWork):
+        names = work.phase_names()
+        parts = []
+        for name, phase in zip(names, work.phases):
+            events = ", ".join(e.label() for e in phase.events)
+            loop = f" x{phase.loop}" if phase.loop > 1 else ""
+            parts.append(f"{name}{loop}: {events}" if len(work.phases) > 1 else events)
+        text = "phases " + "; ".join(parts)
+        if work.loop:
+            text += f" (x{work.loop})"
+        if work.delay:
+            text += f", delay {units.format_duration(work.delay)}"
+        return text
     assert isinstance(work, SleepWork)
     return "sleep"
 

@@ -24,7 +24,8 @@ from pydantic import TypeAdapter, ValidationError
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
-from runner.scenario.model import CPUS_CONTEXT, Expectation, ProcessSpec, Scenario, metric_figure
+from runner.scenario import program
+from runner.scenario.model import CPUS_CONTEXT, Expectation, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from
 from runner.scenario.yamlsource import Document, load_file
@@ -66,6 +67,7 @@ def spec_hash(scenario: Scenario) -> str:
 
 
 _PROCESSES = TypeAdapter(list[ProcessSpec])
+_RESOURCES = TypeAdapter(dict[str, Resource])
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
 
 
@@ -145,7 +147,7 @@ def _check_cell(
         cell_problems.extend(problems_from(exc, doc, raw, Scenario))
         cell_problems.extend(_partial_cross_checks(doc, raw, index, context))
         return None, cell_problems, ""
-    cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index))
+    cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index, scenario.resources))
     findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
     cell_problems.extend(doc.problem(f.path, f.message) for f in findings)
     return scenario, cell_problems, spec_hash(scenario)
@@ -177,14 +179,25 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
             expectations.append((i, Expectation.model_validate(item)))
         except ValidationError:
             continue
-    return _cross_checks(doc, processes, expectations, index)
+    try:
+        resources: dict[str, Resource] | None = _RESOURCES.validate_python(raw.get("resources") or {})
+    except ValidationError:
+        resources = None  # its own problems are reported; references to it cannot be checked
+    return _cross_checks(doc, processes, expectations, index, resources)
 
 
 def _cross_checks(
-    doc: Document, processes: list[ProcessSpec], expectations: list[tuple[int, Expectation]], index: MatrixIndex
+    doc: Document,
+    processes: list[ProcessSpec],
+    expectations: list[tuple[int, Expectation]],
+    index: MatrixIndex,
+    resources: dict[str, Resource] | None,
 ) -> list[Problem]:
-    """Checks that span several fields: unique names, expectation targets and selectors."""
+    """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules."""
     out: list[Problem] = []
+    if resources is not None:
+        out.extend(doc.problem(path, message) for path, message in program.reference_problems(processes, resources))
+    out.extend(doc.problem(path, message) for path, message in program.deadline_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:

@@ -33,6 +33,7 @@ from pydantic import (
 )
 
 from runner import figures, units
+from runner.errors import did_you_mean
 
 COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
 
@@ -50,6 +51,9 @@ MAX_ANY_SIZE = 1 << 40  # 1 TiB: above the RAM of any machine the runner is used
 MIN_STACK, MAX_STACK = 16 << 10, 1 << 30  # per thread; the usual default is 8 MiB
 MAX_THREAD_COUNT, MAX_INSTANCES, MAX_HOGS = 1024, 64, 256
 MAX_LAST_SAMPLES = 1 << 22  # `samples: last N`: a ring of N samples (64 bytes each) per thread
+MIN_DL_RUNTIME = 1024  # the kernel refuses SCHED_DEADLINE runtimes below 1.024 us
+MAX_PHASES, MAX_EVENTS = 32, 128  # per thread, as the native core sizes its figures
+MAX_MEM_EVENT = 1 << 30  # a mem event writes at most this much of its buffer
 
 
 CPUS_CONTEXT = "cpus"
@@ -64,9 +68,14 @@ class KeyProblem(ValueError):
     lets the validator's report point at the key to change (its line), not at the object.
     """
 
-    def __init__(self, key: str, message: str) -> None:
+    def __init__(self, key: str | tuple[str | int, ...], message: str) -> None:
         super().__init__(message)
         self.key = key
+
+    @property
+    def path(self) -> tuple[str | int, ...]:
+        """The key, or the path below the object (`("events", 2)`), the problem belongs at."""
+        return self.key if isinstance(self.key, tuple) else (self.key,)
 
 
 def context_cpus(info: Optional[ValidationInfo]) -> tuple[int, ...]:
@@ -193,7 +202,7 @@ class Policy(str, enum.Enum):
         raise ValueError(f"unknown kernel scheduling policy {number}")
 
 
-POLICY_WORDS = ["other", "fifo", "rr", "batch", "idle"]
+POLICY_WORDS = ["other", "fifo", "rr", "batch", "idle", "deadline"]
 
 
 def _policy_name(text: str) -> str:
@@ -226,9 +235,23 @@ class Sched(Strict):
 
     model_config = ConfigDict(json_schema_extra={"examples": ["fifo:80", "SCHED_RR", {"policy": "other", "nice": -5}]})
 
-    policy: Policy = Field(description="other, batch, idle, fifo or rr (SCHED_ prefix and upper case accepted)")
+    policy: Policy = Field(description="other, batch, idle, fifo, rr or deadline (SCHED_ prefix and upper case accepted)")
     priority: Optional[int] = Field(None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
     nice: Optional[int] = Field(None, ge=-20, le=19, description="nice value -20..19 for other and batch")
+    runtime: Optional[Duration] = Field(None, description="deadline: CPU time granted every period (sched_runtime)")
+    deadline: Optional[Duration] = Field(None, description="deadline: relative deadline (default: the period, as rt-app)")
+    period: Optional[Duration] = Field(None, description="deadline: period (default: the runtime, as rt-app)")
+    util_min: Optional[int] = Field(None, ge=0, le=1024, description="uclamp minimum utilisation 0..1024 (kernels with uclamp)")
+    util_max: Optional[int] = Field(None, ge=0, le=1024, description="uclamp maximum utilisation 0..1024 (kernels with uclamp)")
+
+    @model_serializer(mode="wrap")
+    def _without_unset(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Leave the deadline and uclamp keys out while unset, so a cell's spec hash reads as before they existed."""
+        data: dict[str, Any] = handler(self)
+        for key in ("runtime", "deadline", "period", "util_min", "util_max"):
+            if getattr(self, key) is None:
+                data.pop(key, None)
+        return data
 
     @model_validator(mode="before")
     @classmethod
@@ -238,8 +261,12 @@ class Sched(Strict):
     @model_validator(mode="after")
     def _consistent(self) -> Sched:
         policy = self.policy
+        if self.util_min is not None and self.util_max is not None and self.util_min > self.util_max:
+            raise ValueError(f"util_min {self.util_min} is above util_max {self.util_max}")
         if policy is Policy.DEADLINE:
-            raise ValueError("policy 'deadline' is not supported yet; use fifo or rr for real-time threads")
+            return self._deadline_consistent()
+        if self.runtime is not None or self.deadline is not None or self.period is not None:
+            raise ValueError(f"runtime, deadline and period are for policy deadline, not {policy.value}")
         if policy.is_realtime:
             if self.priority is None:
                 raise ValueError(f"policy {policy.value} needs a priority 1..99, e.g. '{policy.value}:80'")
@@ -257,12 +284,41 @@ class Sched(Strict):
                 raise ValueError("policy idle takes no nice value")
         return self
 
+    def _deadline_consistent(self) -> Sched:
+        """SCHED_DEADLINE: runtime <= deadline <= period, defaults as rt-app (period = runtime, deadline = period)."""
+        if self.runtime is None:
+            raise ValueError("policy deadline needs a runtime, e.g. {policy: deadline, runtime: 2ms, period: 10ms}")
+        if self.priority not in (None, 0) or self.nice not in (None, 0):
+            raise ValueError("policy deadline takes runtime, deadline and period, not a priority or nice value")
+        period = self.period if self.period is not None else (self.deadline if self.deadline is not None else self.runtime)
+        deadline = self.deadline if self.deadline is not None else period
+        if self.runtime < MIN_DL_RUNTIME:
+            raise ValueError(f"runtime {units.format_duration(self.runtime)} is below the kernel's minimum of 1.024us")
+        if not self.runtime <= deadline <= period:
+            raise ValueError(
+                f"deadline needs runtime <= deadline <= period; got runtime {units.format_duration(self.runtime)}, "
+                f"deadline {units.format_duration(deadline)}, period {units.format_duration(period)}"
+            )
+        if period > MAX_PERIOD:
+            raise ValueError(f"period {units.format_duration(period)} is too long; at most {units.format_duration(MAX_PERIOD)}")
+        object.__setattr__(self, "period", period)  # frozen: the resolved defaults are set once, while validating
+        object.__setattr__(self, "deadline", deadline)
+        return self
+
     @property
     def rt_priority(self) -> int:
         return self.priority or 0
 
+    @property
+    def bandwidth(self) -> float:
+        """A deadline thread's share of one CPU (runtime / period); 0 for other policies."""
+        return self.runtime / self.period if self.policy is Policy.DEADLINE and self.runtime and self.period else 0.0
+
     def label(self) -> str:
-        """Compact form: `fifo:80`, `other`, `other nice=-5`."""
+        """Compact form: `fifo:80`, `other`, `other nice=-5`, `deadline 2ms/8ms/10ms`."""
+        if self.policy is Policy.DEADLINE:
+            parts = (self.runtime or 0, self.deadline or 0, self.period or 0)
+            return "deadline " + "/".join(units.format_duration(v) for v in parts)
         text = f"{self.policy.value}:{self.priority}" if self.policy.is_realtime else self.policy.value
         if self.nice:
             text += f" nice={self.nice}"
@@ -339,6 +395,342 @@ class SleepWork(Strict):
     kind: Literal["sleep"] = "sleep"
 
 
+class EventKind(str, enum.Enum):
+    """What one event of a program does (rt-app's event names; `broad` is read as broadcast)."""
+
+    RUN = "run"  # burn thread CPU time
+    RUNTIME = "runtime"  # busy for wall time
+    SLEEP = "sleep"  # relative sleep
+    TIMER = "timer"  # sleep to the next release of a timer
+    LOCK = "lock"
+    UNLOCK = "unlock"
+    WAIT = "wait"  # wait on a condition, with its mutex held
+    SIGNAL = "signal"
+    BROADCAST = "broadcast"
+    BARRIER = "barrier"
+    SUSPEND = "suspend"  # block until a resume on a queue
+    RESUME = "resume"
+    YIELD = "yield"
+    MEM = "mem"  # write N bytes of a per-thread buffer
+    ALLOC = "alloc"  # malloc, touch every page, free
+
+    @property
+    def takes(self) -> str:
+        """What the event's value is: a duration, a size, a resource name, a wait mapping, a timer, or nothing."""
+        return _EVENT_TAKES[self]
+
+    @property
+    def resource_kind(self) -> Optional[ResourceKind]:
+        """The kind of resource the event names, if it names one."""
+        return _EVENT_RESOURCE.get(self)
+
+
+class Overrun(str, enum.Enum):
+    """What a timer does with a release that came too late."""
+
+    SKIP = "skip"  # keep the grid, skip releases already past and count them missed (ROS 2 timers, kind: periodic)
+    REBASE = "rebase"  # run now; the next release is one period later (rt-app "relative")
+    CATCHUP = "catchup"  # keep the grid and run every late release at once (rt-app "absolute")
+
+
+class ResourceKind(str, enum.Enum):
+    """Synchronisation objects a scenario declares once and its threads share, across processes too."""
+
+    MUTEX = "mutex"
+    COND = "cond"
+    BARRIER = "barrier"
+    QUEUE = "queue"
+    TIMER = "timer"
+
+
+class Protocol(str, enum.Enum):
+    """A mutex's protocol: plain, or priority inheritance (PTHREAD_PRIO_INHERIT, the kernel's rt_mutex)."""
+
+    NONE = "none"
+    INHERIT = "inherit"
+
+
+_EVENT_TAKES = {
+    EventKind.RUN: "duration",
+    EventKind.RUNTIME: "duration",
+    EventKind.SLEEP: "duration",
+    EventKind.TIMER: "timer",
+    EventKind.LOCK: "resource",
+    EventKind.UNLOCK: "resource",
+    EventKind.WAIT: "wait",
+    EventKind.SIGNAL: "resource",
+    EventKind.BROADCAST: "resource",
+    EventKind.BARRIER: "resource",
+    EventKind.SUSPEND: "resource",
+    EventKind.RESUME: "resource",
+    EventKind.YIELD: "nothing",
+    EventKind.MEM: "size",
+    EventKind.ALLOC: "size",
+}
+_EVENT_RESOURCE = {
+    EventKind.LOCK: ResourceKind.MUTEX,
+    EventKind.UNLOCK: ResourceKind.MUTEX,
+    EventKind.WAIT: ResourceKind.COND,
+    EventKind.SIGNAL: ResourceKind.COND,
+    EventKind.BROADCAST: ResourceKind.COND,
+    EventKind.BARRIER: ResourceKind.BARRIER,
+    EventKind.SUSPEND: ResourceKind.QUEUE,
+    EventKind.RESUME: ResourceKind.QUEUE,
+}
+_EVENT_ALIASES = {"broad": "broadcast"}
+_EVENT_EXAMPLES = {
+    "duration": "{run: 200us}",
+    "size": "{mem: 64KiB}",
+    "resource": "{lock: name}",
+    "wait": "{wait: {cond: name, mutex: name}}",
+    "timer": "{timer: {period: 1ms}} or {timer: name}",
+    "nothing": "yield",
+}
+
+
+def _event_shorthand(value: Any) -> Any:
+    """`{run: 200us}`, `yield`, `{timer: {period: 1ms}}` as the typed form `{event: run, duration: 200us}`."""
+    if isinstance(value, str):
+        value = {value: None}
+    if not isinstance(value, dict):
+        raise ValueError(f"an event is a one-key mapping such as {{run: 200us}} or the word yield, got {type(value).__name__}")
+    if "event" in value:
+        return value
+    if len(value) != 1:
+        keys = ", ".join(repr(k) for k in value)
+        raise ValueError(f"an event has exactly one key (its kind), got {len(value)}: {keys}; write each event as its own list item")
+    ((word, arg),) = value.items()
+    word = _EVENT_ALIASES.get(str(word), str(word))
+    try:
+        kind = EventKind(word)
+    except ValueError:
+        names = [k.value for k in EventKind]
+        hint = did_you_mean(word, names)
+        raise ValueError(f"unknown event {word!r}{hint or '; events: ' + ', '.join(names)}") from None
+    takes = kind.takes
+    if takes == "nothing":
+        if arg not in (None, "", 0):
+            raise ValueError(f"{word} takes no value; write it as the bare word `{word}`")
+        return {"event": word}
+    if arg is None:
+        raise ValueError(f"{word} needs a value, e.g. {_EVENT_EXAMPLES[takes]}")
+    if takes == "wait":
+        if not isinstance(arg, dict):
+            raise ValueError(f"wait needs its condition and mutex, e.g. {_EVENT_EXAMPLES['wait']}")
+        return {"event": word, **arg}
+    if takes == "timer":
+        return {"event": word, **arg} if isinstance(arg, dict) else {"event": word, "timer": arg}
+    return {"event": word, takes: arg}
+
+
+class Event(Strict):
+    """One step of a program, written `{run: 200us}`, `{lock: name}`, `{timer: {period: 1ms}}` or `yield`."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": ["yield", {"run": "200us"}, {"lock": "data"}, {"timer": {"period": "1ms"}}]})
+
+    event: EventKind
+    duration: Optional[Duration] = None
+    size: Optional[Size] = None
+    resource: Optional[str] = None
+    cond: Optional[str] = None
+    mutex: Optional[str] = None
+    timer: Optional[str] = Field(None, description="a named timer of resources")
+    period: Optional[Duration] = None
+    overrun: Optional[Overrun] = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        return _event_shorthand(value)
+
+    @model_validator(mode="after")
+    def _complete(self) -> Event:
+        kind = self.event
+        if kind is EventKind.WAIT and (self.cond is None or self.mutex is None):
+            raise ValueError(f"wait needs both a cond and a mutex, e.g. {_EVENT_EXAMPLES['wait']}")
+        if kind is EventKind.TIMER:
+            if (self.timer is None) == (self.period is None):
+                raise ValueError("a timer event names a timer of resources or has its own period, e.g. {timer: {period: 1ms}}")
+            if self.period is not None and not MIN_PERIOD <= self.period <= MAX_PERIOD:
+                raise ValueError(
+                    f"timer period {units.format_duration(self.period)} is out of range; expected "
+                    f"{units.format_duration(MIN_PERIOD)} to {units.format_duration(MAX_PERIOD)}"
+                )
+        elif self.overrun is not None or self.period is not None or self.timer is not None:
+            raise ValueError("period, overrun and timer belong to timer events")
+        if kind in (EventKind.RUN, EventKind.RUNTIME, EventKind.SLEEP) and self.duration is not None and self.duration > MAX_PERIOD:
+            raise ValueError(
+                f"{kind.value} {units.format_duration(self.duration)} is too long; at most {units.format_duration(MAX_PERIOD)}"
+            )
+        if kind is EventKind.MEM and self.size is not None and self.size > MAX_MEM_EVENT:
+            raise ValueError(f"mem {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
+        return self
+
+    @model_serializer(mode="plain")
+    def _compact(self) -> Any:
+        """The event as written: `{run: 200us}`, `yield`, `{wait: {cond: c, mutex: m}}` (what the spec hash covers)."""
+        kind = self.event
+        takes = kind.takes
+        if takes == "nothing":
+            return kind.value
+        if takes == "wait":
+            return {kind.value: {"cond": self.cond, "mutex": self.mutex}}
+        if takes == "timer":
+            if self.timer is not None:
+                return {kind.value: self.timer}
+            body: dict[str, Any] = {"period": units.format_duration(self.period or 0)}
+            if self.overrun is not None:
+                body["overrun"] = self.overrun.value
+            return {kind.value: body}
+        if takes == "duration":
+            return {kind.value: units.format_duration(self.duration or 0)}
+        if takes == "size":
+            return {kind.value: units.format_size(self.size or 0)}
+        return {kind.value: self.resource}
+
+    def names(self) -> list[tuple[str, ResourceKind]]:
+        """The resources this event names, with the kind each must be."""
+        kind = self.event
+        if kind is EventKind.WAIT:
+            return [(self.cond or "", ResourceKind.COND), (self.mutex or "", ResourceKind.MUTEX)]
+        if kind is EventKind.TIMER:
+            return [(self.timer, ResourceKind.TIMER)] if self.timer is not None else []
+        wanted = kind.resource_kind
+        return [(self.resource or "", wanted)] if wanted is not None else []
+
+    def label(self) -> str:
+        """`lock data`, `run 200us`, `timer 1ms`, `wait ready (data)`: how the report names the event."""
+        kind = self.event
+        if kind is EventKind.WAIT:
+            return f"wait {self.cond} ({self.mutex})"
+        if kind is EventKind.TIMER:
+            return f"timer {self.timer}" if self.timer else f"timer {units.format_duration(self.period or 0)}"
+        if self.duration is not None:
+            return f"{kind.value} {units.format_duration(self.duration)}"
+        if self.size is not None:
+            return f"{kind.value} {units.format_size(self.size)}"
+        return f"{kind.value} {self.resource}" if self.resource else kind.value
+
+
+class Phase(Strict):
+    """A named, ordered list of events run `loop` times, with scheduling and CPUs applied when it is entered."""
+
+    name: Optional[str] = Field(None, description="phase name (default p0, p1, ...)")
+    loop: int = Field(1, ge=1, le=1 << 40, description="passes over the events before the next phase")
+    sched: Optional[Sched] = Field(None, description="scheduling applied when the phase is entered")
+    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied when the phase is entered")
+    events: list[Event] = Field(min_length=1, description="what the phase does, in order")
+
+    @model_validator(mode="after")
+    def _balanced(self) -> Phase:
+        """Locks balance within the phase, and a wait holds its mutex: what pthreads would refuse or deadlock on."""
+        held: list[str] = []
+        for i, ev in enumerate(self.events):
+            if ev.event is EventKind.LOCK:
+                if ev.resource in held:
+                    raise KeyProblem(
+                        ("events", i), f"lock {ev.resource} while this thread already holds it would deadlock; unlock it first"
+                    )
+                held.append(ev.resource or "")
+            elif ev.event is EventKind.UNLOCK:
+                if ev.resource not in held:
+                    raise KeyProblem(("events", i), f"unlock {ev.resource} without a lock {ev.resource} before it in this phase")
+                held.remove(ev.resource or "")
+            elif ev.event is EventKind.WAIT and ev.mutex not in held:
+                raise KeyProblem(("events", i), f"wait on {ev.cond} needs its mutex {ev.mutex} held; add {{lock: {ev.mutex}}} before it")
+        if held:
+            raise KeyProblem("events", f"the phase ends holding {', '.join(held)}; unlock in the same phase (a phase may loop)")
+        return self
+
+
+def _phases_shorthand(value: Any) -> Any:
+    """`events: [...]` directly under the work is one phase."""
+    if isinstance(value, dict) and "events" in value and "phases" not in value:
+        value = dict(value)
+        value["phases"] = [{"events": value.pop("events")}]
+    return value
+
+
+class PhasesWork(Strict):
+    """A program as rt-app writes one: phases of events, looped, with per-phase scheduling.  Runs in the native core."""
+
+    kind: Literal["phases"] = "phases"
+    delay: Duration = Field(0, description="start this long after the common start")
+    loop: int = Field(0, ge=0, le=1 << 40, description="passes over all phases; 0: until the run ends")
+    phases: list[Phase] = Field(min_length=1, description="the phases, in order (or write events: for one phase)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        return _phases_shorthand(value)
+
+    @model_validator(mode="after")
+    def _fits(self) -> PhasesWork:
+        if self.delay > MAX_OFFSET:
+            raise KeyProblem("delay", f"delay {units.format_duration(self.delay)} is too long; at most {units.format_duration(MAX_OFFSET)}")
+        if len(self.phases) > MAX_PHASES:
+            raise KeyProblem("phases", f"{len(self.phases)} phases; at most {MAX_PHASES} per thread")
+        total = sum(len(p.events) for p in self.phases)
+        if total > MAX_EVENTS:
+            raise KeyProblem("phases", f"{total} events in all phases; at most {MAX_EVENTS} per thread")
+        names = self.phase_names()
+        for i, name in enumerate(names):
+            if names.index(name) != i:
+                raise KeyProblem(("phases", i, "name"), f"phase name {name!r} is used twice in this thread")
+        periods = {e.period for p in self.phases for e in p.events if e.event is EventKind.TIMER and e.period is not None}
+        if len(periods) > 1:
+            raise KeyProblem(
+                "phases",
+                "a thread's timers share one period (its activations are measured against it); got "
+                + ", ".join(units.format_duration(p) for p in sorted(periods))
+                + "; put work with another period on another thread",
+            )
+        return self
+
+    def phase_names(self) -> list[str]:
+        return [p.name or f"p{i}" for i, p in enumerate(self.phases)]
+
+    def events(self) -> list[tuple[int, Event]]:
+        """Every event with the index of its phase, in program order."""
+        return [(k, e) for k, p in enumerate(self.phases) for e in p.events]
+
+    def timer_period(self, resources: dict[str, Resource]) -> Optional[int]:
+        """The period of the thread's timers (private or named), None when it has none."""
+        for _, e in self.events():
+            if e.event is EventKind.TIMER:
+                if e.period is not None:
+                    return e.period
+                res = resources.get(e.timer or "")
+                return res.period if res is not None else None
+        return None
+
+
+class Resource(Strict):
+    """A synchronisation object or a named timer, declared once and shared by every thread that names it."""
+
+    kind: ResourceKind
+    protocol: Protocol = Field(Protocol.NONE, description="mutex: none, or inherit (priority inheritance)")
+    period: Optional[Duration] = Field(None, description="timer: the period of its release grid")
+    overrun: Overrun = Field(Overrun.SKIP, description="timer: skip, rebase or catchup on a late release")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Resource:
+        if self.kind is ResourceKind.TIMER:
+            if self.period is None:
+                raise ValueError("a timer needs a period, e.g. {kind: timer, period: 10ms}")
+            if not MIN_PERIOD <= self.period <= MAX_PERIOD:
+                raise KeyProblem(
+                    "period",
+                    f"period {units.format_duration(self.period)} is out of range; expected "
+                    f"{units.format_duration(MIN_PERIOD)} to {units.format_duration(MAX_PERIOD)}",
+                )
+        elif self.period is not None:
+            raise KeyProblem("period", f"period is for timers, not a {self.kind.value}")
+        if self.protocol is not Protocol.NONE and self.kind is not ResourceKind.MUTEX:
+            raise KeyProblem("protocol", f"protocol is for mutexes, not a {self.kind.value}")
+        return self
+
+
 def _work_shorthand(value: Any) -> Any:
     if isinstance(value, str):
         return {"kind": value}
@@ -346,11 +738,11 @@ def _work_shorthand(value: Any) -> Any:
 
 
 Work = Annotated[
-    Union[PeriodicWork, SpinWork, SleepWork],
+    Union[PeriodicWork, SpinWork, SleepWork, PhasesWork],
     Field(discriminator="kind"),
     BeforeValidator(_work_shorthand),
 ]
-"""What a thread runs; `kind` selects it.  New kinds (rt-app-like phases) add members here."""
+"""What a thread runs; `kind` selects it."""
 
 
 # ------------------------------------------------------------------------ threads
@@ -869,6 +1261,9 @@ class Scenario(Strict):
         None, description="wake-up latency above which a release counts as an outlier (figure latency.above_bound; samples: outliers)"
     )
     samples: SamplesSetting = Field(default_factory=Samples, description="per-callback samples to write: all, none, outliers or last N")
+    resources: dict[str, Resource] = Field(
+        default_factory=dict, description="mutexes, conditions, barriers, queues and named timers the threads' events share, by name"
+    )
 
     _text = field_validator("description")(lambda cls, v: _no_control("description", "\n\t")(v))
 
@@ -890,7 +1285,17 @@ class Scenario(Strict):
             data.pop("latency_bound", None)
         if self.samples.mode is SamplesMode.ALL:
             data.pop("samples", None)
+        if not self.resources:
+            data.pop("resources", None)
         return data
+
+    @field_validator("resources")
+    @classmethod
+    def _resource_names(cls, value: dict[str, Resource]) -> dict[str, Resource]:
+        for name in value:
+            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", name):
+                raise ValueError(f"resource name {name!r} may use letters, digits and _ . - (64 at most), starting with a letter or _")
+        return value
 
     @field_validator("latency_bound")
     @classmethod

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Optional
 from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from runner import units
-from runner.scenario.model import ApplyWhen, PeriodicWork, Policy, ProcessSpec, Scenario, Sched, Work
+from runner.scenario.model import ApplyWhen, EventKind, PeriodicWork, PhasesWork, Policy, ProcessSpec, Resource, Scenario, Sched, Work
 
 
 def _cpus_in(value: Any) -> Any:
@@ -44,12 +44,17 @@ class Settings:
     priority: int = 0
     nice: int = 0
     cpus: AffinityCpus = None
+    runtime: int = 0  # SCHED_DEADLINE parameters in ns; 0 for other policies
+    deadline: int = 0
+    period: int = 0
 
     def with_sched(self, sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> Settings:
         """These settings after applying `sched` and `cpus` (absent parts stay as they are)."""
         out = self
         if sched is not None:
-            out = replace(out, policy=sched.policy, priority=sched.rt_priority)
+            out = replace(out, policy=sched.policy, priority=sched.rt_priority, runtime=0, deadline=0, period=0)
+            if sched.policy is Policy.DEADLINE:
+                out = replace(out, runtime=sched.runtime or 0, deadline=sched.deadline or 0, period=sched.period or 0, nice=0)
             if sched.nice is not None:
                 out = replace(out, nice=sched.nice)
         if cpus is not None:
@@ -57,11 +62,13 @@ class Settings:
         return out
 
     def reset_on_fork(self) -> Settings:
-        """What SCHED_RESET_ON_FORK gives a child: RT and idle become OTHER, negative nice becomes 0."""
+        """What SCHED_RESET_ON_FORK gives a child: RT, deadline and idle become OTHER, negative nice becomes 0."""
         policy = self.policy if self.policy in (Policy.OTHER, Policy.BATCH) else Policy.OTHER
-        return replace(self, policy=policy, priority=0, nice=max(self.nice, 0))
+        return replace(self, policy=policy, priority=0, nice=max(self.nice, 0), runtime=0, deadline=0, period=0)
 
     def label(self) -> str:
+        if self.policy is Policy.DEADLINE:
+            return "deadline " + "/".join(units.format_duration(v) for v in (self.runtime, self.deadline, self.period))
         text = f"{self.policy.value}:{self.priority}" if self.policy.is_realtime else self.policy.value
         if self.nice:
             text += f" nice={self.nice}"
@@ -86,14 +93,27 @@ class PlannedThread:
     work: Work
     settings: Settings
     origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
+    period: Optional[int] = None  # the period of its callbacks (periodic work, or a program's timer); None without
 
 
-def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[PlannedThread]:
+def work_period(work: Work, resources: Optional[dict[str, Resource]] = None) -> Optional[int]:
+    """The period a thread's callbacks are released at: periodic work's, or its program's timer's; None without."""
+    if isinstance(work, PeriodicWork):
+        return work.period
+    if isinstance(work, PhasesWork):
+        return work.timer_period(resources or {})
+    return None
+
+
+def plan_process(
+    proc: ProcessSpec, start: Settings, instance: int = 0, resources: Optional[dict[str, Resource]] = None
+) -> list[PlannedThread]:
     """Expected settings of every thread of one process instance, main thread first."""
     base = start.reset_on_fork() if proc.reset_on_fork else start
     main_final = base.with_sched(proc.main.sched, proc.main.cpus)
     creator = main_final if proc.main.apply is ApplyWhen.BEFORE_THREADS else base
-    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main")]
+    main_period = work_period(proc.main.work, resources)
+    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main", main_period)]
     index = 1
     for spec in proc.threads:
         initial = creator if spec.inherit else EXPLICIT_DEFAULTS
@@ -101,7 +121,8 @@ def plan_process(proc: ProcessSpec, start: Settings, instance: int = 0) -> list[
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
         for member in spec.members():  # each its own CPU, priority and period when the spec spreads them
             final = initial.with_sched(member.sched, member.cpus)
-            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin))
+            period = work_period(member.work, resources)
+            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin, period))
             index += 1
     return out
 
@@ -111,9 +132,12 @@ def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:
     out: list[PlannedThread] = []
     for proc in scenario.processes:
         for instance in range(proc.instances):
-            out.extend(plan_process(proc, start, instance))
+            out.extend(plan_process(proc, start, instance, scenario.resources))
     return out
 
 
 def is_periodic(work: Work) -> bool:
+    """Whether the thread runs callbacks released on a period: periodic work, or a program with a timer."""
+    if isinstance(work, PhasesWork):
+        return any(e.event is EventKind.TIMER for _, e in work.events())
     return isinstance(work, PeriodicWork)

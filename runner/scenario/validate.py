@@ -38,6 +38,18 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     return tuple(path), node
 
 
+def _existing(value: Any, path: Path) -> Path:
+    """The longest start of `path` that exists in `value`: where a KeyProblem can point."""
+    out: list[str | int] = []
+    for elem in path:
+        if (isinstance(value, dict) and elem in value) or (isinstance(value, list) and isinstance(elem, int) and 0 <= elem < len(value)):
+            value = value[elem]
+        else:
+            break
+        out.append(elem)
+    return tuple(out)
+
+
 def _is_tag(elem: str, node: dict[str, Any]) -> bool:
     return node.get("kind") == elem or "[" in elem or elem.startswith("function-")
 
@@ -120,8 +132,8 @@ def problems_from(exc: ValidationError, doc: Document, data: Any, root: type[Bas
         elif kind == "value_error":
             error = ctx.get("error")
             message = str(error if error is not None else err["msg"])
-            if isinstance(error, KeyProblem) and isinstance(value, dict) and error.key in value:
-                full = full + (error.key,)  # a rule checked on the whole object, caused by this key
+            if isinstance(error, KeyProblem):
+                full = full + _existing(value, error.path)  # a rule checked on the whole object, caused by this key
         else:
             message = err["msg"][0].lower() + err["msg"][1:]
             if isinstance(given, _SCALARS) and not isinstance(given, dict):

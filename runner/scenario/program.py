@@ -1,0 +1,112 @@
+"""Rules of programs (`kind: phases`) that span threads: resource references, barrier parties, deadline threads.
+
+Pure.  The models check each thread's program on its own (events complete, locks
+balanced within a phase); what needs the whole scenario is here: every name an
+event uses is declared in `resources` with the right kind, a barrier has the two
+or more parties it counts, every queue a thread suspends on is resumed by some
+thread, every condition waited on is signalled, and SCHED_DEADLINE threads keep
+the kernel's rules (no affinity subset, no thread creation).  The loader turns
+the findings into located problems, all at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Union
+
+from runner.errors import did_you_mean
+from runner.scenario.model import (
+    ApplyWhen,
+    EventKind,
+    PhasesWork,
+    Policy,
+    ProcessSpec,
+    Resource,
+    ResourceKind,
+    Sched,
+)
+
+Path = tuple[Union[str, int], ...]
+
+
+def _programs(processes: list[ProcessSpec]) -> Iterator[tuple[Path, PhasesWork, int]]:
+    """Every program with its path and how many threads run it (count times instances)."""
+    for i, proc in enumerate(processes):
+        if isinstance(proc.main.work, PhasesWork):
+            yield ("processes", i, "main", "work"), proc.main.work, proc.instances
+        for j, spec in enumerate(proc.threads):
+            if isinstance(spec.work, PhasesWork):
+                yield ("processes", i, "threads", j, "work"), spec.work, spec.count * proc.instances
+
+
+def barrier_parties(processes: list[ProcessSpec]) -> dict[str, int]:
+    """Threads that pass each barrier: every thread whose program names it, each copy counted."""
+    out: dict[str, int] = {}
+    for _, work, copies in _programs(processes):
+        for name in {e.resource for _, e in work.events() if e.event is EventKind.BARRIER}:
+            out[name or ""] = out.get(name or "", 0) + copies
+    return out
+
+
+def reference_problems(processes: list[ProcessSpec], resources: dict[str, Resource]) -> list[tuple[Path, str]]:
+    """Every event naming an undeclared resource or one of the wrong kind, and objects nobody could ever release."""
+    out: list[tuple[Path, str]] = []
+    used: dict[EventKind, set[str]] = {}
+    declared = sorted(resources)
+    for path, work, _ in _programs(processes):
+        for k, phase in enumerate(work.phases):
+            for e, event in enumerate(phase.events):
+                where = path + ("phases", k, "events", e)
+                used.setdefault(event.event, set()).update(n for n, _ in event.names())
+                for name, wanted in event.names():
+                    res = resources.get(name)
+                    if res is None:
+                        hint = did_you_mean(name, declared) or f"; declare it: resources: {{{name}: {{kind: {wanted.value}}}}}"
+                        out.append((where, f"{event.event.value} names {name!r}, which resources does not declare{hint}"))
+                    elif res.kind is not wanted:
+                        out.append((where, f"{event.event.value} needs a {wanted.value}, but {name!r} is a {res.kind.value}"))
+    for name, parties in barrier_parties(processes).items():
+        if name in resources and parties < 2:
+            out.append((("resources", name), f"barrier {name!r} is passed by {parties} thread; a barrier needs two or more"))
+    for name in sorted(used.get(EventKind.SUSPEND, set()) - used.get(EventKind.RESUME, set())):
+        if name in resources:
+            out.append(
+                (("resources", name), f"threads suspend on queue {name!r} but no thread resumes it; they would wait for the whole run")
+            )
+    waited = used.get(EventKind.WAIT, set()) & {n for n, r in resources.items() if r.kind is ResourceKind.COND}
+    for name in sorted(waited - used.get(EventKind.SIGNAL, set()) - used.get(EventKind.BROADCAST, set())):
+        out.append((("resources", name), f"threads wait on cond {name!r} but no thread signals or broadcasts it"))
+    return out
+
+
+def deadline_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
+    """SCHED_DEADLINE rules the kernel enforces: full affinity, and no threads created by a deadline thread."""
+    out: list[tuple[Path, str]] = []
+    why_cpus = (
+        "a SCHED_DEADLINE thread must be allowed on every CPU of its root domain (the kernel refuses the policy or the "
+        "affinity otherwise); remove cpus, or run it in an exclusive cpuset"
+    )
+
+    def check(path: Path, sched: Sched | None, cpus: object) -> None:
+        if sched is not None and sched.policy is Policy.DEADLINE and cpus is not None:
+            out.append((path + ("cpus",), why_cpus))
+
+    for i, proc in enumerate(processes):
+        main = proc.main
+        check(("processes", i, "main"), main.sched, main.cpus)
+        if main.sched is not None and main.sched.policy is Policy.DEADLINE and proc.threads and main.apply is ApplyWhen.BEFORE_THREADS:
+            out.append(
+                (
+                    ("processes", i, "main", "sched"),
+                    "a SCHED_DEADLINE thread cannot create threads (the kernel refuses the clone); use apply: after_threads",
+                )
+            )
+        for j, spec in enumerate(proc.threads):
+            check(("processes", i, "threads", j), spec.sched, spec.cpus)
+            work = spec.work
+            if isinstance(work, PhasesWork):
+                deadline_phase = any(p.sched is not None and p.sched.policy is Policy.DEADLINE for p in work.phases)
+                for k, phase in enumerate(work.phases):
+                    if deadline_phase and phase.cpus is not None:  # the thread turns deadline in some phase
+                        out.append((("processes", i, "threads", j, "work", "phases", k, "cpus"), why_cpus))
+    return out
