@@ -43,7 +43,7 @@ def _existing(value: Any, path: Path) -> Path:
     out: list[str | int] = []
     for elem in path:
         if (isinstance(value, dict) and elem in value) or (isinstance(value, list) and isinstance(elem, int) and 0 <= elem < len(value)):
-            value = value[elem]
+            value = cast(Any, value)[elem]  # a key of this dict or an index of this list, as just checked
         else:
             break
         out.append(elem)
