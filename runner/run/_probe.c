@@ -1256,8 +1256,10 @@ static struct program *parse_program(const struct group *g, PyObject *spec) {
             PyErr_Format(PyExc_ValueError, "event %zd (type %d) names resource %d of %zd, or has no period", i, e->type, e->res, g->nres);
             goto fail;
         }
+        /* A timer's state is the first event naming the same timer: a named one by name, and the thread's
+         * private timers (which share one period) as one, so a phase that comes back resumes the grid. */
         e->key = (int)i;
-        if (e->type == EV_TIMER && e->res >= 0) {
+        if (e->type == EV_TIMER) {
             for (Py_ssize_t k = 0; k < i; k++)
                 if (p->events[k].type == EV_TIMER && p->events[k].res == e->res) {
                     e->key = (int)k;

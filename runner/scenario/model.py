@@ -215,10 +215,16 @@ def _policy_name(text: str) -> str:
 
 
 def _sched_shorthand(value: Any) -> Any:
-    """Accept `fifo`, `FIFO`, `SCHED_FIFO` and `fifo:80` as well as the mapping form."""
+    """Accept `fifo`, `FIFO`, `SCHED_FIFO`, `fifo:80` and `deadline:2ms/8ms/10ms` as well as the mapping form."""
     if isinstance(value, str):
         policy, sep, priority = value.partition(":")
         out: dict[str, Any] = {"policy": _policy_name(policy)}
+        if sep and out["policy"] == "deadline":  # deadline:RUNTIME[/DEADLINE[/PERIOD]], as a matrix value can say it
+            parts = priority.split("/")
+            if len(parts) > 3:
+                raise ValueError(f"{value!r}: write deadline:RUNTIME/DEADLINE/PERIOD, e.g. 'deadline:2ms/8ms/10ms'")
+            out.update(zip(("runtime", "deadline", "period"), (p.strip() for p in parts)))
+            return out
         if sep:
             try:
                 out["priority"] = int(priority)
