@@ -6,12 +6,15 @@ behaviour, not taken from the converter.
 
 from __future__ import annotations
 
+import json
 import os
 import textwrap
 
 import pytest
 import yaml
 from conftest import REPO, run_cli
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from runner.errors import ScenarioError
 from runner.scenario.rtapp import FOREVER, Pairs, convert, event_kind, parse_relaxed, relax
@@ -476,8 +479,9 @@ def test_the_process_is_named_after_the_file():
 
 
 def test_repeated_phase_names_are_made_unique():
-    c = conv('{"tasks": {"t": {"phases": {"p": {"run": 1}, "q": {"run": 2}, "p": {"run": 3}}}}}')
-    assert [p["name"] for p in c.scenario["processes"][0]["threads"][0]["work"]["phases"]] == ["p", "q", "p_2"]
+    c = conv('{"tasks": {"t": {"phases": {"p": {"run": 1}, "q": {"run": 2}, "p": {"run": 3}, "": {"run": 4}, "a\\nb": {"run": 5}}}}}')
+    assert [p["name"] for p in c.scenario["processes"][0]["threads"][0]["work"]["phases"]] == ["p", "q", "p_2", "p3", "a_b"]
+    assert 'tasks.t.phases.p: a second phase named "p"; named p_2 here' in c.notes
 
 
 # ------------------------------------------------------------------------- problems
@@ -559,6 +563,67 @@ def test_positions_skip_comments_and_bare_keys():
 def test_absurd_input_is_refused_without_a_traceback():
     assert "nesting is too deep" in problems("[" * 100_000 + "]" * 100_000)
     assert "larger than" in problems('{"tasks": {"t": {"run": 1}}, "x": "' + "a" * (1 << 20) + '"}')
+
+
+_KEYS = st.sampled_from(
+    [
+        "tasks",
+        "global",
+        "phases",
+        "run",
+        "run1",
+        "sleep",
+        "timer",
+        "lock",
+        "wait",
+        "suspend",
+        "resume",
+        "loop",
+        "instance",
+        "policy",
+        "priority",
+        "cpus",
+        "ref",
+        "period",
+        "mode",
+        "mutex",
+        "duration",
+        "dl-runtime",
+        "barrier",
+        "x",
+    ]
+)
+_SCALARS = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-5, 3000),
+    st.floats(allow_nan=False),
+    st.sampled_from(["", "unique", "SCHED_FIFO", "m", "absolute"]),
+)
+_JSON = st.recursive(
+    _SCALARS,
+    lambda inner: st.one_of(st.lists(inner, max_size=3), st.lists(st.tuples(_KEYS, inner), max_size=5).map(Pairs)),
+    max_leaves=25,
+)
+
+
+def _dump(value) -> str:
+    if isinstance(value, Pairs):
+        return "{" + ", ".join(f"{json.dumps(k)}: {_dump(v)}" for k, v in value) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_dump(v) for v in value) + "]"
+    return json.dumps(value)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.text(max_size=80), _JSON.map(_dump)))
+def test_any_input_converts_or_is_reported_never_a_traceback(text):
+    try:
+        c = convert(text, "f.json")
+    except ScenarioError as exc:
+        assert exc.problems
+    else:
+        assert yaml.safe_load(c.yaml()) == c.scenario
 
 
 # --------------------------------------------------------------------------- YAML

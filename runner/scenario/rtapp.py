@@ -757,13 +757,15 @@ class _Converter:
             sched = self.read_sched(body, here, current)
             events = self.events(body, here, task, here)
             phase: dict[str, Any] = {}
-            name = key
-            if name in names:
-                n = 2
-                while f"{key}_{n}" in names:
-                    n += 1
-                name = f"{key}_{n}"
-                self.note(here, f'a second phase named "{key}"; named {name} here')
+            base = "".join("_" if control_character(c) else c for c in key).strip() or f"p{i}"
+            name, n = base, 2
+            while name in names:
+                name, n = f"{base}_{n}", n + 1
+            if name != key:
+                why = (
+                    f'a second phase named "{printable(key)}"' if base == key else f'phase name "{printable(key)}" is empty or unprintable'
+                )
+                self.note(here, f"{why}; named {name} here")
             names.add(name)
             phase["name"] = name
             forever = loop <= 0
