@@ -478,6 +478,12 @@ def test_the_process_is_named_after_the_file():
     assert any("cut to 15 bytes" in n for n in c.notes)
 
 
+def test_the_process_is_not_named_like_a_thread():
+    c = conv('{"tasks": {"thread0": {"run": 1}}}', "merge/thread0.json")
+    assert c.scenario["processes"][0]["name"] == "thread0-app"
+    assert c.scenario["processes"][0]["threads"][0]["name"] == "thread0"
+
+
 def test_repeated_phase_names_are_made_unique():
     c = conv('{"tasks": {"t": {"phases": {"p": {"run": 1}, "q": {"run": 2}, "p": {"run": 3}, "": {"run": 4}, "a\\nb": {"run": 5}}}}}')
     assert [p["name"] for p in c.scenario["processes"][0]["threads"][0]["work"]["phases"]] == ["p", "q", "p_2", "p3", "a_b"]

@@ -1062,9 +1062,13 @@ class _Converter:
     # -- names
 
     def process_name(self) -> str:
+        """The file's base name as a comm; not a thread's name, since the main thread carries it too."""
         stem = re.sub(r"[^A-Za-z0-9_.+-]", "_", _stem(self.file)) or "rtapp"
         name = stem[:COMM_MAX]
-        if name != stem:
+        if name in self.thread_names:
+            name = stem[: COMM_MAX - len("-app")] + "-app"
+            self.note("", f'the process is named "{name}": "{stem[:COMM_MAX]}", after the file, is a thread\'s name')
+        elif name != stem:
             self.note("", f'the process is named "{name}", the file name cut to {COMM_MAX} bytes')
         return name
 
