@@ -3,11 +3,13 @@
 Pure: text in, plain data and notes out (`runner import-rtapp` reads and writes the files).
 
 Reading.  rt-app files are not strict JSON: they carry `/* */` and `//` comments, trailing
-commas, and the same key several times in one object (`"run": 1000, ..., "run": 2000`, workgen's
-convention; json-c would keep only the last).  A hand-written pre-pass blanks comments and
-trailing commas *in place* (every other character keeps its offset, so a JSON error's line and
+commas, the same key several times in one object (`"run": 1000, ..., "run": 2000`, workgen's
+convention; json-c would keep only the last), and bare keys (`"suspend",`, which workgen fills
+with the thread's name).  A hand-written pre-pass blanks comments and trailing commas *in place*
+and gives a bare key `:""` (`Relaxed.position` maps offsets back, so a JSON error's line and
 column are those of the file), then `json.loads` builds every object as `Pairs`, a list of all
-its (key, value) pairs in order.  Event keys are recognised by prefix, in rt-app's own order
+its (key, value) pairs in order.  A key given twice that is not an event (`loop`) takes its last
+value, as json-c does, with a note.  Event keys are recognised by prefix, in rt-app's own order
 (`runtime2` is a runtime, `run0` and `run_fast` are runs, `timer1` a timer).  Positions of keys
 are only needed for a problem's `file:line:col`, so they are looked up again in the cleaned text
 when a problem is reported, never for a file that converts.
@@ -26,7 +28,8 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   shape rt-app's logs and traces only (the runner records its own results); `calibration` as
   `"CPUn"` only says where rt-app calibrates its loop; `io_device` only matters to `iorun`, which
   is noted where it is used; unknown keys (`frag`, `spacing`) are ignored by rt-app too.
-* The tasks become the threads of one process named after the file (15 bytes, a valid comm).
+* The tasks become the threads of one process named after the file (15 bytes, a valid comm,
+  never a thread's name: the main thread carries it).
   `instance: N` -> `count: N`; names are cut to 15 bytes (room kept for `-N` suffixes), made
   unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
   SCHED_OTHER/BATCH, the RT priority for FIFO/RR, default 10 as rt-app);
@@ -46,7 +49,11 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   default: the next release is a period after a late one) -> `overrun: rebase`, `absolute` ->
   `overrun: catchup`.  `suspend: X` blocks on, and `resume: X` wakes, the queue `X` (rt-app
   names the thread; an empty suspend is the thread's own).  `iorun`, `fork` and anything else
-  are left out with a note.
+  are left out with a note, as are zero durations and sizes (they do nothing).
+* Keys rt-app does not read (a typo, `taskgroup`, the old grammar's `exec`/`period`/`lock_order`)
+  are noted where they are.  Wrong types and values rt-app or the kernel would refuse (a string
+  for a duration, FIFO priority 0, SCHED_DEADLINE without dl-runtime) are problems, all reported
+  at once as `file:line:col: key.path: message`.
 * Resources are inferred from use and listed under `resources:`.  rt-app keeps one namespace
   per kind, the scenario one for all: a name used as two kinds gets `_mutex`, `_cond`, ...
   suffixes, noted.
