@@ -17,9 +17,9 @@ from typing import Any
 
 from runner import __version__
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
-from runner.terminal import note, say
+from runner.terminal import note, say, warn
 
-COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge")
+COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge", "import-rtapp")
 _TOP_HELP = """\
 usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
@@ -28,6 +28,7 @@ usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its mat
        runner report RESULTS [-o FILE]     re-render the markdown report (and plots) of a run
        runner compare BASE NEW             compare two runs; exit 1 on a regression
        runner merge DIR... --out DIR       combine shard results into one results file and report
+       runner import-rtapp JSON [-o FILE]  convert an rt-app workload into a scenario (notes on stderr)
        runner --version
 
 Run `runner run --help` for the run options (SCENARIO.yaml is short for `runner run SCENARIO.yaml`).
@@ -104,6 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "report": _cmd_report,
         "compare": _cmd_compare,
         "merge": _cmd_merge,
+        "import-rtapp": _cmd_import_rtapp,
     }
     return _guarded(handlers[command], rest)
 
@@ -368,3 +370,38 @@ def _cmd_merge(argv: list[str]) -> int:
     finally:
         held.release()
     return int(exit_code([c.status for c in doc.cells], regressions))
+
+
+def _cmd_import_rtapp(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(
+        prog="runner import-rtapp",
+        description="Convert an rt-app workload (its JSON, with comments, trailing commas and repeated keys) into a runner "
+        "scenario with kind: phases work. What rt-app does that the scenario does differently, or not at all, is printed "
+        "on stderr and written as comments at the top of the scenario.",
+    )
+    p.add_argument("file", metavar="FILE.json", help="rt-app workload file")
+    p.add_argument("-o", "--output", metavar="FILE.yaml", help="write the scenario to FILE.yaml (default: stdout)")
+    ns = p.parse_args(argv)
+    from runner.errors import Problem
+    from runner.results.files import write_atomic
+    from runner.scenario.rtapp import MAX_BYTES, convert
+
+    try:
+        with open(ns.file, encoding="utf-8") as handle:
+            text = handle.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError([Problem(ns.file, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError([Problem(ns.file, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+    conversion = convert(text, ns.file)
+    for text_note in conversion.notes:
+        warn(f"{ns.file}: {text_note}")
+    if not ns.output:
+        sys.stdout.write(conversion.yaml())
+        return ExitCode.OK
+    try:
+        write_atomic(ns.output, conversion.yaml())
+    except OSError as exc:
+        raise from_os_error(exc, "cannot write the scenario", path=ns.output) from None
+    say(f"wrote {ns.output}")
+    return ExitCode.OK

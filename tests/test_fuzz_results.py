@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from reportdata import DATA, MATRIX
 
 EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "120"))
-RUNS = sorted(os.listdir(DATA))
+RUNS = sorted(name for name in os.listdir(DATA) if os.path.isfile(os.path.join(DATA, name, "results.json")))  # recorded runs, not rtapp/
 
 
 def _as_written(name: str) -> Any:
