@@ -303,7 +303,7 @@ def test_unique_timers_are_private_and_shared_timers_are_resources():
     }
 
 
-def test_one_unique_timer_in_several_events_is_noted():
+def test_one_unique_timer_in_several_events_is_one_grid_as_in_rt_app():
     c = conv(
         """
         {"tasks": {"t": {"phases": {
@@ -311,7 +311,18 @@ def test_one_unique_timer_in_several_events_is_noted():
             "b": {"timer": {"ref": "unique", "period": 30}}}}}}
         """
     )
-    assert any('tasks.t: 2 timer events name "unique"' in n for n in c.notes)
+    assert not any("timer" in n for n in c.notes)
+
+
+def test_two_unique_timers_of_one_thread_becoming_one_grid_is_noted():
+    c = conv(
+        """
+        {"tasks": {"t": {"phases": {
+            "a": {"run": 1, "timer": {"ref": "uniqueA", "period": 30}},
+            "b": {"timer": {"ref": "uniqueB", "period": 30}}}}}}
+        """
+    )
+    assert any("tasks.t: timers 'uniqueA', 'uniqueB'" in n and "one timer with one grid" in n for n in c.notes)
 
 
 def test_a_shared_timer_with_several_periods_keeps_the_first():

@@ -24,11 +24,11 @@ from pydantic import TypeAdapter, ValidationError
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
-from runner.scenario import program
+from runner.scenario import program, rtapp
 from runner.scenario.model import CPUS_CONTEXT, Expectation, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from
-from runner.scenario.yamlsource import Document, load_file
+from runner.scenario.yamlsource import Document, load_file, load_text
 
 
 @dataclass(frozen=True)
@@ -90,8 +90,29 @@ class MatrixIndex:
 def load_scenario(path: str, machine: lim.MachineLimits | None = None) -> LoadedScenario:
     """Read, validate and expand a scenario file, checked against this machine's limits
     (read here unless given); raise ScenarioError with all problems."""
-    doc = load_file(path)
-    return parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read())
+    notes: list[str] = []
+    doc = _rtapp_document(path, notes) if path.endswith(".json") else load_file(path)
+    loaded = parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read())
+    loaded.warnings[:0] = [Problem(path, 1, 1, "", note) for note in notes]
+    return loaded
+
+
+def _rtapp_document(path: str, notes: list[str]) -> Document:
+    """A `.json` file is an rt-app workload: convert it as `runner import-rtapp` would, and load the result.
+
+    What did not map exactly is added to `notes`.  Problems the scenario checks find are located
+    in the converted YAML (which `runner import-rtapp FILE` prints); the file name says so.
+    """
+    try:
+        with open(path, encoding="utf-8") as handle:
+            text = handle.read()
+    except OSError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+    conversion = rtapp.convert(text, path)
+    notes.extend(conversion.notes)
+    return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")
 
 
 def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> LoadedScenario:

@@ -935,13 +935,13 @@ class _Converter:
         return [{"timer": named}]
 
     def unique_notes(self, task: int, at: _At) -> None:
-        for (t, ref), use in self.unique.items():
-            if t == task and use.mentions.get(task, 0) > 1:
-                self.note(
-                    at,
-                    f'{use.mentions[task]} timer events name "{ref}": rt-app keeps one release grid for them in each thread; '
-                    "here each is a private timer of its own (its first release a period after it is first reached)",
-                )
+        refs = sorted(ref for (t, ref) in self.unique if t == task)
+        if len(refs) > 1:
+            self.note(
+                at,
+                f"timers {', '.join(repr(r) for r in refs)}: rt-app keeps a release grid per ref in each thread; "
+                "here a thread's private timers are one timer with one grid (its first release a period after it is first reached)",
+            )
 
     def use(self, kind: str, name: str, at: _At, task: int, op: str) -> _Ref:
         use = self.uses.setdefault(name, {}).setdefault(kind, _Use(str(at)))
