@@ -284,7 +284,7 @@ REGISTRY = REGISTRY + tuple(
         Threshold(relative=0.20, absolute=10_000) if q == "p99" and name in ("lock_wait", "chain") else None,
     )
     for name, field, words in _EVENT_FIGURES
-    for q in ("p50", "p99", "max", "mean")
+    for q in ("p50", "p90", "p99", "max", "mean")
 )
 
 BY_NAME: dict[str, Figure] = {f.name: f for f in REGISTRY}

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from runner.errors import ScenarioError
 from runner.scenario.rtapp import FOREVER, Pairs, convert, event_kind, parse_relaxed, relax
 
-RTAPP = os.path.join(REPO, "tests", "data", "rtapp")
+RTAPP = os.path.join(REPO, "tests", "rtapp")
 
 
 def conv(text: str, name: str = "w.json"):

@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO, SCENARIOS, run_cli
 
 from runner.scenario.loader import load_scenario
-from runner.scenario.model import Policy
+from runner.scenario.model import PhasesWork, Policy
 from runner.scenario.plan import Settings, plan_scenario
 from runner.scenario.schema import scenario_schema
 from runner.scenario.yamlsource import load_file
@@ -40,6 +40,9 @@ def test_every_example_of_the_issue_is_shipped():
 # scenarios that reproduce another tool's command rather than a seed program: they keep that tool's
 # timing (cyclictest's 1 ms wake-ups with no work, a short run), not the seed's proportion
 TOOLS = {"cyclictest_smp": "cyclictest"}
+# scenarios of programs (kind: phases) after rt-app's workloads: locks, deadline, chains, phases; each is run
+# for real by tests/test_kernel_programs.py, which holds it to the effect its description states
+PROGRAMS = {"priority_inversion", "deadline", "pipeline", "phases"}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
@@ -55,6 +58,14 @@ def test_shipped_scenario_validates_and_lists(path):
         for cell in loaded.cells:
             assert cell.scenario.duration <= 2_000_000_000, "a short run: it is run for real by the kernel tests"
             assert any(hasattr(t.work, "period") for t in plan_scenario(cell.scenario, Settings()))
+        return
+    if loaded.name in PROGRAMS:
+        for cell in loaded.cells:
+            threads = plan_scenario(cell.scenario, Settings())
+            assert any(isinstance(t.work, PhasesWork) and t.period for t in threads), "a program with a timer: callbacks to measure"
+            assert cell.scenario.duration <= 5_000_000_000
+            for t in threads:
+                assert t.settings.cpus is None or max(t.settings.cpus) < 2, "must run on a 2-CPU machine"
         return
     assert "ros2-realtime-examples" in loaded.description or loaded.name == "policy_matrix"
     for cell in loaded.cells:

@@ -311,6 +311,56 @@ def timing_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
     return Table(TIMING_HEADERS, rows, ["left"] + ["right"] * (len(TIMING_HEADERS) - 1)) if rows else None
 
 
+EVENT_HEADERS = ["Thread", "Phase", "Event", "Measures", "Count", "p50", "p99", "Max", "Contended", "Held by"]
+
+
+def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
+    """Per event of every program: how often it ran and what it took (lock wait, timer latency, run time), who held a lock."""
+    rows = []
+    for t in cell.threads:
+        for e in t.events:
+            sp = e.spread_ns
+            held = ", ".join(f"{h.thread} ({fmt_int(h.contentions)}x, {fmt_ns(h.wait_ns)})" for h in e.holders)
+            rows.append(
+                [
+                    labels[t.key],
+                    md_text(e.phase),
+                    md_text(e.event),
+                    e.measures,
+                    fmt_int(e.count),
+                    *(fmt_ns(getattr(sp, q)) if sp is not None else "-" for q in ("p50", "p99", "max")),
+                    fmt_int(e.contended) if e.kind == "lock" else "",
+                    md_text(held),
+                ]
+            )
+    return Table(EVENT_HEADERS, rows, ["left"] * 4 + ["right"] * 5 + ["left"]) if rows else None
+
+
+PHASE_HEADERS = ["Thread", "Phase", "Passes", "Time", "Settings on entry (kernel)", "CPUs seen", "Involuntary", "Voluntary", "Minor faults"]
+
+
+def phases_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
+    """Per phase of every program: passes, time, the settings the kernel reported on entry, CPUs, switches and faults."""
+    rows = []
+    for t in cell.threads:
+        for p in t.phases:
+            applied = f"{p.applied.label()}, cpus {p.applied.cpus_label()}" if p.applied is not None else "not entered"
+            rows.append(
+                [
+                    labels[t.key],
+                    md_text(p.name),
+                    fmt_int(p.passes),
+                    fmt_ns(p.time_ns),
+                    applied + (" ⚠️" if p.degraded else ""),
+                    ",".join(str(c) for c in p.cpus_seen) or "-",
+                    fmt_int(p.involuntary),
+                    fmt_int(p.voluntary),
+                    fmt_int(p.minor_faults),
+                ]
+            )
+    return Table(PHASE_HEADERS, rows, ["left", "left", "right", "right", "left", "left", "right", "right", "right"]) if rows else None
+
+
 def verdict_table(cell: CellResult) -> Table | None:
     if not cell.expectations:
         return None
@@ -545,6 +595,8 @@ class CellSection:
     ps: Markdown | None
     switches: Table
     timing: Table | None
+    events: Table | None
+    phases: Table | None
     verdicts: Table | None
     degraded: list[str]
     load: Markdown
@@ -605,6 +657,8 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
             ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
             switches=switch_table(cell, labels),
             timing=timing_table(cell, labels),
+            events=events_table(cell, labels),
+            phases=phases_table(cell, labels),
             verdicts=verdict_table(cell),
             degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
             load=_load_line(cell),

@@ -758,7 +758,8 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
             rc = pthread_mutex_timedlock(&m->m, &ts);
             if (rc != ETIMEDOUT || !live(s->group)) break;
         }
-        s->hdr->blocked_since_ns = 0;
+        /* Given up at the end of the run, or let through only by a thread that was leaving: the slot keeps where it stood. */
+        if (rc == 0 && live(s->group)) s->hdr->blocked_since_ns = 0;
         if (rc == 0 && i >= 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
         if (rc == 0) __atomic_add_fetch(&m->contended, 1, __ATOMIC_RELAXED);
     }
@@ -793,8 +794,8 @@ static void ev_wait(struct slot *s, struct program_state *ps, int i, const struc
         pthread_cond_timedwait(&c->c, &m->m, &ts);
     }
     m->owner = s->prog->gid;
-    s->hdr->blocked_since_ns = 0;
-    if (c->generation == gen) return; /* the run ended while waiting */
+    if (c->generation == gen) return; /* the run ended while waiting: the slot keeps where it stood */
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t now = now_ns(CLOCK_MONOTONIC);
     ev_record(s, i, now - t0);
     chain_close(s, ps, t0);
@@ -836,8 +837,9 @@ static void ev_barrier(struct slot *s, int i, const struct event *e) {
     }
     int passed = b->generation != gen;
     pthread_mutex_unlock(&b->m);
-    s->hdr->blocked_since_ns = 0;
-    if (passed) ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+    if (!passed) return; /* the run ended at the barrier: the slot keeps where it stood */
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
 }
 
 static void ev_resume(struct slot *s, struct program_state *ps, int i, const struct event *e) {
@@ -876,8 +878,8 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
         q->pending--;
     }
     pthread_mutex_unlock(&q->m);
-    s->hdr->blocked_since_ns = 0;
-    if (!got) return;
+    if (!got) return; /* the run ended while suspended: the slot keeps where it stood */
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     /* Wake-up latency of the hop: from the resume (or from this wait, if the resume came first) to running. */
     ev_record(s, i, wake - (resumed > t0 ? resumed : t0));
@@ -936,7 +938,7 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
         }
         default: break;
     }
-    s->hdr->cur_event = -1;
+    if (!s->hdr->blocked_since_ns) s->hdr->cur_event = -1;
 }
 
 static void read_back(struct phase_stats *st) {

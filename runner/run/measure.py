@@ -91,10 +91,10 @@ def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
     Limits and values are in the figure's unit (ns for durations), as the registry declares it.
     """
     name = exp.metric.value
-    value = fg.value(figs, fg.figure(name))
+    fig = fg.figure(name)
+    value = fg.value(figs, fig)
     if value is None:
-        return Verdict(
-            thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note="not measured (no callbacks)"
-        )
+        why = "no such events ran" if fig.scope is fg.Scope.EVENTS else "no callbacks"
+        return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note=f"not measured ({why})")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)
     return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok)

@@ -22,10 +22,11 @@ from typing import Any
 from pydantic import TypeAdapter, ValidationError
 
 from runner.errors import Problem, ScenarioError, did_you_mean
+from runner.figures import Scope
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
 from runner.scenario import program, rtapp
-from runner.scenario.model import CPUS_CONTEXT, Expectation, ProcessSpec, Resource, Scenario, metric_figure
+from runner.scenario.model import CPUS_CONTEXT, Expectation, PhasesWork, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from
 from runner.scenario.yamlsource import Document, load_file, load_text
@@ -217,8 +218,8 @@ def _cross_checks(
     """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules."""
     out: list[Problem] = []
     if resources is not None:
-        out.extend(doc.problem(path, message) for path, message in program.reference_problems(processes, resources))
-    out.extend(doc.problem(path, message) for path, message in program.deadline_problems(processes))
+        out.extend(doc.problem(_as_written(doc, path), message) for path, message in program.reference_problems(processes, resources))
+    out.extend(doc.problem(_as_written(doc, path), message) for path, message in program.deadline_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:
@@ -243,6 +244,13 @@ def _cross_checks(
                     path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"
                 )
             )
+        elif metric_figure(exp.metric).scope is Scope.EVENTS and not any(isinstance(t.work, PhasesWork) for t in targets):
+            out.append(
+                doc.problem(
+                    path + ("metric",),
+                    f"{exp.metric.value} is measured on a program's events, but {exp.thread!r} runs no kind: phases work",
+                )
+            )
         elif metric_figure(exp.metric).needs_callbacks and not any(is_periodic(t.work) for t in targets):
             out.append(
                 doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work")
@@ -261,6 +269,27 @@ def _cross_checks(
                         doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}")
                     )
     return out
+
+
+def _as_written(doc: Document, path: tuple[Any, ...]) -> tuple[Any, ...]:
+    """A model path as the file writes it: `work.phases[0].events` is `work.events` where the file uses that shorthand."""
+    node: Any = doc.data
+    for i, elem in enumerate(path):
+        if (
+            elem == "phases"
+            and isinstance(node, dict)
+            and "phases" not in node
+            and "events" in node
+            and path[i + 1 : i + 3] == (0, "events")
+        ):
+            return path[:i] + path[i + 2 :]
+        if isinstance(node, dict):
+            node = node.get(elem)
+        elif isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node):
+            node = node[elem]
+        else:
+            break
+    return path
 
 
 def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:

@@ -529,10 +529,39 @@ def _event_shorthand(value: Any) -> Any:
     return {"event": word, takes: arg}
 
 
+def _event_schema() -> dict[str, Any]:
+    """How events are written (one-key mappings or a bare word), for editors; the typed form is internal."""
+    name = {"type": "string", "description": "a name declared in resources"}
+    timer = {
+        "anyOf": [
+            name,
+            {
+                "type": "object",
+                "properties": {"period": _DURATION_SCHEMA, "overrun": {"enum": [o.value for o in Overrun]}},
+                "required": ["period"],
+                "additionalProperties": False,
+            },
+        ]
+    }
+    wait = {"type": "object", "properties": {"cond": name, "mutex": name}, "required": ["cond", "mutex"], "additionalProperties": False}
+    by_takes = {"duration": _DURATION_SCHEMA, "size": _SIZE_SCHEMA, "resource": name, "timer": timer, "wait": wait}
+    words = [k.value for k in EventKind if k.takes == "nothing"]
+    properties = {k.value: by_takes[k.takes] for k in EventKind if k.takes != "nothing"}
+    properties.update({alias: properties[target] for alias, target in _EVENT_ALIASES.items()})
+    return {
+        "anyOf": [
+            {"enum": words},
+            {"type": "object", "properties": properties, "minProperties": 1, "maxProperties": 1, "additionalProperties": False},
+        ],
+        "description": "one event: {run: 200us}, {lock: name}, {timer: {period: 1ms}}, {wait: {cond: c, mutex: m}}, yield, ...",
+        "examples": ["yield", {"run": "200us"}, {"lock": "data"}, {"timer": {"period": "1ms"}}],
+    }
+
+
 class Event(Strict):
     """One step of a program, written `{run: 200us}`, `{lock: name}`, `{timer: {period: 1ms}}` or `yield`."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": ["yield", {"run": "200us"}, {"lock": "data"}, {"timer": {"period": "1ms"}}]})
+    model_config = ConfigDict(json_schema_extra=lambda schema, cls: (schema.clear(), schema.update(_event_schema())) and None)
 
     event: EventKind
     duration: Optional[Duration] = None
@@ -1144,7 +1173,9 @@ class Expectation(Strict):
     def _units(cls, value: Any) -> Any:
         if isinstance(value, dict):
             metric = str(value.get("metric", ""))
-            latency = metric in figures.BY_NAME and figures.figure(metric).is_duration
+            if metric not in figures.BY_NAME:
+                return value  # the metric reports its own problem (with a "did you mean"); its unit is unknown
+            latency = figures.figure(metric).is_duration
             for bound in ("max", "min"):
                 given = value.get(bound)
                 if given is None:

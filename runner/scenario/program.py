@@ -69,7 +69,7 @@ def reference_problems(processes: list[ProcessSpec], resources: dict[str, Resour
         if name in resources and parties < 2:
             out.append((("resources", name), f"barrier {name!r} is passed by {parties} thread; a barrier needs two or more"))
     for name in sorted(used.get(EventKind.SUSPEND, set()) - used.get(EventKind.RESUME, set())):
-        if name in resources:
+        if name in resources and resources[name].kind is ResourceKind.QUEUE:
             out.append(
                 (("resources", name), f"threads suspend on queue {name!r} but no thread resumes it; they would wait for the whole run")
             )

@@ -16,8 +16,8 @@ SCHEMA_ID = "https://github.com/rt-scenario-runner/runner/runner.schema.json"
 _REFERENCE = {"type": "string", "pattern": r"^\s*\$\{\{\s*matrix\.[A-Za-z_][A-Za-z0-9_-]*\s*\}\}\s*$"}
 _SCHED_STRING = {
     "type": "string",
-    "pattern": r"^(?i:(sched_)?(other|normal|batch|idle|fifo|rr))(:\d+)?$",
-    "description": "policy, optionally with RT priority: fifo:80, SCHED_RR, other",
+    "pattern": r"^((?i:(sched_)?(other|normal|batch|idle|fifo|rr))(:\d+)?|(?i:(sched_)?deadline)(:[0-9.]+\s*(ns|us|µs|ms|s)(/[0-9.]+\s*(ns|us|µs|ms|s)){0,2})?)$",
+    "description": "policy, optionally with RT priority: fifo:80, SCHED_RR, other; deadline:RUNTIME/DEADLINE/PERIOD",
 }
 
 
@@ -40,6 +40,15 @@ def scenario_schema() -> dict[str, Any]:
     """The JSON Schema (draft 2020-12) of a scenario file."""
     schema = copy.deepcopy(Scenario.model_json_schema(mode="validation"))
     defs = schema["$defs"]
+    phases = defs["PhasesWork"]  # `events:` directly under the work is its one phase: either key, not both
+    phases["properties"]["events"] = {
+        "type": "array",
+        "items": {"$ref": "#/$defs/Event"},
+        "minItems": 1,
+        "description": "one phase's events",
+    }
+    phases["required"] = [r for r in phases.get("required", []) if r != "phases"]
+    phases["oneOf"] = [{"required": ["phases"]}, {"required": ["events"]}]
     defs["Sched"] = {"anyOf": [_SCHED_STRING, defs["Sched"]], "description": defs["Sched"].get("description", "")}
     kinds = {"type": "string", "enum": ["periodic", "spin", "sleep"]}
     for holder in ("MainThread", "ThreadSpec"):

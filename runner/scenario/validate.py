@@ -25,7 +25,20 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     """Follow `loc` through `data`, skipping union tags; return the path and the value found."""
     path: list[str | int] = []
     node: Any = data
-    for elem in loc:
+    skip = 0
+    for n, elem in enumerate(loc):
+        if skip:
+            skip -= 1
+            continue
+        if (
+            elem == "phases"
+            and isinstance(node, dict)
+            and "phases" not in node
+            and "events" in node
+            and loc[n + 1 : n + 3] == (0, "events")
+        ):
+            skip = 1  # `events:` written directly under the work is its one phase: phases[0].events is events
+            continue
         if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (
             isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)
         ):

@@ -1,0 +1,221 @@
+"""Programs (`kind: phases`) without processes: the model, what the native core is told, and what its records mean."""
+
+from __future__ import annotations
+
+import errno
+
+import pytest
+from pydantic import ValidationError
+
+from runner import histogram as hg
+from runner.run import _probe, programs
+from runner.run.evaluate import degradation
+from runner.run.rawcell import ApplyErrors
+from runner.run.samples import EventStats, PhaseStats, SlotData
+from runner.run.spawn import program_tuple, resource_specs
+from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
+from runner.scenario.plan import Settings, is_periodic, plan_scenario
+
+
+def scenario(**extra) -> Scenario:
+    base = {
+        "name": "s",
+        "resources": {"m": {"kind": "mutex", "protocol": "inherit"}, "tick": {"kind": "timer", "period": "5ms", "overrun": "rebase"}},
+        "processes": [
+            {
+                "name": "app",
+                "threads": [
+                    {
+                        "name": "a",
+                        "work": {
+                            "kind": "phases",
+                            "loop": 3,
+                            "phases": [
+                                {"events": [{"timer": "tick"}, {"lock": "m"}, {"run": "1ms"}, {"unlock": "m"}, {"mem": "4KiB"}]},
+                                {"name": "fast", "sched": "fifo:40", "cpus": "1", "loop": 2, "events": [{"timer": "tick"}, "yield"]},
+                            ],
+                        },
+                    },
+                    {"name": "b", "work": {"kind": "phases", "events": [{"timer": {"period": "5ms"}}, {"lock": "m"}, {"unlock": "m"}]}},
+                ],
+            }
+        ],
+    }
+    base.update(extra)
+    return Scenario.model_validate(base)
+
+
+def test_events_read_in_their_short_forms_and_write_back_as_written():
+    for written in (
+        {"run": "200us"},
+        "yield",
+        {"wait": {"cond": "c", "mutex": "m"}},
+        {"timer": {"period": "1ms", "overrun": "catchup"}},
+        {"timer": "tick"},
+        {"mem": "64KiB"},
+        {"lock": "m"},
+    ):
+        assert Event.model_validate(written).model_dump(mode="json") == written
+    assert Event.model_validate({"broad": "c"}).event is EventKind.BROADCAST  # rt-app's name
+
+
+@pytest.mark.parametrize(
+    ("event", "words"),
+    [
+        ({"rn": "1ms"}, "unknown event 'rn'; did you mean 'run'?"),
+        ({"run": "1ms", "lock": "m"}, "an event has exactly one key"),
+        ({"timer": {}}, "names a timer of resources or has its own period"),
+        ({"wait": "c"}, "wait needs its condition and mutex"),
+        ({"yield": 3}, "yield takes no value"),
+        ({"lock": None}, "lock needs a value"),
+    ],
+)
+def test_a_malformed_event_says_what_to_write(event, words):
+    with pytest.raises(ValidationError, match=words.replace("?", r"\?").replace("(", r"\(")):
+        Event.model_validate(event)
+
+
+def test_locks_balance_within_a_phase_and_a_wait_holds_its_mutex():
+    def work(events):
+        return PhasesWork.model_validate({"events": events})
+
+    work([{"lock": "m"}, {"wait": {"cond": "c", "mutex": "m"}}, {"unlock": "m"}])
+    for events, words in (
+        ([{"unlock": "m"}], "unlock m without a lock m"),
+        ([{"lock": "m"}, {"lock": "m"}], "already holds it would deadlock"),
+        ([{"lock": "m"}], "the phase ends holding m"),
+        ([{"wait": {"cond": "c", "mutex": "m"}}], "needs its mutex m held"),
+    ):
+        with pytest.raises(ValidationError, match=words):
+            work(events)
+    with pytest.raises(ValidationError, match="timers share one period"):
+        PhasesWork.model_validate({"phases": [{"events": [{"timer": {"period": "1ms"}}]}, {"events": [{"timer": {"period": "2ms"}}]}]})
+
+
+def test_deadline_defaults_follow_rt_app_and_the_kernels_order_is_checked():
+    only = Sched.model_validate({"policy": "deadline", "runtime": "2ms"})
+    assert (only.runtime, only.deadline, only.period) == (2_000_000, 2_000_000, 2_000_000)
+    short = Sched.model_validate("deadline:2ms/8ms/10ms")
+    assert (short.runtime, short.deadline, short.period, short.label()) == (2_000_000, 8_000_000, 10_000_000, "deadline 2ms/8ms/10ms")
+    assert Sched.model_validate("deadline:2ms/8ms").period == 8_000_000
+    assert short.bandwidth == pytest.approx(0.2)
+    for bad, words in (
+        ("deadline", "needs a runtime"),
+        ("deadline:1us", "below the kernel's minimum"),
+        ("deadline:5ms/4ms/10ms", "runtime <= deadline"),
+    ):
+        with pytest.raises(ValidationError, match=words):
+            Sched.model_validate(bad)
+    with pytest.raises(ValidationError, match="runtime, deadline and period are for policy deadline"):
+        Sched.model_validate({"policy": "fifo", "priority": 5, "runtime": "1ms"})
+    assert Sched.model_validate("fifo:80").model_dump(mode="json") == {"policy": "fifo", "priority": 80, "nice": None}
+
+
+def test_the_native_core_gets_resources_by_index_and_each_phases_settings():
+    sc = scenario()
+    assert resource_specs(sc) == [(_probe.RES_MUTEX, 1, 0, 0), (_probe.RES_TIMER, 0, 0, 5_000_000)]
+    a = sc.processes[0].threads[0].work
+    assert isinstance(a, PhasesWork)
+    gid, delay, loop, mem, phases, events = program_tuple(a, 7, sc)
+    assert (gid, delay, loop, mem) == (7, 0, 3, 4096)
+    assert events[0] == (_probe.EV_TIMER, 1, -1, _probe.OVR_REBASE, 5_000_000)  # the named timer's period and overrun
+    assert events[1] == (_probe.EV_LOCK, 0, -1, _probe.OVR_SKIP, 0) and events[2][4] == 1_000_000
+    assert phases[0] == (1, 0, 5, None)
+    assert phases[1] == (2, 5, 2, (1, 40, None, [1], None))
+
+
+def test_a_program_with_a_timer_has_callbacks_at_its_period():
+    threads = plan_scenario(scenario(), Settings())
+    assert [(t.name, t.period, is_periodic(t.work)) for t in threads] == [
+        ("app", None, False),
+        ("a", 5_000_000, True),
+        ("b", 5_000_000, True),
+    ]
+
+
+def stats(values: list[int], holders=()) -> EventStats:
+    h = hg.from_values(values)
+    mean = sum(values) / len(values) if values else 0.0
+    return EventStats(
+        count=len(values),
+        total=sum(values),
+        mean=mean,
+        m2=sum((v - mean) ** 2 for v in values),
+        histogram=h,
+        holders=tuple(holders),
+        contended=len(holders),
+    )
+
+
+def test_event_records_are_named_and_locks_merge_into_the_threads_lock_wait():
+    sc = scenario()
+    a = sc.processes[0].threads[0].work
+    assert isinstance(a, PhasesWork)
+    events = [
+        stats([100]),
+        stats([1_000, 3_000], [(1, 2, 4_000)]),
+        stats([1_000_000]),
+        stats([50]),
+        stats([10]),
+        stats([20]),
+        stats([5]),
+        stats([]),
+    ]
+    phase = PhaseStats(passes=3, time_ns=9, entered=3, policy=0, read_back=True, affinity=(0, 1), cpus_seen=(0,))
+    fast = PhaseStats(passes=6, entered=3, policy=1, priority=40, read_back=True, affinity=(1,), cpus_seen=(1,), errors=(0, 0, 0))
+    slot = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), events=tuple(events), phases=(phase, fast))
+    results, phases, figures = programs.program_results(a, slot, Settings(), {1: "app/b #2"}, (0, 1))
+    lock = results[1]
+    assert (lock.event, lock.measures, lock.count, lock.contended) == ("lock m", "wait", 2, 1)
+    assert [(h.thread, h.contentions, h.wait_ns) for h in lock.holders] == [("app/b #2", 2, 4_000)]
+    assert results[0].measures == "latency" and results[2].measures == "wall"
+    assert figures["lock_wait_ns"] is not None and figures["lock_wait_ns"].max == 3_000 and figures["lock_wait_ns"].mean == 2_000
+    assert figures["chain_ns"] is None
+    assert [p.name for p in phases] == ["p0", "fast"]
+    assert phases[0].applied == Settings() and phases[0].requested is None
+    assert phases[1].applied == Settings(Policy.FIFO, 40, 0, (1,)) and phases[1].degraded == []
+
+
+def test_a_phase_the_kernel_refused_says_so_with_its_reason():
+    sc = scenario()
+    a = sc.processes[0].threads[0].work
+    assert isinstance(a, PhasesWork)
+    refused = PhaseStats(passes=6, entered=3, policy=0, read_back=True, affinity=(1,), errors=(errno.EPERM, 0, 0))
+    slot = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), phases=(PhaseStats(), refused))
+    _, phases, _ = programs.program_results(a, slot, Settings(), {}, (0, 1))
+    assert phases[1].degraded == ["policy fifo:40 requested, other applied (Operation not permitted)"]
+
+
+def test_a_thread_blocked_for_half_the_run_at_its_end_is_stuck():
+    a = scenario().processes[0].threads[1].work
+    assert isinstance(a, PhasesWork)
+    slot = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), cur_phase=0, cur_event=1, blocked_since_ns=400_000_000)
+    assert (
+        programs.stall(a, slot, 1_000_000_000, 0, "app/b")
+        == "app/b was blocked in `lock m` (phase p0, event 1) for the last 600.00 ms of the run"
+    )
+    assert programs.stall(a, slot, 1_000_000_000, 0, "x") is not None
+    waiting = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), cur_event=1, blocked_since_ns=990_000_000)
+    assert programs.stall(a, waiting, 1_000_000_000, 0, "x") is None
+
+
+def test_a_deadline_refusal_is_explained_with_the_cells_bandwidth_and_the_kernels_limit():
+    sc = Scenario.model_validate(
+        {
+            "name": "d",
+            "processes": [{"name": "p", "instances": 2, "threads": [{"name": "g", "count": 2, "sched": "deadline:6ms/10ms/10ms"}]}],
+        }
+    )
+    words = programs.deadline_admission(sc, 950_000, 1_000_000, 2)
+    assert "this cell asks 2.40 CPUs of bandwidth (g 0.60, g 0.60, g 0.60, g 0.60)" in words
+    assert "at most 0.95 per CPU x 2 CPUs = 1.90 (sched_rt_runtime_us 950000 / sched_rt_period_us 1000000)" in words
+    requested = Settings(Policy.DEADLINE, 0, 0, None, 6_000_000, 10_000_000, 10_000_000)
+    out = degradation(requested, Settings(), ApplyErrors(sched=errno.EBUSY), words)
+    assert out == [f"policy deadline 6ms/10ms/10ms requested, other applied ({words})"]
+
+
+def test_histograms_merge_exactly_to_the_bucket():
+    a, b = hg.from_values([1, 300, 5_000]), hg.from_values([300, 9_000_000])
+    merged = hg.merge([a, None, b])
+    assert merged == hg.from_values([1, 300, 5_000, 300, 9_000_000])
+    assert hg.merge([None]) is None
