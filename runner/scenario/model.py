@@ -558,10 +558,16 @@ def _event_schema() -> dict[str, Any]:
     }
 
 
+def _written_form(schema: dict[str, Any]) -> None:
+    """Replace the typed form's schema by the written one (pydantic passes the schema to edit in place)."""
+    schema.clear()
+    schema.update(_event_schema())
+
+
 class Event(Strict):
     """One step of a program, written `{run: 200us}`, `{lock: name}`, `{timer: {period: 1ms}}` or `yield`."""
 
-    model_config = ConfigDict(json_schema_extra=lambda schema, cls: (schema.clear(), schema.update(_event_schema())) and None)
+    model_config = ConfigDict(json_schema_extra=lambda schema, cls: _written_form(schema))
 
     event: EventKind
     duration: Optional[Duration] = None

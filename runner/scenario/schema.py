@@ -16,7 +16,8 @@ SCHEMA_ID = "https://github.com/rt-scenario-runner/runner/runner.schema.json"
 _REFERENCE = {"type": "string", "pattern": r"^\s*\$\{\{\s*matrix\.[A-Za-z_][A-Za-z0-9_-]*\s*\}\}\s*$"}
 _SCHED_STRING = {
     "type": "string",
-    "pattern": r"^((?i:(sched_)?(other|normal|batch|idle|fifo|rr))(:\d+)?|(?i:(sched_)?deadline)(:[0-9.]+\s*(ns|us|µs|ms|s)(/[0-9.]+\s*(ns|us|µs|ms|s)){0,2})?)$",
+    "pattern": r"^((?i:(sched_)?(other|normal|batch|idle|fifo|rr))(:\d+)?"
+    r"|(?i:(sched_)?deadline)(:[0-9.]+\s*(ns|us|µs|ms|s)(/[0-9.]+\s*(ns|us|µs|ms|s)){0,2})?)$",
     "description": "policy, optionally with RT priority: fifo:80, SCHED_RR, other; deadline:RUNTIME/DEADLINE/PERIOD",
 }
 
