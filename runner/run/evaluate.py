@@ -77,6 +77,9 @@ def degradation(requested: Settings, applied: Optional[Settings], errors: ApplyE
             out.append(f"policy {requested.label()} requested, {applied.label().split(' nice')[0]} applied{why.get('sched', '')}")
         else:
             out.append(f"policy {requested.label().split(' ')[0]} requested, {applied.label().split(' ')[0]} applied{why.get('sched', '')}")
+    elif errors.sched:  # the policy holds, yet sched_setattr refused something: uclamp, the only other part it sets
+        hint = "; uclamp (util_min, util_max) needs a kernel built with CONFIG_UCLAMP_TASK" if errors.sched == errno.EOPNOTSUPP else ""
+        out.append(f"the kernel refused part of the scheduling request ({os.strerror(errors.sched)}){hint}")
     if requested.nice != applied.nice:
         out.append(f"nice {requested.nice} requested, {applied.nice} applied{why.get('nice', '')}")
     if requested.cpus != applied.cpus:
