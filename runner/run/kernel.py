@@ -11,7 +11,6 @@ import os
 from typing import Optional
 
 from runner.results.pstable import ThreadRow
-from runner.run import _probe
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
 
@@ -53,6 +52,8 @@ def thread_settings(tid: int, all_cpus: Optional[tuple[int, ...]] = None) -> Set
     every = all_cpus if all_cpus is not None else online_cpus()
     runtime = deadline = period = 0
     if policy == Policy.DEADLINE.kernel_id:  # its parameters only sched_getattr(2) reports
+        from runner.run import _probe  # here only: `runner ps` reads /proc without the native core
+
         _, _, _, _, runtime, deadline, period, _, _ = _probe.sched_getattr(tid)
     return Settings(Policy.from_kernel(policy), priority, nice, None if set(cpus) >= set(every) else cpus, runtime, deadline, period)
 
