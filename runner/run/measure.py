@@ -46,8 +46,8 @@ def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0, bound:
             callbacks_with_any=st.with_nivcsw if has else None,
         ),
         voluntary=fg.Voluntary(total=totals[1]),
-        latency_ns=_spread(st.latency, st.lat_mean, st.lat_m2, st.releases, st.above_bound if bound else None) if has else None,
-        callback_wall_ns=_spread(st.wall) if has else None,
+        latency_ns=spread(st.latency, st.lat_mean, st.lat_m2, st.releases, st.above_bound if bound else None) if has else None,
+        callback_wall_ns=spread(st.wall) if has else None,
         slack_ns=_slack(st) if has else None,
         faults=fg.Faults(
             minor=totals[2],
@@ -61,9 +61,10 @@ def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0, bound:
     )
 
 
-def _spread(
+def spread(
     hist: Optional[Histogram], mean: Optional[float] = None, m2: float = 0.0, n: int = 0, above: Optional[int] = None
 ) -> Optional[fg.Spread]:
+    """Order statistics of a histogram (ns): min and max exact, percentiles to the bucket, mean and std dev when known."""
     if hist is None or not hist.count:
         return None
     return fg.Spread(

@@ -12,7 +12,6 @@ resume_latency, chain), and finds threads that were stuck at the end of the run.
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Optional
 
@@ -20,6 +19,7 @@ from runner import figures as fg
 from runner import histogram as hg
 from runner import units
 from runner.results.document import EventResult, Holder, PhaseResult
+from runner.run.measure import spread
 from runner.run.samples import EventStats, PhaseStats, SlotData
 from runner.scenario.model import EventKind, PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings
@@ -38,19 +38,6 @@ _FIGURE_OF = {
     EventKind.SUSPEND: "resume_latency_ns",
 }
 STALL_MIN_NS = 100_000_000  # blocked at least this long at the end of the run, and for half of it: stuck, not just waiting
-
-
-def spread(hist: Optional[hg.Histogram], mean: Optional[float] = None, m2: float = 0.0, n: int = 0) -> Optional[fg.Spread]:
-    """Order statistics of a histogram (ns): min and max exact, percentiles to the bucket, mean and std dev when known."""
-    if hist is None or not hist.count:
-        return None
-    return fg.Spread(
-        min=hist.min,
-        **{name: hist.quantile(q) for name, q in hg.QUANTILES.items()},
-        max=hist.max,
-        mean=round(mean) if mean is not None and n else None,
-        stddev=round(math.sqrt(max(0.0, m2) / n)) if mean is not None and n else None,
-    )
 
 
 def _event_result(

@@ -28,7 +28,7 @@ from runner.scenario import matrix as mx
 from runner.scenario import program, rtapp
 from runner.scenario.model import CPUS_CONTEXT, Expectation, PhasesWork, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
-from runner.scenario.validate import problems_from
+from runner.scenario.validate import problems_from, written_path
 from runner.scenario.yamlsource import Document, load_file, load_text
 
 
@@ -218,8 +218,8 @@ def _cross_checks(
     """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules."""
     out: list[Problem] = []
     if resources is not None:
-        out.extend(doc.problem(_as_written(doc, path), message) for path, message in program.reference_problems(processes, resources))
-    out.extend(doc.problem(_as_written(doc, path), message) for path, message in program.deadline_problems(processes))
+        out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.reference_problems(processes, resources))
+    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:
@@ -269,27 +269,6 @@ def _cross_checks(
                         doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}")
                     )
     return out
-
-
-def _as_written(doc: Document, path: tuple[Any, ...]) -> tuple[Any, ...]:
-    """A model path as the file writes it: `work.phases[0].events` is `work.events` where the file uses that shorthand."""
-    node: Any = doc.data
-    for i, elem in enumerate(path):
-        if (
-            elem == "phases"
-            and isinstance(node, dict)
-            and "phases" not in node
-            and "events" in node
-            and path[i + 1 : i + 3] == (0, "events")
-        ):
-            return path[:i] + path[i + 2 :]
-        if isinstance(node, dict):
-            node = node.get(elem)
-        elif isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node):
-            node = node[elem]
-        else:
-            break
-    return path
 
 
 def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:

@@ -30,13 +30,7 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
         if skip:
             skip -= 1
             continue
-        if (
-            elem == "phases"
-            and isinstance(node, dict)
-            and "phases" not in node
-            and "events" in node
-            and loc[n + 1 : n + 3] == (0, "events")
-        ):
+        if _events_shorthand(node, loc[n:]):
             skip = 1  # `events:` written directly under the work is its one phase: phases[0].events is events
             continue
         if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (
@@ -49,6 +43,26 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
             node = None
         # otherwise a union tag such as 'periodic' or 'list[int]': not part of the data
     return tuple(path), node
+
+
+def _events_shorthand(node: Any, rest: tuple[Any, ...]) -> bool:
+    """Whether `rest` (from `phases`) points into a work written with `events:` directly, as its one phase."""
+    return rest[:1] == ("phases",) and isinstance(node, dict) and "phases" not in node and "events" in node and rest[1:3] == (0, "events")
+
+
+def written_path(data: Any, path: tuple[Any, ...]) -> tuple[Any, ...]:
+    """A model path as the file writes it: `work.phases[0].events` is `work.events` where the file uses that shorthand."""
+    node: Any = data
+    for i, elem in enumerate(path):
+        if _events_shorthand(node, path[i:]):
+            return path[:i] + path[i + 2 :]
+        if isinstance(node, dict):
+            node = node.get(elem)
+        elif isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node):
+            node = node[elem]
+        else:
+            break
+    return path
 
 
 def _existing(value: Any, path: Path) -> Path:
