@@ -760,13 +760,13 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
         }
         /* Given up at the end of the run, or let through only by a thread that was leaving: the slot keeps where it stood. */
         if (rc == 0 && live(s->group)) s->hdr->blocked_since_ns = 0;
-        if (rc == 0 && i >= 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
+        if (rc == 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
         if (rc == 0) __atomic_add_fetch(&m->contended, 1, __ATOMIC_RELAXED);
     }
     if (rc != 0) return rc;
     m->owner = s->prog->gid;
     __atomic_add_fetch(&m->acquisitions, 1, __ATOMIC_RELAXED);
-    if (i >= 0) ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
     if (ps->nheld < MAX_EVENTS) ps->held[ps->nheld++] = r;
     return 0;
 }

@@ -307,8 +307,8 @@ def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -
     return min(RING_MAX, max(duration_ns // p + 16 for p in periods), max(4096, RING_SECONDS * rate))
 
 
-def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: int, gids: dict[int, int]) -> dict[str, Any]:
-    """What one worker process is told to create; `gids` numbers every planned thread of the cell (by id)."""
+def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samples.Layout, gids: dict[int, int]) -> dict[str, Any]:
+    """What one worker process is told to create, its buffer sized as `layout`; `gids` numbers every thread of the cell (by id)."""
     proc = next(p for p in scenario.processes if p.name == threads[0].process)
     mem = proc.memory
     bound = scenario.latency_bound or 0
@@ -320,7 +320,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: in
 
     return {
         "comm": proc.name,
-        "capacity": capacity,
+        "capacity": layout.capacity,
         "all_cpus": kernel.online_cpus(),
         "reset_on_fork": proc.reset_on_fork,
         "memory": {"lock": mem.lock, "prealloc": mem.prealloc, "stack_size": mem.stack_size},
@@ -343,8 +343,8 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, capacity: in
                 ((spec, member) for spec in proc.threads for member in spec.members()), start=1
             )  # pin: each, priospread and distance give each thread its own settings
         ],
-        "events": _program_sizes(threads)[0],
-        "phases": _program_sizes(threads)[1],
+        "events": layout.events,
+        "phases": layout.phases,
     }
 
 
@@ -509,13 +509,15 @@ class _CellRun:
         self.workers: list[Worker] = []
         gids = {id(t): gid for gid, t in enumerate(self.planned)}
         for (proc, inst), threads in self.by_process.items():
-            cap = _capacity(threads, options.duration_ns, self.scenario.samples)
             events, phases = _program_sizes(threads)
+            layout = samples.Layout(
+                len(threads), _capacity(threads, options.duration_ns, self.scenario.samples), events=events, phases=phases
+            )
             self.workers.append(
                 Worker(
                     f"process {proc}[{inst}]",
-                    _process_spec(threads, self.scenario, cap, gids),
-                    samples.Layout(len(threads), cap, events=events, phases=phases),
+                    _process_spec(threads, self.scenario, layout, gids),
+                    layout,
                     threads,
                     True,
                     os.path.join(folder, f"{proc}.{inst}.log"),
