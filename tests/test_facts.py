@@ -115,6 +115,28 @@ def test_the_facts_round_trip_through_results_json(tmp_path):
 # ---------------------------------------------------------------- against the kernel
 
 
+def test_memory_total_is_meminfos_memtotal_in_bytes_else_the_page_count(monkeypatch):
+    """What psutil's virtual_memory().total gave, from /proc/meminfo: MemTotal in kB, times 1024."""
+    meminfo = "MemTotal:       24641536 kB\nMemFree:         1000 kB\n"
+    assert machine.memory_total(meminfo) == 24641536 * 1024
+    assert machine.memory_total("MemFree: 1 kB\nMemTotal: 12 kB\n") == 12 * 1024
+    monkeypatch.setattr(machine.os, "sysconf", {"SC_PHYS_PAGES": 3, "SC_PAGE_SIZE": 4096}.__getitem__)
+    assert machine.memory_total(None) == 3 * 4096  # no /proc/meminfo: the page count
+    assert machine.memory_total("MemTotal: lots\n") == 3 * 4096  # garbled: the page count
+
+    def refused(name: str) -> int:
+        raise ValueError(name)
+
+    monkeypatch.setattr(machine.os, "sysconf", refused)
+    assert machine.memory_total(None) is None
+
+
+def test_memory_total_is_what_the_kernel_counts():
+    with open("/proc/meminfo") as handle:
+        kib = next(int(line.split()[1]) for line in handle if line.startswith("MemTotal:"))
+    assert machine.machine_info().memory_total_bytes == kib * 1024
+
+
 @pytest.fixture(scope="module")
 def facts() -> MachineInfo:
     return machine.machine_info()

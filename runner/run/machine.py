@@ -16,8 +16,6 @@ import re
 import socket
 from typing import Optional
 
-import psutil
-
 from runner import units
 from runner.results.document import Irq, IrqThread, MachineInfo, RtThrottling
 from runner.scenario.model import Policy
@@ -73,7 +71,7 @@ def machine_info() -> MachineInfo:
         isolated_cpus=_read(f"{CPU_SYS}/isolated") or "",
         rt_throttling=RtThrottling.from_sysctl(runtime, period),
         cpufreq_governors=sorted(governors),
-        memory_total_bytes=psutil.virtual_memory().total,
+        memory_total_bytes=memory_total(_read("/proc/meminfo")),
         python=platform.python_version(),
         cmdline=_read("/proc/cmdline"),
         clocksource=_read("/sys/devices/system/clocksource/clocksource0/current_clocksource"),
@@ -83,6 +81,24 @@ def machine_info() -> MachineInfo:
         irqs=irqs(),
         irq_threads=irq_threads(),
     )
+
+
+def memory_total(meminfo: Optional[str]) -> Optional[int]:
+    """Physical memory in bytes: /proc/meminfo's `MemTotal` (the figure `free` shows), else the page count.
+
+    `MemTotal` is usable RAM (less what the kernel reserved at boot); the sysconf fallback,
+    for a /proc without it, counts pages the same way on Linux.  None when neither says.
+    """
+    for line in (meminfo or "").splitlines():
+        name, _, rest = line.partition(":")
+        if name == "MemTotal":
+            number, _, unit = rest.strip().partition(" ")
+            if number.isdigit() and unit in ("kB", ""):
+                return int(number) * (1024 if unit else 1)
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError):
+        return None
 
 
 def _nohz_full() -> Optional[str]:
