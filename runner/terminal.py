@@ -4,6 +4,9 @@
 problems) to stderr; both look the streams up at call time, so a caller that redirects
 them (tests, `runner report -o -`) gets everything.  `Progress` keeps the live line out
 of the way of both.  `render_cell` is pure: the ps-style table and a per-thread summary.
+
+The writer is imported by every command, `runner --version` included, so the table code's
+imports (tabulate, the results records and with them pydantic) wait until a cell is drawn.
 """
 
 from __future__ import annotations
@@ -12,22 +15,11 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from runner import figures as fg
+    from runner.results.document import CellResult
     from runner.runorder import Unit
 
-from tabulate import tabulate
-
-from runner import figures as fg
-from runner.report.fmt import fmt_figure
-from runner.results.document import CellResult, Status
-from runner.results.pstable import render_ps
-
-_MARK = {
-    Status.PASSED: "passed",
-    Status.DEGRADED: "DEGRADED",
-    Status.FAILED: "FAILED",
-    Status.ERROR: "ERROR",
-    Status.INTERRUPTED: "INTERRUPTED",
-}
+_MARK = {"passed": "passed", "degraded": "DEGRADED", "failed": "FAILED", "error": "ERROR", "interrupted": "INTERRUPTED"}  # by Status value
 
 
 def say(text: str) -> None:
@@ -93,11 +85,10 @@ class Progress:
             self.width = 0
 
 
-TABLE_FIGURES: tuple[fg.Figure, ...] = tuple(f for f in fg.REGISTRY if f.column)
-
-
 def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
     """A figure in the terminal's table: durations in us (the header says so), means to two places."""
+    from runner import figures as fg
+
     if value is None:
         return "-"
     if fig.is_duration:
@@ -107,15 +98,21 @@ def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
 
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations."""
+    from tabulate import tabulate
+
+    from runner import figures as fg
+    from runner.report.fmt import fmt_figure
+    from runner.results.pstable import render_ps
+
     warned = f", {len(cell.warnings)} warning{'s' if len(cell.warnings) > 1 else ''}" if cell.warnings else ""
-    out = [f"cell {cell.id}: {_MARK[cell.status]}{warned} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
+    out = [f"cell {cell.id}: {_MARK[cell.status.value]}{warned} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
     if cell.thread_table:
         out.append("")
         out.extend("  " + line for line in render_ps(cell.thread_table, pid_width=pid_width).splitlines())
     periodic = [t for t in cell.threads if t.periodic]
     if periodic:
         overloaded = not all(fg.kept_up(t.figures) for t in periodic)
-        shown = [f for f in TABLE_FIGURES if overloaded or not f.overload]
+        shown = [f for f in fg.REGISTRY if f.column and (overloaded or not f.overload)]
         headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in shown]
         rows = [
             [f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
