@@ -16,6 +16,8 @@ which the evaluation core produces and the results document stores.  Pure: no I/
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Optional, Union
 
@@ -30,6 +32,54 @@ class Unit(str, enum.Enum):
     NS = "ns"  # a duration: integer nanoseconds inside, us/ms/s when shown
     COUNT = "count"  # events: switches, faults, callbacks
     PER_CALLBACK = "per callback"  # a mean of counts over callbacks (a float)
+
+
+MINUS = "\u2212"  # the one minus sign of every number the report and the comparison write
+_DURATION_UNITS = (("µs", 1_000), ("ms", 1_000_000), ("s", 1_000_000_000))
+
+
+@dataclass(frozen=True)
+class Scale:
+    """How a column (or a row) of values of one unit is written: one unit, one precision, for all of them.
+
+    The unit goes in the header (`p99 (µs)`), the numbers stand alone and right-aligned, so a
+    column never mixes `124 µs` with `3.16 ms` and a limit reads in the unit of what it limits.
+    """
+
+    unit: str = ""  # µs, ms or s for durations; "" for counts and means of counts
+    per: int = 1  # stored units in one shown unit: 1,000 ns in a µs
+    decimals: int = 0
+
+    def number(self, value: Optional[Number], sign: bool = False) -> str:
+        """`value` (in the stored unit) in this scale: `3,160`, `58.4`, `−11.7`; `+` too with `sign`; `–` for none."""
+        if value is None or not math.isfinite(value):
+            return "–"
+        shown = value / self.per
+        text = f"{abs(shown):,.{self.decimals}f}"
+        if shown < 0 and text.strip("0.,"):  # a value that rounds to zero is 0, not −0
+            return MINUS + text
+        return "+" + text if sign else text
+
+    def header(self, words: str) -> str:
+        """A column's header with its unit: `Wake-up p99 (µs)`."""
+        return f"{words} ({self.unit})" if self.unit else words
+
+
+def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
+    """The one scale `values` of `unit` are written in.
+
+    Durations in µs up to 10 ms (the unit of cyclictest and OSADL's plots), then ms up to 10 s,
+    then s; with one decimal when the largest is below 100 in that unit and none above, so the
+    largest keeps three significant digits (the histograms hold 0.78%) and all share its
+    precision.  Means of counts per callback with two decimals, counts whole.
+    """
+    if unit is Unit.COUNT:
+        return Scale()
+    if unit is Unit.PER_CALLBACK:
+        return Scale(decimals=2)
+    largest = max((abs(v) for v in values if v is not None and math.isfinite(v)), default=0)
+    name, per = next(((n, p) for n, p in _DURATION_UNITS if largest < 10_000 * p), _DURATION_UNITS[-1])
+    return Scale(name, per, 1 if largest / per < 100 else 0)
 
 
 class Scope(str, enum.Enum):

@@ -104,3 +104,83 @@ def system_facts() -> MachineInfo:
             IrqThread(pid=51, name="irq/30-eth0", irq=30, policy="fifo", priority=50, cpus="1"),
         ],
     )
+
+
+def many_threads(folder: str, threads: int = 256, processes: int = 8, callbacks: int = 1000, cells: int = 1) -> RunDocument:
+    """A run of `cells` cells of `threads` periodic threads in `processes` processes, `callbacks` each, saved in `folder`.
+
+    Synthetic, never run: the recorded policy_matrix's FIFO cell with its periodic thread copied
+    `threads` times, each given a native latency histogram and its rows in samples.csv.gz (a
+    1 ms period: wake-up latencies of tens of µs, thread i's worst release i µs later than the
+    rest, one involuntary switch every `i + 7` callbacks), so reports and plots see what a
+    256-thread cell of 1 s gives them.
+    """
+    import csv
+    import gzip
+    import random
+
+    from runner import histogram
+    from runner.results.document import ThreadHistograms
+    from runner.results.files import cell_dir
+    from runner.results.samplesfile import SAMPLE_COLUMNS
+
+    doc = matrix()
+    template = doc.cells[0]
+    base = main_thread(template)
+    rng = random.Random(14)
+    os.makedirs(folder, exist_ok=True)
+    out_cells = []
+    for c in range(cells):
+        cell = copy.deepcopy(template)
+        cell.id = f"policy=fifo,threads={threads},n={c}"
+        cell.thread_table = []
+        cell.expectations = []
+        cell.samples_file = os.path.join(cell_dir(cell.id, 0, False), "samples.csv.gz")
+        rows: list[list[object]] = []
+        made = []
+        for i in range(threads):
+            latencies = [rng.randint(20_000, 80_000) for _ in range(callbacks - 1)] + [100_000 + i * 1_000]
+            switches = [1 if n % (i + 7) == 0 else 0 for n in range(callbacks)]
+            hist = histogram.from_values(latencies)
+            assert hist is not None
+            spread = base.figures.latency_ns.model_copy(  # type: ignore[union-attr]
+                update={"min": hist.min, "p50": hist.quantile(0.5), "p99": hist.quantile(0.99), "max": hist.max}
+            )
+            figures = base.figures.model_copy(
+                update={
+                    "callbacks": callbacks,
+                    "releases": callbacks,
+                    "latency_ns": spread,
+                    "involuntary": base.figures.involuntary.model_copy(
+                        update={"total": sum(switches), "per_callback_mean": sum(switches) / callbacks, "per_callback_max": 1}
+                    ),
+                }
+            )
+            t = base.model_copy(
+                update={
+                    "process": "worker",
+                    "instance": i % processes,
+                    "index": i // processes,
+                    "name": "cyclic",
+                    "tid": 1000 + i,
+                    "figures": figures,
+                    "histograms": ThreadHistograms(latency=hist),
+                }
+            )
+            made.append(t)
+            for n in range(callbacks):
+                rows.append(
+                    [t.key, t.tid, n, n * 1_000_000, n * 1_000_000 + latencies[n], 0, latencies[n], 0, 0, switches[n], 1, 0, 0, 0, 0, 0]
+                )
+        cell.threads = made
+        path = os.path.join(folder, cell.samples_file)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with gzip.open(path, "wt", encoding="utf-8", newline="", compresslevel=1) as handle:
+            writer = csv.writer(handle, lineterminator="\n")
+            writer.writerow(SAMPLE_COLUMNS)
+            writer.writerows(rows)
+        out_cells.append(cell)
+    doc.cells = out_cells
+    doc.matrix_cells = doc.cell_ids = [c.id for c in out_cells]
+    doc.save(os.path.join(folder, "results.json"))
+    return load(folder)

@@ -215,3 +215,18 @@ def test_a_figure_that_is_not_a_number_is_never_within_threshold():
         assert verdicts[(cell, name)] == cmp.Verdict.MISSING
         result = cmp.compare(with_figures(base, cell, invol_mean=bad), base)
         assert {(f.cell, f.figure.name): f.verdict for f in result.figures}[(cell, name)] == cmp.Verdict.NEW
+
+
+def test_comparison_numbers_read_as_the_report_writes_them_with_one_minus_sign():
+    """`9.89`, not `9.8889`; baseline, run and change of a row in one unit and precision; U+2212 for every minus."""
+    from runner.report.markdown import render_comparison, render_run
+
+    base = matrix()
+    new = with_figures(base, "policy=other,priority=0", invol_mean=4.0, latency_p99=2_100_000)
+    section = render_comparison(cmp.compare(base, new), "base", "new")
+    row = next(line for line in section.splitlines() if "other" in line and "involuntary switches per callback" in line)
+    assert [c.strip() for c in row.split("|")[4:7]] == ["9.89", "4.00", "−5.89 (−60%)"]
+    assert "9.89" in render_run(base)  # as the report says it
+    row = next(line for line in section.splitlines() if "other" in line and "wake-up latency p99" in line)
+    assert [c.strip() for c in row.split("|")[3:7]] == ["wake-up latency p99 (µs)", "3,156", "2,100", "−1,056 (−33%)"]
+    assert "-" not in "".join(c for line in section.splitlines() if line.startswith("| policy") for c in line.split("|")[4:7])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import itertools
 import os
 import re
 import xml.etree.ElementTree as ET
@@ -24,7 +25,7 @@ GOLDEN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "golden")
 def golden(name: str, text: str) -> None:
     """Compare with tests/golden/NAME; UPDATE_GOLDEN=1 rewrites it (review the diff before committing).
 
-    Tables are compared as parsed cells (text, alignment), not as padded source: tabulate's padding
+    Tables are compared as parsed cells (text, alignment), not as padded source: the padding
     depends on how wide the installed wcwidth (if any) thinks an emoji is, the content does not.
     Everything outside the tables is compared byte for byte.
     """
@@ -117,26 +118,66 @@ def test_memory_lock_report_matches_golden_file():
 def test_every_table_parses_as_a_table_with_even_rows():
     text = report.render_run(matrix())
     found = tables(text)
-    # facts, summary, side-by-side, then per cell: switch counts, releases and slack, expectations
-    assert len(found) == 3 + 5 * 3
+    # facts, the summary's two, the thread across cells in five groups, then per cell: scheduling, switches,
+    # latency, releases and slack, faults, expectations
+    assert len(found) == 1 + 2 + 5 + 5 * 6
     for t in found:
         assert len(t) >= 2 and len({len(r) for r in t}) == 1, t[0]
 
 
 def test_report_shows_the_headline_effect_in_words_and_units():
     text = report.render_run(matrix())
-    side = next(t for t in tables(text) if t[0][0] == "Figure")
-    header = side[0]
-    row = {r[0]: r for r in side}
-    other = header.index("policy=other,priority=0")
-    fifo = header.index("policy=fifo,priority=80")
-    assert float(row["Involuntary switches per callback (mean)"][other]) > 1.0
-    assert row["Involuntary switches per callback (mean)"][fifo] == "0"
-    assert row["Scheduling (read back from the kernel)"][fifo] == "FIFO 80"
-    assert all(cell.endswith(("µs", "ms")) for cell in row["Wake-up latency p99"][1:])
+    found = tables(text)
+    switches = next(t for t in found if t[0][:2] == ["Cell", "Involuntary / callback (mean)"])
+    latency = next(t for t in found if t[0][0] == "Cell" and "p99 (µs)" in t[0])
+    scheduling = next(t for t in found if t[0][:2] == ["Cell", "Scheduling"])
+    row = {r[0]: r for r in switches}
+    assert float(row["policy=other,priority=0"][1]) > 1.0
+    assert row["policy=fifo,priority=80"][1] == "0.00"
+    assert {r[0]: r[1] for r in scheduling}["policy=fifo,priority=80"] == "FIFO 80"
+    p99 = latency[0].index("p99 (µs)")
+    assert [r[p99] for r in latency[1:]] == ["58", "84", "90", "69", "3,156"]  # one unit, one precision: the largest's
     for raw in ("per_callback_mean", "latency_us", "minor_after_first", "nivcsw"):
         assert raw not in text  # readable by someone who only read the seed
     assert "0 involuntary switches in 10 callbacks" in text
+
+
+NUMBER = r"[−+]?[0-9][0-9,]*(\.[0-9]+)?"
+
+
+def test_numbers_are_right_aligned_with_their_unit_in_the_header_only():
+    """GitHub aligns by the `---:` markers; a number column never mixes units or precisions, nor carries a unit itself."""
+    doc = matrix()
+    again = copy.deepcopy(doc.cells)
+    for cell in again:
+        cell.repeat = 1
+    doc.cells += again  # the spread table too
+    for text in (report.render_run(doc), report.render_run(memory())):
+        numeric = 0
+        for block in layout(text):
+            if block[0] != "table":
+                continue
+            rows = block[1]
+            assert isinstance(rows, list)
+            for col, (style, header) in enumerate(rows[0]):
+                values = [r[col][1] for r in rows[1:] if r[col][1] not in ("–", "")]
+                is_number = [re.fullmatch(NUMBER + r"( ⚠️)?", v) for v in values]
+                if values and all(is_number) and header != "CPUs":  # a CPU list (`0-1`) is a set, not a quantity
+                    numeric += 1
+                    assert style == "text-align:right", (header, values)
+                    if header not in ("Limit", "Measured"):  # expectations: each row its own figure, unit and precision
+                        assert len({len(v.split(" ")[0].partition(".")[2]) for v in values}) == 1, (header, values)
+                if style == "text-align:right":  # a number, `2 of 2`, `≤ 0.50`, or a spread `51.6 (43.3 – 62.4)`
+                    for v in values:
+                        assert re.fullmatch(rf"(≤ |≥ )?{NUMBER}( ⚠️| of [0-9]+| \({NUMBER} – {NUMBER}\))?", v), (header, v)
+        assert numeric > 20
+
+
+def test_limits_are_in_the_unit_and_precision_of_what_they_limit():
+    text = report.render_run(matrix())
+    verdicts = next(t for t in tables(text) if t[0][0] == "Verdict")
+    assert verdicts[2][2:] == ["wake-up latency p99 (µs)", "≤ 2,000", "58"]
+    assert verdicts[1][2:] == ["involuntary switches per callback", "≤ 0.50", "0.00"]
 
 
 def test_ps_table_in_the_report_is_the_procps_layout():
@@ -198,7 +239,7 @@ def test_report_command_re_renders_without_running(tmp_path):
     shutil.copytree(MATRIX, tmp_path / "run")
     done = run_cli("report", str(tmp_path / "run"))
     assert done.code == 0, done.err
-    assert (tmp_path / "run" / "report.md").read_text() == report.render_run(matrix(), {k: v for k, v in _plots(tmp_path / "run").items()})
+    assert (tmp_path / "run" / "report.md").read_text() == report.render_run(matrix(), _plots(tmp_path / "run"))
     out = run_cli("report", os.path.join(MATRIX, "results.json"), "-o", "-")
     assert out.code == 0 and out.out == report.render_run(matrix())
 
@@ -207,13 +248,11 @@ def _plots(folder):  # the plot links write_report made, rebuilt from the files
     from runner.report.markdown import Plot
 
     names = sorted(os.listdir(folder / "plots"))
-    key = matrix().cells[0].threads[0].key
-    return {
-        key: [
-            Plot("wake-up latency histogram", f"plots/{names[1]}"),
-            Plot("involuntary context switches per callback", f"plots/{names[0]}"),
-        ]
-    }
+    label = "minimal_schedul/minimal_schedul (main)"
+    return [
+        Plot(f"{label}: wake-up latency histogram", f"plots/{names[1]}"),
+        Plot(f"{label}: involuntary context switches per callback", f"plots/{names[0]}"),
+    ]
 
 
 def test_report_of_a_file_that_is_not_results_is_a_user_error(tmp_path):
@@ -335,8 +374,9 @@ def test_plot_names_of_threads_in_other_scripts_do_not_collide(tmp_path):
     text = Path(write_report(doc, str(tmp_path))).read_text(encoding="utf-8")
     keys = {t.key for c in doc.cells for t in c.threads if t.periodic}
     assert len(keys) == 3  # the two renamed threads and the recorded one in the other cells
-    assert len([n for n in os.listdir(tmp_path / "plots") if n.endswith(".latency.svg")]) == 3
-    assert text.count(".latency.svg)") == 3
+    per_thread = [n for n in os.listdir(tmp_path / "plots") if n.endswith(".latency.svg") and n != "all-threads.latency.svg"]
+    assert len(per_thread) == 3
+    assert text.count(".latency.svg)") == 3 + 1  # and the aggregate of all periodic threads
 
 
 # ---------------------------------------------------------------- results files that are not what they claim
@@ -562,4 +602,95 @@ def test_plots_draw_any_name(tmp_path, name):
     path = write_report(doc, str(tmp_path / "run"))
     assert os.path.exists(path)
     svgs = [n for n in os.listdir(tmp_path / "run" / "plots") if n.endswith(".svg")]
-    assert len(svgs) == 4  # the renamed thread and the recorded one, two plots each
+    assert len(svgs) == 5  # the renamed thread and the recorded one, two plots each, and the aggregate latency plot
+
+
+# ---------------------------------------------------------------- plots that do not grow with threads
+
+
+def test_a_cell_of_many_threads_draws_two_plots_and_names_the_threads_it_shows(tmp_path):
+    from reportdata import many_threads
+
+    doc = many_threads(str(tmp_path / "run"), threads=48, processes=4, callbacks=40)
+    text = Path(write_report(doc, str(tmp_path / "run"))).read_text(encoding="utf-8")
+    assert sorted(os.listdir(tmp_path / "run" / "plots")) == ["threads.involuntary.svg", "threads.latency.svg"]
+    body = (tmp_path / "run" / "plots" / "threads.latency.svg").read_text()
+    shown = report.threads_of_interest(doc.cells)
+    assert len(shown) == report.MAX_THREAD_VIEWS
+    labels = report.thread_labels(doc.cells)
+    assert all(labels[key] in body for key in shown) and "all 48 periodic threads" in body
+    assert "4 of 48 periodic threads" in text
+    assert len(tables(text)[1]) == 48 + 1  # every thread is still in the cell's tables
+
+
+def test_a_matrix_of_many_threads_draws_a_fixed_number_of_plots(tmp_path):
+    from reportdata import many_threads
+
+    doc = many_threads(str(tmp_path / "run"), threads=24, processes=3, callbacks=20, cells=2)
+    text = Path(write_report(doc, str(tmp_path / "run"))).read_text(encoding="utf-8")
+    names = sorted(os.listdir(tmp_path / "run" / "plots"))
+    assert len(names) == 2 * report.MAX_THREAD_VIEWS + 1 and "all-threads.latency.svg" in names
+    assert text.count(" across cells\n") == report.MAX_THREAD_VIEWS
+    assert f"the {report.MAX_THREAD_VIEWS} periodic threads with the highest wake-up p99, of 24" in text
+
+
+def test_threads_of_interest_are_the_worst_by_wake_up_p99():
+    from reportdata import with_figures
+
+    doc = matrix()
+    assert report.threads_of_interest(doc.cells) == [main_key := doc.cells[0].threads[0].key]
+    worse = with_figures(doc, "policy=rr,priority=10", latency_p99=9_000_000)
+    assert report.threads_of_interest(worse.cells, most=1) == [main_key]
+
+
+def test_latency_bins_are_osadls_fixed_width_from_zero_counted_at_the_upper_end():
+    from runner.histogram import from_values
+    from runner.report.plots import osadl_bins
+
+    a, b = from_values([1_000, 1_400, 2_600, 150_000]), from_values([3_000_000])
+    assert a is not None and b is not None
+    edges, counts = osadl_bins([a, b])
+    width = edges[1]
+    assert edges[0] == 0 and width == 20 and all(abs(y - x - width) < 1e-9 for x, y in itertools.pairwise(edges))
+    assert len(counts[0]) == len(edges) - 1 <= 200 and [sum(c) for c in counts] == [4, 1]
+    assert counts[0][0] == 3 and counts[0][150 // 20] == 1  # 150 µs, a 1.2-µs-wide native bucket, at its upper end
+    assert counts[1][-1] == 1  # the largest value lands in the last bin
+    edges, counts = osadl_bins([a])
+    assert edges[1] == 1 and counts[0][1] == 2 and counts[0][2] == 1  # up to 150 µs: bins of 1 µs, as cyclictest -h
+
+
+def test_plot_lines_never_share_a_colour_and_style():
+    from runner.report.plots import MAX_SERIES, style
+
+    looks = [tuple(sorted(style(i).items())) for i in range(40)]
+    assert len(set(looks)) == 40 >= MAX_SERIES
+
+
+def test_plots_skipped_without_matplotlib_say_so_and_no_plots_says_nothing(tmp_path, monkeypatch, capsys):
+    from runner.report import plots
+
+    monkeypatch.setattr(plots, "available", lambda: False)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    text = Path(write_report(matrix(), str(tmp_path / "a"))).read_text(encoding="utf-8")
+    assert "Plots skipped: matplotlib is not installed" in text and "pip install 'runner[plots]'" in text
+    assert not (tmp_path / "a" / "plots").exists() and "![" not in text
+    assert "warning: Plots skipped" in capsys.readouterr().err
+    text = Path(write_report(matrix(), str(tmp_path / "b"), plots=False)).read_text(encoding="utf-8")
+    assert "## Plots" not in text and "skipped" not in text
+
+
+def test_the_core_import_path_imports_no_plotting_and_no_numpy():
+    """`runner --version` and `runner validate` load neither matplotlib nor numpy (nor the report's jinja2 and tabulate)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, runner.cli; version = set(sys.modules); "
+        "import runner.scenario.loader, runner.scenario.listing; "
+        "heavy = ('matplotlib', 'numpy', 'jinja2', 'tabulate', 'pydantic'); "
+        "print(sorted(m for m in version if m.split('.')[0] in heavy)); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'matplotlib', 'numpy', 'jinja2'}))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines() == ["[]", "[]"], done.stdout

@@ -8,9 +8,12 @@ Formatting is the only place a figure is scaled: results hold durations as integ
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable, Sequence
+
+from wcwidth import wcswidth
 
 from runner import units
-from runner.figures import Number, Unit
+from runner.figures import Number, Unit, scale
 
 
 def fmt_ns(value: Number | None) -> str:
@@ -38,12 +41,10 @@ def fmt_bytes(value: int | None) -> str:
 
 
 def fmt_figure(value: Number | None, unit: Unit) -> str:
-    """A figure in its unit: a duration (ns) as `fmt_ns` shows it, a count as the integer it is, a mean as `%g`."""
+    """A figure alone, in words: a duration (ns) as `fmt_ns` shows it, a count whole, a mean of counts to two decimals."""
     if unit is Unit.NS:
         return fmt_ns(value)
-    if value is None:
-        return "–"
-    return str(value) if isinstance(value, int) else f"{value:g}"
+    return scale(unit).number(value)
 
 
 # ---------------------------------------------------------------- text from the scenario, as markdown
@@ -62,6 +63,9 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 _ALWAYS = set("\\`*[]~")  # code spans, emphasis, links and images, strikethrough
 
 
+_PLAIN = re.compile(r"[^\x00-\x1f\x7f-\x9f\u2028\u2029\\`*\[\]~|_<&]*")  # no character md_text would escape inside a line
+
+
 def md_text(value: object, in_table: bool = False) -> Markdown:
     """Plain text as inline markdown that renders as that text, on one line.
 
@@ -74,7 +78,10 @@ def md_text(value: object, in_table: bool = False) -> Markdown:
     """
     if isinstance(value, Markdown):
         return value
-    text = _CONTROL.sub(" ", str(value)).strip()
+    text = str(value)
+    if _PLAIN.fullmatch(text) and text == text.strip() and (in_table or not (text[:1] in "#>-+=" or text[:1].isdigit() or "#" in text)):
+        return Markdown(text)  # most names and numbers: nothing to escape (a 1,000-cell report writes 200,000 of them)
+    text = _CONTROL.sub(" ", text).strip()
     out = []
     for i, ch in enumerate(text):
         after = text[i + 1] if i + 1 < len(text) else " "
@@ -130,3 +137,40 @@ def md_code_block(value: str, info: str = "") -> Markdown:
     fence = "`" * max(3, max((len(run) for run in re.findall(r"`+", value)), default=0) + 1)
     body = value if value.endswith("\n") else value + "\n"
     return Markdown(f"{fence}{info}\n{body}{fence}")
+
+
+# ---------------------------------------------------------------- tables
+
+LEFT, RIGHT = "left", "right"
+
+
+def pipe_table(headers: Sequence[object], rows: Iterable[Sequence[object]], align: Sequence[str]) -> Markdown:
+    """A GitHub-flavoured markdown table with `:---` / `---:` alignment markers, columns padded to their width.
+
+    Cells that are not Markdown are text, escaped by `md_text`.  Padding counts display
+    columns (an emoji is two), so the source lines up in a terminal too; GitHub ignores it.
+    Written here rather than by tabulate: a 1,000-cell report has 20,000 rows, and this is
+    about four times faster.
+    """
+    head = [md_text(h, in_table=True) for h in headers]
+    body = [[md_text(c, in_table=True) for c in r] for r in rows]
+    widths = [max(3, _width(h)) for h in head]
+    for r in body:
+        for i, c in enumerate(r):
+            widths[i] = max(widths[i], _width(c))
+
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(_pad(c, w, a) for c, w, a in zip(cells, widths, align)) + " |"
+
+    rule = "|" + "|".join(("-" * (w + 1) + ":") if a == RIGHT else (":" + "-" * (w + 1)) for w, a in zip(widths, align)) + "|"
+    return Markdown("\n".join([line(head), rule, *(line(r) for r in body)]))
+
+
+def _width(text: str) -> int:
+    width = wcswidth(text)
+    return width if width >= 0 else len(text)
+
+
+def _pad(text: str, width: int, align: str) -> str:
+    gap = " " * (width - _width(text))
+    return gap + text if align == RIGHT else text + gap

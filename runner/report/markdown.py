@@ -15,24 +15,25 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import jinja2
-from tabulate import tabulate
 
 from runner import figures as fg
 from runner import units
 from runner.figures import Number, ThreadFigures
 from runner.report import system
 from runner.report.fmt import (
+    LEFT,
+    RIGHT,
     Markdown,
     fmt_bytes,
-    fmt_figure,
     fmt_int,
     fmt_mean,
     fmt_ns,
     md_code,
     md_code_block,
     md_text,
+    pipe_table,
 )
-from runner.results.document import BackgroundKind, CellResult, RunDocument, Status, ThreadResult
+from runner.results.document import BackgroundKind, CellResult, RunDocument, Status, ThreadResult, Verdict
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
@@ -40,7 +41,7 @@ from runner.scenario.plan import Settings
 if TYPE_CHECKING:
     from runner.report.compare import Comparison, FigureChange
 
-MAX_SIDE_BY_SIDE = 12  # cells shown as columns in the comparison view; beyond that the summary table serves
+MAX_SIDE_BY_SIDE = 12  # cells shown in a thread's across-cells view; beyond that the summary table serves
 
 ICON = {
     Status.PASSED: "✅ passed",
@@ -67,16 +68,8 @@ def policy_label(settings: Settings | None) -> str:
 
 
 def table(headers: Sequence[str], rows: Iterable[Sequence[object]], align: Sequence[str] | None = None) -> Markdown:
-    """A GitHub-flavoured markdown table; cells that are not already Markdown are text, escaped by `md_text`."""
-    return Markdown(
-        tabulate(
-            [[md_text(c, in_table=True) for c in r] for r in rows],
-            headers=[md_text(h, in_table=True) for h in headers],
-            tablefmt="github",
-            disable_numparse=True,
-            colalign=align,
-        )
-    )
+    """A GitHub-flavoured markdown table, left-aligned unless told; cells that are not Markdown are escaped by `md_text`."""
+    return pipe_table(headers, rows, align or [LEFT] * len(headers))
 
 
 # ---------------------------------------------------------------- findings
@@ -221,7 +214,7 @@ def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, 
 
 @dataclass(frozen=True)
 class Table:
-    """A table of text cells (escaped when rendered) and Markdown cells (shown as they are)."""
+    """A table of text cells (escaped when rendered) and Markdown cells (shown as they are), aligned per column."""
 
     headers: list[str]
     rows: list[list[str]]
@@ -231,109 +224,137 @@ class Table:
         return table(self.headers, self.rows, self.align)
 
 
-SWITCH_HEADERS = [
-    "Thread",
-    "Scheduling",
-    "CPU",
-    "Callbacks",
-    "Involuntary / callback (mean)",
-    "Involuntary / callback (max)",
-    "Callbacks preempted",
-    "Involuntary (total)",
-    "Voluntary (total)",
-    "Wake-up p50",
-    "Wake-up p99",
-    "Wake-up max",
-    "Minor faults (1st callback / after)",
-    "Major faults",
-]
+Rows = Sequence[tuple[str, ThreadResult]]  # (what the row is: a thread's label, or a cell's id; the thread)
 
 
-def switch_table(cell: CellResult, labels: dict[str, str]) -> Table:
-    """Per thread: switch counts, wake-up latency and page faults, with units."""
-    rows = []
-    for t in cell.threads:
+def _numbers(first: str, headers: Sequence[str], rows: list[list[str]]) -> Table:
+    """A table whose first column names the row and whose other columns are numbers (right-aligned)."""
+    return Table([first, *headers], rows, [LEFT] + [RIGHT] * len(headers))
+
+
+def threads_table(rows: Rows, first: str = "Thread") -> Table:
+    """Per thread (or per cell): the scheduling the kernel reported, the CPUs it ran on, its callbacks."""
+    out = [
+        [
+            label + ("" if t.figures.complete else " (did not finish)"),
+            policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
+            units.format_cpus(t.figures.cpus_seen) or "–",
+            fmt_int(t.figures.callbacks) if t.periodic else "–",
+        ]
+        for label, t in rows
+    ]
+    return Table([first, "Scheduling", "CPUs", "Callbacks"], out, [LEFT, LEFT, LEFT, RIGHT])
+
+
+def switches_table(rows: Rows, first: str = "Thread") -> Table:
+    """Per thread: involuntary switches inside its callbacks (periodic threads), and both kinds over the whole run."""
+    per_cb = fg.scale(fg.Unit.PER_CALLBACK)
+    out = [
+        [
+            label,
+            per_cb.number(t.figures.involuntary.per_callback_mean),
+            fmt_int(t.figures.involuntary.per_callback_max),
+            fmt_int(t.figures.involuntary.callbacks_with_any),
+            fmt_int(t.figures.involuntary.total),
+            fmt_int(t.figures.voluntary.total),
+        ]
+        for label, t in rows
+    ]
+    headers = [
+        "Involuntary / callback (mean)",
+        "Involuntary / callback (max)",
+        "Callbacks preempted",
+        "Involuntary (total)",
+        "Voluntary (total)",
+    ]
+    return _numbers(first, headers, out)
+
+
+def faults_table(rows: Rows, first: str = "Thread") -> Table:
+    """Per thread: minor page faults in the first callback and the later ones (periodic threads), and over the whole run."""
+    out = [
+        [
+            label,
+            fmt_int(t.figures.faults.minor_first_callback),
+            fmt_int(t.figures.faults.minor_after_first),
+            fmt_int(t.figures.faults.minor),
+            fmt_int(t.figures.faults.major),
+        ]
+        for label, t in rows
+    ]
+    return _numbers(first, ["Minor, 1st callback", "Minor, later callbacks", "Minor (total)", "Major (total)"], out)
+
+
+LATENCY_COLUMNS = (
+    ("p50", "latency.p50"),
+    ("p99", "latency.p99"),
+    ("max", "latency.max"),
+    ("mean", "latency.mean"),
+    ("std dev", "latency.stddev"),
+)
+
+
+def latency_table(rows: Rows, first: str = "Thread") -> Table | None:
+    """Per periodic thread: wake-up latency percentiles, mean and deviation, all in one unit, and releases above the bound."""
+    periodic = [(label, t) for label, t in rows if t.periodic]
+    if not periodic:
+        return None
+    sc = fg.scale(fg.Unit.NS, (figure(t, name) for _, t in periodic for _, name in LATENCY_COLUMNS))
+    out = [
+        [label, *(sc.number(figure(t, name)) for _, name in LATENCY_COLUMNS), fmt_int(figure(t, "latency.above_bound"))]  # type: ignore[arg-type]
+        for label, t in periodic
+    ]
+    return _numbers(first, [sc.header(words) for words, _ in LATENCY_COLUMNS] + ["Above bound"], out)
+
+
+def timing_table(rows: Rows, first: str = "Thread") -> Table | None:
+    """Per periodic thread: releases, misses, overruns and slack (end of a callback to its next release)."""
+    periodic = [(label, t) for label, t in rows if t.periodic]
+    if not periodic:
+        return None
+    sc = fg.scale(fg.Unit.NS, (figure(t, name) for _, t in periodic for name in ("slack.min", "slack.p1")))
+    out = []
+    for label, t in periodic:
         f = t.figures
-        faults = (
-            f"{fmt_int(f.faults.minor_first_callback)} / {fmt_int(f.faults.minor_after_first)}"
-            if t.periodic
-            else f"{fmt_int(f.faults.minor)} (total)"
-        )
-        rows.append(
+        out.append(
             [
-                labels[t.key] + ("" if f.complete else " (did not finish)"),
-                policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
-                units.format_cpus(f.cpus_seen) or "–",
-                fmt_int(f.callbacks) if t.periodic else "–",
-                fmt_mean(f.involuntary.per_callback_mean),
-                fmt_int(f.involuntary.per_callback_max),
-                fmt_int(f.involuntary.callbacks_with_any),
-                fmt_int(f.involuntary.total),
-                fmt_int(f.voluntary.total),
-                *(fmt_ns(figure(t, name)) for name in ("latency.p50", "latency.p99", "latency.max")),
-                faults,
-                fmt_int(f.faults.major),
-            ]
-        )
-    return Table(SWITCH_HEADERS, rows, ["left", "left"] + ["right"] * (len(SWITCH_HEADERS) - 2))
-
-
-TIMING_HEADERS = [
-    "Thread",
-    "Releases",
-    "Callbacks",
-    "Missed",
-    "Overruns",
-    "Slack worst",
-    "Slack p1",
-    "Wake-up mean",
-    "Wake-up std dev",
-    "Above bound",
-]
-
-
-def timing_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
-    """Per periodic thread: releases, misses, overruns, slack, and latency mean and deviation (cyclictest's Avg)."""
-    rows = []
-    for t in periodic_threads(cell):
-        f = t.figures
-        rows.append(
-            [
-                labels[t.key],
+                label,
                 fmt_int(f.releases),
-                fmt_int(f.callbacks),
                 fmt_int(f.missed_releases) + (" ⚠️" if f.missed_releases else ""),
                 fmt_int(f.overruns) + (" ⚠️" if f.overruns else ""),
-                *(fmt_ns(figure(t, name)) for name in ("slack.min", "slack.p1", "latency.mean", "latency.stddev")),
-                fmt_int(figure(t, "latency.above_bound")),  # type: ignore[arg-type]
+                sc.number(figure(t, "slack.min")),
+                sc.number(figure(t, "slack.p1")),
             ]
         )
-    return Table(TIMING_HEADERS, rows, ["left"] + ["right"] * (len(TIMING_HEADERS) - 1)) if rows else None
+    return _numbers(first, ["Releases", "Missed", "Overruns", sc.header("Slack, worst"), sc.header("Slack p1")], out)
 
 
-EVENT_HEADERS = ["Thread", "Phase", "Event", "Measures", "Count", "p50", "p99", "Max", "Contended", "Held by"]
+EVENT_HEADERS = ["Thread", "Phase: event", "Measures", "Count", "p50", "p99", "max", "Contended", "Held by"]
 
 
 def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
     """Per event of every program: how often it ran and what it took (lock wait, timer latency, run time), who held a lock."""
+    events = [(t, e) for t in cell.threads for e in t.events]
+    if not events:
+        return None
+    sc = fg.scale(fg.Unit.NS, (getattr(e.spread_ns, q) for _, e in events if e.spread_ns is not None for q in ("p50", "p99", "max")))
     rows = []
-    for t in cell.threads:
-        for e in t.events:
-            sp = e.spread_ns
-            held = ", ".join(f"{h.thread} ({fmt_int(h.contentions)}x, {fmt_ns(h.wait_ns)})" for h in e.holders)
-            rows.append(
-                [
-                    labels[t.key],
-                    md_text(e.phase),
-                    md_text(e.event),
-                    e.measures,
-                    fmt_int(e.count),
-                    *(fmt_ns(getattr(sp, q)) if sp is not None else "-" for q in ("p50", "p99", "max")),
-                    fmt_int(e.contended) if e.kind == "lock" else "",
-                    md_text(held),
-                ]
-            )
-    return Table(EVENT_HEADERS, rows, ["left"] * 4 + ["right"] * 5 + ["left"]) if rows else None
+    for t, e in events:
+        sp = e.spread_ns
+        held = ", ".join(f"{h.thread} ({fmt_int(h.contentions)}×, {fmt_ns(h.wait_ns)})" for h in e.holders)
+        rows.append(
+            [
+                labels[t.key],
+                Markdown(f"{md_text(e.phase, in_table=True)}: {md_text(e.event, in_table=True)}"),
+                e.measures,
+                fmt_int(e.count),
+                *(sc.number(getattr(sp, q)) if sp is not None else "–" for q in ("p50", "p99", "max")),
+                fmt_int(e.contended) if e.kind == "lock" else "",
+                md_text(held),
+            ]
+        )
+    headers = EVENT_HEADERS[:4] + [sc.header(h) for h in EVENT_HEADERS[4:7]] + EVENT_HEADERS[7:]
+    return Table(headers, rows, [LEFT] * 3 + [RIGHT] * 5 + [LEFT])
 
 
 PHASE_HEADERS = ["Thread", "Phase", "Passes", "Time", "Settings on entry (kernel)", "CPUs seen", "Involuntary", "Voluntary", "Minor faults"]
@@ -341,131 +362,142 @@ PHASE_HEADERS = ["Thread", "Phase", "Passes", "Time", "Settings on entry (kernel
 
 def phases_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
     """Per phase of every program: passes, time, the settings the kernel reported on entry, CPUs, switches and faults."""
+    phases = [(t, p) for t in cell.threads for p in t.phases]
+    if not phases:
+        return None
+    sc = fg.scale(fg.Unit.NS, (p.time_ns for _, p in phases))
     rows = []
-    for t in cell.threads:
-        for p in t.phases:
-            applied = f"{p.applied.label()}, cpus {p.applied.cpus_label()}" if p.applied is not None else "not entered"
-            rows.append(
-                [
-                    labels[t.key],
-                    md_text(p.name),
-                    fmt_int(p.passes),
-                    fmt_ns(p.time_ns),
-                    applied + (" ⚠️" if p.degraded else ""),
-                    ",".join(str(c) for c in p.cpus_seen) or "-",
-                    fmt_int(p.involuntary),
-                    fmt_int(p.voluntary),
-                    fmt_int(p.minor_faults),
-                ]
-            )
-    return Table(PHASE_HEADERS, rows, ["left", "left", "right", "right", "left", "left", "right", "right", "right"]) if rows else None
+    for t, p in phases:
+        applied = f"{p.applied.label()}, cpus {p.applied.cpus_label()}" if p.applied is not None else "not entered"
+        rows.append(
+            [
+                labels[t.key],
+                md_text(p.name),
+                fmt_int(p.passes),
+                sc.number(p.time_ns),
+                applied + (" ⚠️" if p.degraded else ""),
+                ",".join(str(c) for c in p.cpus_seen) or "–",
+                fmt_int(p.involuntary),
+                fmt_int(p.voluntary),
+                fmt_int(p.minor_faults),
+            ]
+        )
+    headers = PHASE_HEADERS[:3] + [sc.header("Time")] + PHASE_HEADERS[4:]
+    return Table(headers, rows, [LEFT, LEFT, RIGHT, RIGHT, LEFT, LEFT, RIGHT, RIGHT, RIGHT])
+
+
+_BOUND = re.compile(r"(>=|<=)\s*(\S+)")
+
+
+def limit_values(v: Verdict) -> list[tuple[str, Number]] | None:
+    """The bounds of an expectation's limit as written (`>= 1ms and <= 2ms`), in the figure's unit; None if it does not read."""
+    found = _BOUND.findall(v.limit)
+    if not found or " and ".join(f"{op} {text}" for op, text in found) != v.limit.strip():
+        return None
+    out: list[tuple[str, Number]] = []
+    for op, text in found:
+        try:
+            out.append(("≥" if op == ">=" else "≤", units.parse_duration(text) if v.figure.is_duration else float(text)))
+        except (ValueError, units.UnitError):
+            return None
+    return out
 
 
 def verdict_table(cell: CellResult) -> Table | None:
+    """Each expectation: its limit and the measured value in one unit and precision, the unit beside the figure's words."""
     if not cell.expectations:
         return None
     rows = []
     for v in cell.expectations:
-        measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-        rows.append(
-            ["✅ pass" if v.passed else "❌ FAIL", v.thread, v.figure.words, v.limit, measured + (f" ({v.note})" if v.note else "")]
-        )
-    return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows)
-
-
-def summary_table(cells: Sequence[CellResult], repeated: bool = False) -> Table:
-    """One row per cell: status, the worst periodic thread's key figures, expectations met; misses when any cell had some."""
-    overloaded = any(not fg.kept_up(t.figures) for cell in cells for t in periodic_threads(cell))
-    rows = []
-    for cell in cells:
-        threads = periodic_threads(cell)
-        worst_inv = max(threads, key=lambda t: t.figures.involuntary.per_callback_mean or 0.0, default=None)
-        p99s = [figure(t, "latency.p99") for t in threads]
-        p99 = max((p for p in p99s if p is not None), default=None)
-        passed = sum(v.passed for v in cell.expectations)
-        behind = [t.figures for t in threads if not fg.kept_up(t.figures)]
+        bounds = limit_values(v)
+        sc = fg.scale(v.figure.unit, [v.measured, *(b for _, b in bounds or [])])
+        limit = " and ".join(f"{op} {sc.number(b)}" for op, b in bounds) if bounds is not None else v.limit
+        measured = sc.number(v.measured) if v.measured is not None else "not measured"
         rows.append(
             [
-                Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})"),
+                "✅ pass" if v.passed else "❌ FAIL",
+                v.thread,
+                sc.header(v.figure.words) + (f": {v.note}" if v.note else ""),
+                limit,
+                measured,
+            ]
+        )
+    return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows, [LEFT, LEFT, LEFT, RIGHT, RIGHT])
+
+
+def summary_tables(cells: Sequence[CellResult], repeated: bool = False) -> list[Table]:
+    """Per cell: its status, scheduling, expectations and duration; then its periodic threads' worst figures.
+
+    Two tables, so a long cell id and ten columns do not make one table wider than GitHub's page;
+    the misses and slack columns only when some cell did not keep up.
+    """
+    overloaded = any(not fg.kept_up(t.figures) for cell in cells for t in periodic_threads(cell))
+    p99s = [max((p for t in periodic_threads(c) if (p := figure(t, "latency.p99")) is not None), default=None) for c in cells]
+    slacks = [min((t.figures.slack_ns.min for t in periodic_threads(c) if t.figures.slack_ns is not None), default=None) for c in cells]
+    lat, slack, per_cb = fg.scale(fg.Unit.NS, p99s), fg.scale(fg.Unit.NS, slacks), fg.scale(fg.Unit.PER_CALLBACK)
+    status, worst = [], []
+    for cell, p99, worst_slack in zip(cells, p99s, slacks):
+        threads = periodic_threads(cell)
+        link = Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})")
+        passed = sum(v.passed for v in cell.expectations)
+        status.append(
+            [
+                link,
                 ICON[cell.status],
                 ", ".join(sorted({policy_label(t.applied) for t in threads})) or "–",
-                fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
-                fmt_mean(worst_inv.figures.involuntary.per_callback_mean) if worst_inv else "–",
-                fmt_ns(p99),
                 f"{passed} of {len(cell.expectations)}" if cell.expectations else "–",
-                f"{cell.duration_s:.1f} s",
+                f"{cell.duration_s:.1f}",
             ]
-            + ([_behind(behind)] if overloaded else [])
         )
-    return Table(
-        [
-            "Cell",
-            "Status",
-            "Scheduling (periodic threads)",
-            "Callbacks",
-            "Involuntary / callback (worst thread)",
-            "Wake-up p99 (worst thread)",
-            "Expectations met",
-            "Duration",
-        ]
-        + (["Missed releases (worst slack)"] if overloaded else []),
-        rows,
-        ["left", "left", "left", "right", "right", "right", "right", "right"] + (["right"] if overloaded else []),
-    )
-
-
-def _behind(figures: list[ThreadFigures]) -> str:
-    """`48 ⚠️ (−118 ms)`: releases missed by the cell's periodic threads and their worst slack; `0` when all kept up."""
-    if not figures:
-        return "0"
-    slack = min((f.slack_ns.min for f in figures if f.slack_ns is not None), default=None)
-    return f"{sum(f.missed_releases for f in figures):,} ⚠️" + (f" ({fmt_ns(slack)})" if slack is not None else "")
-
-
-def side_by_side(key: str, entries: Sequence[tuple[CellResult, ThreadResult]]) -> Table:
-    """The seed's comparison: one thread, one column per cell (other vs fifo vs rr)."""
-
-    def row(name: str, value: Any) -> list[str]:
-        return [name] + [value(t) for _, t in entries]
-
-    def lat(q: str) -> Any:
-        return lambda t: fmt_ns(figure(t, f"latency.{q}"))
-
-    rows = [
-        row("Scheduling (read back from the kernel)", lambda t: policy_label(t.applied)),
-        row("CPUs it ran on", lambda t: units.format_cpus(t.figures.cpus_seen) or "–"),
-        row("Callbacks", lambda t: fmt_int(t.figures.callbacks)),
-        row("Involuntary switches per callback (mean)", lambda t: fmt_mean(t.figures.involuntary.per_callback_mean)),
-        row("Involuntary switches per callback (max)", lambda t: fmt_int(t.figures.involuntary.per_callback_max)),
-        row("Callbacks preempted at least once", lambda t: fmt_int(t.figures.involuntary.callbacks_with_any)),
-        row("Voluntary switches (total)", lambda t: fmt_int(t.figures.voluntary.total)),
-        row("Wake-up latency p50", lat("p50")),
-        row("Wake-up latency p99", lat("p99")),
-        row("Wake-up latency max", lat("max")),
-        row("Wake-up latency mean ± std dev", lambda t: f"{fmt_ns(figure(t, 'latency.mean'))} ± {fmt_ns(figure(t, 'latency.stddev'))}"),
-        row("Releases missed", lambda t: fmt_int(t.figures.missed_releases)),
-        row("Overruns", lambda t: fmt_int(t.figures.overruns)),
-        row("Slack, worst", lambda t: fmt_ns(figure(t, "slack.min"))),
-        row("Minor page faults after the first callback", lambda t: fmt_int(t.figures.faults.minor_after_first)),
+        missed = sum(t.figures.missed_releases for t in threads)
+        worst.append(
+            [
+                md_text(cell.id, in_table=True),
+                fmt_int(sum(t.figures.callbacks for t in threads)) if threads else "–",
+                per_cb.number(max((t.figures.involuntary.per_callback_mean or 0.0 for t in threads), default=None)),
+                lat.number(p99),
+            ]
+            + ([f"{missed:,}" + (" ⚠️" if missed else ""), slack.number(worst_slack)] if overloaded else [])
+        )
+    headers = ["Callbacks", "Involuntary / callback", lat.header("Wake-up p99")]
+    headers += ["Missed releases", slack.header("Slack, worst")] if overloaded else []
+    return [
+        Table(["Cell", "Status", "Scheduling (periodic threads)", "Expectations met", "Duration (s)"], status, [LEFT] * 3 + [RIGHT] * 2),
+        _numbers("Cell", headers, worst),
     ]
-    return Table(["Figure"] + [cell.id for cell, _ in entries], rows, ["left"] + ["right"] * len(entries))
+
+
+def across_cells(entries: Sequence[tuple[CellResult, ThreadResult]]) -> list[tuple[str, Table]]:
+    """The seed's comparison (other vs fifo vs rr): one thread, a row per cell, in the groups of a cell's own tables."""
+    rows = [(cell.id, t) for cell, t in entries]
+    built = (
+        ("Scheduling", threads_table(rows, "Cell")),
+        ("Context switches", switches_table(rows, "Cell")),
+        ("Wake-up latency", latency_table(rows, "Cell")),
+        ("Releases and slack", timing_table(rows, "Cell")),
+        ("Page faults", faults_table(rows, "Cell")),
+    )
+    return [(caption, t) for caption, t in built if t is not None]
 
 
 def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table | None:
-    """For repeated cells: each periodic thread's key figures as median (min – max) over the repeats."""
+    """For repeated cells: each periodic thread's key figures as median (min – max) over the repeats, one unit per column."""
     groups: dict[tuple[str, str], list[ThreadResult]] = {}
     for cell in cells:
         for t in periodic_threads(cell):
             groups.setdefault((cell.id, t.key), []).append(t)
     if not any(len(ts) > 1 for ts in groups.values()):
         return None
+    names = ("latency.p50", "latency.p99", "latency.max")
+    lat = fg.scale(fg.Unit.NS, (figure(t, name) for ts in groups.values() for t in ts for name in names))
+    per_cb = fg.scale(fg.Unit.PER_CALLBACK)
 
-    def spread(values: list[Number | None], fmt: Any) -> str:
+    def spread(values: list[Number | None], sc: fg.Scale) -> str:
         present = sorted(v for v in values if v is not None)
         if not present:
             return "–"
         mid = statistics.median(present)
-        return fmt(mid) if len(present) == 1 else f"{fmt(mid)} ({fmt(present[0])} – {fmt(present[-1])})"
+        return sc.number(mid) if len(present) == 1 else f"{sc.number(mid)} ({sc.number(present[0])} – {sc.number(present[-1])})"
 
     rows = []
     for (cell_id, key), ts in groups.items():
@@ -474,14 +506,14 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table |
                 cell_id,
                 labels[key],
                 str(len(ts)),
-                spread([t.figures.involuntary.per_callback_mean for t in ts], fmt_mean),
-                *(spread([figure(t, name) for t in ts], fmt_ns) for name in ("latency.p50", "latency.p99", "latency.max")),
+                spread([t.figures.involuntary.per_callback_mean for t in ts], per_cb),
+                *(spread([figure(t, name) for t in ts], lat) for name in names),
             ]
         )
     return Table(
-        ["Cell", "Thread", "Repeats", "Involuntary / callback", "Wake-up p50", "Wake-up p99", "Wake-up max"],
+        ["Cell", "Thread", "Repeats", "Involuntary / callback", *(lat.header(f"Wake-up {q}") for q in ("p50", "p99", "max"))],
         rows,
-        ["left", "left", "right", "right", "right", "right", "right"],
+        [LEFT, LEFT, RIGHT, RIGHT, RIGHT, RIGHT, RIGHT],
     )
 
 
@@ -593,8 +625,11 @@ class CellSection:
     icon: str
     finding: Markdown
     ps: Markdown | None
+    threads: Table
     switches: Table
+    latency: Table | None
     timing: Table | None
+    faults: Table
     events: Table | None
     phases: Table | None
     verdicts: Table | None
@@ -604,9 +639,10 @@ class CellSection:
 
 @dataclass
 class ThreadView:
+    """One periodic thread of interest across the cells of a matrix: its figures in a row per cell."""
+
     label: str
-    side_by_side: Table | None
-    plots: list[Plot]
+    tables: list[tuple[str, Table]]  # (caption, table)
     cells: int
 
 
@@ -616,12 +652,14 @@ class ReportModel:
     description: str
     facts: Table
     findings: list[Markdown]
-    summary: Table | None
+    summary: list[Table]
     spread: Table | None
     threads: list[ThreadView]
     sections: list[CellSection]
     comparison: Markdown | None = None
     notes: list[str] = field(default_factory=list)
+    plots: list[Plot] = field(default_factory=list)
+    plots_note: Markdown | None = None  # why there are no plots, when they were asked for
 
 
 def _load_line(cell: CellResult) -> Markdown:
@@ -634,9 +672,55 @@ def _load_line(cell: CellResult) -> Markdown:
     return Markdown(", ".join(parts) or "none")
 
 
-def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None, pid_width: int = 5) -> ReportModel:
-    """Everything the template shows, as text and tables; `plots` maps a thread key to its plot files."""
-    plots = plots or {}
+def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width: int) -> CellSection:
+    rows = [(labels[t.key], t) for t in cell.threads]
+    return CellSection(
+        cell=cell,
+        title=section_title(cell, repeated),
+        anchor=anchor(cell, repeated),
+        icon=ICON[cell.status],
+        finding=cell_finding(cell, labels),
+        ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
+        threads=threads_table(rows),
+        switches=switches_table(rows),
+        latency=latency_table(rows),
+        timing=timing_table(rows),
+        faults=faults_table(rows),
+        events=events_table(cell, labels),
+        phases=phases_table(cell, labels),
+        verdicts=verdict_table(cell),
+        degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
+        load=_load_line(cell),
+    )
+
+
+MAX_THREAD_VIEWS = 4  # periodic threads shown across cells and plotted one by one: the worst by wake-up p99
+
+
+def threads_of_interest(cells: Sequence[CellResult], most: int = MAX_THREAD_VIEWS) -> list[str]:
+    """The keys of the periodic threads worth a view of their own: the `most` with the highest wake-up p99 in any cell.
+
+    A matrix of one callback thread shows it; a cell of 256 threads shows the few that did worst,
+    so what the report draws does not grow with the threads (every thread stays in the tables).
+    Ties keep the order the threads first appear in.
+    """
+    worst: dict[str, float] = {}
+    for cell in cells:
+        for t in periodic_threads(cell):
+            p99 = figure(t, "latency.p99")
+            worst[t.key] = max(worst.get(t.key, -1.0), float(p99) if p99 is not None else -1.0)
+    order = {key: i for i, key in enumerate(worst)}
+    return sorted(worst, key=lambda key: (-worst[key], order[key]))[:most]
+
+
+def build(
+    doc: RunDocument,
+    plots: Sequence[Plot] | None = None,
+    comparison: str | None = None,
+    pid_width: int = 5,
+    plots_note: Markdown | None = None,
+) -> ReportModel:
+    """Everything the template shows, as text and tables; `plots` are the plot files drawn beside the report."""
     order = {cell_id: i for i, cell_id in enumerate(doc.matrix_cells)}
     cells = sorted(doc.cells, key=lambda c: (order.get(c.id, len(order)), c.repeat))  # matrix order, not run order
     labels = thread_labels(cells)
@@ -644,27 +728,13 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
     firsts = first_runs(cells)
     matrix = len(firsts) > 1
     threads = []
-    for key, entries in _by_thread(firsts).items():
-        shown = entries[:MAX_SIDE_BY_SIDE]
-        threads.append(ThreadView(labels[key], side_by_side(key, shown) if matrix else None, plots.get(key, []), len(entries)))
-    sections = [
-        CellSection(
-            cell=cell,
-            title=section_title(cell, repeated),
-            anchor=anchor(cell, repeated),
-            icon=ICON[cell.status],
-            finding=cell_finding(cell, labels),
-            ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
-            switches=switch_table(cell, labels),
-            timing=timing_table(cell, labels),
-            events=events_table(cell, labels),
-            phases=phases_table(cell, labels),
-            verdicts=verdict_table(cell),
-            degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
-            load=_load_line(cell),
-        )
-        for cell in cells
-    ]
+    by_thread = _by_thread(firsts)
+    if matrix:
+        for key in threads_of_interest(firsts):
+            entries = by_thread[key]
+            if len(entries) > 1:
+                threads.append(ThreadView(labels[key], across_cells(entries[:MAX_SIDE_BY_SIDE]), len(entries)))
+    sections = [_section(cell, labels, repeated, pid_width) for cell in cells]
     findings = matrix_finding(firsts, labels) if matrix else []
     if not findings:
         findings = [
@@ -674,24 +744,32 @@ def build(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparis
     if repeated:
         findings.append(
             Markdown(
-                "Cells ran more than once: the side-by-side view and these findings show each cell's "
+                "Cells ran more than once: the across-cells views and these findings show each cell's "
                 "first run; the spread table shows every repeat."
             )
         )
     notes = []
-    if any(len(v.side_by_side.rows[0]) - 1 < v.cells for v in threads if v.side_by_side):
-        notes.append(f"The side-by-side view shows the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
+    if any(v.cells > MAX_SIDE_BY_SIDE for v in threads):
+        notes.append(f"The across-cells views show the first {MAX_SIDE_BY_SIDE} cells; the summary table has them all.")
+    shown_keys = set(threads_of_interest(firsts)) if matrix else set()
+    if matrix and len(by_thread) > len(shown_keys):
+        notes.append(
+            f"Across cells: the {len(shown_keys)} periodic threads with the highest wake-up p99, of {len(by_thread)}; "
+            "each cell's tables list every thread."
+        )
     return ReportModel(
         title=f"{doc.name}: scheduling report",
         description=doc.scenario.description,
         facts=facts(doc),
         findings=findings,
-        summary=summary_table(cells, repeated) if len(cells) > 1 else None,
+        summary=summary_tables(cells, repeated) if len(cells) > 1 else [],
         spread=spread_table(cells, labels),
         threads=threads,
         sections=sections,
         comparison=Markdown(comparison) if comparison else None,
         notes=notes,
+        plots=list(plots or []),
+        plots_note=plots_note,
     )
 
 
@@ -724,8 +802,14 @@ def render(model: ReportModel) -> str:
     return re.sub(r"\n{3,}", "\n\n", environment().get_template("report.md.j2").render(r=model))
 
 
-def render_run(doc: RunDocument, plots: dict[str, list[Plot]] | None = None, comparison: str | None = None, pid_width: int = 5) -> str:
-    return render(build(doc, plots, comparison, pid_width))
+def render_run(
+    doc: RunDocument,
+    plots: Sequence[Plot] | None = None,
+    comparison: str | None = None,
+    pid_width: int = 5,
+    plots_note: Markdown | None = None,
+) -> str:
+    return render(build(doc, plots, comparison, pid_width, plots_note))
 
 
 # ---------------------------------------------------------------- comparison with a baseline
@@ -777,26 +861,31 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
             ],
         ],
     )
-    notes = ["Regression thresholds: " + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds) + "."] + list(
-        cmp.notes
-    )
+    notes = [
+        "A figure regresses when it is worse than its baseline by more than its threshold: "
+        + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds)
+        + "."
+    ] + list(cmp.notes)
 
-    def figure_rows(items: Iterable[Any]) -> list[list[str]]:
-        return [
-            [
-                f.cell,
-                labels.get(f.thread, f.thread),
-                f.figure.words,
-                format_value(f, "base"),
-                format_value(f, "new"),
-                change_text(f),
-                f.threshold.describe(),
-                VERDICT_ICON[f.verdict],
-            ]
-            for f in items
-        ]
+    def figure_rows(items: Iterable[FigureChange]) -> list[list[str]]:
+        rows = []
+        for f in items:
+            sc = fg.scale(f.figure.unit, (f.base, f.new))
+            rows.append(
+                [
+                    f.cell,
+                    labels.get(f.thread, f.thread),
+                    sc.header(f.figure.words),
+                    sc.number(f.base),
+                    sc.number(f.new),
+                    change_text(f, sc),
+                    VERDICT_ICON[f.verdict],
+                ]
+            )
+        return rows
 
-    headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Threshold", "Verdict"]
+    headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Verdict"]
+    align = [LEFT, LEFT, LEFT, RIGHT, RIGHT, RIGHT, LEFT]
     bad = [f for f in cmp.figures if f.verdict == "regression"]
     status_rows = [
         [
@@ -810,26 +899,23 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     return ComparisonModel(
         headline=Markdown(headline),
         facts=facts,
-        regressions=Table(headers, figure_rows(bad)) if bad else None,
+        regressions=Table(headers, figure_rows(bad), align) if bad else None,
         cells=Table(["Cell", "Baseline status", "Status now", "Verdict"], status_rows),
-        figures=Table(headers, figure_rows(cmp.figures)) if cmp.figures else None,
+        figures=Table(headers, figure_rows(cmp.figures), align) if cmp.figures else None,
         notes=notes,
     )
 
 
-def change_text(f: FigureChange) -> str:
-    """`+200 µs (+200%)`: how much a compared figure moved."""
+def change_text(f: FigureChange, sc: fg.Scale) -> str:
+    """`+316 (+373%)`: how much a compared figure moved, in the scale of its row (one minus sign: U+2212)."""
     if f.base is None or f.new is None:
         return "–"
     delta = f.new - f.base
-    text = ("+" if delta >= 0 else "−") + fmt_figure(abs(delta), f.figure.unit)
+    text = sc.number(delta, sign=True)
     if f.base:
-        text += f" ({delta / abs(f.base) * 100:+.0f}%)"
+        percent = fg.scale(fg.Unit.COUNT).number(delta / abs(f.base) * 100, sign=True)
+        text += f" ({percent}%)"
     return text
-
-
-def format_value(f: FigureChange, which: str) -> str:
-    return fmt_figure(f.base if which == "base" else f.new, f.figure.unit)
 
 
 def render_comparison(cmp: Comparison, base_name: str, new_name: str) -> Markdown:

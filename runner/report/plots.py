@@ -1,58 +1,128 @@
-"""SVG plots beside the report: wake-up latency histograms and involuntary switches over time.
+"""SVG plots beside the report: wake-up latency histograms and involuntary switches, callback by callback.
 
-For each thread that runs periodic work, two plots with every cell of the matrix
-overlaid (up to MAX_SERIES):
+The number of plots does not grow with the threads: they show the periodic threads of
+interest (`markdown.threads_of_interest`: the few with the highest wake-up p99) and one
+aggregate view of all periodic threads, so a 256-thread cell draws as fast as a 1-thread one.
 
-- the wake-up latency histogram, log-scale counts as in OSADL latency plots (and a
-  log latency axis, since OTHER and FIFO differ by decades under contention);
-- involuntary context switches per callback, callback by callback.
+- One cell: one latency histogram with a line per thread of interest (and the aggregate of
+  every periodic thread when there are more), one switch plot with a panel per thread.
+- A matrix: per thread of interest, a latency histogram with a line per cell and a switch plot
+  with a panel per cell; and, when the cells have several periodic threads, the aggregate
+  latency histogram with a line per cell.  At most MAX_SERIES lines or panels per plot.
 
-Data comes from each cell's samples.csv.gz.  Output is deterministic (no dates, a
-fixed SVG id salt) so re-rendering the same results gives the same files.
+The latency histograms follow OSADL's latency plots (the field's convention for cyclictest
+histograms): a linear latency axis in µs, a logarithmic count axis, fixed-width bins.  They
+are drawn from the results' native histograms (every release answered), or from the samples
+file for results written before those existed.  Each line has its own colour and line style,
+so lines stay apart past ten cells.  The switch plots put each series in its own panel, so
+threads at 0 switches do not hide behind one another.
+
+matplotlib is an extra (`pip install 'runner[plots]'`): `available()` says whether it is
+installed, and the report says plots were skipped when it is not.  Output is deterministic
+(no dates, a fixed SVG id salt) so re-rendering the same results gives the same files.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import io
-import math
 import os
 import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from runner.report.markdown import Plot
-from runner.results.document import RunDocument, ThreadResult
+from runner import histogram
+from runner.histogram import Histogram
+from runner.report.fmt import Markdown, md_code
+from runner.report.markdown import Plot, first_runs, periodic_threads, threads_of_interest
+from runner.results.document import CellResult, RunDocument, ThreadResult
 from runner.results.files import slug, write_atomic
-from runner.results.samplesfile import read_samples
+from runner.results.samplesfile import SampleRow, read_samples
 
-MAX_SERIES = 12
+MAX_SERIES = 12  # lines (or panels) in one plot; beyond that the plot's title says how many it shows
+MAX_BINS = 200  # bins of a latency histogram at most: the bin width is the first of 1, 2, 5, 10, 20, ... µs that keeps to it
+LINE_STYLES = ("-", "--", ":", "-.")  # with the ten colours of tab10: 40 lines, no two alike
+INSTALL_HINT = "pip install 'runner[plots]'"
+
+
+def available() -> bool:
+    """Whether matplotlib is installed (without importing it: that takes half a second)."""
+    return importlib.util.find_spec("matplotlib") is not None
+
+
+def skipped_note() -> Markdown:
+    """The report's line when plots were asked for and matplotlib is not installed."""
+    return Markdown(
+        f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(INSTALL_HINT)}, "
+        f"then {md_code('runner report')} draws them)."
+    )
 
 
 @dataclass(frozen=True)
 class Series:
     label: str
-    latency_us: list[float]
-    involuntary: list[int]
+    latency: Histogram | None  # wake-up latency of every release answered, ns
+    involuntary: list[int]  # involuntary switches in each callback, in order (empty without a samples file)
 
 
-def collect(doc: RunDocument) -> dict[str, list[Series]]:
-    """Per periodic thread key, one series per cell (in cell order) read from the samples files."""
-    out: dict[str, list[Series]] = {}
-    for cell in doc.cells:
-        periodic = [t for t in cell.threads if t.periodic and t.figures.callbacks]
-        if not periodic:
-            continue
-        path = doc.samples_path(cell)
-        data = read_samples(path) if path else {}
-        for t in periodic:
-            rows = data.get(t.key)
-            if not rows:
-                continue
-            label = cell.id if not cell.repeat else f"{cell.id} #{cell.repeat + 1}"
-            label = " " + label if label.startswith("_") else label  # matplotlib leaves `_...` labels out of the legend
-            out.setdefault(t.key, []).append(Series(label, [r.latency_ns / 1000.0 for r in rows], [r.nivcsw for r in rows]))
-    return out
+# ---------------------------------------------------------------- data
+
+
+def _label(cell: CellResult) -> str:
+    label = cell.id if not cell.repeat else f"{cell.id} #{cell.repeat + 1}"
+    return " " + label if label.startswith("_") else label  # matplotlib leaves `_...` labels out of the legend
+
+
+class _Samples:
+    """Samples files read once per cell, only the rows of the threads asked for."""
+
+    def __init__(self, doc: RunDocument, wanted: set[str]):
+        self.doc, self.wanted = doc, wanted
+        self.cache: dict[int, dict[str, list[SampleRow]]] = {}
+
+    def rows(self, cell: CellResult, key: str) -> list[SampleRow]:
+        if id(cell) not in self.cache:
+            path = self.doc.samples_path(cell)
+            self.cache[id(cell)] = read_samples(path, self.wanted) if path else {}
+        return self.cache[id(cell)].get(key, [])
+
+
+def _latency(t: ThreadResult, cell: CellResult, samples: _Samples) -> Histogram | None:
+    """A thread's wake-up latency histogram: the native one, or (results from before those) built from its samples."""
+    if t.histograms is not None and t.histograms.latency is not None:
+        return t.histograms.latency
+    return histogram.from_values(r.latency_ns for r in samples.rows(cell, t.key))
+
+
+def _series(label: str, t: ThreadResult, cell: CellResult, samples: _Samples) -> Series:
+    return Series(label, _latency(t, cell, samples), [r.nivcsw for r in samples.rows(cell, t.key)])
+
+
+def _aggregate(cell: CellResult, samples: _Samples, label: str) -> Series:
+    """Every periodic thread of `cell` as one latency histogram (the aggregate line); no switch series."""
+    return Series(label, histogram.merge(_latency(t, cell, samples) for t in periodic_threads(cell)), [])
+
+
+def osadl_bins(hists: Sequence[Histogram]) -> tuple[list[float], list[list[int]]]:
+    """Common fixed-width bins (µs) from 0 to the largest value, and each histogram's counts in them.
+
+    A native bucket wider than a bin is counted at its upper end (clamped to the exact maximum),
+    as `runner report --histogram` counts it, so a latency is never drawn smaller than it was.
+    """
+    top_us = max((h.max for h in hists), default=0) / 1000
+    width = next(w * 10**e for e in range(12) for w in (1, 2, 5) if w * 10**e * MAX_BINS >= top_us)
+    bins = int(top_us // width) + 1
+    counts = []
+    for h in hists:
+        row = [0] * bins
+        for _low, high, n in h.buckets:
+            row[min(bins - 1, max(0, int(min(high, h.max) / 1000 // width)))] += n
+        counts.append(row)
+    return [i * width for i in range(bins + 1)], counts
+
+
+# ---------------------------------------------------------------- drawing
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
@@ -66,34 +136,49 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
-def _log_bins(values: Sequence[float], count: int = 60) -> list[float]:
-    low = max(min(values), 0.1)
-    high = max(max(values), low * 1.01)
-    a, b = math.log10(low) - 0.02, math.log10(high) + 0.02
-    return [10 ** (a + (b - a) * i / count) for i in range(count + 1)]
+def style(i: int) -> dict[str, object]:
+    """The i-th line's colour and line style: tab10's ten colours, then again dashed, dotted, dash-dotted."""
+    return {"color": f"C{i % 10}", "linestyle": LINE_STYLES[(i // 10) % len(LINE_STYLES)]}
 
 
-def latency_histogram(title: str, series: Sequence[Series], path: str) -> None:
-    """Wake-up latency histogram (log counts, log latency), one step line per cell."""
+def _title(title: str, shown: int, total: int, what: str) -> str:
+    return title if shown == total else f"{title} (first {shown} of {total} {what})"
+
+
+def latency_histogram(title: str, series: Sequence[Series], path: str, total: int | None = None, what: str = "cells") -> None:
+    """Wake-up latency histogram as OSADL draws it: linear latency (µs), log counts, one step line per series."""
     plt = _pyplot()
+    drawn = [s for s in series if s.latency is not None]
     fig, ax = plt.subplots(figsize=(9, 4.2))
-    values = [v for s in series for v in s.latency_us]
-    bins = _log_bins(values)
-    for s in series:
-        ax.hist([max(v, bins[0]) for v in s.latency_us], bins=bins, histtype="step", linewidth=1.4, label=s.label)
-    ax.set_xscale("log")
+    edges, counts = osadl_bins([s.latency for s in drawn if s.latency is not None])
+    for i, (s, row) in enumerate(zip(drawn, counts)):
+        ax.stairs(row, edges, linewidth=1.3, label=s.label, **style(i))
     ax.set_yscale("log")
     ax.set_ylim(bottom=0.7)
-    plain = _plain_numbers()
-    ax.xaxis.set_major_formatter(plain)
-    ax.yaxis.set_major_formatter(plain)
-    ax.yaxis.set_minor_formatter(plain)
-    ax.xaxis.set_minor_formatter(_no_numbers())
-    ax.set_xlabel("wake-up latency (µs, log scale)")
-    ax.set_ylabel("callbacks (log scale)")
-    ax.set_title(f"{title}: wake-up latency")
-    ax.grid(True, which="both", alpha=0.3)
-    _legend(ax)
+    ax.set_xlim(left=0, right=edges[-1] + 2 * edges[1])  # a margin: the worst release stays clear of the frame
+    ax.yaxis.set_major_formatter(_plain_numbers())
+    ax.set_xlabel(f"wake-up latency (µs; bins of {edges[1]:g} µs)")
+    ax.set_ylabel("releases (log scale)")
+    ax.set_title(_title(f"{title}: wake-up latency", len(series), total or len(series), what))
+    ax.grid(True, which="major", alpha=0.3)
+    _legend(ax, "cell" if what == "cells" else "thread")
+    _save(fig, path)
+
+
+def involuntary_panels(title: str, series: Sequence[Series], path: str, total: int | None = None, what: str = "cells") -> None:
+    """Involuntary context switches in each callback, one panel per series (shared axes), so lines at 0 stay apart."""
+    plt = _pyplot()
+    drawn = [s for s in series if s.involuntary] or list(series[:1])
+    fig, axes = plt.subplots(len(drawn), 1, figsize=(9, 0.5 + 0.75 * len(drawn)), sharex=True, sharey=True, squeeze=False)
+    top = max((max(s.involuntary, default=0) for s in drawn), default=0)
+    for i, (s, ax) in enumerate(zip(drawn, axes[:, 0])):
+        ax.step(range(1, len(s.involuntary) + 1), s.involuntary, where="mid", linewidth=1.1, **style(i))
+        ax.set_ylim(-0.5, max(1, top) * 1.15 + 0.5)
+        ax.text(1.01, 0.5, s.label, transform=ax.transAxes, va="center", ha="left", fontsize=7)
+        ax.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel("callback")
+    axes[len(drawn) // 2, 0].set_ylabel("involuntary switches")
+    axes[0, 0].set_title(_title(f"{title}: involuntary context switches per callback", len(series), total or len(series), what))
     _save(fig, path)
 
 
@@ -103,29 +188,8 @@ def _plain_numbers():  # type: ignore[no-untyped-def]
     return FuncFormatter(lambda value, _pos: f"{value:g}")
 
 
-def _no_numbers():  # type: ignore[no-untyped-def]
-    from matplotlib.ticker import NullFormatter
-
-    return NullFormatter()
-
-
-def _legend(ax) -> None:  # type: ignore[no-untyped-def]
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, title="cell", title_fontsize=7)
-
-
-def involuntary_timeline(title: str, series: Sequence[Series], path: str) -> None:
-    """Involuntary context switches in each callback, callback by callback, one line per cell."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(9, 3.6))
-    for s in series:
-        ax.step(range(1, len(s.involuntary) + 1), s.involuntary, where="mid", linewidth=1.2, label=s.label)
-    ax.set_xlabel("callback")
-    ax.set_ylabel("involuntary switches")
-    ax.set_title(f"{title}: involuntary context switches per callback")
-    ax.set_ylim(bottom=-0.5)
-    ax.grid(True, alpha=0.3)
-    _legend(ax)
-    _save(fig, path)
+def _legend(ax, title: str) -> None:  # type: ignore[no-untyped-def]
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, title=title, title_fontsize=7)
 
 
 def _save(fig, path: str) -> None:  # type: ignore[no-untyped-def]
@@ -143,6 +207,9 @@ def _save(fig, path: str) -> None:  # type: ignore[no-untyped-def]
     write_atomic(path, buf.getvalue())
 
 
+# ---------------------------------------------------------------- files
+
+
 def plot_name(t: ThreadResult) -> str:
     """The file name (without extension) of a thread's plots: injective over threads, safe, bounded.
 
@@ -150,6 +217,7 @@ def plot_name(t: ThreadResult) -> str:
     not negative gets the readable `process-name-main` (`process-2-name-3` for instance 2,
     thread 3): none of those parts holds a `-`, so the name splits back into them.  Any other
     thread is named after its exact key, through results.slug (readable part and a hash).
+    Neither kind is `threads` or `all-threads`, the names of the plots of several threads.
     """
     plain = _WORD.fullmatch(t.process) and _WORD.fullmatch(t.name) and t.instance >= 0 and t.index >= 0
     if not plain:
@@ -161,21 +229,48 @@ def plot_name(t: ThreadResult) -> str:
 _WORD = re.compile(r"[A-Za-z0-9_.]+")
 
 
-def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = None) -> dict[str, list[Plot]]:
-    """Write the plots of `doc` under `folder`/plots; return, per thread key, the plots (paths relative to `folder`)."""
-    data = collect(doc)
-    if not data:
-        return {}
-    threads = {t.key: t for cell in doc.cells for t in cell.threads}
+def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = None) -> list[Plot]:
+    """Write the plots of `doc` under `folder`/plots; return them in the report's order (paths relative to `folder`)."""
+    labels = labels or {}
+    cells = [c for c in doc.cells if any(t.figures.callbacks for t in periodic_threads(c))]
+    keys = threads_of_interest(first_runs(doc.cells))
+    if not cells or not keys:
+        return []
     os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
-    out: dict[str, list[Plot]] = {}
-    for key, series in data.items():
-        title = (labels or {}).get(key, key)
-        shown = series[:MAX_SERIES]
-        name = plot_name(threads[key])
+    # rows of the threads of interest (their switches), and of any periodic thread without a native histogram (old results)
+    samples = _Samples(doc, set(keys) | {t.key for c in cells for t in periodic_threads(c) if _no_histogram(t)})
+    out: list[Plot] = []
+
+    def draw(name: str, title: str, series: list[Series], total: int, what: str, switches: bool = True) -> None:
         hist = os.path.join("plots", f"{name}.latency.svg")
-        inv = os.path.join("plots", f"{name}.involuntary.svg")
-        latency_histogram(title, shown, os.path.join(folder, hist))
-        involuntary_timeline(title, shown, os.path.join(folder, inv))
-        out[key] = [Plot("wake-up latency histogram", hist), Plot("involuntary context switches per callback", inv)]
+        latency_histogram(title, series, os.path.join(folder, hist), total, what)
+        out.append(Plot(f"{title}: wake-up latency histogram", hist))
+        if switches and any(s.involuntary for s in series):
+            inv = os.path.join("plots", f"{name}.involuntary.svg")
+            involuntary_panels(title, series, os.path.join(folder, inv), total, what)
+            out.append(Plot(f"{title}: involuntary context switches per callback", inv))
+
+    periodic_keys = {t.key for c in cells for t in periodic_threads(c)}
+    if len({c.id for c in cells}) == 1:  # one cell (repeats aside): its threads of interest side by side
+        cell = cells[0]
+        by_key = {t.key: t for t in cell.threads}
+        series = [_series(labels.get(k, k), by_key[k], cell, samples) for k in keys if k in by_key]
+        if len(periodic_keys) > len(series):
+            series.append(_aggregate(cell, samples, f"all {len(periodic_keys)} periodic threads"))
+        title = f"{len(keys)} of {len(periodic_keys)} periodic threads" if len(periodic_keys) > len(keys) else "periodic threads"
+        draw("threads", title, series, len(series), "threads")
+        return out
+    shown = cells[:MAX_SERIES]
+    for key in keys:
+        entries = [(c, next(t for t in c.threads if t.key == key)) for c in cells if any(t.key == key for t in c.threads)]
+        series = [_series(_label(c), t, c, samples) for c, t in entries[:MAX_SERIES]]
+        thread = entries[0][1]
+        draw(plot_name(thread), labels.get(key, key), series, len(entries), "cells")
+    if len(periodic_keys) > 1:
+        series = [_aggregate(c, samples, _label(c)) for c in shown]
+        draw("all-threads", f"all {len(periodic_keys)} periodic threads", series, len(cells), "cells", switches=False)
     return out
+
+
+def _no_histogram(t: ThreadResult) -> bool:
+    return t.histograms is None or t.histograms.latency is None

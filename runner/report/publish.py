@@ -15,6 +15,7 @@ from runner.report.compare import Threshold, compare
 from runner.results.document import RunDocument
 from runner.results.files import write_atomic
 from runner.results.read import load
+from runner.terminal import warn
 
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
@@ -22,13 +23,21 @@ STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 def write_report(
     doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True, pid_width: int = 5, name: str = "report.md"
 ) -> str:
-    """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path."""
-    links = {}
-    if plots:
-        from runner.report.plots import write_plots
+    """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path.
 
-        links = write_plots(doc, folder, report.thread_labels(doc.cells))
-    text = report.render_run(doc, links, comparison, pid_width)
+    Without matplotlib (plotting is an extra) the report says the plots were skipped and why,
+    and so does a warning; `plots=False` (`--no-plots`) draws none and says nothing.
+    """
+    from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
+
+    links: list[report.Plot] = []
+    note = None
+    if plots and drawing.available():
+        links = drawing.write_plots(doc, folder, report.thread_labels(doc.cells))
+    elif plots:
+        note = drawing.skipped_note()
+        warn(note)
+    text = report.render_run(doc, links, comparison, pid_width, note)
     path = os.path.join(folder, name)
     write_atomic(path, text)
     return path
