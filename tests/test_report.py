@@ -657,6 +657,10 @@ def test_latency_bins_are_osadls_fixed_width_from_zero_counted_at_the_upper_end(
     assert counts[1][-1] == 1  # the largest value lands in the last bin
     edges, counts = osadl_bins([a])
     assert edges[1] == 1 and counts[0][1] == 2 and counts[0][2] == 1  # up to 150 µs: bins of 1 µs, as cyclictest -h
+    for odd in (from_values([2**62]), from_values([-3_000])):  # a hand-edited results file: no crash, at most 200 bins
+        assert odd is not None
+        edges, counts = osadl_bins([odd])
+        assert len(counts[0]) == len(edges) - 1 <= 201 and sum(counts[0]) == 1
 
 
 def test_plot_lines_never_share_a_colour_and_style():

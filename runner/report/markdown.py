@@ -694,6 +694,12 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
     )
 
 
+def matrix_order(doc: RunDocument) -> list[CellResult]:
+    """The cells in the matrix's order (repeats after their first run), not the order they ran in."""
+    order = {cell_id: i for i, cell_id in enumerate(doc.matrix_cells)}
+    return sorted(doc.cells, key=lambda c: (order.get(c.id, len(order)), c.repeat))
+
+
 MAX_THREAD_VIEWS = 4  # periodic threads shown across cells and plotted one by one: the worst by wake-up p99
 
 
@@ -721,8 +727,7 @@ def build(
     plots_note: Markdown | None = None,
 ) -> ReportModel:
     """Everything the template shows, as text and tables; `plots` are the plot files drawn beside the report."""
-    order = {cell_id: i for i, cell_id in enumerate(doc.matrix_cells)}
-    cells = sorted(doc.cells, key=lambda c: (order.get(c.id, len(order)), c.repeat))  # matrix order, not run order
+    cells = matrix_order(doc)
     labels = thread_labels(cells)
     repeated = any(c.repeat for c in cells)
     firsts = first_runs(cells)

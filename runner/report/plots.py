@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from runner import histogram
 from runner.histogram import Histogram
 from runner.report.fmt import Markdown, md_code
-from runner.report.markdown import Plot, first_runs, periodic_threads, threads_of_interest
+from runner.report.markdown import Plot, first_runs, matrix_order, periodic_threads, threads_of_interest
 from runner.results.document import CellResult, RunDocument, ThreadResult
 from runner.results.files import slug, write_atomic
 from runner.results.samplesfile import SampleRow, read_samples
@@ -110,9 +110,9 @@ def osadl_bins(hists: Sequence[Histogram]) -> tuple[list[float], list[list[int]]
     A native bucket wider than a bin is counted at its upper end (clamped to the exact maximum),
     as `runner report --histogram` counts it, so a latency is never drawn smaller than it was.
     """
-    top_us = max((h.max for h in hists), default=0) / 1000
-    width = next(w * 10**e for e in range(12) for w in (1, 2, 5) if w * 10**e * MAX_BINS >= top_us)
-    bins = int(top_us // width) + 1
+    top_us = max(0.0, max((h.max for h in hists), default=0) / 1000)
+    width = next((w * 10**e for e in range(30) for w in (1, 2, 5) if w * 10**e * MAX_BINS >= top_us), 10**30)
+    bins = min(MAX_BINS + 1, int(top_us // width) + 1)
     counts = []
     for h in hists:
         row = [0] * bins
@@ -232,8 +232,9 @@ _WORD = re.compile(r"[A-Za-z0-9_.]+")
 def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = None) -> list[Plot]:
     """Write the plots of `doc` under `folder`/plots; return them in the report's order (paths relative to `folder`)."""
     labels = labels or {}
-    cells = [c for c in doc.cells if any(t.figures.callbacks for t in periodic_threads(c))]
-    keys = threads_of_interest(first_runs(doc.cells))
+    ordered = matrix_order(doc)  # as the report orders them, so both pick the same threads of interest
+    cells = [c for c in ordered if any(t.figures.callbacks for t in periodic_threads(c))]
+    keys = threads_of_interest(first_runs(ordered))
     if not cells or not keys:
         return []
     os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
