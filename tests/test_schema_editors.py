@@ -15,12 +15,9 @@ from __future__ import annotations
 import glob
 import json
 import os
-import shutil
-import subprocess
 
 import jsonschema
-import pytest
-from conftest import REPO
+from conftest import REPO, ajv_verdicts
 
 from runner.errors import ScenarioError
 from runner.scenario.limits import MachineLimits
@@ -28,7 +25,6 @@ from runner.scenario.loader import load_scenario, parse_scenario
 from runner.scenario.schema import scenario_schema
 from runner.scenario.yamlsource import load_file, load_text
 
-MODULES = os.path.join(REPO, ".ci", "node_modules")
 FILES = sorted(
     glob.glob(os.path.join(REPO, "scenarios", "*.yaml"))
     + glob.glob(os.path.join(REPO, "tests", "valid", "*.yaml"))
@@ -74,26 +70,6 @@ def jsonschema_verdicts() -> dict[str, str]:
             continue
         out[path] = _verdict(validator.is_valid(data))
     return out
-
-
-def _ajv_or_skip() -> None:
-    missing = shutil.which("node") is None or not all(os.path.isdir(os.path.join(MODULES, m)) for m in ("ajv", "yaml"))
-    if missing:
-        if os.environ.get("CI", "") not in ("", "0", "false"):
-            pytest.fail("node, ajv or yaml is not installed; .ci/run installs them with npm")
-        pytest.skip("ajv not installed (npm install --prefix .ci ajv yaml, as .ci/run does)")
-
-
-def ajv_verdicts(schema: dict[str, object], paths: list[str], tmp_path) -> dict[str, dict[str, object]]:
-    """ajv's verdict per file, as .ci/schema.cjs prints them; a schema ajv cannot compile fails the test."""
-    _ajv_or_skip()
-    schema_file = tmp_path / "schema.json"
-    schema_file.write_text(json.dumps(schema), encoding="utf-8")
-    done = subprocess.run(
-        ["node", os.path.join(REPO, ".ci", "schema.cjs"), str(schema_file), *paths], capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 0, done.stderr
-    return json.loads(done.stdout)
 
 
 def test_jsonschema_and_ajv_agree_with_runner_validate_on_every_file(tmp_path):
