@@ -226,6 +226,7 @@ class EventResult(_Record):
     spread_ns: Optional[fg.Spread] = None
     contended: NonNegativeInt = Field(0, description="lock: acquisitions that had to wait")
     holders: list[Holder] = Field(default_factory=list, description="lock: who held the mutex when this thread waited")
+    dropped: NonNegativeInt = Field(0, description="spawn: spawns that found every instance of the thread taken, or the kernel refused")
 
 
 class PhaseResult(_Record):
@@ -265,6 +266,7 @@ class ThreadResult(_Record):
     samples_lost: NonNegativeInt = Field(0, description="rows the runner could not write in time (the figures still count them)")
     events: list[EventResult] = Field(default_factory=list, description="programs (kind: phases): per event")
     phases: list[PhaseResult] = Field(default_factory=list, description="programs (kind: phases): per phase")
+    spawned: bool = Field(False, description="created mid-run by a spawn event of another thread (rt-app's fork)")
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property

@@ -220,6 +220,7 @@ def _cross_checks(
     if resources is not None:
         out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.reference_problems(processes, resources))
     out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
+    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.spawn_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:
