@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import os
 
 import pytest
 from pydantic import ValidationError
@@ -288,3 +289,42 @@ def test_dropped_spawns_and_instances_never_spawned_are_warnings_in_words():
         " raise the spawned thread's count",
         "app/job: never spawned: no spawn event naming it ran",
     ]
+
+
+def test_uclamp_is_refused_before_the_run_on_a_kernel_without_it(monkeypatch, tmp_path):
+    from runner.run import preflight
+
+    def with_phase(sched: object) -> Scenario:
+        phase = {"events": [{"run": "1ms"}], **({"sched": sched} if sched else {})}
+        hint = {"name": "hint", "work": {"kind": "phases", "phases": [phase]}}
+        return Scenario.model_validate(
+            {"name": "s", "processes": [{"name": "app", "threads": [{"name": "plain", "sched": "fifo:10"}, hint]}]}
+        )
+
+    sc, clamped = with_phase(None), with_phase({"policy": "other", "util_max": 512})
+    perm = preflight.current_permissions()
+    assert preflight.needs([sc], Settings(), False, {0, 1}).uclamp is None
+    wanted = preflight.needs([clamped], Settings(), False, {0, 1})
+    assert wanted.uclamp == "app/hint phase p0"
+    monkeypatch.setattr(preflight, "UCLAMP_KNOB", str(tmp_path / "absent"))
+    assert any(
+        m.startswith("app/hint phase p0 asks for util_min / util_max (uclamp), which this kernel does not have")
+        for m in preflight.missing_rights(perm, wanted)
+    )
+    (tmp_path / "knob").write_text("1024\n")
+    monkeypatch.setattr(preflight, "UCLAMP_KNOB", str(tmp_path / "knob"))
+    assert not any("uclamp" in m for m in preflight.missing_rights(perm, wanted))
+
+
+@pytest.mark.skipif(os.path.exists("/proc/sys/kernel/sched_util_clamp_min"), reason="this kernel has uclamp")
+def test_a_scenario_asking_uclamp_of_a_kernel_without_it_exits_3_and_starts_nothing(tmp_path):
+    from conftest import run_cli
+
+    path = tmp_path / "u.yaml"
+    path.write_text(
+        "name: u\nprocesses:\n  - name: uclamped\n    threads:\n      - name: t\n        sched: {policy: other, util_min: 100}\n"
+    )
+    out = run_cli(str(path), "--out", str(tmp_path / "out"), "--duration", "0.1s")
+    assert out.code == 3, out.err
+    assert "uclamped/t asks for util_min / util_max (uclamp), which this kernel does not have" in out.err
+    assert not (tmp_path / "out").exists()

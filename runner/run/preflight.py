@@ -1,8 +1,8 @@
 """Permission checks before anything starts: fail with how to grant the right, or note what degrades.
 
 The kernel is asked, not guessed at: each RT policy or negative nice a cell needs
-is tried on a throwaway thread of the runner, and memory locking is checked
-against CAP_IPC_LOCK and RLIMIT_MEMLOCK.
+is tried on a throwaway thread of the runner, memory locking is checked against
+CAP_IPC_LOCK and RLIMIT_MEMLOCK, and uclamp against the kernel's own knob for it.
 """
 
 from __future__ import annotations
@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
-from runner.scenario.model import Policy, Scenario
+from runner.scenario.model import PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings, plan_scenario
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
 MEMLOCK_NEEDED = 512 << 20  # an mlockall'ed Python worker with its threads' stacks, generously
+UCLAMP_KNOB = "/proc/sys/kernel/sched_util_clamp_min"  # present exactly when the kernel has uclamp (CONFIG_UCLAMP_TASK)
 
 
 @dataclass
@@ -116,6 +117,7 @@ class Needs:
     rt: dict[tuple[Policy, int], str] = field(default_factory=dict)  # (policy, priority) -> the first thread asking
     min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
     lock: str | None = None  # a process that locks its memory
+    uclamp: str | None = None  # a thread that asks for util_min / util_max
 
 
 def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, online: set[int]) -> Needs:
@@ -137,7 +139,22 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
             if sched is not None and sched.policy.is_realtime:
                 out.rt.setdefault((sched.policy, sched.rt_priority), where)
         out.lock = out.lock or next((proc.name for proc in sc.processes if proc.memory.lock), None)
+        out.uclamp = out.uclamp or _asks_uclamp(sc)
     return out
+
+
+def _asks_uclamp(sc: Scenario) -> str | None:
+    """The first thread (or phase) whose sched asks for util_min or util_max."""
+    for proc in sc.processes:
+        scheds = [(f"{proc.name}/{proc.main_name}", proc.main.sched)]
+        for spec in proc.threads:
+            scheds.append((f"{proc.name}/{spec.name}", spec.sched))
+            if isinstance(spec.work, PhasesWork):
+                scheds += [(f"{proc.name}/{spec.name} phase {n}", ph.sched) for n, ph in zip(spec.work.phase_names(), spec.work.phases)]
+        for where, sched in scheds:
+            if sched is not None and (sched.util_min is not None or sched.util_max is not None):
+                return where
+    return None
 
 
 def _refuse_cpus(where: str, cpus: tuple[int, ...] | None, online: set[int]) -> None:
@@ -168,6 +185,11 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
                 f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
                 f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
             )
+    if wanted.uclamp is not None and not os.path.exists(UCLAMP_KNOB):
+        missing.append(
+            f"{wanted.uclamp} asks for util_min / util_max (uclamp), which this kernel does not have ({UCLAMP_KNOB} is "
+            "absent: it was built without CONFIG_UCLAMP_TASK); remove them, or run on a kernel with uclamp"
+        )
     memlock = perm.rlimit_memlock
     if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
