@@ -358,3 +358,19 @@ def test_no_message_of_the_runner_suggests_setcap():
                 with open(os.path.join(folder, name), encoding="utf-8") as handle:
                     text = handle.read()
                 assert "setcap cap_sys_nice" not in text, name
+
+
+def test_readme_installs_into_a_virtual_environment_and_says_how_to_grant_rights():
+    from conftest import REPO
+
+    with open(os.path.join(REPO, "README.md"), encoding="utf-8") as handle:
+        text = handle.read()
+    first = text.split("```sh\n", 1)[1].split("```", 1)[0].splitlines()
+    assert len(first) == 2 and all(line.startswith("python3 -m venv .venv && . .venv/bin/activate && pip install ") for line in first)
+    assert "sudo .venv/bin/runner" in text and "pipx install ." in text
+    permissions = text.split("### Permissions", 1)[1].split("\n## ", 1)[0]
+    for words in ("limits.d", "LimitRTPRIO=", "LimitMEMLOCK=", "CPUSchedulingPolicy=", "AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK",
+                  "--cap-add SYS_NICE --ulimit rtprio=99 --ulimit memlock=-1", "cpu.rt_runtime_us", "cgroup v2"):  # fmt: skip
+        assert words in permissions, words
+    assert "setcap" not in text.replace(permissions, "")  # only where its warning is
+    assert "grants `CAP_SYS_NICE` to every script that interpreter runs" in " ".join(permissions.split())
