@@ -122,6 +122,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         return handler(argv)
     except RunnerError as exc:
         _say(str(exc))
+        _annotate(getattr(exc, "problems", []))
         return exc.exit_code
     except KeyboardInterrupt:
         _say("runner: interrupted")
@@ -165,13 +166,19 @@ def _internal_error(exc: BaseException) -> int:
 def _print_warnings(warnings: Sequence[object]) -> None:
     for warning in warnings:
         note(str(warning))
+    _annotate(warnings)
+
+
+def _annotate(problems: Sequence[object]) -> None:
+    """In GitHub Actions, problems in a file are also annotations at their line (README, "CI systems")."""
     from runner.errors import Problem
     from runner.report import github
 
-    if github.enabled(dict(os.environ)):  # in GitHub Actions, a scenario's warnings are shown at their line too
-        for warning in warnings:
-            if isinstance(warning, Problem):
-                say(github.for_problem(warning).command())
+    env = dict(os.environ)
+    if github.enabled(env):
+        for problem in problems:
+            if isinstance(problem, Problem):
+                say(github.for_problem(problem, github.workspace_path(problem.file, os.getcwd(), env.get("GITHUB_WORKSPACE"))).command())
 
 
 def _cmd_validate(argv: list[str]) -> int:
@@ -187,6 +194,7 @@ def _cmd_validate(argv: list[str]) -> int:
             loaded = load_scenario(path)
         except ScenarioError as exc:
             note(str(exc))
+            _annotate(exc.problems)
             worst = ExitCode.INVALID_INPUT
             continue
         _print_warnings(loaded.warnings)

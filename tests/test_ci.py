@@ -374,3 +374,17 @@ def test_readme_installs_into_a_virtual_environment_and_says_how_to_grant_rights
         assert words in permissions, words
     assert "setcap" not in text.replace(permissions, "")  # only where its warning is
     assert "grants `CAP_SYS_NICE` to every script that interpreter runs" in " ".join(permissions.split())
+
+
+def test_problems_in_a_scenario_are_annotated_at_their_line(tmp_path, monkeypatch):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nprocesses:\n  - name: app\n    threads: [{name: t, sched: fifo:100}]\n")
+    monkeypatch.setenv("GITHUB_WORKSPACE", str(tmp_path))
+    monkeypatch.setenv("GITHUB_ACTIONS", "true")
+    for argv in (("validate", str(bad)), (str(bad), "--list")):
+        done = run_cli(*argv)
+        assert done.code == 2
+        (line,) = annotation_lines(done.out)
+        assert line.startswith("::error file=bad.yaml,line=4,col=") and "sched" in line, line
+    monkeypatch.delenv("GITHUB_ACTIONS")
+    assert annotation_lines(run_cli("validate", str(bad)).out) == []
