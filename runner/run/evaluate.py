@@ -221,10 +221,14 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         measured.append((p, fig))
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
+        mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
         for planned, fig in measured:
             if id(planned) in targets and (is_periodic(planned.work) or not metric_figure(exp.metric).needs_callbacks):
-                result.expectations.append(check(exp, verdict_label(planned, raw.processes), fig))
+                verdict = check(exp, verdict_label(planned, raw.processes), fig)
+                if mark is not None:  # where the expectation is written: CI annotations point there
+                    verdict.line, verdict.col = mark.line, mark.col
+                result.expectations.append(verdict)
     result.thread_table = list(raw.table)
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)

@@ -93,12 +93,35 @@ def _try_on_thread(action) -> int:  # type: ignore[no-untyped-def]
     return result[0]
 
 
-def _grant_rt(perm: Permissions, priority: int) -> str:
-    exe = os.path.realpath(sys.executable)
+def runner_command(executable: str, prefix: str, base_prefix: str) -> str:
+    """How to start this runner again as root: `sudo /srv/runner/.venv/bin/runner` from a virtual environment,
+    whose bin folder is not on sudo's PATH (its secure_path), else `sudo runner`."""
+    if prefix != base_prefix:
+        return f"sudo {os.path.join(os.path.dirname(executable), 'runner')}"
+    return "sudo runner"
+
+
+def how_to_grant(user: str, limit: str, value: str, service: str, container: str, sudo: str) -> str:
+    """The ways to grant one right, where a user meets it: a login session (limits.d, read by pam_limits at login),
+    a systemd service (which pam_limits never sees), a container.  README, "Permissions", says more.
+
+    File capabilities on the interpreter are left out on purpose: `setcap` on a shared python3 would give the right
+    to every script it runs.
+    """
     return (
-        f"grant it with one of: run as root (sudo runner ...); add the line '{perm.user}  -  rtprio  {max(priority, 98)}' "
-        f"to /etc/security/limits.conf and log in again; or 'sudo setcap cap_sys_nice+ep {exe}'"
+        f"grant it with one of: run as root ({sudo} ...); add the line '{user}  -  {limit}  {value}' to a file in "
+        f"/etc/security/limits.d/ and log in again; in a systemd service, {service}; in a container, {container} "
+        "(README, Permissions)"
     )
+
+
+def _sudo() -> str:
+    return runner_command(sys.executable, sys.prefix, sys.base_prefix)
+
+
+def _grant_rt(perm: Permissions, priority: int) -> str:
+    value = str(max(priority, 98))
+    return how_to_grant(perm.user, "rtprio", value, f"LimitRTPRIO={value}", f"--cap-add SYS_NICE --ulimit rtprio={value}", _sudo())
 
 
 def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
@@ -182,8 +205,8 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
         err = _try_on_thread(lambda: os.setpriority(os.PRIO_PROCESS, 0, nice))
         if err:
             missing.append(
-                f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
-                f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
+                f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); "
+                + how_to_grant(perm.user, "nice", str(nice), f"LimitNICE={nice}", "--cap-add SYS_NICE", _sudo())
             )
     if wanted.uclamp is not None and not os.path.exists(UCLAMP_KNOB):
         missing.append(
@@ -195,8 +218,7 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
         missing.append(
             f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
-            f"CAP_IPC_LOCK; grant it with one of: sudo; add '{perm.user}  -  memlock  unlimited' to /etc/security/limits.conf; "
-            f"or 'ulimit -l unlimited' in a root shell before starting the runner"
+            "CAP_IPC_LOCK; " + how_to_grant(perm.user, "memlock", "unlimited", "LimitMEMLOCK=infinity", "--ulimit memlock=-1", _sudo())
         )
     return missing
 
