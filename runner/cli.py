@@ -46,6 +46,8 @@ _THRESHOLD_HELP = (
     "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)"
 )
 
+_JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
+
 
 def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner run", description="Run a scenario file: spawn its processes and threads, measure, report.")
@@ -80,6 +82,7 @@ def _run_parser() -> argparse.ArgumentParser:
     r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
+    r.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
     return p
 
 
@@ -137,6 +140,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         return handler(argv)
     except RunnerError as exc:
         _say(str(exc))
+        _annotate(getattr(exc, "problems", []))
         return exc.exit_code
     except KeyboardInterrupt:
         _say("runner: interrupted")
@@ -180,6 +184,19 @@ def _internal_error(exc: BaseException) -> int:
 def _print_warnings(warnings: Sequence[object]) -> None:
     for warning in warnings:
         note(str(warning))
+    _annotate(warnings)
+
+
+def _annotate(problems: Sequence[object]) -> None:
+    """In GitHub Actions, problems in a file are also annotations at their line (README, "CI systems")."""
+    from runner.errors import Problem
+    from runner.report import github
+
+    env = dict(os.environ)
+    if github.enabled(env):
+        for problem in problems:
+            if isinstance(problem, Problem):
+                say(github.for_problem(problem, github.workspace_path(problem.file, os.getcwd(), env.get("GITHUB_WORKSPACE"))).command())
 
 
 def _validate_parser() -> argparse.ArgumentParser:
@@ -199,6 +216,7 @@ def _cmd_validate(argv: list[str]) -> int:
             loaded = load_scenario(path, for_run=False)  # a CPU this machine lacks is a warning here
         except ScenarioError as exc:
             note(str(exc))
+            _annotate(exc.problems)
             worst = ExitCode.INVALID_INPUT
             continue
         _print_warnings(loaded.warnings)
@@ -354,18 +372,23 @@ def _compare_parser() -> argparse.ArgumentParser:
     p.add_argument("new", metavar="NEW", help="the run to check: results.json or its folder")
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
+    p.add_argument("--junit", metavar="FILE", help="also write the comparison as JUnit XML to FILE (a regression is a failed test case)")
     return p
 
 
 def _cmd_compare(argv: list[str]) -> int:
     ns = _compare_parser().parse_args(argv)
+    from runner.outdir import writable_file
     from runner.report.compare import parse_threshold, thresholds_with
-    from runner.report.publish import append_step_summary, comparison_text
+    from runner.report.publish import append_step_summary, ci_outputs, compare_files
     from runner.results.files import write_atomic
     from runner.results.read import load
     from runner.session import exit_code
 
-    section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    junit = writable_file(ns.junit, "--junit") if ns.junit else None
+    new = load(ns.new)
+    section, cmp = compare_files(ns.base, new, ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    regressions = cmp.regressions
     say(section)
     if ns.output:
         try:
@@ -373,6 +396,7 @@ def _cmd_compare(argv: list[str]) -> int:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
+    ci_outputs(new, cmp, junit, dict(os.environ), run=False)
     return int(exit_code([], regressions))
 
 
@@ -383,18 +407,20 @@ def _merge_parser() -> argparse.ArgumentParser:
     p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
     return p
 
 
 def _cmd_merge(argv: list[str]) -> int:
     ns = _merge_parser().parse_args(argv)
-    from runner.outdir import claim
+    from runner.outdir import claim, writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import finish
     from runner.results.merge import merge
     from runner.session import exit_code
 
     thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
+    junit = writable_file(ns.junit, "--junit") if ns.junit else None
     held = claim(ns.out, "merge folder")
     try:
         try:
@@ -406,7 +432,7 @@ def _cmd_merge(argv: list[str]) -> int:
             note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
         say(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
         try:
-            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
+            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", before_run=False) from None
     finally:

@@ -11,7 +11,7 @@ import argparse
 from collections.abc import Callable, Mapping
 
 SHELLS = ("bash", "zsh", "tcsh")
-_FILES = frozenset({"scenario", "files", "file", "results", "base", "new", "inputs", "output", "baseline", "histogram", "json"})
+_FILES = frozenset({"scenario", "files", "file", "results", "base", "new", "inputs", "output", "baseline", "histogram", "json", "junit"})
 _FOLDERS = frozenset({"out", "resume"})
 
 

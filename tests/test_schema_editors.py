@@ -40,6 +40,7 @@ CANNOT_EXPRESS = {
     "matrix_include_cap.yaml": "the cell count is the product of the axes plus what include adds",
     "matrix_undefined_reference.yaml": "whether matrix.prio is an axis is a reference from one part of the file to another",
     "priospread_below_1.yaml": "priospread, pin and count span three keys and the machine's CPUs",
+    "program_spawn.yaml": "a spawn event names a thread declared elsewhere in the process, and who spawns whom is a graph",
     "program_references.yaml": "resource names an event uses must be declared under resources: a reference across the file",
 }
 

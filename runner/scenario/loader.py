@@ -29,17 +29,22 @@ from runner.scenario import program, rtapp
 from runner.scenario.model import CPUS_CONTEXT, Expectation, PhasesWork, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from, written_path
-from runner.scenario.yamlsource import Document, load_file, load_text
+from runner.scenario.yamlsource import Document, Mark, load_file, load_text
 
 
 @dataclass(frozen=True)
 class ResolvedCell:
-    """One cell: matrix values, the validated scenario, and a hash of its resolved spec."""
+    """One cell: matrix values, the validated scenario, and a hash of its resolved spec.
+
+    `expect_marks` are where each of the scenario's `expect:` items is written (the same list in
+    every cell), so a verdict can point at its line: CI annotations and the results document.
+    """
 
     id: str
     matrix: dict[str, mx.MatrixValue]
     scenario: Scenario
     spec_hash: str
+    expect_marks: tuple[Mark, ...] = ()
 
 
 @dataclass
@@ -136,6 +141,8 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_
 
     default_name = os.path.splitext(os.path.basename(doc.file))[0]
     index = MatrixIndex.of(cells)
+    written = data.get("expect")
+    marks = tuple(doc.mark(("expect", i)) for i in range(len(written))) if isinstance(written, list) else ()
     found: dict[Problem, list[str]] = {}
     resolved: list[ResolvedCell] = []
     checked: dict[str, tuple[Scenario | None, list[Problem], str]] = {}
@@ -147,7 +154,7 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_
             checked[key] = _check_cell(doc, raw, index, machine, for_run)
         scenario, cell_problems, digest = checked[key]
         if scenario is not None and not any(p.severity == "error" for p in cell_problems):
-            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest))
+            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest, marks))
         for problem in cell_problems:
             found.setdefault(problem, []).append(cell.id)
 
@@ -229,6 +236,7 @@ def _cross_checks(
     if resources is not None:
         out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.reference_problems(processes, resources))
     out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
+    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.spawn_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:

@@ -517,6 +517,8 @@ class EventKind(str, enum.Enum):
     YIELD = "yield"
     MEM = "mem"  # write N bytes of a per-thread buffer
     ALLOC = "alloc"  # malloc, touch every page, free
+    SPAWN = "spawn"  # create a thread of this process declared `spawned: true` (rt-app's fork)
+    IORUN = "iorun"  # write N bytes to /dev/null (rt-app's iorun on its default io_device)
 
     @property
     def takes(self) -> str:
@@ -570,6 +572,8 @@ _EVENT_TAKES = {
     EventKind.YIELD: "nothing",
     EventKind.MEM: "size",
     EventKind.ALLOC: "size",
+    EventKind.SPAWN: "thread",
+    EventKind.IORUN: "size",
 }
 _EVENT_RESOURCE = {
     EventKind.LOCK: ResourceKind.MUTEX,
@@ -588,6 +592,7 @@ _EVENT_EXAMPLES = {
     "resource": "{lock: name}",
     "wait": "{wait: {cond: name, mutex: name}}",
     "timer": "{timer: {period: 1ms}} or {timer: name}",
+    "thread": "{spawn: worker}",
     "nothing": "yield",
 }
 
@@ -624,6 +629,8 @@ def _event_shorthand(value: Any) -> Any:
         return {"event": word, **arg}
     if takes == "timer":
         return {"event": word, **arg} if isinstance(arg, dict) else {"event": word, "timer": arg}
+    if takes == "thread":
+        return {"event": word, "thread": arg}
     return {"event": word, takes: arg}
 
 
@@ -642,7 +649,8 @@ def _event_schema() -> dict[str, Any]:
         ]
     }
     wait = {"type": "object", "properties": {"cond": name, "mutex": name}, "required": ["cond", "mutex"], "additionalProperties": False}
-    by_takes = {"duration": _DURATION_SCHEMA, "size": _SIZE_SCHEMA, "resource": name, "timer": timer, "wait": wait}
+    thread = {"type": "string", "description": "a thread of the same process declared with spawned: true"}
+    by_takes = {"duration": _DURATION_SCHEMA, "size": _SIZE_SCHEMA, "resource": name, "timer": timer, "wait": wait, "thread": thread}
     words = [k.value for k in EventKind if k.takes == "nothing"]
     properties = {k.value: by_takes[k.takes] for k in EventKind if k.takes != "nothing"}
     properties.update({alias: properties[target] for alias, target in _EVENT_ALIASES.items()})
@@ -676,6 +684,7 @@ class Event(Strict):
     timer: Optional[str] = Field(None, description="a named timer of resources")
     period: Optional[Duration] = None
     overrun: Optional[Overrun] = None
+    thread: Optional[str] = Field(None, description="spawn: a thread of the same process declared with spawned: true")
 
     @model_validator(mode="before")
     @classmethod
@@ -697,11 +706,13 @@ class Event(Strict):
                 )
         elif self.overrun is not None or self.period is not None or self.timer is not None:
             raise ValueError("period, overrun and timer belong to timer events")
+        if (kind is EventKind.SPAWN) != (self.thread is not None):
+            raise ValueError(f"thread belongs to spawn events, and a spawn names its thread, e.g. {_EVENT_EXAMPLES['thread']}")
         if kind in (EventKind.RUN, EventKind.RUNTIME, EventKind.SLEEP) and self.duration is not None and self.duration > MAX_PERIOD:
             raise ValueError(
                 f"{kind.value} {units.format_duration(self.duration)} is too long; at most {units.format_duration(MAX_PERIOD)}"
             )
-        if kind is EventKind.MEM and self.size is not None and self.size > MAX_MEM_EVENT:
+        if kind in (EventKind.MEM, EventKind.IORUN) and self.size is not None and self.size > MAX_MEM_EVENT:
             raise ValueError(f"mem {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
         return self
 
@@ -725,6 +736,8 @@ class Event(Strict):
             return {kind.value: units.format_duration(self.duration or 0)}
         if takes == "size":
             return {kind.value: units.format_size(self.size or 0)}
+        if takes == "thread":
+            return {kind.value: self.thread}
         return {kind.value: self.resource}
 
     def names(self) -> list[tuple[str, ResourceKind]]:
@@ -748,6 +761,8 @@ class Event(Strict):
             return f"{kind.value} {units.format_duration(self.duration)}"
         if self.size is not None:
             return f"{kind.value} {units.format_size(self.size)}"
+        if self.thread is not None:
+            return f"{kind.value} {self.thread}"
         return f"{kind.value} {self.resource}" if self.resource else kind.value
 
 
@@ -972,6 +987,11 @@ class ThreadSpec(Strict):
         False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
     )
     distance: Duration = Field(0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
+    spawned: bool = Field(
+        False,
+        description="created mid-run by a spawn event of another thread of this process (rt-app's fork), not at the start; "
+        "count is how many can be spawned (a spawn beyond it is counted as dropped); needs kind: phases work",
+    )
 
     _per_cpu: bool = PrivateAttr(False)
     _machine_cpus: Optional[tuple[int, ...]] = PrivateAttr(None)
@@ -1011,7 +1031,7 @@ class ThreadSpec(Strict):
         """Leave pin, priospread and distance out while unused, so a cell's spec (and the hash results store
         and `compare` / `--resume` check) reads as it did before they existed: old baselines still compare."""
         data: dict[str, Any] = handler(self)
-        for key, unused in (("pin", None), ("priospread", False), ("distance", 0)):
+        for key, unused in (("pin", None), ("priospread", False), ("distance", 0), ("spawned", False)):
             if getattr(self, key) == unused:
                 data.pop(key, None)
         return data
@@ -1060,6 +1080,12 @@ class ThreadSpec(Strict):
                     f"distance {units.format_duration(self.distance)} gives thread {self.names()[-1]} a period of "
                     f"{units.format_duration(longest)}; at most {units.format_duration(MAX_PERIOD)}, lower distance or count",
                 )
+        if self.spawned and not isinstance(self.work, PhasesWork):
+            raise KeyProblem(
+                "spawned",
+                f"a spawned thread runs a program from the moment it is spawned, but this thread's work is {self.work.kind}; "
+                "use kind: phases (its events run once per loop, then the thread ends)",
+            )
 
     @property
     def per_cpu(self) -> bool:

@@ -182,6 +182,13 @@ def scenario_schema() -> dict[str, Any]:
         "anyOf": [defs["Hog"]["properties"]["count"], {"const": "cpus"}],
         "description": "how many hogs; 'cpus' for one per online CPU",
     }
+    phases_only = {"type": "object", "properties": {"kind": {"const": "phases"}}, "required": ["kind"]}
+    defs["ThreadSpec"]["allOf"] = [  # a spawned thread runs a program from the moment it is spawned
+        {
+            "if": {"properties": {"spawned": {"const": True}}, "required": ["spawned"]},
+            "then": {"required": ["work"], "properties": {"work": phases_only}},
+        }
+    ]
     count = defs["ThreadSpec"]["properties"]["count"]
     defs["ThreadSpec"]["properties"]["count"] = {
         "anyOf": [{k: v for k, v in count.items() if k != "description"}, {"const": "cpus"}],
