@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 # README's exit-code table, written out so the check holds the tool to its documentation, not to its own code
@@ -56,6 +57,17 @@ def main(out: str, full: str, s1: str, s2: str, merged: str) -> int:
         "## Comparison with the baseline" in Path(out, "merged", "report.md").read_text(encoding="utf-8"),
         "merged report carries the comparison with the baseline",
     )
+    junit = ET.parse(os.path.join(out, "merged", "junit.xml")).getroot()
+    suites = junit.findall("testsuite")
+    failed = sum(not v["passed"] for c in merged_cells for v in c["expectations"])
+    junit_failures, junit_errors = int(junit.get("failures", "-1")), int(junit.get("errors", "-1"))
+    check(len(suites) == len(merged_cells), f"junit.xml has a test suite per merged cell ({len(suites)})")
+    check(
+        junit_failures >= failed and (junit_failures > 0) == (int(merged) == 1),
+        f"junit.xml's {junit_failures} failure(s) agree with exit {merged} and {failed} failed expectation(s)",
+    )
+    unrun = sum(c["status"] in ("error", "interrupted") for c in merged_cells)
+    check(junit_errors == unrun, f"junit.xml's {junit_errors} error(s) are the {unrun} cell(s) that could not run")
     print(f"nightly check: {len(failures)} failure(s)")
     return 1 if failures else 0
 

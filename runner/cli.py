@@ -16,10 +16,10 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from runner import __version__
-from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, from_os_error
+from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
 from runner.terminal import note, say, warn
 
-COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge", "import-rtapp")
+COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge", "import-rtapp", "completion")
 _TOP_HELP = """\
 usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
@@ -29,6 +29,7 @@ usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its mat
        runner compare BASE NEW             compare two runs; exit 1 on a regression
        runner merge DIR... --out DIR       combine shard results into one results file and report
        runner import-rtapp JSON [-o FILE]  convert an rt-app workload into a scenario (notes on stderr)
+       runner completion bash|zsh|tcsh     print a shell completion script
        runner --version
 
 Run `runner run --help` for the run options (SCENARIO.yaml is short for `runner run SCENARIO.yaml`).
@@ -44,6 +45,8 @@ _THRESHOLD_HELP = (
     "or latency.p99=off (repeatable; defaults: latency.p99 +20%% and +10us, involuntary.per_callback_mean "
     "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)"
 )
+
+_JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
 
 
 def _run_parser() -> argparse.ArgumentParser:
@@ -79,6 +82,7 @@ def _run_parser() -> argparse.ArgumentParser:
     r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
+    r.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
     return p
 
 
@@ -95,6 +99,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args[0] == "--version":
         say(f"runner {__version__}")
         return ExitCode.OK
+    mistyped = _mistyped_command(args[0])
+    if mistyped:
+        _say(mistyped)
+        return ExitCode.INVALID_INPUT
     command = args[0] if args[0] in COMMANDS else "run"
     rest = args[1:] if args[0] in COMMANDS else args
     handlers: dict[str, Callable[[list[str]], int]] = {
@@ -106,8 +114,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         "compare": _cmd_compare,
         "merge": _cmd_merge,
         "import-rtapp": _cmd_import_rtapp,
+        "completion": _cmd_completion,
     }
     return _guarded(handlers[command], rest)
+
+
+def _mistyped_command(word: str) -> str | None:
+    """What to say when the first argument is neither a command nor a scenario (`runner comapre a b`), or None.
+
+    `runner FILE.yaml` runs a file, so a first argument that is an option, an existing path, or names a
+    .yaml, .yml or .json file is left to the run command, which reports a missing file itself.
+    """
+    if word in COMMANDS or word.startswith("-") or os.path.exists(word) or os.sep in word or word.endswith((".yaml", ".yml", ".json")):
+        return None
+    hint = did_you_mean(word, COMMANDS)
+    return f"runner: unknown command {word!r}" + (hint or f"; expected one of: {', '.join(COMMANDS)}, or a scenario file (FILE.yaml)")
 
 
 def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
@@ -119,6 +140,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         return handler(argv)
     except RunnerError as exc:
         _say(str(exc))
+        _annotate(getattr(exc, "problems", []))
         return exc.exit_code
     except KeyboardInterrupt:
         _say("runner: interrupted")
@@ -162,21 +184,39 @@ def _internal_error(exc: BaseException) -> int:
 def _print_warnings(warnings: Sequence[object]) -> None:
     for warning in warnings:
         note(str(warning))
+    _annotate(warnings)
+
+
+def _annotate(problems: Sequence[object]) -> None:
+    """In GitHub Actions, problems in a file are also annotations at their line (README, "CI systems")."""
+    from runner.errors import Problem
+    from runner.report import github
+
+    env = dict(os.environ)
+    if github.enabled(env):
+        for problem in problems:
+            if isinstance(problem, Problem):
+                say(github.for_problem(problem, github.workspace_path(problem.file, os.getcwd(), env.get("GITHUB_WORKSPACE"))).command())
+
+
+def _validate_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="runner validate", description="Check scenario files; print every problem as file:line:col.")
+    p.add_argument("files", nargs="+", metavar="FILE")
+    return p
 
 
 def _cmd_validate(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="runner validate", description="Check scenario files; print every problem as file:line:col.")
-    p.add_argument("files", nargs="+", metavar="FILE")
-    ns = p.parse_args(argv)
+    ns = _validate_parser().parse_args(argv)
     from runner.scenario.listing import expansion
     from runner.scenario.loader import load_scenario
 
     worst = ExitCode.OK
     for path in ns.files:
         try:
-            loaded = load_scenario(path)
+            loaded = load_scenario(path, for_run=False)  # a CPU this machine lacks is a warning here
         except ScenarioError as exc:
             note(str(exc))
+            _annotate(exc.problems)
             worst = ExitCode.INVALID_INPUT
             continue
         _print_warnings(loaded.warnings)
@@ -187,14 +227,18 @@ def _cmd_validate(argv: list[str]) -> int:
     return worst
 
 
-def _cmd_schema(argv: list[str]) -> int:
+def _schema_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="runner schema",
         description="Print the JSON Schema of the scenario format "
         "(runner.schema.json), or with --results that of results.json (results.schema.json).",
     )
     p.add_argument("--results", action="store_true", help="the schema of results.json instead of the scenario's")
-    ns = p.parse_args(argv)
+    return p
+
+
+def _cmd_schema(argv: list[str]) -> int:
+    ns = _schema_parser().parse_args(argv)
     if ns.results:
         from runner.results.document import results_schema
 
@@ -206,7 +250,7 @@ def _cmd_schema(argv: list[str]) -> int:
     return ExitCode.OK
 
 
-def _cmd_ps(argv: list[str]) -> int:
+def _ps_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="runner ps", description="Thread table of live processes, as ps -L -o tid,comm,rtprio,cls,psr prints it."
     )
@@ -216,7 +260,11 @@ def _cmd_ps(argv: list[str]) -> int:
         "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)",
     )
     p.add_argument("-o", "--columns", default="tid,comm,rtprio,cls,psr", help="columns: tid,comm,rtprio,cls,psr,ni,pri,cpus,nvcsw,nivcsw")
-    ns = p.parse_args(argv)
+    return p
+
+
+def _cmd_ps(argv: list[str]) -> int:
+    ns = _ps_parser().parse_args(argv)
     from runner.results.pstable import parse_columns, render_ps
     from runner.run.kernel import find_pids, pid_width, thread_rows
 
@@ -247,7 +295,7 @@ def _cmd_run(argv: list[str]) -> int:
     return run_scenario(loaded, options)
 
 
-def _cmd_report(argv: list[str]) -> int:
+def _report_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="runner report", description="Re-render the markdown report of a run from its results, without re-running."
     )
@@ -263,7 +311,11 @@ def _cmd_report(argv: list[str]) -> int:
     )
     x.add_argument("--json", metavar="FILE", help="latency summary in the shape of `cyclictest --json`; - for stdout")
     x.add_argument("--cell", metavar="ID", help="the cell to export, when the run has several")
-    ns = p.parse_args(argv)
+    return p
+
+
+def _cmd_report(argv: list[str]) -> int:
+    ns = _report_parser().parse_args(argv)
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.markdown import render_run
     from runner.report.publish import comparison_text, write_report
@@ -314,20 +366,29 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
         say(f"wrote {target}")
 
 
-def _cmd_compare(argv: list[str]) -> int:
+def _compare_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner compare", description="Compare a run with a baseline, cell by cell; exit 1 on a regression.")
     p.add_argument("base", metavar="BASE", help="the baseline: results.json or its folder")
     p.add_argument("new", metavar="NEW", help="the run to check: results.json or its folder")
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
-    ns = p.parse_args(argv)
+    p.add_argument("--junit", metavar="FILE", help="also write the comparison as JUnit XML to FILE (a regression is a failed test case)")
+    return p
+
+
+def _cmd_compare(argv: list[str]) -> int:
+    ns = _compare_parser().parse_args(argv)
+    from runner.outdir import writable_file
     from runner.report.compare import parse_threshold, thresholds_with
-    from runner.report.publish import append_step_summary, comparison_text
+    from runner.report.publish import append_step_summary, ci_outputs, compare_files
     from runner.results.files import write_atomic
     from runner.results.read import load
     from runner.session import exit_code
 
-    section, regressions = comparison_text(ns.base, load(ns.new), ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    junit = writable_file(ns.junit, "--junit") if ns.junit else None
+    new = load(ns.new)
+    section, cmp = compare_files(ns.base, new, ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
+    regressions = cmp.regressions
     say(section)
     if ns.output:
         try:
@@ -335,24 +396,31 @@ def _cmd_compare(argv: list[str]) -> int:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
+    ci_outputs(new, cmp, junit, dict(os.environ), run=False)
     return int(exit_code([], regressions))
 
 
-def _cmd_merge(argv: list[str]) -> int:
+def _merge_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner merge", description="Combine shard results of one scenario into one results file and report.")
     p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
     p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
-    ns = p.parse_args(argv)
-    from runner.outdir import claim
+    p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
+    return p
+
+
+def _cmd_merge(argv: list[str]) -> int:
+    ns = _merge_parser().parse_args(argv)
+    from runner.outdir import claim, writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import finish
     from runner.results.merge import merge
     from runner.session import exit_code
 
     thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
+    junit = writable_file(ns.junit, "--junit") if ns.junit else None
     held = claim(ns.out, "merge folder")
     try:
         try:
@@ -364,7 +432,7 @@ def _cmd_merge(argv: list[str]) -> int:
             note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
         say(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
         try:
-            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ))
+            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", before_run=False) from None
     finally:
@@ -372,7 +440,7 @@ def _cmd_merge(argv: list[str]) -> int:
     return int(exit_code([c.status for c in doc.cells], regressions))
 
 
-def _cmd_import_rtapp(argv: list[str]) -> int:
+def _import_rtapp_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="runner import-rtapp",
         description="Convert an rt-app workload (its JSON, with comments, trailing commas and repeated keys) into a runner "
@@ -381,7 +449,11 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     )
     p.add_argument("file", metavar="FILE.json", help="rt-app workload file")
     p.add_argument("-o", "--output", metavar="FILE.yaml", help="write the scenario to FILE.yaml (default: stdout)")
-    ns = p.parse_args(argv)
+    return p
+
+
+def _cmd_import_rtapp(argv: list[str]) -> int:
+    ns = _import_rtapp_parser().parse_args(argv)
     from runner.errors import Problem
     from runner.results.files import write_atomic
     from runner.scenario.rtapp import MAX_BYTES, convert
@@ -404,4 +476,38 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     except OSError as exc:
         raise from_os_error(exc, "cannot write the scenario", path=ns.output) from None
     say(f"wrote {ns.output}")
+    return ExitCode.OK
+
+
+def _completion_parser() -> argparse.ArgumentParser:
+    from runner.completion import SHELLS
+
+    p = argparse.ArgumentParser(
+        prog="runner completion",
+        description="Print a shell completion script (made by shtab from runner's own options). "
+        "bash: runner completion bash > ~/.local/share/bash-completion/completions/runner; "
+        'zsh: runner completion zsh > "${fpath[1]}/_runner"',
+    )
+    p.add_argument("shell", choices=SHELLS)
+    return p
+
+
+_PARSERS: dict[str, Callable[[], argparse.ArgumentParser]] = {
+    "run": _run_parser,
+    "validate": _validate_parser,
+    "schema": _schema_parser,
+    "ps": _ps_parser,
+    "report": _report_parser,
+    "compare": _compare_parser,
+    "merge": _merge_parser,
+    "import-rtapp": _import_rtapp_parser,
+    "completion": _completion_parser,
+}
+
+
+def _cmd_completion(argv: list[str]) -> int:
+    ns = _completion_parser().parse_args(argv)
+    from runner.completion import script
+
+    sys.stdout.write(script(_PARSERS, ns.shell, "Run Linux scheduling scenarios and report what the kernel did."))
     return ExitCode.OK

@@ -66,3 +66,22 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
             f"runner: {what} {folder} already holds the results of another run; choose a new folder, or finish that run with --resume"
         )
     return Claim(folder, fd)
+
+
+def writable_file(path: str, option: str) -> str:
+    """An output file an option names (`--junit FILE`), checked before anything runs: not a folder, and its folder
+    either exists and may be written or can be created (as `--out` is) under one that may; else a UsageError (exit 2).
+
+    Checked up front so a file that cannot be written is said at once, not after an hour of cells.
+    """
+    if os.path.isdir(path):
+        raise UsageError(f"runner: {option} {path}: a folder stands where a file is expected")
+    folder = os.path.dirname(os.path.abspath(path))
+    existing = folder
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise UsageError(f"runner: {option} {path}: {existing} is a file, not a folder; choose another path")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UsageError(f"runner: {option} {path}: the folder {existing} may not be written; choose a folder you may write")
+    return path

@@ -62,6 +62,7 @@ class RunOptions:
     plots: bool = True
     live: bool = True  # a live progress line (a terminal, not CI)
     dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
+    junit: Optional[str] = None  # --junit FILE: the run as JUnit XML, for CI test reporters
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
@@ -99,6 +100,7 @@ class RunOptions:
             plots=not ns.no_plots,
             live=not (ns.quiet or in_ci),
             dma_latency_us=dma_latency,
+            junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
         )
 
 
@@ -355,7 +357,9 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     from runner.report.publish import finish
 
     try:
-        regressions = finish(doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ))
+        regressions = finish(
+            doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ), junit=options.junit
+        )
     except OSError as exc:
         raise from_os_error(exc, "cannot write the report", before_run=False) from None
     say(f"{loaded.name}: {worst(statuses).value}; results: {results_path}")

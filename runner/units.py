@@ -32,13 +32,26 @@ BYTES_PER = {
     "TiB": 1 << 40,
 }
 _SI_SIZE_HINT = {"KB": "KiB", "kB": "KiB", "K": "KiB", "MB": "MiB", "M": "MiB", "GB": "GiB", "G": "GiB"}
-_QUANTITY = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?|\.[0-9]+)\s*([A-Za-zµ]+)\s*$")
+_NUMBER = r"(?:[0-9]+(?:\.[0-9]+)?|\.[0-9]+)"
+_QUANTITY = re.compile(rf"^\s*({_NUMBER})\s*([A-Za-zµ]+)\s*$")
 MAX_DIGITS = 24  # no duration or size needs more; longer numbers are refused before any arithmetic
 MAX_CPUS = 8192  # CONFIG_NR_CPUS at its largest
 
 DURATION_EXPECTED = "a duration with a unit, such as 500ms, 200us, 1.5s or 10m"
 SIZE_EXPECTED = "a size with a unit, such as 50MiB, 200KiB or 0B"
-CPUS_EXPECTED = "CPUs as a list [0, 1], a range string '0-1,3', or a mask '0b1100' / '0x3'"
+CPUS_EXPECTED = "CPUs as a list [0, 1], a cpulist '0-1,3' (also '0-7:2', '0-7:2/4', 'all'), or a mask '0b1100' / '0x3'"
+
+# The written forms as regular expressions that mean the same in Python and in JavaScript (ECMA-262 with
+# the `u` flag, as editors compile JSON Schema patterns): no inline flags, no lookbehind, no \Z.  The
+# parsers below and the JSON Schema (runner.scenario.model) both use them, so the two cannot drift.
+DURATION_PATTERN = rf"^\s*(?:0|{_NUMBER}\s*(?:{'|'.join(NS_PER)}))\s*$"
+SIZE_PATTERN = rf"^\s*{_NUMBER}\s*(?:{'|'.join(BYTES_PER)})\s*$"
+_REGION = r"([0-9]+)(?:-([0-9]+)(?::([0-9]+)(?:/([0-9]+))?)?)?"
+"""One region of a cpulist: `N`, `N-M`, taskset's stride `N-M:S`, the kernel's groups `N-M:USED/GROUP`."""
+_ALL = "[aA][lL][lL]"
+_MASK = r"0[bB][01_]+|0[xX][0-9a-fA-F_]+"
+CPUS_PATTERN = rf"^\s*(?:{_REGION}(?:\s*,\s*{_REGION})*|{_ALL}|{_MASK})\s*$"
+"""A CPU set as text: a cpulist as the kernel and taskset -c read one (spaces after commas allowed), `all`, or a mask."""
 
 
 class UnitError(ValueError):
@@ -99,8 +112,13 @@ def _shorten(text: str, keep: int = 40) -> str:
     return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4 :])
 
 
-def parse_cpus(value: object) -> tuple[int, ...]:
-    """Parse a CPU set: a list of ints, a taskset-style `0-1,3`, or a mask `0b1100` / `0x3`."""
+def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int, ...]:
+    """Parse a CPU set: a list of ints, a cpulist `0-1,3` / `0-7:2` / `0-7:2/4`, `all`, or a mask `0b1100` / `0x3`.
+
+    `all` (any case, as the kernel reads it) is `every`: the CPUs the runner may use, which the caller
+    knows; without them `all` is refused.  `N-M:S` takes every S-th CPU from N to M (taskset -c);
+    `N-M:U/G` the first U of every group of G from N (the kernel's cpulist, e.g. isolcpus=).
+    """
     cpus: set[int] = set()
     if isinstance(value, bool):
         raise UnitError(f"expected {CPUS_EXPECTED}, got {value!r}")
@@ -112,25 +130,21 @@ def parse_cpus(value: object) -> tuple[int, ...]:
                 raise UnitError(f"CPU list items must be integers, got {item!r}; expected {CPUS_EXPECTED}")
             cpus.add(item)
     elif isinstance(value, str):
-        text = value.strip().replace("_", "")
-        if re.fullmatch(r"0[bB][01]+", text) or re.fullmatch(r"0[xX][0-9a-fA-F]+", text):
-            mask = int(text, 0)
+        if not re.fullmatch(CPUS_PATTERN, value):
+            raise UnitError(f"cannot read CPUs {_shorten(value)}; expected {CPUS_EXPECTED}")
+        text = value.strip()
+        if re.fullmatch(_ALL, text):
+            if not every:
+                raise UnitError("'all' stands for the CPUs the runner may use, which are not known here; name the CPUs")
+            cpus.update(every)
+        elif re.fullmatch(_MASK, text):
+            mask = int(text.replace("_", ""), 0)
             if mask.bit_length() > MAX_CPUS:
                 raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
-        elif re.fullmatch(r"\d+(-\d+)?(,\d+(-\d+)?)*", text):
-            for part in text.split(","):
-                low, _, high = part.partition("-")
-                if max(len(low), len(high)) > len(str(MAX_CPUS)) + 1:
-                    raise UnitError(f"CPU number in {_shorten(part)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
-                first, last = int(low), int(high or low)
-                if last < first:
-                    raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")
-                if last >= MAX_CPUS:
-                    raise UnitError(f"CPU {last} is beyond what Linux supports ({MAX_CPUS} CPUs)")
-                cpus.update(range(first, last + 1))
         else:
-            raise UnitError(f"cannot read CPUs {_shorten(value)}; expected {CPUS_EXPECTED}")
+            for part in text.split(","):
+                cpus.update(_region(part.strip()))
     else:
         raise UnitError(f"expected {CPUS_EXPECTED}, got {type(value).__name__}")
     if not cpus:
@@ -140,6 +154,31 @@ def parse_cpus(value: object) -> tuple[int, ...]:
     if max(cpus) >= MAX_CPUS:
         raise UnitError(f"CPU {max(cpus)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
     return tuple(sorted(cpus))
+
+
+def _region(part: str) -> range | list[int]:
+    """The CPUs of one cpulist region (`3`, `0-7`, `0-7:2`, `0-7:2/4`), checked before anything is expanded."""
+    match = re.fullmatch(_REGION, part)
+    assert match is not None  # the whole text matched CPUS_PATTERN
+    low, high, step, group = match.groups()
+    if max(len(low), len(high or "")) > len(str(MAX_CPUS)) + 1:
+        raise UnitError(f"CPU number in {_shorten(part)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
+    first, last = int(low), int(high or low)
+    if last < first:
+        raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")
+    if last >= MAX_CPUS:
+        raise UnitError(f"CPU {last} is beyond what Linux supports ({MAX_CPUS} CPUs)")
+    if step is None:
+        return range(first, last + 1)
+    used = min(int(step), MAX_CPUS)
+    if group is None:  # taskset -c: every used-th CPU
+        if used == 0:
+            raise UnitError(f"stride 0 in {part!r}; write N-M:S with S of 1 or more (every S-th CPU)")
+        return range(first, last + 1, used)
+    size = min(int(group), MAX_CPUS)
+    if size == 0 or used == 0 or used > size:
+        raise UnitError(f"groups in {part!r}: write N-M:USED/GROUP with 1 <= USED <= GROUP (the first USED CPUs of every GROUP)")
+    return [cpu for cpu in range(first, last + 1) if (cpu - first) % size < used]
 
 
 def parse_cpu_list(value: Any) -> Any:

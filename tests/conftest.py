@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
+import pathlib
+import shutil
+import subprocess
 import sys
 from dataclasses import dataclass
 
@@ -64,3 +68,26 @@ def write_scenario(tmp_path):
         return str(path)
 
     return write
+
+
+def _ajv_or_skip() -> None:
+    modules = os.path.join(REPO, ".ci", "node_modules")
+    if shutil.which("node") is None or not all(os.path.isdir(os.path.join(modules, m)) for m in ("ajv", "yaml")):
+        if _in_ci():
+            pytest.fail("node, ajv or yaml is not installed; .ci/run installs them with npm")
+        pytest.skip("ajv not installed (npm install --prefix .ci ajv yaml, as .ci/run does)")
+
+
+def ajv_verdicts(schema: dict[str, object], paths: list[str], tmp_path: pathlib.Path) -> dict[str, dict[str, object]]:
+    """ajv's verdict per file ({"verdict": accept|reject|unparsed, "errors": [...]}), as .ci/schema.cjs prints
+    them: strict mode, the schema's draft, YAML read as yaml-language-server reads it.  A schema ajv cannot
+    compile fails the test."""
+    _ajv_or_skip()
+    schema_file = tmp_path / "schema.json"
+    schema_file.write_text(json.dumps(schema), encoding="utf-8")
+    done = subprocess.run(
+        ["node", os.path.join(REPO, ".ci", "schema.cjs"), str(schema_file), *paths], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    verdicts: dict[str, dict[str, object]] = json.loads(done.stdout)
+    return verdicts

@@ -145,3 +145,60 @@ def test_an_rt_app_file_runs_directly(tmp_path):
     assert done.code == 0, done.err
     # run then timer: the last run has no release left to wait for in the run
     assert t["figures"]["callbacks"] >= 4 and event(t, "run")["count"] in (t["figures"]["callbacks"], t["figures"]["callbacks"] + 1)
+
+
+def test_spawned_threads_are_created_mid_run_and_inherit_their_spawners_settings(tmp_path):
+    done = run_file(tmp_path, os.path.join(REPO, "scenarios", "spawn.yaml"))
+    res = done.results
+    for cell_id, policy in (("inherit=true", "fifo"), ("inherit=false", "other")):
+        c = res["cells"][cell(res, cell_id)]
+        dispatcher = thread(res, "dispatcher", cell(res, cell_id))
+        jobs = [t for t in c["threads"] if t["name"].startswith("job-")]
+        assert len(jobs) == 8 and all(t["spawned"] for t in jobs)
+        tids = {t["tid"] for t in jobs}
+        assert len(tids) == 8 and 0 not in tids and dispatcher["tid"] not in tids
+        assert {t["pid"] for t in jobs} == {dispatcher["pid"]}  # threads of the dispatcher's process, not processes
+        # What each job read back from the kernel (sched_getattr) as it started: its creator's FIFO 60, or explicit defaults.
+        assert {t["applied"]["policy"] for t in jobs} == {policy} and not any(t["degraded"] for t in jobs)
+        for t in jobs:
+            assert [(e["kind"], e["count"]) for e in t["events"]] == [("run", 1), ("iorun", 1)]
+        spawn = event(dispatcher, "spawn")
+        assert spawn["count"] == 8 and spawn["dropped"] == 0
+        assert c["status"] == "passed" and not c["warnings"], c["warnings"]
+    assert done.code == 0, done.err
+
+
+def test_spawns_beyond_the_count_and_threads_never_spawned_are_reported(tmp_path):
+    program = {"kind": "phases", "loop": 1, "events": [{"run": "1ms"}]}
+    scenario = {
+        "name": "spawn_limits",
+        "duration": "1s",
+        "processes": [
+            {
+                "name": "sp_limits",
+                "threads": [
+                    {
+                        "name": "boss",
+                        "work": {
+                            "kind": "phases",
+                            "loop": 3,
+                            "events": [{"timer": {"period": "20ms"}}, {"spawn": "few"}, {"spawn": "many"}],
+                        },
+                    },
+                    {"name": "sleeper", "work": {"kind": "phases", "loop": 1, "events": [{"sleep": "5s"}, {"spawn": "late"}]}},
+                    {"name": "few", "spawned": True, "count": 2, "work": program},
+                    {"name": "many", "spawned": True, "count": 4, "work": program},
+                    {"name": "late", "spawned": True, "work": program},
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    c = done.results["cells"][0]
+    boss = thread(done.results, "boss")
+    few, many = (next(e for e in boss["events"] if e["event"] == f"spawn {n}") for n in ("few", "many"))
+    assert (few["count"], few["dropped"], many["count"], many["dropped"]) == (2, 1, 3, 0)
+    assert sorted(t["name"] for t in c["threads"] if t["spawned"]) == ["few-0", "few-1", "many-0", "many-1", "many-2"]
+    assert any("1 `spawn few` found every instance taken" in w for w in c["warnings"]), c["warnings"]
+    assert any("sp_limits/late: never spawned" in w for w in c["warnings"]), c["warnings"]
+    assert not any("many" in w for w in c["warnings"]), c["warnings"]  # count is a bound: unused instances are fine

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
+from conftest import run_cli
 
 from runner.errors import ScenarioError
 from runner.scenario import limits as lim
@@ -120,3 +123,30 @@ def test_read_gives_plausible_facts_of_this_machine():
 @pytest.mark.parametrize("nbytes, text", [(8 << 20, "8MiB"), (24_825_675_776, "23.1GiB"), (100, "100B")])
 def test_approx_size(nbytes, text):
     assert lim.approx_size(nbytes) == text
+
+
+def test_a_cpu_the_machine_lacks_is_a_warning_of_validate_and_an_error_of_a_run():
+    """A file written for a bigger machine is valid: `runner validate` warns, a run or --list here refuses."""
+    text = "name: x\nprocesses:\n  - name: app\n    main: {cpus: 7}\n    threads: [{name: t, cpus: 1}]\n"
+    machine = lim.MachineLimits(cpus=(0,), online=(0, 1))
+    doc = load_text(text, "s.yaml")
+    loaded = parse_scenario(doc, machine, for_run=False)
+    assert [str(w) for w in loaded.warnings] == [
+        "s.yaml:4:18: warning: processes[0].main.cpus: CPU 7 does not exist on this machine (CPUs 0-1); "
+        "the file is valid, but it cannot run here",
+        "s.yaml:5:31: warning: processes[0].threads[0].cpus: CPU 1 is outside the CPUs the runner may use "
+        "(0: it runs under taskset or in a cpuset); the file is valid, but it cannot run here",
+    ]
+    assert problems(text, machine) == [
+        "s.yaml:4:18: processes[0].main.cpus: CPU 7 does not exist on this machine (CPUs 0-1)",
+        "s.yaml:5:31: processes[0].threads[0].cpus: CPU 1 is outside the CPUs the runner may use (0: it runs under taskset or in a cpuset)",
+    ]
+
+
+def test_validate_warns_and_list_refuses_a_cpu_beyond_the_machine(tmp_path):
+    path = tmp_path / "big.yaml"
+    path.write_text(f"name: big\nprocesses:\n  - name: app\n    main: {{cpus: {max(os.sched_getaffinity(0)) + 1000}}}\n")
+    outcome = run_cli("validate", str(path))
+    assert outcome.code == 0 and "warning: processes[0].main.cpus: CPU" in outcome.err and "ok (1 cell)" in outcome.out
+    outcome = run_cli(str(path), "--list")
+    assert outcome.code == 2 and "does not exist on this machine" in outcome.err and outcome.out == ""

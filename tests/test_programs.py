@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import os
 
 import pytest
 from pydantic import ValidationError
@@ -219,3 +220,111 @@ def test_histograms_merge_exactly_to_the_bucket():
     merged = hg.merge([a, None, b])
     assert merged == hg.from_values([1, 300, 5_000, 300, 9_000_000])
     assert hg.merge([None]) is None
+
+
+def spawning(**template) -> Scenario:
+    """A dispatcher (FIFO 30, then FIFO 50 in its second phase) spawning `job` there; `template` overrides job's spec."""
+    job = {"name": "job", "spawned": True, "count": 3, "work": {"kind": "phases", "loop": 1, "events": [{"run": "1ms"}, {"iorun": "4MiB"}]}}
+    return Scenario.model_validate(
+        {
+            "name": "s",
+            "processes": [
+                {
+                    "name": "app",
+                    "threads": [
+                        {
+                            "name": "boss",
+                            "sched": "fifo:30",
+                            "work": {
+                                "kind": "phases",
+                                "phases": [
+                                    {"events": [{"sleep": "1ms"}]},
+                                    {"sched": "fifo:50", "cpus": "1", "events": [{"timer": {"period": "10ms"}}, {"spawn": "job"}]},
+                                ],
+                            },
+                        },
+                        {**job, **template},
+                    ],
+                }
+            ],
+        }
+    )
+
+
+def test_a_spawned_thread_is_planned_with_its_spawners_settings_at_the_spawn():
+    planned = {t.name: t for t in plan_scenario(spawning(), Settings())}
+    assert [planned[f"job-{i}"].spawned for i in range(3)] == [True] * 3 and not planned["boss"].spawned
+    assert (planned["job-0"].settings.policy, planned["job-0"].settings.priority, planned["job-0"].settings.cpus) == (Policy.FIFO, 50, (1,))
+    explicit = {t.name: t for t in plan_scenario(spawning(inherit=False, sched="rr:5"), Settings())}
+    assert (explicit["job-2"].settings.policy, explicit["job-2"].settings.priority, explicit["job-2"].settings.cpus) == (Policy.RR, 5, None)
+
+
+def test_the_native_core_gets_a_spawn_as_the_templates_first_slot_and_count_and_iorun_a_buffer():
+    sc = spawning()
+    _, _, _, mem, _, events = program_tuple(sc.processes[0].threads[0].work, 1, sc, {"job": (2, 3)})
+    assert events[-1] == (_probe.EV_SPAWN, 2, -1, _probe.OVR_SKIP, 3)
+    _, _, _, mem, _, events = program_tuple(sc.processes[0].threads[1].work, 2, sc)
+    assert events[-1] == (_probe.EV_IORUN, -1, -1, _probe.OVR_SKIP, 4 << 20) and mem == 1 << 20  # written in 1 MiB chunks
+
+
+def test_spawn_events_read_and_write_back_as_written():
+    ev = Event.model_validate({"spawn": "job"})
+    assert (ev.event, ev.thread, ev.model_dump(), ev.label()) == (EventKind.SPAWN, "job", {"spawn": "job"}, "spawn job")
+    with pytest.raises(ValidationError, match="thread belongs to spawn events"):
+        Event.model_validate({"event": "run", "duration": "1ms", "thread": "job"})
+
+
+def test_dropped_spawns_and_instances_never_spawned_are_warnings_in_words():
+    from reportdata import main_thread, matrix
+
+    from runner.results.document import EventResult
+    from runner.run.evaluate import spawn_warnings
+
+    boss = main_thread(matrix().cells[0]).model_copy(
+        update={"events": [EventResult(phase="p0", index=0, event="spawn job", kind="spawn", measures="wall", count=3, dropped=4)]}
+    )
+    out = spawn_warnings([boss], ["app/job"], 1)
+    assert out == [
+        f"{boss.label(False)}: 4 `spawn job` found every instance taken (or the kernel refused the thread);"
+        " raise the spawned thread's count",
+        "app/job: never spawned: no spawn event naming it ran",
+    ]
+
+
+def test_uclamp_is_refused_before_the_run_on_a_kernel_without_it(monkeypatch, tmp_path):
+    from runner.run import preflight
+
+    def with_phase(sched: object) -> Scenario:
+        phase = {"events": [{"run": "1ms"}], **({"sched": sched} if sched else {})}
+        hint = {"name": "hint", "work": {"kind": "phases", "phases": [phase]}}
+        return Scenario.model_validate(
+            {"name": "s", "processes": [{"name": "app", "threads": [{"name": "plain", "sched": "fifo:10"}, hint]}]}
+        )
+
+    sc, clamped = with_phase(None), with_phase({"policy": "other", "util_max": 512})
+    perm = preflight.current_permissions()
+    assert preflight.needs([sc], Settings(), False, {0, 1}).uclamp is None
+    wanted = preflight.needs([clamped], Settings(), False, {0, 1})
+    assert wanted.uclamp == "app/hint phase p0"
+    monkeypatch.setattr(preflight, "UCLAMP_KNOB", str(tmp_path / "absent"))
+    assert any(
+        m.startswith("app/hint phase p0 asks for util_min / util_max (uclamp), which this kernel does not have")
+        for m in preflight.missing_rights(perm, wanted)
+    )
+    (tmp_path / "knob").write_text("1024\n")
+    monkeypatch.setattr(preflight, "UCLAMP_KNOB", str(tmp_path / "knob"))
+    assert not any("uclamp" in m for m in preflight.missing_rights(perm, wanted))
+
+
+@pytest.mark.skipif(os.path.exists("/proc/sys/kernel/sched_util_clamp_min"), reason="this kernel has uclamp")
+def test_a_scenario_asking_uclamp_of_a_kernel_without_it_exits_3_and_starts_nothing(tmp_path):
+    from conftest import run_cli
+
+    path = tmp_path / "u.yaml"
+    path.write_text(
+        "name: u\nprocesses:\n  - name: uclamped\n    threads:\n      - name: t\n        sched: {policy: other, util_min: 100}\n"
+    )
+    out = run_cli(str(path), "--out", str(tmp_path / "out"), "--duration", "0.1s")
+    assert out.code == 3, out.err
+    assert "uclamped/t asks for util_min / util_max (uclamp), which this kernel does not have" in out.err
+    assert not (tmp_path / "out").exists()

@@ -39,3 +39,17 @@ def test_command_last_is_not_padded():
 def test_unknown_column():
     with pytest.raises(UsageError, match="did you mean 'rtprio'"):
         parse_columns("tid,rtpri")
+
+
+def test_columns_are_named_as_procps_names_them():
+    """`ps -L -o tid,nvcsw,nivcsw` in procps 4 prints the headers VCSW and IVCSW; the runner takes the same names."""
+    voluntary = ThreadRow(1, 7, "w", 0, 0, 0, 0, 120, (0,), 12, 3)
+    assert parse_columns("tid,nvcsw,nivcsw") == ["tid", "nvcsw", "nivcsw"]
+    assert render_ps([voluntary], ["tid", "nvcsw", "nivcsw"]) == "  TID  VCSW IVCSW\n    7    12     3\n"
+
+
+def test_the_earlier_spellings_are_still_read_but_not_offered():
+    assert parse_columns("vcsw,IVCSW") == ["nvcsw", "nivcsw"]
+    with pytest.raises(UsageError) as caught:
+        parse_columns("nvcw")
+    assert "did you mean 'nvcsw'" in str(caught.value) and "ivcsw," not in str(caught.value).replace("nivcsw", "")

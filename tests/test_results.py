@@ -316,6 +316,8 @@ def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
         "measured": 58_366,
         "passed": True,
         "note": "",
+        "line": None,  # where the scenario declares it: none for a verdict built by hand
+        "col": None,
     }
     again = load(str(tmp_path)).cells[0]
     assert again == cell

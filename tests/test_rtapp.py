@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from runner.errors import ScenarioError
+from runner.scenario.model import Scenario
 from runner.scenario.rtapp import FOREVER, Pairs, convert, event_kind, parse_relaxed, relax
 
 RTAPP = os.path.join(REPO, "tests", "rtapp")
@@ -407,10 +408,31 @@ def test_one_name_for_a_mutex_and_a_condition_is_split():
 # ------------------------------------------------------------ what does not map
 
 
-def test_iorun_is_left_out_with_a_note():
+def test_iorun_writes_to_dev_null_and_another_io_device_is_noted():
     c = conv('{"tasks": {"thread0": {"phases": {"p1": {"run": 1000, "iorun": 4096, "mem": 1000}}}}}')
-    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"run": "1ms"}, {"mem": "1000B"}]
-    assert 'tasks.thread0.phases.p1: "iorun" has no equivalent (no IO device emulation); left out' in c.notes
+    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"run": "1ms"}, {"iorun": "4KiB"}, {"mem": "1000B"}]
+    assert not any("iorun" in n for n in c.notes)
+    c = conv('{"global": {"io_device": "/dev/sda"}, "tasks": {"t": {"iorun": 10, "run": 1}}}')
+    assert "global.io_device: iorun writes to /dev/null here, not to /dev/sda" in c.notes
+
+
+def test_fork_spawns_an_instance_0_task_and_says_what_it_cannot_map():
+    c = conv(
+        """{"tasks": {"parent": {"loop": 2, "run": 100, "fork": "child", "fork2": "nobody", "fork3": "sibling"},
+                      "child": {"instance": 0, "loop": 1, "run": 1000},
+                      "sibling": {"run": 10},
+                      "unused": {"instance": 0, "run": 10}}}"""
+    )
+    threads = {t["name"]: t for t in c.scenario["processes"][0]["threads"]}
+    assert threads["parent"]["work"]["phases"][0]["events"] == [{"run": "100us"}, {"spawn": "child"}]
+    child = threads["child"]
+    assert (child["spawned"], child["count"], child["inherit"], child["work"]["loop"]) == (True, 16, False, 1)
+    assert "unused" not in threads
+    assert any("tasks.parent.fork: rt-app forks a new thread of 'child' each time, without bound" in n for n in c.notes)
+    assert "tasks.parent.fork2: fork of 'nobody': no task of instance 0 has that name; left out" in c.notes
+    assert "tasks.parent.fork3: fork of 'sibling': a task started at the start (rt-app would start another); left out" in c.notes
+    assert "tasks.unused: instance 0: rt-app starts no thread for this task and no fork names it; left out" in c.notes
+    Scenario.model_validate(c.scenario)  # and the result is a valid scenario
 
 
 def test_memory_events_and_the_buffer_size():
@@ -455,7 +477,7 @@ def test_unknown_task_keys_old_grammar_and_events_beside_phases_are_noted():
 
 
 def test_a_task_with_nothing_left_to_run_sleeps():
-    c = conv('{"tasks": {"t": {"iorun": 10}}}')
+    c = conv('{"tasks": {"t": {"iorun": 0}}}')
     assert c.scenario["processes"][0]["threads"][0]["work"] == {"kind": "sleep"}
     assert any("tasks.t: has no event left to run" in n for n in c.notes)
 
@@ -650,14 +672,14 @@ def test_yaml_has_the_notes_as_a_comment_header_and_reads_back_as_the_scenario()
     c = conv(
         """
         {"global": {"duration": 1},
-         "tasks": {"thread0": {"phases": {"p1": {"run": 1000, "iorun": 1, "wait": {"ref": "c", "mutex": "m"}}}}}}
+         "tasks": {"thread0": {"phases": {"p1": {"run": 1000, "fork": "x", "wait": {"ref": "c", "mutex": "m"}}}}}}
         """,
         "x.json",
     )
     text = c.yaml()
     head = text.splitlines()[:3]
     assert head[0].startswith("# Converted from x.json by `runner import-rtapp`")
-    assert head[2] == '#   - tasks.thread0.phases.p1: "iorun" has no equivalent (no IO device emulation); left out'
+    assert head[2] == "#   - tasks.thread0.phases.p1.fork: fork of 'x': no task of instance 0 has that name; left out"
     assert yaml.safe_load(text) == c.scenario
     assert "- {wait: {cond: c, mutex: m}}" in text and "c: {kind: cond}" in text
 

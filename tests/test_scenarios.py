@@ -42,7 +42,7 @@ def test_every_example_of_the_issue_is_shipped():
 TOOLS = {"cyclictest_smp": "cyclictest"}
 # scenarios of programs (kind: phases) after rt-app's workloads: locks, deadline, chains, phases; each is run
 # for real by tests/test_kernel_programs.py, which holds it to the effect its description states
-PROGRAMS = {"priority_inversion", "deadline", "pipeline", "phases"}
+PROGRAMS = {"priority_inversion", "deadline", "pipeline", "phases", "spawn"}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)

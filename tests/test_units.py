@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from runner import units
@@ -93,3 +95,46 @@ def test_decimals_are_exact():
 def test_huge_cpu_sets_are_refused_without_expanding_them(value, message):
     with pytest.raises(units.UnitError, match=message):
         units.parse_cpus(value)
+
+
+@pytest.mark.parametrize(
+    "value, cpus",
+    [
+        ("0-7:2", (0, 2, 4, 6)),  # taskset -c's stride
+        ("0-7:2/4", (0, 1, 4, 5)),  # the kernel's groups: the first 2 of every 4
+        ("100-130:2/25", (100, 101, 125, 126)),  # Documentation/admin-guide/kernel-parameters.rst's example
+        ("0, 1", (0, 1)),
+        (" 0 ,1 ", (0, 1)),
+        ("all", (0, 1, 3)),
+        ("ALL", (0, 1, 3)),
+    ],
+)
+def test_cpulist_forms_of_the_kernel_and_taskset(value, cpus):
+    assert units.parse_cpus(value, (0, 1, 3)) == cpus
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [("0-7:0", "stride 0"), ("0-7:3/2", "USED <= GROUP"), ("0-7:1/0", "USED <= GROUP"), ("0 1", "cannot read"), ("all,1", "cannot read")],
+)
+def test_cpulist_forms_that_are_refused(value, message):
+    with pytest.raises(units.UnitError, match=message):
+        units.parse_cpus(value, (0, 1))
+
+
+def test_all_needs_the_machines_cpus():
+    with pytest.raises(units.UnitError, match="'all' stands for the CPUs the runner may use"):
+        units.parse_cpus("all")
+
+
+@pytest.mark.parametrize("text", ["0", "100ms", " 1.5 s ", ".5us", "10m"])
+def test_the_duration_pattern_reads_what_the_parser_reads(text):
+    assert re.fullmatch(units.DURATION_PATTERN, text)
+    units.parse_duration(text)
+
+
+@pytest.mark.parametrize("text", ["1.2.3ms", "500", "ms", "1 sec"])
+def test_the_duration_pattern_refuses_what_the_parser_refuses(text):
+    assert not re.fullmatch(units.DURATION_PATTERN, text)
+    with pytest.raises(units.UnitError):
+        units.parse_duration(text)

@@ -62,3 +62,40 @@ def test_workflow_shards_match_the_shard_count():
     assert shards == list(range(1, int(flow["env"]["SHARDS"]) + 1))
     assert "realtime" in flow["jobs"]["shard"]["runs-on"] and flow["jobs"]["merge"]["if"] == "always()"
     assert flow[True]["schedule"]  # PyYAML reads the key `on` as True
+
+
+def _steps(flow: dict) -> list[dict]:
+    return [step for job in flow["jobs"].values() for step in job["steps"]]
+
+
+# the first majors on Node 24 and later (Node 20 actions are deprecated on GitHub's runners); raise as new ones come
+CURRENT_MAJOR = {"actions/checkout": 7, "actions/setup-python": 7, "actions/upload-artifact": 7, "actions/download-artifact": 8}
+
+
+def test_actions_are_current_majors():
+    used = [step["uses"] for step in _steps(yaml.safe_load(open(WORKFLOW))) if "uses" in step]
+    assert used
+    for ref in used:
+        name, _, version = ref.partition("@")
+        assert name in CURRENT_MAJOR, f"{ref}: add its current major to CURRENT_MAJOR"
+        assert re.fullmatch(r"v\d+", version) and int(version[1:]) >= CURRENT_MAJOR[name], ref
+
+
+def test_runner_is_installed_into_a_virtual_environment():
+    """Debian 12 and Ubuntu 24.04 refuse pip outside a virtual environment (PEP 668): no --user, no system pip."""
+    scripts = [step["run"] for step in _steps(yaml.safe_load(open(WORKFLOW))) if "run" in step]
+    installs = [line.strip() for script in scripts for line in script.splitlines() if "pip install" in line]
+    assert installs and all(line.startswith(".venv/bin/pip install") for line in installs), installs
+    assert not any("--user" in script or "python3 -m runner" in script for script in scripts)
+
+
+def test_the_baseline_is_the_last_scheduled_night_that_passed_or_a_pinned_file():
+    flow = yaml.safe_load(open(WORKFLOW))
+    choose = next(step for step in flow["jobs"]["merge"]["steps"] if step.get("id") == "baseline")["run"]
+    assert "--status success" in choose and "--event schedule" in choose and "conclusion" not in choose
+    assert 'if [ ! -f "$BASELINE" ]' in choose and "none)" in choose
+    assert "last-passed" in flow["env"]["BASELINE"]
+    merge = next(step["run"] for step in flow["jobs"]["merge"]["steps"] if "runner merge" in step.get("run", ""))
+    assert "--junit merged/junit.xml" in merge
+    shard = next(step for step in flow["jobs"]["shard"]["steps"] if "--shard" in step.get("run", ""))
+    assert shard["env"]["RUNNER_ANNOTATIONS"] == "off"  # the merge job annotates once

@@ -911,12 +911,15 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     )
 
 
-def change_text(f: FigureChange, sc: fg.Scale) -> str:
-    """`+316 (+373%)`: how much a compared figure moved, in the scale of its row (one minus sign: U+2212)."""
+def change_text(f: FigureChange, sc: fg.Scale, with_unit: bool = False) -> str:
+    """`+316 (+373%)` (`+316 µs (+373%)` `with_unit`): how much a compared figure moved, in the scale of its row.
+
+    One minus sign, U+2212, as in every number the report writes.
+    """
     if f.base is None or f.new is None:
         return "–"
     delta = f.new - f.base
-    text = sc.number(delta, sign=True)
+    text = sc.number(delta, sign=True) + (f" {sc.unit}" if with_unit and sc.unit else "")
     if f.base:
         percent = fg.scale(fg.Unit.COUNT).number(delta / abs(f.base) * 100, sign=True)
         text += f" ({percent}%)"

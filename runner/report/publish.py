@@ -1,4 +1,4 @@
-"""Write a run's report files: report.md and its plots beside results.json, and the CI job summary.
+"""Write a run's report files: report.md and its plots beside results.json, the CI job summary, JUnit XML and annotations.
 
 The I/O half of reporting; `report` renders and `plots` draws.  Files are replaced
 atomically, so a reader never sees half a report.
@@ -10,8 +10,11 @@ import os
 import sys
 from typing import Optional
 
+from runner.errors import from_os_error
+from runner.report import github
 from runner.report import markdown as report
-from runner.report.compare import Threshold, compare
+from runner.report.compare import Comparison, Threshold, compare
+from runner.report.junit import junit_xml
 from runner.results.document import RunDocument
 from runner.results.files import write_atomic
 from runner.results.read import load
@@ -61,24 +64,56 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
     return path
 
 
-def comparison_text(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, int]:
-    """Compare `doc` with the results at `base_path`: the markdown section and the number of regressions."""
+def compare_files(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, Comparison]:
+    """Compare `doc` with the results at `base_path`: the markdown section and the comparison itself."""
     base = load(base_path)
     cmp = compare(base, doc, thresholds, base_name=base_path, new_name=new_path)
-    return report.render_comparison(cmp, base_path, new_path), cmp.regressions
+    return report.render_comparison(cmp, base_path, new_path), cmp
+
+
+def comparison_text(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, int]:
+    """Compare `doc` with the results at `base_path`: the markdown section and the number of regressions."""
+    section, cmp = compare_files(base_path, doc, new_path, thresholds)
+    return section, cmp.regressions
+
+
+def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Optional[str], env: dict[str, str], run: bool = True) -> None:
+    """What CI systems read: the JUnit XML file (`--junit FILE`), and in GitHub Actions the workflow annotations.
+
+    `run` False: a comparison alone (`runner compare`), without the cells' runs and expectations.
+    """
+    if junit:
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(junit)), exist_ok=True)
+            write_atomic(junit, junit_xml(doc, comparison, run))
+        except OSError as exc:
+            raise from_os_error(exc, "cannot write the JUnit file", path=junit, before_run=False) from None
+        print(f"junit: {junit}", flush=True)
+    if github.enabled(env):
+        place = github.workspace_path(doc.scenario.path, os.getcwd(), env.get("GITHUB_WORKSPACE"))
+        for item in github.for_run(doc, comparison, place, run):
+            print(item.command(), flush=True)
 
 
 def finish(
-    doc: RunDocument, folder: str, baseline: Optional[str], thresholds: list[Threshold], write: bool, plots: bool, env: dict[str, str]
+    doc: RunDocument,
+    folder: str,
+    baseline: Optional[str],
+    thresholds: list[Threshold],
+    write: bool,
+    plots: bool,
+    env: dict[str, str],
+    junit: Optional[str] = None,
 ) -> int:
-    """After a run or a merge: compare with the baseline, write report.md, append the job summary.
+    """After a run or a merge: compare with the baseline, write report.md, append the job summary,
+    write the JUnit file and print the GitHub annotations (`ci_outputs`).
 
     Returns the number of regressions against the baseline (0 without one).
     """
     results_path = os.path.join(folder, "results.json")
-    section, regressions = None, 0
+    section, cmp = None, None
     if baseline:
-        section, regressions = comparison_text(baseline, doc, results_path, thresholds)
+        section, cmp = compare_files(baseline, doc, results_path, thresholds)
         write_atomic(os.path.join(folder, "comparison.md"), section)
     if write:
         path = write_report(doc, folder, section, plots)
@@ -87,4 +122,5 @@ def finish(
             append_step_summary(handle.read(), env)
     elif section:
         append_step_summary(section, env)
-    return regressions
+    ci_outputs(doc, cmp, junit, env)
+    return cmp.regressions if cmp else 0

@@ -22,7 +22,9 @@ The shape of `runner.results/2`, top down:
   `periodic`, `requested` and `applied` {`policy`, `priority`, `nice`, `cpus`}, `degraded`,
   `figures` (figures.ThreadFigures: every duration an integer in ns, e.g. `latency_ns.p99`);
 - a verdict: `thread`, `metric` (a figure's name from figures.REGISTRY), `limit` (as the
-  scenario wrote it), `measured` (in the figure's unit: ns for durations), `passed`, `note`.
+  scenario wrote it), `measured` (in the figure's unit: ns for durations), `passed`, `note`,
+  `line` and `col` (where the expectation is written in the scenario; added within /2, so
+  null in older files, which read as before).
 
 Every duration in a /2 file is an integer number of nanoseconds, named `..._ns`; only the
 report's formatting scales it.  NaN and infinity are never written (pydantic writes null)
@@ -177,6 +179,10 @@ class Verdict(_Record):
     measured: Measured = Field(description="the figure's value in its unit (integer ns for durations); null: not measured")
     passed: bool
     note: str = ""
+    line: Optional[Annotated[int, Field(ge=1)]] = Field(
+        None, description="where the expectation is written in the scenario file (`scenario.path`), 1-based; null: not recorded"
+    )
+    col: Optional[Annotated[int, Field(ge=1)]] = Field(None, description="its column, 1-based; null: not recorded")
 
     @property
     def figure(self) -> fg.Figure:
@@ -226,6 +232,7 @@ class EventResult(_Record):
     spread_ns: Optional[fg.Spread] = None
     contended: NonNegativeInt = Field(0, description="lock: acquisitions that had to wait")
     holders: list[Holder] = Field(default_factory=list, description="lock: who held the mutex when this thread waited")
+    dropped: NonNegativeInt = Field(0, description="spawn: spawns that found every instance of the thread taken, or the kernel refused")
 
 
 class PhaseResult(_Record):
@@ -265,6 +272,7 @@ class ThreadResult(_Record):
     samples_lost: NonNegativeInt = Field(0, description="rows the runner could not write in time (the figures still count them)")
     events: list[EventResult] = Field(default_factory=list, description="programs (kind: phases): per event")
     phases: list[PhaseResult] = Field(default_factory=list, description="programs (kind: phases): per phase")
+    spawned: bool = Field(False, description="created mid-run by a spawn event of another thread (rt-app's fork)")
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property

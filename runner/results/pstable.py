@@ -3,8 +3,8 @@
 Pure: rows in, text out.  Column rules follow procps-ng: TID as wide as the
 largest possible PID, COMMAND 15 wide and left-aligned (unpadded when last),
 RTPRIO `-` for SCHED_OTHER only, NI `-` for policies other than TS and B, every
-other column right-aligned, one space apart.  Extra columns (cpus, vcsw, ivcsw)
-are the runner's own.
+other column right-aligned, one space apart.  Columns are named as procps names them
+(`nvcsw`, `nivcsw`: headers VCSW, IVCSW); `cpus` (the affinity list) is the runner's own.
 """
 
 from __future__ import annotations
@@ -89,18 +89,22 @@ def columns_for(pid_width: int = 5) -> dict[str, Column]:
         "ni": Column("NI", 3, False, _nice),
         "pri": Column("PRI", 3, False, lambda r: "-" if r.prio is None else str(39 - r.prio)),
         "cpus": Column("CPUS", 4, False, lambda r: units.format_cpus(r.cpus) if r.cpus else "-"),
-        "vcsw": Column("VCSW", 5, False, lambda r: _opt(r.voluntary)),
-        "ivcsw": Column("IVCSW", 5, False, lambda r: _opt(r.involuntary)),
+        "nvcsw": Column("VCSW", 5, False, lambda r: _opt(r.voluntary)),
+        "nivcsw": Column("IVCSW", 5, False, lambda r: _opt(r.involuntary)),
     }
+
+
+ALIASES = {"vcsw": "nvcsw", "ivcsw": "nivcsw"}
+"""Names this runner documented before it took procps's spelling; still read, never listed."""
 
 
 DEFAULT_COLUMNS = ("tid", "comm", "rtprio", "cls", "psr")
 
 
 def parse_columns(spec: str) -> list[str]:
-    """`tid,comm,rtprio` -> ['tid', 'comm', 'rtprio']; unknown names are a usage error."""
+    """`tid,comm,rtprio` -> ['tid', 'comm', 'rtprio']; unknown names are a usage error (with a did-you-mean)."""
     known = columns_for()
-    names = [name.strip().lower() for name in spec.split(",") if name.strip()]
+    names = [ALIASES.get(n, n) for n in (name.strip().lower() for name in spec.split(",")) if n]
     for name in names:
         if name not in known:
             raise UsageError(f"unknown column {name!r}{did_you_mean(name, known)}; known: {', '.join(known)}")

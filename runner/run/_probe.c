@@ -12,16 +12,18 @@
  * buffer (layout below) that the runner reads while the run goes on and after
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
- * Buffer layout (little endian, all offsets in bytes), version 2:
- *   file header, 64 bytes:  magic "RSMP0002", u32 version, u32 nthreads,
+ * Buffer layout (little endian, all offsets in bytes), version 3:
+ *   file header, 64 bytes:  magic "RSMP0003", u32 version, u32 nthreads,
  *                           u32 capacity, u32 slot_header_size, u32 sample_size,
  *                           u32 hist_buckets (0 when the group keeps none),
- *                           u64 slot_stride
+ *                           u64 slot_stride, u32 event_stats, u32 phase_stats
  *   per thread, at 64 + i * slot_stride:
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
  *     ring of capacity samples of 64 bytes (struct sample): sample n at n % capacity
+ *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
+ *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
  *
  * Memory does not grow with the run: the figures live in fixed log-linear
  * histograms (HdrHistogram's layout: 128 sub-buckets per power of two, so a
@@ -324,7 +326,7 @@ struct work {
 
 enum ev_type {
     EV_RUN = 1, EV_RUNTIME, EV_SLEEP, EV_TIMER, EV_LOCK, EV_UNLOCK, EV_WAIT, EV_SIGNAL, EV_BROADCAST,
-    EV_BARRIER, EV_SUSPEND, EV_RESUME, EV_YIELD, EV_MEM, EV_ALLOC
+    EV_BARRIER, EV_SUSPEND, EV_RESUME, EV_YIELD, EV_MEM, EV_ALLOC, EV_SPAWN, EV_IORUN
 };
 enum res_kind { RES_MUTEX = 1, RES_COND, RES_BARRIER, RES_QUEUE, RES_TIMER };
 enum overrun_mode { OVR_SKIP = 0, OVR_REBASE = 1, OVR_CATCHUP = 2 };
@@ -365,7 +367,8 @@ struct event_stats {
     uint64_t holder_count[4];
     int64_t holder_wait[4];
     uint64_t other_holders;      /* contentions by holders beyond the four above */
-    uint8_t reserved[EV_HDR - 144];
+    uint64_t dropped;            /* spawn: spawns that found every instance of the template taken, or failed */
+    uint8_t reserved[EV_HDR - 152];
 };
 
 struct phase_stats {
@@ -417,6 +420,7 @@ struct program_state {
     int64_t phase_t0, phase_ru[4];
     int held[MAX_EVENTS];        /* mutexes this thread holds, by resource index, for a clean exit */
     int nheld;
+    int io_fd;                   /* iorun: /dev/null, opened before the start; -1 if it could not be */
 };
 
 struct group;
@@ -439,6 +443,8 @@ struct slot {
     size_t stride;
     pthread_t thread;
     int started;
+    int deferred;        /* created by a spawn event of another thread, not at setup */
+    _Atomic int claimed; /* a spawn event took this instance (set on a template's first instance: the next to take) */
 };
 
 struct group {
@@ -887,6 +893,40 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
     ps->chain_open = 1;
 }
 
+static int create_thread(struct group *g, struct slot *s);
+
+/* rt-app's fork: start the next free instance of a template thread of this process, now, from this thread
+ * (so it inherits this thread's current settings, then applies its own).  The event's figure is the time
+ * pthread_create took; a spawn that finds every instance taken (or that the kernel refuses) is counted. */
+static void ev_spawn(struct slot *s, int i, const struct event *e) {
+    struct group *g = s->group;
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    struct slot *first = &g->slots[e->res];
+    int k = atomic_fetch_add(&first->claimed, 1);
+    if (k >= e->arg || create_thread(g, &g->slots[e->res + k]) != 0) {
+        ev_stats(s, i)->dropped++;
+        return;
+    }
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+}
+
+/* rt-app's iorun: write N bytes to /dev/null (its default io_device), from the thread's buffer. */
+static void ev_iorun(struct slot *s, struct program_state *ps, int i, const struct event *e) {
+    int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    int64_t left = e->arg;
+    while (left > 0 && ps->io_fd >= 0 && ps->mem) {
+        size_t chunk = (size_t)(left < s->prog->mem_bytes ? left : s->prog->mem_bytes);
+        ssize_t n = write(ps->io_fd, ps->mem, chunk);
+        if (n <= 0) {
+            if (n < 0 && errno == EINTR) continue;
+            s->hdr->err_other = n < 0 ? errno : EIO;
+            break;
+        }
+        left -= n;
+    }
+    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+}
+
 static void run_event(struct slot *s, struct program_state *ps, int i) {
     const struct event *e = &s->prog->events[i];
     struct group *g = s->group;
@@ -936,6 +976,8 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
             ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
             break;
         }
+        case EV_SPAWN: ev_spawn(s, i, e); break;
+        case EV_IORUN: ev_iorun(s, ps, i, e); break;
         default: break;
     }
     if (!s->hdr->blocked_since_ns) s->hdr->cur_event = -1;
@@ -1017,10 +1059,17 @@ static void run_program(struct slot *s, struct program_state *ps) {
 static struct program_state *program_prepare(struct slot *s) {
     struct program_state *ps = calloc(1, sizeof(*ps));
     if (!ps) return NULL;
+    ps->io_fd = -1;
     if (s->prog->mem_bytes > 0) {
         ps->mem = malloc((size_t)s->prog->mem_bytes);
         if (ps->mem) memset(ps->mem, 0, (size_t)s->prog->mem_bytes);
     }
+    for (int i = 0; i < s->prog->nevents; i++)
+        if (s->prog->events[i].type == EV_IORUN) {
+            ps->io_fd = open("/dev/null", O_WRONLY | O_CLOEXEC);
+            if (ps->io_fd < 0) s->hdr->err_other = errno;
+            break;
+        }
     for (int i = 0; i <= s->prog->nevents; i++)
         for (int k = 0; k < 4; k++) ev_stats(s, i)->holder[k] = -1;
     s->hdr->cur_phase = -1;
@@ -1030,6 +1079,7 @@ static struct program_state *program_prepare(struct slot *s) {
 
 static void program_release(struct program_state *ps) {
     if (!ps) return;
+    if (ps->io_fd >= 0) close(ps->io_fd);
     free(ps->mem);
     free(ps);
 }
@@ -1091,11 +1141,51 @@ static void *thread_main(void *arg) {
     if (errs[1]) s->hdr->err_nice = errs[1];
     if (errs[2]) s->hdr->err_cpus = errs[2];
     if (s->prog && !(s->pstate = program_prepare(s))) s->hdr->err_other = ENOMEM;
+    /* A spawned thread starts after the runner read every thread's settings from /proc: it reads its own
+     * back from the kernel into the phase record after its program's (the worker sizes one more for it). */
+    if (s->deferred && s->prog && (uint32_t)s->prog->nphases < s->group->nphases) read_back(ph_stats(s, (int)s->group->nphases - 1));
     atomic_store((_Atomic int32_t *)&s->hdr->state, ST_READY);
     run_slot(s);
     program_release(s->pstate);
     s->pstate = NULL;
     return NULL;
+}
+
+/* Create slot s's thread (named, settings and work parsed already).  Called from the worker at setup, or from a
+ * spawn event mid-run: it inherits the calling thread's settings unless the slot asks for explicit defaults.
+ * Returns 0 or the error of pthread_create. */
+static int create_thread(struct group *g, struct slot *s) {
+    pthread_attr_t attr;
+    int rc = pthread_getattr_default_np(&attr);
+    if (rc) return rc;
+    if (s->explicit_defaults) {
+        struct sched_param p = {.sched_priority = 0};
+        pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);
+        pthread_attr_setschedpolicy(&attr, SCHED_OTHER);
+        pthread_attr_setschedparam(&attr, &p);
+        pthread_attr_setaffinity_np(&attr, sizeof(cpu_set_t), &g->all_cpus);
+    }
+    rc = pthread_create(&s->thread, &attr, thread_main, s);
+    pthread_attr_destroy(&attr);
+    if (rc == 0) atomic_store((_Atomic int *)&s->started, 1);
+    return rc;
+}
+
+/* Join every thread of the group, spawned ones included: a pass that joins a spawner makes the threads it
+ * spawned visible to the next, so passes repeat until one finds nothing left to join. */
+static void join_all(struct group *g) {
+    int progress;
+    do {
+        progress = 0;
+        for (uint32_t i = 0; i < g->nslots; i++) {
+            struct slot *s = &g->slots[i];
+            if (atomic_load((_Atomic int *)&s->started)) {
+                pthread_join(s->thread, NULL);
+                atomic_store((_Atomic int *)&s->started, 0);
+                progress = 1;
+            }
+        }
+    } while (progress);
 }
 
 /* ------------------------------------------------------------ Group object */
@@ -1118,13 +1208,9 @@ static void Group_dealloc(GroupObject *self) {
             pthread_cond_broadcast(&self->g.cond);
         }
         pthread_mutex_unlock(&self->g.lock);
-        for (uint32_t i = 0; i < self->g.nslots; i++) {
-            if (self->g.slots[i].started) {
-                Py_BEGIN_ALLOW_THREADS
-                pthread_join(self->g.slots[i].thread, NULL);
-                Py_END_ALLOW_THREADS
-            }
-        }
+        Py_BEGIN_ALLOW_THREADS
+        join_all(&self->g);
+        Py_END_ALLOW_THREADS
         for (uint32_t i = 0; i < self->g.nslots; i++) {
             program_release(self->g.slots[i].pstate);
             PyMem_Free(self->g.slots[i].prog);
@@ -1254,7 +1340,9 @@ static struct program *parse_program(const struct group *g, PyObject *spec) {
         int needs = e->type == EV_LOCK || e->type == EV_UNLOCK || e->type == EV_WAIT || e->type == EV_SIGNAL || e->type == EV_BROADCAST ||
                     e->type == EV_BARRIER || e->type == EV_SUSPEND || e->type == EV_RESUME;
         if ((needs && (e->res < 0 || e->res >= g->nres)) || (e->type == EV_WAIT && (e->res2 < 0 || e->res2 >= g->nres)) ||
-            (e->type == EV_TIMER && e->arg <= 0) || e->type < EV_RUN || e->type > EV_ALLOC) {
+            (e->type == EV_TIMER && e->arg <= 0) ||
+            (e->type == EV_SPAWN && (e->res < 0 || e->arg < 1 || e->res + e->arg > (long long)g->nslots)) || e->type < EV_RUN ||
+            e->type > EV_IORUN || (e->type == EV_IORUN && mem < 1)) {
             PyErr_Format(PyExc_ValueError, "event %zd (type %d) names resource %d of %zd, or has no period", i, e->type, e->res, g->nres);
             goto fail;
         }
@@ -1337,20 +1425,22 @@ static struct slot *get_slot(GroupObject *self, unsigned int index) {
 }
 
 PyDoc_STRVAR(spawn_doc,
-"spawn(index, name, work, policy, priority, nice, cpus, explicit[, extra])\n\n"
+"spawn(index, name, work, policy, priority, nice, cpus, explicit[, extra[, deferred]])\n\n"
 "Create a thread from the calling thread (so it inherits the caller's settings\n"
 "unless explicit is true), name it, let it apply its own settings, and park it\n"
 "at the start gate.  work is (kind, period_ns, burn_ns, burn_wall, alloc_bytes,\n"
 "offset_ns[, wait_spin, bound_ns, ring_mode, program]); extra is (dl_runtime,\n"
 "dl_deadline, dl_period, util_min, util_max).  Returns when the thread is created;\n"
-"see wait_ready().");
+"see wait_ready().  deferred: only prepare the slot; a spawn event of another\n"
+"thread's program creates the thread mid-run (rt-app's fork).");
 
 static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
     unsigned int index;
     const char *name;
     PyObject *work, *policy, *priority, *nice, *cpus, *extra = Py_None;
-    int explicit_defaults;
-    if (!PyArg_ParseTuple(args, "IsOOOOOp|O", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults, &extra))
+    int explicit_defaults, deferred = 0;
+    if (!PyArg_ParseTuple(args, "IsOOOOOp|Op", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults, &extra,
+                          &deferred))
         return NULL;
     struct slot *s = get_slot(self, index);
     if (!s) return NULL;
@@ -1361,28 +1451,22 @@ static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
     if (parse_work(&self->g, s, work) || parse_settings(policy, priority, nice, cpus, extra, &s->own)) return NULL;
     snprintf(s->name, sizeof(s->name), "%s", name);
     s->explicit_defaults = explicit_defaults;
-    pthread_attr_t attr;
-    int rc = pthread_getattr_default_np(&attr);
-    if (rc) {
-        errno = rc;
-        return PyErr_SetFromErrno(PyExc_OSError);
+    s->deferred = deferred;
+    if (deferred) {
+        if (s->work.kind != WORK_PROGRAM) {
+            PyErr_SetString(PyExc_ValueError, "only a program (kind: phases) can be spawned");
+            return NULL;
+        }
+        Py_RETURN_NONE;
     }
-    if (explicit_defaults) {
-        struct sched_param p = {.sched_priority = 0};
-        pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);
-        pthread_attr_setschedpolicy(&attr, SCHED_OTHER);
-        pthread_attr_setschedparam(&attr, &p);
-        pthread_attr_setaffinity_np(&attr, sizeof(cpu_set_t), &self->g.all_cpus);
-    }
+    int rc;
     Py_BEGIN_ALLOW_THREADS
-    rc = pthread_create(&s->thread, &attr, thread_main, s);
+    rc = create_thread(&self->g, s);
     Py_END_ALLOW_THREADS
-    pthread_attr_destroy(&attr);
     if (rc) {
         errno = rc;
         return PyErr_SetFromErrno(PyExc_OSError);
     }
-    s->started = 1;
     Py_RETURN_NONE;
 }
 
@@ -1457,17 +1541,12 @@ static PyObject *Group_run_main(GroupObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-PyDoc_STRVAR(join_doc, "join()\n\nJoin every spawned thread, GIL released.");
+PyDoc_STRVAR(join_doc, "join()\n\nJoin every thread, those spawned mid-run too, GIL released.");
 
 static PyObject *Group_join(GroupObject *self, PyObject *Py_UNUSED(ignored)) {
-    for (uint32_t i = 0; i < self->g.nslots; i++) {
-        struct slot *s = &self->g.slots[i];
-        if (!s->started) continue;
-        Py_BEGIN_ALLOW_THREADS
-        pthread_join(s->thread, NULL);
-        Py_END_ALLOW_THREADS
-        s->started = 0;
-    }
+    Py_BEGIN_ALLOW_THREADS
+    join_all(&self->g);
+    Py_END_ALLOW_THREADS
     Py_RETURN_NONE;
 }
 
@@ -1880,6 +1959,8 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "EV_YIELD", EV_YIELD);
     PyModule_AddIntConstant(m, "EV_MEM", EV_MEM);
     PyModule_AddIntConstant(m, "EV_ALLOC", EV_ALLOC);
+    PyModule_AddIntConstant(m, "EV_SPAWN", EV_SPAWN);
+    PyModule_AddIntConstant(m, "EV_IORUN", EV_IORUN);
     PyModule_AddIntConstant(m, "RES_MUTEX", RES_MUTEX);
     PyModule_AddIntConstant(m, "RES_COND", RES_COND);
     PyModule_AddIntConstant(m, "RES_BARRIER", RES_BARRIER);

@@ -41,6 +41,8 @@ EV_RESUME: int
 EV_YIELD: int
 EV_MEM: int
 EV_ALLOC: int
+EV_SPAWN: int
+EV_IORUN: int
 RES_MUTEX: int
 RES_COND: int
 RES_BARRIER: int
@@ -84,6 +86,7 @@ class Group:
         cpus: Optional[Sequence[int]],
         explicit_defaults: bool,
         extra: Optional[Extra] = None,
+        deferred: bool = False,
     ) -> None: ...
     def adopt(self, index: int, name: str, work: WorkTuple) -> None: ...
     def wait_ready(self, timeout: float) -> bool: ...

@@ -135,6 +135,22 @@ def warnings(threads: list[ThreadResult], processes: int) -> list[str]:
     return out
 
 
+def spawn_warnings(threads: list[ThreadResult], never: list[str], processes: int) -> list[str]:
+    """Spawns that found no free instance, and spawned threads of which no instance ever ran: the program did not run as written.
+
+    `count` is how many instances a spawned thread can have, so instances left unused are not a problem.
+    """
+    out = [
+        f"{t.label(processes > 1)}: {e.dropped:,} `{e.event}` found every instance taken (or the kernel refused the thread);"
+        " raise the spawned thread's count"
+        for t in threads
+        for e in t.events
+        if e.dropped
+    ]
+    out += [f"{spec}: never spawned: no spawn event naming it ran" for spec in never]
+    return out
+
+
 def _overhead(raw: RawCell) -> Overhead:
     """Start of the cell to its first callback, last callback to the workers' exit (ns)."""
     wakes = [t.slot.stats.first_wake_ns for t in raw.threads if t.slot.loops and t.slot.stats.first_wake_ns]
@@ -160,8 +176,15 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     names = {gid: verdict_label(t.planned, raw.processes) for gid, t in enumerate(raw.threads)}
     admission = programs.deadline_admission(scenario, raw.rt_limit_us[0], raw.rt_limit_us[1], len(raw.online_cpus))
     stalls: list[str] = []
+    spawned: dict[str, bool] = {}  # spawned thread, as `process/name`: whether any instance ran
     for t in raw.threads:
         p = t.planned
+        if p.spawned:
+            where = f"{p.process}[{p.instance}]" if raw.processes > 1 else p.process
+            key = f"{where}/{p.spec_name}"
+            spawned[key] = spawned.get(key, False) or bool(t.slot.tid)
+            if not t.slot.tid:  # an instance no spawn event created: nothing ran, nothing to measure
+                continue
         fig = _figures(t, raw.timeline, raw.interrupted, scenario.latency_bound)
         degraded = degradation(p.settings, t.applied, t.errors, admission) if t.ready else []
         events: list[EventResult] = []
@@ -192,15 +215,20 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 samples_lost=t.samples_lost,
                 events=events,
                 phases=phases,
+                spawned=p.spawned,
             )
         )
         measured.append((p, fig))
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
+        mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
         for planned, fig in measured:
             if id(planned) in targets and (is_periodic(planned.work) or not metric_figure(exp.metric).needs_callbacks):
-                result.expectations.append(check(exp, verdict_label(planned, raw.processes), fig))
+                verdict = check(exp, verdict_label(planned, raw.processes), fig)
+                if mark is not None:  # where the expectation is written: CI annotations point there
+                    verdict.line, verdict.col = mark.line, mark.col
+                result.expectations.append(verdict)
     result.thread_table = list(raw.table)
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)
@@ -210,12 +238,16 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     ]
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
     result.overhead_ns = _overhead(raw)
-    result.warnings = warnings(result.threads, raw.processes) + [
-        f"queue {r.name}: {r.dropped:,} resumes were dropped because the thread suspending on it was "
-        f"{QUEUE_DEPTH} activations behind; chain figures cover the activations that ran"
-        for r in raw.resources
-        if r.dropped
-    ]
+    result.warnings = (
+        warnings(result.threads, raw.processes)
+        + [
+            f"queue {r.name}: {r.dropped:,} resumes were dropped because the thread suspending on it was "
+            f"{QUEUE_DEPTH} activations behind; chain figures cover the activations that ran"
+            for r in raw.resources
+            if r.dropped
+        ]
+        + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
+    )
     if stalls:
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")
     result.status, result.reason = status(result, raw, allow_degraded, stalls)

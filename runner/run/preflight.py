@@ -1,8 +1,8 @@
 """Permission checks before anything starts: fail with how to grant the right, or note what degrades.
 
 The kernel is asked, not guessed at: each RT policy or negative nice a cell needs
-is tried on a throwaway thread of the runner, and memory locking is checked
-against CAP_IPC_LOCK and RLIMIT_MEMLOCK.
+is tried on a throwaway thread of the runner, memory locking is checked against
+CAP_IPC_LOCK and RLIMIT_MEMLOCK, and uclamp against the kernel's own knob for it.
 """
 
 from __future__ import annotations
@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
-from runner.scenario.model import Policy, Scenario
+from runner.scenario.model import PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings, plan_scenario
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
 MEMLOCK_NEEDED = 512 << 20  # an mlockall'ed Python worker with its threads' stacks, generously
+UCLAMP_KNOB = "/proc/sys/kernel/sched_util_clamp_min"  # present exactly when the kernel has uclamp (CONFIG_UCLAMP_TASK)
 
 
 @dataclass
@@ -92,12 +93,35 @@ def _try_on_thread(action) -> int:  # type: ignore[no-untyped-def]
     return result[0]
 
 
-def _grant_rt(perm: Permissions, priority: int) -> str:
-    exe = os.path.realpath(sys.executable)
+def runner_command(executable: str, prefix: str, base_prefix: str) -> str:
+    """How to start this runner again as root: `sudo /srv/runner/.venv/bin/runner` from a virtual environment,
+    whose bin folder is not on sudo's PATH (its secure_path), else `sudo runner`."""
+    if prefix != base_prefix:
+        return f"sudo {os.path.join(os.path.dirname(executable), 'runner')}"
+    return "sudo runner"
+
+
+def how_to_grant(user: str, limit: str, value: str, service: str, container: str, sudo: str) -> str:
+    """The ways to grant one right, where a user meets it: a login session (limits.d, read by pam_limits at login),
+    a systemd service (which pam_limits never sees), a container.  README, "Permissions", says more.
+
+    File capabilities on the interpreter are left out on purpose: `setcap` on a shared python3 would give the right
+    to every script it runs.
+    """
     return (
-        f"grant it with one of: run as root (sudo runner ...); add the line '{perm.user}  -  rtprio  {max(priority, 98)}' "
-        f"to /etc/security/limits.conf and log in again; or 'sudo setcap cap_sys_nice+ep {exe}'"
+        f"grant it with one of: run as root ({sudo} ...); add the line '{user}  -  {limit}  {value}' to a file in "
+        f"/etc/security/limits.d/ and log in again; in a systemd service, {service}; in a container, {container} "
+        "(README, Permissions)"
     )
+
+
+def _sudo() -> str:
+    return runner_command(sys.executable, sys.prefix, sys.base_prefix)
+
+
+def _grant_rt(perm: Permissions, priority: int) -> str:
+    value = str(max(priority, 98))
+    return how_to_grant(perm.user, "rtprio", value, f"LimitRTPRIO={value}", f"--cap-add SYS_NICE --ulimit rtprio={value}", _sudo())
 
 
 def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
@@ -116,6 +140,7 @@ class Needs:
     rt: dict[tuple[Policy, int], str] = field(default_factory=dict)  # (policy, priority) -> the first thread asking
     min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
     lock: str | None = None  # a process that locks its memory
+    uclamp: str | None = None  # a thread that asks for util_min / util_max
 
 
 def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, online: set[int]) -> Needs:
@@ -137,7 +162,22 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
             if sched is not None and sched.policy.is_realtime:
                 out.rt.setdefault((sched.policy, sched.rt_priority), where)
         out.lock = out.lock or next((proc.name for proc in sc.processes if proc.memory.lock), None)
+        out.uclamp = out.uclamp or _asks_uclamp(sc)
     return out
+
+
+def _asks_uclamp(sc: Scenario) -> str | None:
+    """The first thread (or phase) whose sched asks for util_min or util_max."""
+    for proc in sc.processes:
+        scheds = [(f"{proc.name}/{proc.main_name}", proc.main.sched)]
+        for spec in proc.threads:
+            scheds.append((f"{proc.name}/{spec.name}", spec.sched))
+            if isinstance(spec.work, PhasesWork):
+                scheds += [(f"{proc.name}/{spec.name} phase {n}", ph.sched) for n, ph in zip(spec.work.phase_names(), spec.work.phases)]
+        for where, sched in scheds:
+            if sched is not None and (sched.util_min is not None or sched.util_max is not None):
+                return where
+    return None
 
 
 def _refuse_cpus(where: str, cpus: tuple[int, ...] | None, online: set[int]) -> None:
@@ -165,16 +205,20 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
         err = _try_on_thread(lambda: os.setpriority(os.PRIO_PROCESS, 0, nice))
         if err:
             missing.append(
-                f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); grant it with one of: "
-                f"sudo; add '{perm.user}  -  nice  {nice}' to /etc/security/limits.conf; or CAP_SYS_NICE"
+                f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); "
+                + how_to_grant(perm.user, "nice", str(nice), f"LimitNICE={nice}", "--cap-add SYS_NICE", _sudo())
             )
+    if wanted.uclamp is not None and not os.path.exists(UCLAMP_KNOB):
+        missing.append(
+            f"{wanted.uclamp} asks for util_min / util_max (uclamp), which this kernel does not have ({UCLAMP_KNOB} is "
+            "absent: it was built without CONFIG_UCLAMP_TASK); remove them, or run on a kernel with uclamp"
+        )
     memlock = perm.rlimit_memlock
     if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
         missing.append(
             f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
-            f"CAP_IPC_LOCK; grant it with one of: sudo; add '{perm.user}  -  memlock  unlimited' to /etc/security/limits.conf; "
-            f"or 'ulimit -l unlimited' in a root shell before starting the runner"
+            "CAP_IPC_LOCK; " + how_to_grant(perm.user, "memlock", "unlimited", "LimitMEMLOCK=infinity", "--ulimit memlock=-1", _sudo())
         )
     return missing
 

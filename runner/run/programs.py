@@ -55,10 +55,12 @@ def _event_result(
         spread_ns=spread(st.histogram, st.mean, st.m2, st.count),
         contended=st.contended,
         holders=[Holder(thread=names.get(gid, f"thread #{gid}"), contentions=n, wait_ns=w) for gid, n, w in st.holders],
+        dropped=st.dropped,
     )
 
 
-def _settings_of(ph: PhaseStats, every: tuple[int, ...]) -> Optional[Settings]:
+def settings_of(ph: PhaseStats, every: tuple[int, ...]) -> Optional[Settings]:
+    """The settings the kernel reported for a thread in a phase record (or a spawned thread's start record)."""
     if not ph.read_back:
         return None
     try:
@@ -81,7 +83,8 @@ def program_results(
     for k, phase in enumerate(work.phases):
         for ev in phase.events:
             st = slot.events[n] if n < len(slot.events) else EventStats()
-            events.append(_event_result(phase_names[k], n, ev.label(), ev.event, ev.resource or ev.cond or ev.timer, st, names))
+            about = ev.resource or ev.cond or ev.timer or ev.thread
+            events.append(_event_result(phase_names[k], n, ev.label(), ev.event, about, st, names))
             if ev.event in _FIGURE_OF:
                 by_figure.setdefault(_FIGURE_OF[ev.event], []).append(st)
             n += 1
@@ -97,7 +100,7 @@ def program_results(
         ph = slot.phases[k] if k < len(slot.phases) else PhaseStats()
         requested = current.with_sched(phase.sched, phase.cpus) if (phase.sched is not None or phase.cpus is not None) else None
         current = requested or current
-        applied = _settings_of(ph, every)
+        applied = settings_of(ph, every)
         degraded = _phase_degraded(requested, applied, ph) if ph.entered else []
         phases.append(
             PhaseResult(

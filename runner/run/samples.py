@@ -31,9 +31,9 @@ _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
 EV_HDR = 192
 PHASE_BYTES = 384
-_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q")
+_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
-assert SAMPLE.size == 64 and _SLOT.size == 456 and _EVENT.size == 144 and _PHASE.size == 360
+assert SAMPLE.size == 64 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
 
 
 @dataclass(frozen=True)
@@ -104,6 +104,7 @@ class EventStats:
     contended: int = 0  # lock: acquisitions that had to wait
     holders: tuple[tuple[int, int, int], ...] = ()  # lock: (gid of the holder, contentions, wait ns) on contention
     other_holders: int = 0
+    dropped: int = 0  # spawn: spawns that found every instance taken, or that the kernel refused
     histogram: Optional[Histogram] = None
 
 
@@ -307,7 +308,7 @@ def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> array[int]:
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
     f = _EVENT.unpack_from(buf, at)
     count, total, low, high, mean, m2, contended = f[:7]
-    gids, counts, waits, other = f[7:11], f[11:15], f[15:19], f[19]
+    gids, counts, waits, other, dropped = f[7:11], f[11:15], f[15:19], f[19], f[20]
     histogram = None
     if count:
         counts_arr = array("Q")
@@ -321,6 +322,7 @@ def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
         contended=contended,
         holders=tuple((g, c, w) for g, c, w in zip(gids, counts, waits) if g >= 0 and c),
         other_holders=other,
+        dropped=dropped,
         histogram=histogram,
     )
 

@@ -33,6 +33,7 @@ from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
+from runner.run.programs import settings_of
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, ResourceState, Timeline
 from runner.scenario import program as programs
 from runner.scenario.loader import ResolvedCell
@@ -114,7 +115,10 @@ _EVENT_TYPES = {
     EventKind.YIELD: _probe.EV_YIELD,
     EventKind.MEM: _probe.EV_MEM,
     EventKind.ALLOC: _probe.EV_ALLOC,
+    EventKind.SPAWN: _probe.EV_SPAWN,
+    EventKind.IORUN: _probe.EV_IORUN,
 }
+IO_CHUNK = 1 << 20  # iorun writes from the thread's buffer in chunks of at most this
 _RESOURCE_KINDS = {
     ResourceKind.MUTEX: _probe.RES_MUTEX,
     ResourceKind.COND: _probe.RES_COND,
@@ -134,8 +138,12 @@ def resource_specs(scenario: Scenario) -> list[tuple[int, int, int, int]]:
     ]
 
 
-def program_tuple(work: PhasesWork, gid: int, scenario: Scenario) -> _probe.Program:
-    """A program as the native core takes it: resources by their index in the scenario's declaration."""
+def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Optional[dict[str, tuple[int, int]]] = None) -> _probe.Program:
+    """A program as the native core takes it: resources by their index in the scenario's declaration.
+
+    `templates` gives, per thread name a spawn event names, the slot of its first instance in the
+    process and how many instances it has (the spawn event's resource and value).
+    """
     index = {name: i for i, name in enumerate(scenario.resources)}
     events: list[tuple[int, int, int, int, int]] = []
     phases: list[tuple[int, int, int, Optional[_probe.PhaseSettings]]] = []
@@ -152,6 +160,8 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario) -> _probe.Prog
                 arg = named.period or 0 if named is not None else e.period or 0
                 overrun = named.overrun if named is not None else (e.overrun or Overrun.SKIP)
                 mode = _OVERRUN[overrun]
+            elif e.event is EventKind.SPAWN:
+                res, arg = (templates or {})[e.thread or ""]
             elif e.resource is not None:
                 res = index[e.resource]
             events.append((_EVENT_TYPES[e.event], res, res2, mode, arg))
@@ -162,6 +172,7 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario) -> _probe.Prog
             settings = (policy, priority, nice, list(phase.cpus) if phase.cpus else None, extra)
         phases.append((phase.loop, first, len(events) - first, settings))
     mem = max((e.size or 0 for _, e in work.events() if e.event is EventKind.MEM), default=0)
+    mem = max([mem] + [min(e.size or 0, IO_CHUNK) for _, e in work.events() if e.event is EventKind.IORUN])
     return (gid, work.delay, work.loop, mem, tuple(phases), tuple(events))
 
 
@@ -313,9 +324,13 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
     mem = proc.memory
     bound = scenario.latency_bound or 0
     by_index = {t.index: t for t in threads}
+    templates: dict[str, tuple[int, int]] = {}
+    for t in threads:
+        if t.spawned and t.spec_name not in templates:
+            templates[t.spec_name] = (t.index, sum(1 for u in threads if u.spec_name == t.spec_name and u.index > 0))
 
     def work(w: Work, index: int) -> _probe.WorkTuple:
-        program = program_tuple(w, gids[id(by_index[index])], scenario) if isinstance(w, PhasesWork) else None
+        program = program_tuple(w, gids[id(by_index[index])], scenario, templates) if isinstance(w, PhasesWork) else None
         return work_tuple(w, bound, scenario.samples, program)
 
     return {
@@ -335,6 +350,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
             {
                 "name": member.name,
                 "explicit": not spec.inherit,
+                "spawned": spec.spawned,
                 "sched": _sched_json(member.sched),
                 "cpus": list(member.cpus) if member.cpus else None,
                 "work": work(member.work, index),
@@ -353,7 +369,8 @@ def _program_sizes(threads: list[PlannedThread]) -> tuple[int, int]:
     works = [t.work for t in threads if isinstance(t.work, PhasesWork)]
     if not works:
         return 0, 0
-    return max(len(w.events()) for w in works) + 1, max(len(w.phases) for w in works)
+    spawned = any(t.spawned for t in threads)  # one more phase record: a spawned thread's settings as it started
+    return max(len(w.events()) for w in works) + 1, max(len(w.phases) for w in works) + spawned
 
 
 def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
@@ -556,6 +573,8 @@ class _CellRun:
         for w in self.workers:
             assert w.ready is not None
             for t, tid in zip(w.planned, w.ready["tids"]):
+                if t.spawned:
+                    continue  # not created yet: it reads its settings back itself when a spawn creates it
                 try:
                     self.applied[id(t)] = kernel.thread_settings(tid, every)
                 except OSError:
@@ -702,12 +721,16 @@ class _CellRun:
             report = _ready_report(w)
             for t, slot in zip(w.planned, slots):
                 errors = report.errors(t.index) if report else ApplyErrors()
+                applied = self.applied.get(id(t))
+                if t.spawned:
+                    errors = ApplyErrors(slot.err_sched, slot.err_nice, slot.err_cpus, errors.memory, slot.err_other)
+                    applied = settings_of(slot.phases[-1], kernel.online_cpus()) if slot.phases else None
                 threads.append(
                     RawThread(
                         t,
                         w.pid if w.popen else 0,
                         slot,
-                        self.applied.get(id(t)),
+                        applied,
                         errors,
                         report is not None,
                         w.written[t.index],

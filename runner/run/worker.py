@@ -9,7 +9,8 @@ Steps, in the order the ros2-realtime-examples take them:
   1. name the process; reset settings if asked (reset-on-fork); default stack size;
   2. main thread settings if applied before_threads;
   3. create the threads in declared order (they inherit per the kernel's rules and
-     apply their own settings);
+     apply their own settings); threads declared `spawned` are only prepared: a spawn
+     event of another thread creates them mid-run;
   4. main thread settings if applied after_threads;
   5. lock memory and preallocate, once every thread exists;
   6. report ready (TIDs, errors) and wait for `go START END`;
@@ -101,7 +102,18 @@ def run(spec: dict[str, Any]) -> int:
         main_errs = _probe.apply(*_sched_args(main))
     for index, thread in enumerate(threads, start=1):
         policy, priority, nice, cpus, extra = _sched_args(thread)
-        group.spawn(index, thread["name"], _program(thread["work"]), policy, priority, nice, cpus, thread.get("explicit", False), extra)
+        group.spawn(
+            index,
+            thread["name"],
+            _program(thread["work"]),
+            policy,
+            priority,
+            nice,
+            cpus,
+            thread.get("explicit", False),
+            extra,
+            thread.get("spawned", False),
+        )
     if main["apply"] == "after_threads":
         main_errs = _probe.apply(*_sched_args(main))
     errors["main"] = dict(zip(("sched", "nice", "cpus"), main_errs))

@@ -9,7 +9,8 @@ Two kinds of limit, kept apart so validation stays testable:
   MemAvailable, the CPUs the runner may use).  `MachineLimits.read()` does the /proc and
   resource I/O; `check()` is pure and takes the limits as an argument, so tests pass fake
   limits (a tiny pid_max) without touching the machine.  Its findings are errors *for this
-  machine* and say so: "on this machine (pid_max 32768)".
+  machine* and say so: "on this machine (pid_max 32768)".  A CPU the machine lacks is marked
+  `elsewhere`: the file is valid, and only a run (or `--list`) on this machine is refused.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ class MachineLimits:
     mem_available: int | None = None  # MemAvailable from /proc/meminfo, bytes
     default_stack: int = 8 << 20  # default thread stack (glibc takes RLIMIT_STACK, 2 MiB if unlimited)
     cpus: tuple[int, ...] | None = None  # CPUs the runner may use (its affinity)
+    online: tuple[int, ...] | None = None  # CPUs this machine has online (/sys/devices/system/cpu/online)
 
     @classmethod
     def read(cls) -> MachineLimits:
@@ -59,6 +61,10 @@ class MachineLimits:
             cpus: tuple[int, ...] | None = tuple(sorted(os.sched_getaffinity(0)))
         except OSError:
             cpus = None
+        try:
+            online: tuple[int, ...] | None = units.parse_cpus(_read("/sys/devices/system/cpu/online"))
+        except units.UnitError:
+            online = None
         return cls(
             pid_max=_read_int("/proc/sys/kernel/pid_max"),
             threads_max=_read_int("/proc/sys/kernel/threads-max"),
@@ -70,6 +76,7 @@ class MachineLimits:
             mem_available=_meminfo("MemAvailable"),
             default_stack=stack if stack is not None and stack > 0 else 2 << 20,
             cpus=cpus,
+            online=online,
         )
 
 
@@ -79,6 +86,7 @@ class Finding:
 
     path: Path
     message: str
+    elsewhere: bool = False  # the file is fine on a machine that has it (a CPU this one lacks): `runner validate` warns
 
 
 @dataclass
@@ -206,11 +214,22 @@ def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
         wanted.append((("processes", i, "main", "cpus"), proc.main.cpus))
         wanted.extend((("processes", i, "threads", j, "cpus"), t.cpus) for j, t in enumerate(proc.threads))
     wanted.extend((("background", "hogs", h, "cpus"), hog.cpus) for h, hog in enumerate(scenario.background.hogs))
+    online = set(limits.online) if limits.online else None
     for path, cpus in wanted:
-        if cpus is not None and not set(cpus) <= allowed:
-            missing = sorted(set(cpus) - allowed)
-            noun = f"CPU {missing[0]} is" if len(missing) == 1 else f"CPUs {units.format_cpus(missing)} are"
-            out.append(Finding(path, f"{noun} not available on this machine (the runner may use {units.format_cpus(limits.cpus)})"))
+        if cpus is None or set(cpus) <= allowed:
+            continue
+        absent = sorted(set(cpus) - online) if online is not None else []
+        outside = sorted(set(cpus) - allowed)
+        if absent:
+            noun = f"CPU {absent[0]} does" if len(absent) == 1 else f"CPUs {units.format_cpus(absent)} do"
+            text = f"{noun} not exist on this machine (CPUs {units.format_cpus(sorted(online or ()))})"
+        elif online is not None:
+            noun = f"CPU {outside[0]} is" if len(outside) == 1 else f"CPUs {units.format_cpus(outside)} are"
+            text = f"{noun} outside the CPUs the runner may use ({units.format_cpus(limits.cpus)}: it runs under taskset or in a cpuset)"
+        else:  # which CPUs are online is not known: say what the runner may use
+            noun = f"CPU {outside[0]} is" if len(outside) == 1 else f"CPUs {units.format_cpus(outside)} are"
+            text = f"{noun} not available on this machine (the runner may use {units.format_cpus(limits.cpus)})"
+        out.append(Finding(path, text, elsewhere=True))
     return out
 
 

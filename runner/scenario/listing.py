@@ -149,7 +149,7 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
                     t.settings.label(),
                     t.settings.nice,
                     t.settings.cpus_label(online),
-                    t.origin,
+                    f"spawned, {t.origin}" if t.spawned else t.origin,
                     describe_work(t.work),
                 ]
             )

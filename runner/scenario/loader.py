@@ -29,17 +29,22 @@ from runner.scenario import program, rtapp
 from runner.scenario.model import CPUS_CONTEXT, Expectation, PhasesWork, ProcessSpec, Resource, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from, written_path
-from runner.scenario.yamlsource import Document, load_file, load_text
+from runner.scenario.yamlsource import Document, Mark, load_file, load_text
 
 
 @dataclass(frozen=True)
 class ResolvedCell:
-    """One cell: matrix values, the validated scenario, and a hash of its resolved spec."""
+    """One cell: matrix values, the validated scenario, and a hash of its resolved spec.
+
+    `expect_marks` are where each of the scenario's `expect:` items is written (the same list in
+    every cell), so a verdict can point at its line: CI annotations and the results document.
+    """
 
     id: str
     matrix: dict[str, mx.MatrixValue]
     scenario: Scenario
     spec_hash: str
+    expect_marks: tuple[Mark, ...] = ()
 
 
 @dataclass
@@ -88,12 +93,16 @@ class MatrixIndex:
         return cls(sorted(values), values)
 
 
-def load_scenario(path: str, machine: lim.MachineLimits | None = None) -> LoadedScenario:
+def load_scenario(path: str, machine: lim.MachineLimits | None = None, for_run: bool = True) -> LoadedScenario:
     """Read, validate and expand a scenario file, checked against this machine's limits
-    (read here unless given); raise ScenarioError with all problems."""
+    (read here unless given); raise ScenarioError with all problems.
+
+    `for_run` False (`runner validate`) makes what only this machine lacks (a CPU) a warning:
+    the file is valid, it would run on a machine that has it.
+    """
     notes: list[str] = []
     doc = _rtapp_document(path, notes) if path.endswith(".json") else load_file(path)
-    loaded = parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read())
+    loaded = parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read(), for_run)
     loaded.warnings[:0] = [Problem(path, 1, 1, "", note) for note in notes]
     return loaded
 
@@ -116,8 +125,9 @@ def _rtapp_document(path: str, notes: list[str]) -> Document:
     return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")
 
 
-def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> LoadedScenario:
-    """Validate and expand an already loaded document (pure); `machine` adds that machine's limits."""
+def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_run: bool = True) -> LoadedScenario:
+    """Validate and expand an already loaded document (pure); `machine` adds that machine's limits
+    (what it lacks is a warning unless `for_run`, see load_scenario)."""
     data = doc.data
     if not isinstance(data, dict):
         raise ScenarioError([doc.problem((), f"expected a scenario mapping (name, processes, ...), got {type(data).__name__}")])
@@ -131,6 +141,8 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> L
 
     default_name = os.path.splitext(os.path.basename(doc.file))[0]
     index = MatrixIndex.of(cells)
+    written = data.get("expect")
+    marks = tuple(doc.mark(("expect", i)) for i in range(len(written))) if isinstance(written, list) else ()
     found: dict[Problem, list[str]] = {}
     resolved: list[ResolvedCell] = []
     checked: dict[str, tuple[Scenario | None, list[Problem], str]] = {}
@@ -139,24 +151,25 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None) -> L
         raw.setdefault("name", default_name)
         key = json.dumps(raw, sort_keys=True)
         if key not in checked:  # cells that resolve alike (an axis only selectors use) are checked once
-            checked[key] = _check_cell(doc, raw, index, machine)
+            checked[key] = _check_cell(doc, raw, index, machine, for_run)
         scenario, cell_problems, digest = checked[key]
-        if scenario is not None and not cell_problems:
-            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest))
+        if scenario is not None and not any(p.severity == "error" for p in cell_problems):
+            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest, marks))
         for problem in cell_problems:
             found.setdefault(problem, []).append(cell.id)
 
     for problem, where in found.items():
         if len(cells) > 1 and len(where) < len(cells):
-            problem = Problem(problem.file, problem.line, problem.col, problem.path, problem.message + _cells_note(where, len(cells)))
-        problems.append(problem)
+            note = _cells_note(where, len(cells))
+            problem = Problem(problem.file, problem.line, problem.col, problem.path, problem.message + note, problem.severity)
+        (problems if problem.severity == "error" else warnings).append(problem)
     if problems:
         raise ScenarioError(problems + warnings)
     return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
 
 
 def _check_cell(
-    doc: Document, raw: dict[str, Any], index: MatrixIndex, machine: lim.MachineLimits | None
+    doc: Document, raw: dict[str, Any], index: MatrixIndex, machine: lim.MachineLimits | None, for_run: bool = True
 ) -> tuple[Scenario | None, list[Problem], str]:
     """Validate one resolved cell: the model, cross-field checks, ceilings and (if given) this machine's limits."""
     cell_problems: list[Problem] = []
@@ -171,7 +184,10 @@ def _check_cell(
         return None, cell_problems, ""
     cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index, scenario.resources))
     findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
-    cell_problems.extend(doc.problem(f.path, f.message) for f in findings)
+    for f in findings:
+        warn = f.elsewhere and not for_run
+        message = f.message + ("; the file is valid, but it cannot run here" if warn else "")
+        cell_problems.append(doc.problem(f.path, message, severity="warning" if warn else "error"))
     return scenario, cell_problems, spec_hash(scenario)
 
 
@@ -220,6 +236,7 @@ def _cross_checks(
     if resources is not None:
         out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.reference_problems(processes, resources))
     out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
+    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.spawn_problems(processes))
     seen: set[str] = set()
     for i, proc in enumerate(processes):
         if proc.name in seen:

@@ -134,16 +134,26 @@ def _no_control(what: str, allowed: str = "") -> Any:
     return check
 
 
-_DURATION_SCHEMA = {"type": "string", "pattern": r"^[0-9.]+\s*(ns|us|µs|ms|s|m|h)$", "examples": ["100ms", "40ms", "1.5s"]}
-_SIZE_SCHEMA = {"type": "string", "pattern": r"^[0-9.]+\s*(B|KiB|MiB|GiB|TiB)$", "examples": ["50MiB", "200KiB"]}
+_DURATION_STRING = {"type": "string", "pattern": units.DURATION_PATTERN}
+_DURATION_SCHEMA = {"anyOf": [_DURATION_STRING, {"const": 0}], "examples": ["100ms", "40ms", "1.5s"]}
+_SIZE_SCHEMA = {"type": "string", "pattern": units.SIZE_PATTERN, "examples": ["50MiB", "200KiB"]}
 _CPUS_SCHEMA = {
     "anyOf": [
-        {"type": "array", "items": {"type": "integer", "minimum": 0}, "minItems": 1},
-        {"type": "integer", "minimum": 0},
-        {"type": "string", "pattern": r"^(\d+(-\d+)?(,\d+(-\d+)?)*|0[bB][01_]+|0[xX][0-9a-fA-F_]+)$"},
+        {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": units.MAX_CPUS - 1}, "minItems": 1},
+        {"type": "integer", "minimum": 0, "maximum": units.MAX_CPUS - 1},
+        {"type": "string", "pattern": units.CPUS_PATTERN},
     ],
-    "examples": ["0-1", [1], "0b10"],
+    "examples": ["0-1", [1], "0b10", "0-7:2", "all"],
 }
+
+
+def _cpus(value: Any, info: ValidationInfo) -> Any:
+    """A CPU set as written; `all` is every CPU the runner may use (the validation context's, see context_cpus)."""
+    try:
+        return units.parse_cpus(value, context_cpus(info))
+    except units.UnitError as exc:
+        raise ValueError(str(exc)) from None
+
 
 Duration = Annotated[
     int,
@@ -163,11 +173,11 @@ Size = Annotated[
 
 CpuSet = Annotated[
     tuple[int, ...],
-    BeforeValidator(_unit(units.parse_cpus)),
+    BeforeValidator(_cpus),
     PlainSerializer(units.format_cpus, return_type=str),
     WithJsonSchema(_CPUS_SCHEMA),
 ]
-"""A set of CPU numbers, written as a list, `0-1,3` or a mask `0b1100`."""
+"""A set of CPU numbers, written as a list, a cpulist `0-1,3` / `0-7:2` / `all`, or a mask `0b1100`."""
 
 
 class Strict(BaseModel):
@@ -203,37 +213,126 @@ class Policy(str, enum.Enum):
 
 
 POLICY_WORDS = ["other", "fifo", "rr", "batch", "idle", "deadline"]
+_POLICY_ALIASES = {"normal": "other"}  # SCHED_NORMAL is the kernel's name for SCHED_OTHER
+_RTLA_LETTERS = {"f": "fifo", "r": "rr", "o": "other", "d": "deadline"}
+"""rtla's -P forms (`f:80`, `r:40`, `o:NICE`, `d:RUNTIME:PERIOD`, any case): the letter takes its colon and value."""
+SCHED_FORMS = (
+    "other, batch, idle, fifo:1..99, rr:1..99, deadline:RUNTIME[/DEADLINE[/PERIOD]] (any case, SCHED_ prefix allowed), "
+    "rtla's f:80, r:40, o:NICE, d:RUNTIME:PERIOD, or a mapping {policy: other, nice: -5}"
+)
+_PRIORITY_DIGITS = 9  # more digits than any priority or nice value: refused before int() (4300 digits would raise)
+
+
+def _anycase(word: str) -> str:
+    """`fifo` -> `[fF][iI][fF][oO]`: case-insensitive without an inline flag, which JavaScript's RegExp refuses."""
+    return "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else re.escape(c) for c in word)
+
+
+def _policy_words(*names: str) -> str:
+    """A pattern (unanchored) for the policy words `names` in any case, with or without SCHED_."""
+    return f"(?:{_anycase('sched_')})?(?:" + "|".join(_anycase(n) for n in names) + ")"
+
+
+def policy_pattern(*names: str) -> str:
+    """The anchored pattern of the policy words `names` as a mapping's `policy:` may write them (SCHED_FIFO, Fifo, normal)."""
+    return f"^{_policy_words(*names)}$"
+
+
+def _sched_patterns() -> tuple[str, str]:
+    """The sched text forms and policy words as patterns valid in Python and JavaScript: (written form, policy word).
+
+    The written form is as strict as a pattern can be: fifo and rr with 1..99, other, batch and idle with
+    nothing or 0, rtla's o: with a nice value -20..19, deadline with one to three durations.  What needs
+    arithmetic (runtime <= deadline <= period, the 1.024us minimum) is left to the model.
+    """
+    words = _policy_words
+    duration = units.DURATION_PATTERN[1:-1]
+    rt_priority = "0*[1-9][0-9]?"
+    nice = "(?:-?0*1?[0-9]|-0*20)"
+    rtla_ns = f"(?:[0-9]+|{duration})"  # rtla reads a bare number as nanoseconds
+    written = "|".join(
+        (
+            f"(?:{words('fifo', 'rr')}|[fFrR]):{rt_priority}",
+            f"{words('other', 'normal', 'batch', 'idle')}(?::-?0+)?",
+            f"[oO]:{nice}",
+            f"{words('deadline')}:{duration}(?:/{duration}){{0,2}}",
+            f"[dD]:{rtla_ns}:{rtla_ns}",
+        )
+    )
+    return f"^(?:{written})$", policy_pattern(*POLICY_WORDS, *_POLICY_ALIASES)
+
+
+SCHED_PATTERN, POLICY_PATTERN = _sched_patterns()
 
 
 def _policy_name(text: str) -> str:
     word = text.strip().lower()
     if word.startswith("sched_"):
         word = word[len("sched_") :]
-    if word == "normal":
-        word = "other"
-    return word
+    return _POLICY_ALIASES.get(word, word)
+
+
+def _sched_text(value: str) -> dict[str, Any]:
+    """`fifo:80`, `SCHED_RR:40`, `normal`, `f:80`, `o:-5`, `deadline:2ms/8ms/10ms`, `d:2ms:10ms` as the mapping form."""
+    match = re.fullmatch(r"([A-Za-z_]+)(?::(.*))?", value, re.DOTALL)
+    word = match.group(1).lower() if match else ""
+    arg = match.group(2) if match else None
+    rtla = word in _RTLA_LETTERS
+    policy = _RTLA_LETTERS[word] if rtla else _policy_name(word)
+    if rtla and arg is None:
+        raise ValueError(f"{value!r}: rtla's one-letter forms take a value: f:80, r:40, o:0 (a nice value), d:2ms:10ms")
+    if policy not in POLICY_WORDS:
+        shown = word or value
+        raise ValueError(f"{shown!r} is not a policy{did_you_mean(shown, POLICY_WORDS)}; expected {SCHED_FORMS}")
+    out: dict[str, Any] = {"policy": policy}
+    if arg is None:
+        return out
+    if policy == "deadline":
+        parts = arg.split(":" if rtla else "/")
+        if rtla:  # rtla's d:RUNTIME:PERIOD, a bare number in ns; the deadline is the period
+            if len(parts) != 2:
+                raise ValueError(f"{value!r}: write d:RUNTIME:PERIOD as rtla does, e.g. 'd:2ms:10ms'")
+            runtime, period = (p + "ns" if p.strip().isdigit() else p for p in parts)
+            return {**out, "runtime": runtime, "deadline": period, "period": period}
+        if len(parts) > 3:
+            raise ValueError(f"{value!r}: write deadline:RUNTIME/DEADLINE/PERIOD, e.g. 'deadline:2ms/8ms/10ms'")
+        out.update(zip(("runtime", "deadline", "period"), parts))
+        return out
+    number = arg
+    if not re.fullmatch(r"-?[0-9]+", number):
+        raise ValueError(f"priority {arg!r} in {value!r} is not an integer; write e.g. 'fifo:80'")
+    if len(number.lstrip("-0")) > _PRIORITY_DIGITS:
+        raise ValueError(f"{number[:12]}… in {value!r} is far out of range; priorities are 1..99, nice values -20..19")
+    if rtla and policy == "other":  # rtla's o:N is SCHED_OTHER at nice N
+        if not -20 <= int(number) <= 19:
+            raise ValueError(f"{value!r}: rtla's o: takes a nice value -20..19, e.g. 'o:-5'")
+        return {**out, "nice": int(number)}
+    out["priority"] = int(number)
+    return out
 
 
 def _sched_shorthand(value: Any) -> Any:
-    """Accept `fifo`, `FIFO`, `SCHED_FIFO`, `fifo:80` and `deadline:2ms/8ms/10ms` as well as the mapping form."""
+    """Accept the text forms (see _sched_text) as well as the mapping form, whose policy may be `SCHED_FIFO` or `normal`."""
     if isinstance(value, str):
-        policy, sep, priority = value.partition(":")
-        out: dict[str, Any] = {"policy": _policy_name(policy)}
-        if sep and out["policy"] == "deadline":  # deadline:RUNTIME[/DEADLINE[/PERIOD]], as a matrix value can say it
-            parts = priority.split("/")
-            if len(parts) > 3:
-                raise ValueError(f"{value!r}: write deadline:RUNTIME/DEADLINE/PERIOD, e.g. 'deadline:2ms/8ms/10ms'")
-            out.update(zip(("runtime", "deadline", "period"), (p.strip() for p in parts)))
-            return out
-        if sep:
-            try:
-                out["priority"] = int(priority)
-            except ValueError:
-                raise ValueError(f"priority {priority!r} in {value!r} is not an integer; write e.g. 'fifo:80'") from None
-        return out
+        return _sched_text(value)
     if isinstance(value, dict) and isinstance(value.get("policy"), str):
         return {**value, "policy": _policy_name(value["policy"])}
     return value
+
+
+def _not_an_rt_policy(policy: Policy, priority: int) -> str:
+    """Why `other:80`, `other:-5` or `idle:3` is refused, and what was probably meant (fifo:N, or nice N)."""
+    niceable = policy in (Policy.OTHER, Policy.BATCH) and -20 <= priority <= 19
+    nice = f"{{policy: {policy.value}, nice: {priority}}}" + (f" (rtla: o:{priority})" if policy is Policy.OTHER else "")
+    if 1 <= priority <= 99:
+        text = f"an RT priority ({priority}) needs a real-time policy; use fifo:{priority} or rr:{priority}"
+        if policy is Policy.IDLE:
+            return text + "; idle takes neither a priority nor a nice value"
+        return text + (f", or for nice {priority} write {nice}" if niceable else f", or a nice value for {policy.value}")
+    if niceable:
+        return f"priority {priority} is not for {policy.value}, which takes a nice value instead: write {nice}"
+    takes = "a nice value -20..19" if policy in (Policy.OTHER, Policy.BATCH) else "neither a priority nor a nice value"
+    return f"priority {priority} is not for {policy.value}, which takes {takes}; RT priorities 1..99 are for fifo and rr"
 
 
 class Sched(Strict):
@@ -280,20 +379,19 @@ class Sched(Strict):
                 raise ValueError(f"priority {self.priority} is out of range for {policy.value}; expected 1..99")
             if self.nice is not None:
                 raise ValueError(f"nice does not apply to {policy.value}; nice is for other and batch")
-        else:
-            if self.priority not in (None, 0):
-                raise ValueError(
-                    f"an RT priority ({self.priority}) needs a real-time policy; use fifo:{self.priority} or "
-                    f"rr:{self.priority}, or a nice value for {policy.value}"
-                )
-            if policy is Policy.IDLE and self.nice not in (None, 0):
-                raise ValueError("policy idle takes no nice value")
+        elif self.priority not in (None, 0):
+            raise ValueError(_not_an_rt_policy(policy, self.priority))
+        elif policy is Policy.IDLE and self.nice not in (None, 0):
+            raise ValueError("policy idle takes no nice value")
         return self
 
     def _deadline_consistent(self) -> Sched:
         """SCHED_DEADLINE: runtime <= deadline <= period, defaults as rt-app (period = runtime, deadline = period)."""
         if self.runtime is None:
-            raise ValueError("policy deadline needs a runtime, e.g. {policy: deadline, runtime: 2ms, period: 10ms}")
+            raise ValueError(
+                "policy deadline needs a runtime: write deadline:RUNTIME[/DEADLINE[/PERIOD]] such as 'deadline:2ms/8ms/10ms', "
+                "rtla's 'd:2ms:10ms', or {policy: deadline, runtime: 2ms, period: 10ms}"
+            )
         if self.priority not in (None, 0) or self.nice not in (None, 0):
             raise ValueError("policy deadline takes runtime, deadline and period, not a priority or nice value")
         period = self.period if self.period is not None else (self.deadline if self.deadline is not None else self.runtime)
@@ -419,6 +517,8 @@ class EventKind(str, enum.Enum):
     YIELD = "yield"
     MEM = "mem"  # write N bytes of a per-thread buffer
     ALLOC = "alloc"  # malloc, touch every page, free
+    SPAWN = "spawn"  # create a thread of this process declared `spawned: true` (rt-app's fork)
+    IORUN = "iorun"  # write N bytes to /dev/null (rt-app's iorun on its default io_device)
 
     @property
     def takes(self) -> str:
@@ -472,6 +572,8 @@ _EVENT_TAKES = {
     EventKind.YIELD: "nothing",
     EventKind.MEM: "size",
     EventKind.ALLOC: "size",
+    EventKind.SPAWN: "thread",
+    EventKind.IORUN: "size",
 }
 _EVENT_RESOURCE = {
     EventKind.LOCK: ResourceKind.MUTEX,
@@ -490,6 +592,7 @@ _EVENT_EXAMPLES = {
     "resource": "{lock: name}",
     "wait": "{wait: {cond: name, mutex: name}}",
     "timer": "{timer: {period: 1ms}} or {timer: name}",
+    "thread": "{spawn: worker}",
     "nothing": "yield",
 }
 
@@ -526,6 +629,8 @@ def _event_shorthand(value: Any) -> Any:
         return {"event": word, **arg}
     if takes == "timer":
         return {"event": word, **arg} if isinstance(arg, dict) else {"event": word, "timer": arg}
+    if takes == "thread":
+        return {"event": word, "thread": arg}
     return {"event": word, takes: arg}
 
 
@@ -544,7 +649,8 @@ def _event_schema() -> dict[str, Any]:
         ]
     }
     wait = {"type": "object", "properties": {"cond": name, "mutex": name}, "required": ["cond", "mutex"], "additionalProperties": False}
-    by_takes = {"duration": _DURATION_SCHEMA, "size": _SIZE_SCHEMA, "resource": name, "timer": timer, "wait": wait}
+    thread = {"type": "string", "description": "a thread of the same process declared with spawned: true"}
+    by_takes = {"duration": _DURATION_SCHEMA, "size": _SIZE_SCHEMA, "resource": name, "timer": timer, "wait": wait, "thread": thread}
     words = [k.value for k in EventKind if k.takes == "nothing"]
     properties = {k.value: by_takes[k.takes] for k in EventKind if k.takes != "nothing"}
     properties.update({alias: properties[target] for alias, target in _EVENT_ALIASES.items()})
@@ -578,6 +684,7 @@ class Event(Strict):
     timer: Optional[str] = Field(None, description="a named timer of resources")
     period: Optional[Duration] = None
     overrun: Optional[Overrun] = None
+    thread: Optional[str] = Field(None, description="spawn: a thread of the same process declared with spawned: true")
 
     @model_validator(mode="before")
     @classmethod
@@ -599,11 +706,13 @@ class Event(Strict):
                 )
         elif self.overrun is not None or self.period is not None or self.timer is not None:
             raise ValueError("period, overrun and timer belong to timer events")
+        if (kind is EventKind.SPAWN) != (self.thread is not None):
+            raise ValueError(f"thread belongs to spawn events, and a spawn names its thread, e.g. {_EVENT_EXAMPLES['thread']}")
         if kind in (EventKind.RUN, EventKind.RUNTIME, EventKind.SLEEP) and self.duration is not None and self.duration > MAX_PERIOD:
             raise ValueError(
                 f"{kind.value} {units.format_duration(self.duration)} is too long; at most {units.format_duration(MAX_PERIOD)}"
             )
-        if kind is EventKind.MEM and self.size is not None and self.size > MAX_MEM_EVENT:
+        if kind in (EventKind.MEM, EventKind.IORUN) and self.size is not None and self.size > MAX_MEM_EVENT:
             raise ValueError(f"mem {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
         return self
 
@@ -627,6 +736,8 @@ class Event(Strict):
             return {kind.value: units.format_duration(self.duration or 0)}
         if takes == "size":
             return {kind.value: units.format_size(self.size or 0)}
+        if takes == "thread":
+            return {kind.value: self.thread}
         return {kind.value: self.resource}
 
     def names(self) -> list[tuple[str, ResourceKind]]:
@@ -650,6 +761,8 @@ class Event(Strict):
             return f"{kind.value} {units.format_duration(self.duration)}"
         if self.size is not None:
             return f"{kind.value} {units.format_size(self.size)}"
+        if self.thread is not None:
+            return f"{kind.value} {self.thread}"
         return f"{kind.value} {self.resource}" if self.resource else kind.value
 
 
@@ -874,6 +987,11 @@ class ThreadSpec(Strict):
         False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
     )
     distance: Duration = Field(0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
+    spawned: bool = Field(
+        False,
+        description="created mid-run by a spawn event of another thread of this process (rt-app's fork), not at the start; "
+        "count is how many can be spawned (a spawn beyond it is counted as dropped); needs kind: phases work",
+    )
 
     _per_cpu: bool = PrivateAttr(False)
     _machine_cpus: Optional[tuple[int, ...]] = PrivateAttr(None)
@@ -896,7 +1014,7 @@ class ThreadSpec(Strict):
             chosen = machine = context_cpus(info)
             if value.get("cpus") is not None:
                 try:
-                    chosen, machine = units.parse_cpus(value["cpus"]), None
+                    chosen, machine = units.parse_cpus(value["cpus"], machine), None
                 except units.UnitError:
                     pass  # the cpus key reports its own problem; count it as the machine's CPUs meanwhile
             elif pinned:
@@ -913,7 +1031,7 @@ class ThreadSpec(Strict):
         """Leave pin, priospread and distance out while unused, so a cell's spec (and the hash results store
         and `compare` / `--resume` check) reads as it did before they existed: old baselines still compare."""
         data: dict[str, Any] = handler(self)
-        for key, unused in (("pin", None), ("priospread", False), ("distance", 0)):
+        for key, unused in (("pin", None), ("priospread", False), ("distance", 0), ("spawned", False)):
             if getattr(self, key) == unused:
                 data.pop(key, None)
         return data
@@ -962,6 +1080,12 @@ class ThreadSpec(Strict):
                     f"distance {units.format_duration(self.distance)} gives thread {self.names()[-1]} a period of "
                     f"{units.format_duration(longest)}; at most {units.format_duration(MAX_PERIOD)}, lower distance or count",
                 )
+        if self.spawned and not isinstance(self.work, PhasesWork):
+            raise KeyProblem(
+                "spawned",
+                f"a spawned thread runs a program from the moment it is spawned, but this thread's work is {self.work.kind}; "
+                "use kind: phases (its events run once per loop, then the thread ends)",
+            )
 
     @property
     def per_cpu(self) -> bool:
@@ -1159,7 +1283,13 @@ def _limit(value: Any) -> Any:
     return value
 
 
-Limit = Annotated[float, BeforeValidator(_limit), WithJsonSchema({"anyOf": [{"type": "number"}, _DURATION_SCHEMA]})]
+_LIMIT_SCHEMA = {
+    "anyOf": [
+        {"type": "number", "minimum": -1.7976931348623157e308, "maximum": 1.7976931348623157e308},  # finite: .inf is refused
+        {"type": "string", "pattern": units.DURATION_PATTERN.replace("^", "^\\s*[-\u2212]?", 1)},  # -2ms for slack
+    ]
+}
+Limit = Annotated[float, BeforeValidator(_limit), WithJsonSchema(_LIMIT_SCHEMA)]
 MatrixValue = Union[str, int, float, bool]
 
 

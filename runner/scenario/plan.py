@@ -10,6 +10,7 @@ returns the settings each thread is expected to hold.  The runner records this a
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Annotated, Any, Optional
 
@@ -17,6 +18,7 @@ from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from runner import units
 from runner.scenario.model import ApplyWhen, EventKind, PeriodicWork, PhasesWork, Policy, ProcessSpec, Resource, Scenario, Sched, Work
+from runner.scenario.program import SpawnSite, spawn_sites
 
 
 def _cpus_in(value: Any) -> Any:
@@ -94,6 +96,7 @@ class PlannedThread:
     settings: Settings
     origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
     period: Optional[int] = None  # the period of its callbacks (periodic work, or a program's timer); None without
+    spawned: bool = False  # created mid-run by a spawn event of another thread, not at the start
 
 
 def work_period(work: Work, resources: Optional[dict[str, Resource]] = None) -> Optional[int]:
@@ -115,16 +118,45 @@ def plan_process(
     main_period = work_period(proc.main.work, resources)
     out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main", main_period)]
     index = 1
-    for spec in proc.threads:
+    sites = spawn_sites(proc, 0)
+    memo: dict[int, Settings] = {}
+
+    def spec_settings(j: int, seen: frozenset[int] = frozenset()) -> Settings:
+        """What the first thread of spec j holds once it applied its own settings (spawned ones: from their spawner)."""
+        if j not in memo:
+            spec = proc.threads[j]
+            initial = creator
+            if spec.spawned:
+                site = next((x for x in sites.get(spec.name, []) if x.spawner not in seen | {j}), None)
+                initial = _at_site(proc, site, main_final, lambda k: spec_settings(k, seen | {j})) if site else creator
+            member = spec.members()[0]
+            memo[j] = (initial if spec.inherit else EXPLICIT_DEFAULTS).with_sched(member.sched, member.cpus)
+        return memo[j]
+
+    for j, spec in enumerate(proc.threads):
         initial = creator if spec.inherit else EXPLICIT_DEFAULTS
+        if spec.spawned and spec.inherit:
+            site = next((x for x in sites.get(spec.name, []) if x.spawner != j), None)
+            initial = _at_site(proc, site, main_final, spec_settings) if site else creator
         own = spec.sched is not None or spec.cpus is not None
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
         for member in spec.members():  # each its own CPU, priority and period when the spec spreads them
             final = initial.with_sched(member.sched, member.cpus)
             period = work_period(member.work, resources)
-            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin, period))
+            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin, period, spec.spawned))
             index += 1
     return out
+
+
+def _at_site(proc: ProcessSpec, site: SpawnSite, main: Settings, settings_of: Callable[[int], Settings]) -> Settings:
+    """The settings a spawner holds when it reaches a spawn: its own, then its phases' up to the spawn's."""
+    current = main if site.spawner is None else settings_of(site.spawner)
+    work = proc.main.work if site.spawner is None else proc.threads[site.spawner].work
+    if isinstance(work, PhasesWork):
+        for phase in work.phases[: site.phase + 1]:
+            if phase.sched is not None or phase.cpus is not None:
+                current = current.with_sched(phase.sched, phase.cpus)
+    return current
 
 
 def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:

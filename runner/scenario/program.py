@@ -4,15 +4,17 @@ Pure.  The models check each thread's program on its own (events complete, locks
 balanced within a phase); what needs the whole scenario is here: every name an
 event uses is declared in `resources` with the right kind, a barrier has the two
 or more parties it counts, every queue a thread suspends on is resumed by some
-thread, every condition waited on is signalled, and SCHED_DEADLINE threads keep
-the kernel's rules (no affinity subset, no thread creation).  The loader turns
-the findings into located problems, all at once.
+thread, every condition waited on is signalled, every spawn names a thread of its
+process declared `spawned: true` that some thread started at the start can reach,
+and SCHED_DEADLINE threads keep the kernel's rules (no affinity subset, no thread
+creation).  The loader turns the findings into located problems, all at once.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Union
+from dataclasses import dataclass
+from typing import Optional, Union
 
 from runner.errors import did_you_mean
 from runner.scenario.model import (
@@ -110,3 +112,99 @@ def deadline_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
                     if deadline_phase and phase.cpus is not None:  # the thread turns deadline in some phase
                         out.append((("processes", i, "threads", j, "work", "phases", k, "cpus"), why_cpus))
     return out
+
+
+@dataclass(frozen=True)
+class SpawnSite:
+    """Where a spawn event stands: the spawning thread spec (None: the main thread), its phase, the event's path."""
+
+    spawner: Optional[int]  # index in the process's threads; None for the main thread
+    phase: int
+    path: Path
+
+
+def spawn_sites(proc: ProcessSpec, i: int) -> dict[str, list[SpawnSite]]:
+    """The spawn events of one process (index i in the scenario), by the thread name they spawn."""
+    out: dict[str, list[SpawnSite]] = {}
+    works: list[tuple[Optional[int], Path, object]] = [(None, ("processes", i, "main", "work"), proc.main.work)]
+    works += [(j, ("processes", i, "threads", j, "work"), spec.work) for j, spec in enumerate(proc.threads)]
+    for spawner, path, work in works:
+        if not isinstance(work, PhasesWork):
+            continue
+        for k, phase in enumerate(work.phases):
+            for e, event in enumerate(phase.events):
+                if event.event is EventKind.SPAWN:
+                    site = SpawnSite(spawner, k, path + ("phases", k, "events", e))
+                    out.setdefault(event.thread or "", []).append(site)
+    return out
+
+
+def spawn_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
+    """Spawns that name no spawnable thread of their process, spawned threads nothing starts, and deadline spawners."""
+    out: list[tuple[Path, str]] = []
+    for i, proc in enumerate(processes):
+        sites = spawn_sites(proc, i)
+        specs = {spec.name: (j, spec) for j, spec in enumerate(proc.threads)}
+        for name, found in sites.items():
+            if name not in specs:
+                hint = did_you_mean(name, sorted(specs)) or ""
+                for site in found:
+                    out.append((site.path, f"spawn names {name!r}, which is not a thread of process {proc.name!r}{hint}"))
+            elif not specs[name][1].spawned:
+                for site in found:
+                    out.append(
+                        (site.path, f"thread {name!r} is created at the start; declare it spawned: true to have spawn events create it")
+                    )
+        reached = _reachable(proc, sites)
+        for j, spec in enumerate(proc.threads):
+            if not spec.spawned:
+                continue
+            where = ("processes", i, "threads", j, "spawned")
+            if spec.name not in sites:
+                out.append((where, f"thread {spec.name!r} is spawned: true but no spawn event of process {proc.name!r} names it"))
+            elif j not in reached:
+                out.append((where, f"thread {spec.name!r} is spawned only by spawned threads that nothing started creates"))
+            elif spec.inherit and (spec.sched is None or spec.cpus is None):
+                origins = {(site.spawner, site.phase) for site in sites[spec.name]}
+                if len(origins) > 1:
+                    out.append(
+                        (
+                            where,
+                            f"thread {spec.name!r} inherits its settings from whoever spawns it, and it is spawned from "
+                            f"{len(origins)} places whose settings may differ; give it its own sched and cpus, or inherit: false",
+                        )
+                    )
+        for found in sites.values():
+            for site in found:
+                sched = _spawner_sched(proc, site)
+                if sched is not None and sched.policy is Policy.DEADLINE:
+                    out.append((site.path, "a SCHED_DEADLINE thread cannot create threads (the kernel refuses the clone)"))
+    return out
+
+
+def _reachable(proc: ProcessSpec, sites: dict[str, list[SpawnSite]]) -> set[int]:
+    """Indexes of spawned thread specs that a chain of spawns from a thread started at the start reaches."""
+    index = {spec.name: j for j, spec in enumerate(proc.threads)}
+    reached: set[int] = set()
+    grew = True
+    while grew:
+        grew = False
+        for name, found in sites.items():
+            j = index.get(name)
+            if j is None or j in reached or not proc.threads[j].spawned:
+                continue
+            if any(s.spawner is None or not proc.threads[s.spawner].spawned or s.spawner in reached for s in found):
+                reached.add(j)
+                grew = True
+    return reached
+
+
+def _spawner_sched(proc: ProcessSpec, site: SpawnSite) -> Optional[Sched]:
+    """The scheduling a spawner has asked for when it reaches the spawn: its phase's, an earlier phase's, or its own."""
+    own = proc.main.sched if site.spawner is None else proc.threads[site.spawner].sched
+    work = proc.main.work if site.spawner is None else proc.threads[site.spawner].work
+    if isinstance(work, PhasesWork):
+        for phase in reversed(work.phases[: site.phase + 1]):
+            if phase.sched is not None:
+                return phase.sched
+    return own

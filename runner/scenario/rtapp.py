@@ -30,8 +30,8 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   is noted where it is used; unknown keys (`frag`, `spacing`) are ignored by rt-app too.
 * The tasks become the threads of one process named after the file (15 bytes, a valid comm,
   never a thread's name: the main thread carries it).
-  `instance: N` -> `count: N`; names are cut to 15 bytes (room kept for `-N` suffixes), made
-  unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
+  `instance: N` -> `count: N` (`instance: 0`: left out unless a fork names it); names are cut to
+  15 bytes (room kept for `-N` suffixes), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
   SCHED_OTHER/BATCH, the RT priority for FIFO/RR, default 10 as rt-app);
   `dl-runtime`/`dl-period`/`dl-deadline` -> `{policy: deadline, runtime, deadline, period}`
   (period defaults to runtime, deadline to period); `util_min`/`util_max` go into the sched
@@ -48,8 +48,12 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   a named `kind: timer` resource shared by every thread naming it.  Mode `relative` (rt-app's
   default: the next release is a period after a late one) -> `overrun: rebase`, `absolute` ->
   `overrun: catchup`.  `suspend: X` blocks on, and `resume: X` wakes, the queue `X` (rt-app
-  names the thread; an empty suspend is the thread's own).  `iorun`, `fork` and anything else
-  are left out with a note, as are zero durations and sizes (they do nothing).
+  names the thread; an empty suspend is the thread's own).  `iorun` -> `iorun` (to /dev/null,
+  rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
+  the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
+  `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
+  (rt-app has no bound; noted).  Anything else is left out with a note, as are zero durations and
+  sizes (they do nothing).
 * Keys rt-app does not read (a typo, `taskgroup`, the old grammar's `exec`/`period`/`lock_order`)
   are noted where they are.  Wrong types and values rt-app or the kernel would refuse (a string
   for a duration, FIFO priority 0, SCHED_DEADLINE without dl-runtime) are problems, all reported
@@ -79,6 +83,7 @@ DEFAULT_DURATION_S = 10
 MAX_DURATION_S = 24 * 3600  # the scenario's bound on a cell's duration
 MAX_INT = 2**31 - 1  # rt-app reads every number as a C int
 FOREVER = MAX_INT  # a phase loop that never ends before the run does
+FORK_INSTANCES = 16  # how many threads a forked task can have here (rt-app has no bound)
 MAX_US = 24 * 3600 * 1_000_000  # no event lasts longer than a run
 MAX_BYTES_EVENT = 1 << 40  # the scenario's bound on a size
 
@@ -373,6 +378,16 @@ class _PrivateTimer:
     period_us: int
 
 
+@dataclass(frozen=True)
+class _Fork:
+    """A fork event until every task is read: the task it names, its spawn event, where it was."""
+
+    conv: Any
+    target: str
+    spawn: dict[str, Any]
+    at: Any
+
+
 @dataclass
 class _Use:
     """How the scenario uses one resource name as one kind."""
@@ -502,6 +517,10 @@ class _Converter:
         self.mem_events = False
         self.realtime = False
         self.thread_names: set[str] = set()
+        self.templates: dict[str, tuple[dict[str, Any], _At]] = {}  # instance-0 tasks, spawned if a fork names them
+        self.forks: list[tuple[str, dict[str, Any], list[Any], _At]] = []  # task key, its spawn event, the event's list, where
+        self.io_device: Optional[tuple[str, _At]] = None
+        self.started_keys: set[str] = set()
 
     # -- reporting
 
@@ -587,7 +606,8 @@ class _Converter:
                 thread = self.task(index, key, value, tasks_at.key(index, key))
                 if thread is not None:
                     threads.append(thread)
-            if not threads and not self.problems:
+            threads.extend(self.spawned(threads))
+            if not any(not t.get("spawned") for t in threads) and not self.problems:
                 self.problem(tasks_at, "no task is left to run (every one has instance 0)")
         self.global_after(glob, global_at)
         resources = self.resources()
@@ -641,6 +661,9 @@ class _Converter:
             if policy is not None:
                 self.default_policy = policy
         self.pi = bool(self.flag(glob, "pi_enabled", at))
+        entry = self.last(glob, "io_device", at)
+        if entry is not None and entry[0] != "/dev/null":
+            self.io_device = (str(entry[0]), entry[1])
         entry = self.last(glob, "calibration", at)
         if entry is not None and isinstance(entry[0], int) and not isinstance(entry[0], bool):
             self.note(
@@ -661,14 +684,12 @@ class _Converter:
         if not isinstance(obj, Pairs):
             self.problem(at, f"expected an object describing the task (events, loop, policy, phases...), got {_what(obj)}")
             return None
-        count = 1
+        count, template = 1, False
         entry = self.last(obj, "instance", at)
         if entry is not None:
             value = self.integer(entry[0], entry[1], "a whole number of threads", 0)
-            if value == 0:
-                self.note(at, "instance 0: rt-app starts no thread for this task; left out")
-                return None
-            count = value if value is not None else 1
+            template = value == 0  # started only by a fork, if one names it
+            count = value or 1
 
         sched = self.read_sched(obj, at, None)
         cpus = self.cpus(obj, at)
@@ -729,7 +750,36 @@ class _Converter:
         work["phases"] = phases
         thread["work"] = work
         self.unique_notes(index, at)
+        if template:
+            self.templates[key] = (thread, at)
+            return None
+        self.started_keys.add(key)
         return thread
+
+    def spawned(self, started: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """rt-app's fork as spawn events: the instance-0 tasks they name become threads created by spawns."""
+        out: list[dict[str, Any]] = []
+        for target, spawn, events, at in self.forks:
+            found = self.templates.get(target)
+            if found is None:
+                why = "a task started at the start (rt-app would start another)" if target in self.started_keys else None
+                self.note(at, f"fork of {printable(target)!r}: {why or 'no task of instance 0 has that name'}; left out")
+                events.remove(spawn)
+                continue
+            thread, _ = found
+            spawn["spawn"] = thread["name"]
+            if not thread.get("spawned"):
+                thread.update({"spawned": True, "count": FORK_INSTANCES, "inherit": False})
+                self.note(
+                    at,
+                    f"rt-app forks a new thread of {printable(target)!r} each time, without bound; here it can be spawned "
+                    f"{FORK_INSTANCES} times (count), later spawns are counted as dropped",
+                )
+                out.append(thread)
+        for thread, at in self.templates.values():
+            if not thread.get("spawned"):
+                self.note(at, "instance 0: rt-app starts no thread for this task and no fork names it; left out")
+        return out
 
     def legacy(self, obj: Pairs, at: _At) -> None:
         keys = [k for k in dict.fromkeys(obj.names()) if k in _LEGACY]
@@ -824,7 +874,11 @@ class _Converter:
             here = at.key(i, key)
             if not re.fullmatch(re.escape(kind) + r"\d*", key):
                 self.note(here, f'read as a "{kind}" event, as rt-app reads every key that starts with {kind}')
-            out.extend(self.event(kind, key, value, here, task, phase_at))
+            for ev in self.event(kind, key, value, here, task, phase_at):
+                if isinstance(ev, _Fork):
+                    self.forks.append((ev.target, ev.spawn, out, ev.at))
+                    ev = ev.spawn
+                out.append(ev)
         return out
 
     def event(self, kind: str, key: str, value: Any, at: _At, task: int, phase_at: _At) -> list[Any]:
@@ -850,11 +904,20 @@ class _Converter:
             self.mem_events = self.mem_events or kind == "mem"
             return [{kind: units.format_size(size)}]
         if kind == "iorun":
-            self.note(phase_at, f'"{key}" has no equivalent (no IO device emulation); left out')
-            return []
+            size = self.integer(value, at, "a size in bytes", 0)
+            if not size:
+                if size == 0:
+                    self.note(phase_at, f'"{key}": 0 bytes does nothing; left out')
+                return []
+            if self.io_device is not None:
+                self.note(self.io_device[1], f"iorun writes to /dev/null here, not to {self.io_device[0]}")
+            return [{"iorun": units.format_size(size)}]
         if kind == "fork":
-            self.note(phase_at, f'"{key}" (start another task\'s thread) has no equivalent: threads are created at the start; left out')
-            return []
+            target = self.string(value, at, "the name of the task to start")
+            if target is None:
+                return []
+            spawn: dict[str, Any] = {"spawn": target}
+            return [_Fork(self, target, spawn, at)]
         if kind == "yield":
             return ["yield"]
         if kind in ("lock", "unlock"):

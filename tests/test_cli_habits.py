@@ -1,0 +1,73 @@
+"""What a shell user expects of the command line: a did-you-mean for a mistyped command, and completion."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+import pytest
+from conftest import SCENARIOS, run_cli
+
+from runner.cli import _PARSERS, COMMANDS
+
+
+def test_a_mistyped_command_gets_a_did_you_mean_and_exit_2():
+    outcome = run_cli("comapre", "a", "b")
+    assert outcome.code == 2
+    assert outcome.err.strip() == "runner: unknown command 'comapre'; did you mean 'compare'?"
+
+
+def test_a_word_like_no_command_lists_the_commands():
+    outcome = run_cli("frobnicate")
+    assert outcome.code == 2 and "unknown command 'frobnicate'; expected one of: run, validate" in outcome.err
+
+
+@pytest.mark.parametrize("first", ["missing.yaml", "missing.yml", "missing.json", "sub/valdate"])
+def test_what_names_a_scenario_file_is_still_run_as_one(first):
+    outcome = run_cli(first)
+    assert outcome.code == 2 and "unknown command" not in outcome.err and "cannot read file" in outcome.err
+
+
+def test_an_existing_file_without_extension_runs_as_a_scenario(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "valdate").write_text(open(os.path.join(SCENARIOS, "fifo80.yaml")).read())
+    outcome = run_cli("valdate", "--list")
+    assert outcome.code == 0 and "fifo80: 1 cell" in outcome.out
+
+
+def test_every_command_has_its_parser_for_completion():
+    assert set(_PARSERS) == set(COMMANDS)
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+def test_bash_completion_completes_commands_options_and_files(tmp_path):
+    outcome = run_cli("completion", "bash")
+    assert outcome.code == 0
+    (tmp_path / "script").write_text(outcome.out)
+    (tmp_path / "a.yaml").write_text("")
+
+    def complete(*words: str) -> list[str]:
+        line = " ".join(words)
+        program = (
+            f"source {tmp_path / 'script'}; COMP_WORDS=({' '.join(repr(w) for w in words)}); COMP_CWORD={len(words) - 1}; "
+            f'COMP_LINE="{line}"; COMP_POINT=${{#COMP_LINE}}; _shtab_runner; printf "%s\\n" "${{COMPREPLY[@]}}"'
+        )
+        done = subprocess.run(["bash", "-c", program], capture_output=True, text=True, cwd=tmp_path, timeout=30)
+        return sorted(done.stdout.split())
+
+    assert complete("runner", "comp") == ["compare", "completion"]
+    assert complete("runner", "run", "--dur") == ["--duration"]
+    assert complete("runner", "validate", "") == ["a.yaml", "script"]
+    assert "--results" in complete("runner", "schema", "--")
+
+
+def test_zsh_completion_is_written_too():
+    outcome = run_cli("completion", "zsh")
+    assert outcome.code == 0 and outcome.out.startswith("#compdef runner")
+
+
+def test_completion_refuses_a_shell_it_cannot_write_for():
+    with pytest.raises(SystemExit) as caught:  # argparse's own usage error
+        run_cli("completion", "fish")
+    assert caught.value.code == 2
