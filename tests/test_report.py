@@ -677,7 +677,7 @@ def test_plots_skipped_without_matplotlib_say_so_and_no_plots_says_nothing(tmp_p
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     text = Path(write_report(matrix(), str(tmp_path / "a"))).read_text(encoding="utf-8")
-    assert "Plots skipped: matplotlib is not installed" in text and "pip install 'runner[plots]'" in text
+    assert "Plots skipped: matplotlib is not installed" in text and "pip install 'matplotlib>=3.7'" in text
     assert not (tmp_path / "a" / "plots").exists() and "![" not in text
     assert "warning: Plots skipped" in capsys.readouterr().err
     text = Path(write_report(matrix(), str(tmp_path / "b"), plots=False)).read_text(encoding="utf-8")

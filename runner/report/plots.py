@@ -17,13 +17,14 @@ file for results written before those existed.  Each line has its own colour and
 so lines stay apart past ten cells.  The switch plots put each series in its own panel, so
 threads at 0 switches do not hide behind one another.
 
-matplotlib is an extra (`pip install 'runner[plots]'`): `available()` says whether it is
+matplotlib is an extra (`pip install '.[plots]'` from a clone): `available()` says whether it is
 installed, and the report says plots were skipped when it is not.  Output is deterministic
 (no dates, a fixed SVG id salt) so re-rendering the same results gives the same files.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import importlib.util
 import io
 import os
@@ -43,7 +44,20 @@ from runner.results.samplesfile import SampleRow, read_samples
 MAX_SERIES = 12  # lines (or panels) in one plot; beyond that the plot's title says how many it shows
 MAX_BINS = 200  # bins of a latency histogram at most: the bin width is the first of 1, 2, 5, 10, 20, ... µs that keeps to it
 LINE_STYLES = ("-", "--", ":", "-.")  # with the ten colours of tab10: 40 lines, no two alike
-INSTALL_HINT = "pip install 'runner[plots]'"
+
+
+def install_hint() -> str:
+    """How to add what the plots extra adds, as the installed package declares it (`pip install 'matplotlib>=3.7'`).
+
+    Said as the requirement itself so it works however runner was installed (a clone, pipx, a wheel):
+    `pip install 'runner[plots]'` would fetch an unrelated package of that name from PyPI.
+    """
+    try:
+        requires = importlib.metadata.requires("runner") or []
+    except importlib.metadata.PackageNotFoundError:
+        requires = []
+    spec = next((r.split(";")[0].strip() for r in requires if r.startswith("matplotlib") and "plots" in r), "matplotlib")
+    return f"pip install '{spec}'"
 
 
 def available() -> bool:
@@ -54,7 +68,7 @@ def available() -> bool:
 def skipped_note() -> Markdown:
     """The report's line when plots were asked for and matplotlib is not installed."""
     return Markdown(
-        f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(INSTALL_HINT)}, "
+        f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(install_hint())}, "
         f"then {md_code('runner report')} draws them)."
     )
 
