@@ -328,3 +328,18 @@ def test_a_scenario_asking_uclamp_of_a_kernel_without_it_exits_3_and_starts_noth
     assert out.code == 3, out.err
     assert "uclamped/t asks for util_min / util_max (uclamp), which this kernel does not have" in out.err
     assert not (tmp_path / "out").exists()
+
+
+def test_drops_of_one_spawn_event_by_many_threads_are_one_warning():
+    from reportdata import main_thread, matrix
+
+    from runner.results.document import EventResult
+    from runner.run.evaluate import spawn_warnings
+
+    base = main_thread(matrix().cells[0])
+    spawn = EventResult(phase="p0", index=0, event="spawn c", kind="spawn", measures="wall", count=1, dropped=5)
+    copies = [base.model_copy(update={"index": i, "events": [spawn]}) for i in range(3)]
+    assert spawn_warnings(copies, [], 1) == [
+        f"{base.process} (3 threads): 15 `spawn c` found every instance taken (or the kernel refused the thread);"
+        " raise the spawned thread's count"
+    ]

@@ -902,7 +902,10 @@ static void ev_spawn(struct slot *s, int i, const struct event *e) {
     struct group *g = s->group;
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
     struct slot *first = &g->slots[e->res];
-    int k = atomic_fetch_add(&first->claimed, 1);
+    /* Claim the next instance only while one is left: a counter bumped by every spawn would wrap in a long run. */
+    int k = atomic_load(&first->claimed);
+    while (k < e->arg && !atomic_compare_exchange_weak(&first->claimed, &k, k + 1)) {
+    }
     if (k >= e->arg || create_thread(g, &g->slots[e->res + k]) != 0) {
         ev_stats(s, i)->dropped++;
         return;

@@ -139,14 +139,25 @@ def spawn_warnings(threads: list[ThreadResult], never: list[str], processes: int
     """Spawns that found no free instance, and spawned threads of which no instance ever ran: the program did not run as written.
 
     `count` is how many instances a spawned thread can have, so instances left unused are not a problem.
+    Drops are told once per spawn event of a process, however many of its threads ran it (the
+    instances of a thread that spawns itself all do).
     """
-    out = [
-        f"{t.label(processes > 1)}: {e.dropped:,} `{e.event}` found every instance taken (or the kernel refused the thread);"
-        " raise the spawned thread's count"
-        for t in threads
-        for e in t.events
-        if e.dropped
-    ]
+    drops: dict[tuple[str, int, str], list[tuple[ThreadResult, int]]] = {}
+    for t in threads:
+        for e in t.events:
+            if e.dropped:
+                drops.setdefault((t.process, t.instance, e.event), []).append((t, e.dropped))
+    out = []
+    for (process, instance, event), found in drops.items():
+        who = (
+            found[0][0].label(processes > 1)
+            if len(found) == 1
+            else f"{process}{f'[{instance}]' if processes > 1 else ''} ({len(found)} threads)"
+        )
+        out.append(
+            f"{who}: {sum(n for _, n in found):,} `{event}` found every instance taken (or the kernel refused the thread);"
+            " raise the spawned thread's count"
+        )
     out += [f"{spec}: never spawned: no spawn event naming it ran" for spec in never]
     return out
 

@@ -119,25 +119,24 @@ def plan_process(
     out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main", main_period)]
     index = 1
     sites = spawn_sites(proc, 0)
-    memo: dict[int, Settings] = {}
 
-    def spec_settings(j: int, seen: frozenset[int] = frozenset()) -> Settings:
-        """What the first thread of spec j holds once it applied its own settings (spawned ones: from their spawner)."""
-        if j not in memo:
-            spec = proc.threads[j]
-            initial = creator
-            if spec.spawned:
-                site = next((x for x in sites.get(spec.name, []) if x.spawner not in seen | {j}), None)
-                initial = _at_site(proc, site, main_final, lambda k: spec_settings(k, seen | {j})) if site else creator
-            member = spec.members()[0]
-            memo[j] = (initial if spec.inherit else EXPLICIT_DEFAULTS).with_sched(member.sched, member.cpus)
-        return memo[j]
+    def initial_of(j: int, seen: frozenset[int] = frozenset()) -> Settings:
+        """What spec j's threads start with: their creator's settings (a spawned one's: its first spawner's at the spawn)."""
+        spec = proc.threads[j]
+        if not spec.inherit:
+            return EXPLICIT_DEFAULTS
+        seen = seen | {j}  # a spawner that is itself spawned: follow the chain, never around a cycle
+        site = next((x for x in sites.get(spec.name, []) if x.spawner not in seen), None) if spec.spawned else None
+        if site is None:
+            return creator
+        return _at_site(proc, site, main_final, lambda k: first_member(k, seen))
+
+    def first_member(j: int, seen: frozenset[int]) -> Settings:
+        member = proc.threads[j].members()[0]
+        return initial_of(j, seen).with_sched(member.sched, member.cpus)
 
     for j, spec in enumerate(proc.threads):
-        initial = creator if spec.inherit else EXPLICIT_DEFAULTS
-        if spec.spawned and spec.inherit:
-            site = next((x for x in sites.get(spec.name, []) if x.spawner != j), None)
-            initial = _at_site(proc, site, main_final, spec_settings) if site else creator
+        initial = initial_of(j)
         own = spec.sched is not None or spec.cpus is not None
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
         for member in spec.members():  # each its own CPU, priority and period when the spec spreads them
