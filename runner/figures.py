@@ -32,6 +32,7 @@ class Unit(str, enum.Enum):
     NS = "ns"  # a duration: integer nanoseconds inside, us/ms/s when shown
     COUNT = "count"  # events: switches, faults, callbacks
     PER_CALLBACK = "per callback"  # a mean of counts over callbacks (a float)
+    PER_SECOND = "per second"  # counts over the time they were counted in (a float)
 
 
 MINUS = "\u2212"  # the one minus sign of every number the report and the comparison write
@@ -77,6 +78,8 @@ def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
         return Scale()
     if unit is Unit.PER_CALLBACK:
         return Scale(decimals=2)
+    if unit is Unit.PER_SECOND:
+        return Scale(decimals=1)
     largest = max((abs(v) for v in values if v is not None and math.isfinite(v)), default=0)
     name, per = next(((n, p) for n, p in _DURATION_UNITS if largest < 10_000 * p), _DURATION_UNITS[-1])
     return Scale(name, per, 1 if largest / per < 100 else 0)
@@ -87,6 +90,7 @@ class Scope(str, enum.Enum):
 
     CALLBACKS = "callbacks"  # only threads with periodic callbacks (per-callback figures, latency)
     THREAD = "thread"  # every thread (whole-thread totals from getrusage)
+    OUTSIDE = "outside"  # threads measured from outside: programs' threads (/proc), and any thread the scheduler trace followed
     EVENTS = "events"  # only threads whose program has the events the figure is about (locks, waits, chains)
 
 
@@ -140,10 +144,12 @@ class Involuntary(_Figures):
     per_callback_mean: Optional[float] = None
     per_callback_max: Optional[int] = None
     callbacks_with_any: Optional[int] = None
+    per_second: Optional[float] = None  # over the time the thread was measured (programs' threads)
 
 
 class Voluntary(_Figures):
     total: int
+    per_second: Optional[float] = None
 
 
 class Spread(_Figures):
@@ -198,6 +204,10 @@ class ThreadFigures(_Figures):
     barrier_wait_ns: Optional[Spread] = None  # programs: time waiting at a barrier
     resume_latency_ns: Optional[Spread] = None  # programs: from a resume (or the suspend, if later) to running again
     chain_ns: Optional[Spread] = None  # programs: from the release that started a chain to the end of this thread's part
+    cpu_time_ns: Optional[int] = None  # time on a CPU over the measured window (programs' threads, from schedstat)
+    migrations: Optional[int] = None  # moves between CPUs (the kernel's se.nr_migrations, or the trace's)
+    wakeup_ns: Optional[Spread] = None  # scheduler trace: from each sched_waking to the switch onto a CPU
+    preemptions: Optional[int] = None  # scheduler trace: switched out while runnable
 
     @model_validator(mode="after")
     def _releases(self) -> ThreadFigures:
@@ -285,6 +295,30 @@ REGISTRY: tuple[Figure, ...] = (
         ("involuntary", "callbacks_with_any"),
     ),
     Figure("voluntary.total", "voluntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("voluntary", "total")),
+    Figure(
+        "involuntary.per_second",
+        "involuntary context switches per second",
+        Unit.PER_SECOND,
+        Scope.OUTSIDE,
+        ("involuntary", "per_second"),
+        Threshold(relative=0.50, absolute=10),
+    ),
+    Figure("voluntary.per_second", "voluntary context switches per second", Unit.PER_SECOND, Scope.OUTSIDE, ("voluntary", "per_second")),
+    Figure("cpu_time", "CPU time", Unit.NS, Scope.OUTSIDE, ("cpu_time_ns",)),
+    Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",)),
+    Figure("preemptions", "preemptions (switched out while runnable, scheduler trace)", Unit.COUNT, Scope.OUTSIDE, ("preemptions",)),
+    *(
+        Figure(
+            f"wakeup.{q}",
+            f"wake-up latency from the scheduler trace {words}",
+            Unit.NS,
+            Scope.OUTSIDE,
+            ("wakeup_ns", q),
+            _LATENCY_THRESHOLD.get(q),
+        )
+        for q, words in _QUANTILE_WORDS.items()
+        if q not in ("stddev",)
+    ),
     *(
         Figure(
             f"latency.{q}",

@@ -93,7 +93,9 @@ def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
         return "-"
     if fig.is_duration:
         return f"{value / 1000:.1f}"
-    return f"{value:.2f}" if fig.unit is fg.Unit.PER_CALLBACK else str(value)
+    if fig.unit is fg.Unit.PER_CALLBACK:
+        return f"{value:.2f}"
+    return f"{value:.1f}" if fig.unit is fg.Unit.PER_SECOND else str(value)
 
 
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:

@@ -33,7 +33,7 @@ from runner.report.fmt import (
     md_text,
     pipe_table,
 )
-from runner.results.document import BackgroundKind, CellResult, RunDocument, Status, ThreadResult, Verdict
+from runner.results.document import BackgroundKind, CellResult, Preemptor, ProgramResult, RunDocument, Status, ThreadResult, Verdict
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
@@ -283,6 +283,100 @@ def faults_table(rows: Rows, first: str = "Thread") -> Table:
         for label, t in rows
     ]
     return _numbers(first, ["Minor, 1st callback", "Minor, later callbacks", "Minor (total)", "Major (total)"], out)
+
+
+def _measured_outside(t: ThreadResult) -> bool:
+    return t.program or t.figures.wakeup_ns is not None or t.figures.preemptions is not None
+
+
+def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
+    """Per thread measured from outside (a program's, or any the scheduler trace followed): rates, CPU time, trace figures."""
+    chosen = [(label, t) for label, t in rows if _measured_outside(t)]
+    if not chosen:
+        return None
+    f = [t.figures for _, t in chosen]
+    rate = fg.scale(fg.Unit.PER_SECOND)
+    cpu = fg.scale(fg.Unit.NS, [x.cpu_time_ns for x in f])
+    after = fg.scale(fg.Unit.NS, [t.rule_after_ns for _, t in chosen])
+    wake = fg.scale(fg.Unit.NS, [w.max for x in f if (w := x.wakeup_ns) is not None])
+    out = [
+        [
+            label,
+            md_code(t.rule) if t.rule else "–",
+            after.number(t.rule_after_ns),
+            rate.number(t.figures.involuntary.per_second),
+            rate.number(t.figures.voluntary.per_second),
+            cpu.number(t.figures.cpu_time_ns),
+            fmt_int(t.figures.migrations),
+            fmt_int(t.figures.preemptions),
+            wake.number(t.figures.wakeup_ns.p50 if t.figures.wakeup_ns else None),
+            wake.number(t.figures.wakeup_ns.p99 if t.figures.wakeup_ns else None),
+            wake.number(t.figures.wakeup_ns.max if t.figures.wakeup_ns else None),
+        ]
+        for label, t in chosen
+    ]
+    headers = [
+        "Rule",
+        after.header("Rule applied after"),
+        "Involuntary / s",
+        "Voluntary / s",
+        cpu.header("CPU time"),
+        "Migrations",
+        "Preemptions",
+        wake.header("Wake-up p50"),
+        wake.header("p99"),
+        wake.header("max"),
+    ]
+    return Table([first, *headers], out, [LEFT, LEFT] + [RIGHT] * (len(headers) - 1))
+
+
+def _preemptor(p: Preemptor) -> str:
+    prio = f" {p.rtprio}" if p.rtprio is not None else ""
+    return f"{p.count:,} by {p.comm} ({p.cls}{prio})"
+
+
+def preemption_lines(rows: Rows) -> list[str]:
+    """`talker/ctl_loop #1: preempted 812 times: 790 by hog0-1 (TS), 22 by ksoftirqd/1 (TS)`, for every thread the trace followed."""
+    out = []
+    for label, t in rows:
+        n = t.figures.preemptions
+        if n is None:
+            continue
+        if not n:
+            out.append(f"{label}: never preempted")
+            continue
+        named = ", ".join(_preemptor(p) for p in t.preempted_by)
+        others = n - sum(p.count for p in t.preempted_by)
+        rest = f", {others:,} by others" if others > 0 else ""
+        out.append(f"{label}: preempted {n:,} time{'s' if n != 1 else ''}: {named}{rest}")
+    return out
+
+
+def _ended(p: ProgramResult) -> str:
+    if p.failure:
+        return f"could not start: {p.failure}"
+    if p.stopped:
+        how = "stopped with SIGTERM" if p.stopped == "SIGTERM" else "killed with SIGKILL after ignoring SIGTERM"
+        return f"{how} at the end of the cell"
+    if p.exit_signal:
+        return f"killed by {p.exit_signal}"
+    return f"exited with code {p.exit_code}" if p.exit_code is not None else "still running when the cell ended"
+
+
+def program_lines(cell: CellResult) -> list[Markdown]:
+    """Per program: its command, the settings it was started with, how it ended, where its output is."""
+    out = []
+    for p in cell.programs:
+        pid = f" (pid {p.pid})" if p.pid else ""
+        ran = f" after {units.human_duration(p.ran_ns)}" if p.ran_ns is not None and not p.stopped else ""
+        output = f"; output: {md_code(p.stdout)}, {md_code(p.stderr)}" if p.stdout else ""
+        out.append(
+            Markdown(
+                f"{md_text(p.name)}: {md_code(' '.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
+                f"{md_text(_ended(p))}{ran}{output}"
+            )
+        )
+    return out
 
 
 LATENCY_COLUMNS = (
@@ -635,6 +729,9 @@ class CellSection:
     verdicts: Table | None
     degraded: list[str]
     load: Markdown
+    programs: list[Markdown] = field(default_factory=list)
+    outside: Table | None = None
+    preemptions: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -691,6 +788,9 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         verdicts=verdict_table(cell),
         degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
         load=_load_line(cell),
+        programs=program_lines(cell),
+        outside=outside_table(rows),
+        preemptions=preemption_lines(rows),
     )
 
 

@@ -252,6 +252,26 @@ class PhaseResult(_Record):
     degraded: list[str] = Field(default_factory=list)
 
 
+class SettingsSnapshot(_Record):
+    """A program thread's name and settings at one instant, read from the kernel."""
+
+    at_ns: int = Field(description="since the cell's start gate (negative: before it)")
+    comm: str
+    settings: StoredSettings
+    why: str = Field(description="appeared, rule (a thread rule was applied) or changed (it changed, by itself or by another)")
+
+
+class Preemptor(_Record):
+    """A task that took the CPU from a thread while it was runnable, from the scheduler's trace."""
+
+    comm: str
+    tid: int
+    pid: Optional[int] = Field(None, description="its process, when it was still there to ask; null: unknown")
+    cls: str = Field(description="its class as ps writes it: TS, FF, RR, DLN, or RT where FIFO and RR cannot be told apart")
+    rtprio: Optional[int] = Field(None, description="its RT priority (FF, RR, RT)")
+    count: NonNegativeInt
+
+
 class ThreadResult(_Record):
     """One measured thread: identity, requested vs applied settings, figures."""
 
@@ -273,6 +293,13 @@ class ThreadResult(_Record):
     events: list[EventResult] = Field(default_factory=list, description="programs (kind: phases): per event")
     phases: list[PhaseResult] = Field(default_factory=list, description="programs (kind: phases): per phase")
     spawned: bool = Field(False, description="created mid-run by a spawn event of another thread (rt-app's fork)")
+    program: bool = Field(False, description="a thread of a user's program (command:), measured from outside")
+    rule: Optional[str] = Field(None, description="programs: the pattern of the thread rule applied to it")
+    rule_after_ns: Optional[int] = Field(None, description="programs: from its matching name appearing to the rule applied")
+    history: list[SettingsSnapshot] = Field(default_factory=list, description="programs: its settings when it appeared and changed")
+    preempted_by: list[Preemptor] = Field(
+        default_factory=list, description="who took the CPU while it was runnable, most often first (scheduler trace)"
+    )
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property
@@ -282,6 +309,26 @@ class ThreadResult(_Record):
     def label(self, show_instance: bool) -> str:
         """This thread's name in rows and tables (see `thread_label`)."""
         return thread_label(self.process, self.instance, self.index, self.name, show_instance)
+
+
+class ProgramResult(_Record):
+    """A user's program (command:) in one cell: how it started and ended, and where its output went."""
+
+    name: str
+    argv: list[str]
+    path: str = Field("", description="the program as found in PATH")
+    pid: Optional[int] = None
+    started: bool = Field(description="it was exec'd")
+    failure: str = Field("", description="why it could not start")
+    requested: StoredSettings = Field(description="the process's settings, applied before exec")
+    degraded: list[str] = Field(default_factory=list, description="process-level settings the kernel refused")
+    exit_code: Optional[int] = Field(None, description="its exit status; null: a signal ended it, or it never ran")
+    exit_signal: Optional[str] = Field(None, description="the signal that ended it, e.g. SIGSEGV")
+    stopped: str = Field("", description="how the runner ended it: SIGTERM, SIGKILL (it ignored SIGTERM for the grace period), or ''")
+    ran_ns: Optional[int] = Field(None, description="from its exec to its exit")
+    stdout: str = Field("", description="file of its standard output, in the cell's folder")
+    stderr: str = ""
+    tail: list[str] = Field(default_factory=list, description="the last lines of its output")
 
 
 class Overhead(_Record):
@@ -454,6 +501,7 @@ class CellResult(_Record):
     duration_ns: NonNegativeInt = 0
     machine: Optional[MachineInfo] = None
     thread_table: list[ThreadRow] = Field(default_factory=list, description="the threads as the kernel held them mid-run")
+    programs: list[ProgramResult] = Field(default_factory=list, description="the user's programs (command:)")
     threads: list[ThreadResult] = Field(default_factory=list)
     expectations: list[Verdict] = Field(default_factory=list)
     background: list[Background] = Field(default_factory=list)

@@ -212,17 +212,27 @@ struct sched_attr_k {
 
 static int sched_setattr_k(pid_t tid, struct sched_attr_k *a) { return (int)syscall(SYS_sched_setattr, tid, a, 0); }
 
-static void apply_settings(const struct settings *s, int32_t errs[3]) {
+#define SCHED_RESET_ON_FORK_BIT 0x40000000 /* or'ed into sched_setscheduler's policy */
+#define FLAG_RESET_ON_FORK 0x01
+
+/* Apply settings to thread `tid` (0: the calling thread); errs gets the errno of sched, nice, cpus (0: done or not asked).
+ * With reset_on_fork, SCHED_RESET_ON_FORK is set too (on the current policy when none is given), as chrt -R does. */
+static void apply_settings_to(pid_t tid, const struct settings *s, int reset_on_fork, int32_t errs[3]) {
     errs[0] = errs[1] = errs[2] = 0;
     if (s->policy == SCHED_DEADLINE_ID) {
         struct sched_attr_k a = {.size = sizeof(a), .sched_policy = SCHED_DEADLINE_ID};
         a.sched_runtime = (uint64_t)s->dl_runtime;
         a.sched_deadline = (uint64_t)s->dl_deadline;
         a.sched_period = (uint64_t)s->dl_period;
-        if (sched_setattr_k(0, &a) != 0) errs[0] = errno;
+        if (reset_on_fork) a.sched_flags |= FLAG_RESET_ON_FORK;
+        if (sched_setattr_k(tid, &a) != 0) errs[0] = errno;
     } else if (s->policy >= 0) {
         struct sched_param p = {.sched_priority = s->priority};
-        if (sched_setscheduler(0, s->policy, &p) != 0) errs[0] = errno;
+        if (sched_setscheduler(tid, s->policy | (reset_on_fork ? SCHED_RESET_ON_FORK_BIT : 0), &p) != 0) errs[0] = errno;
+    } else if (reset_on_fork) {
+        struct sched_param p;
+        int policy = sched_getscheduler(tid);
+        if (policy < 0 || sched_getparam(tid, &p) != 0 || sched_setscheduler(tid, policy | SCHED_RESET_ON_FORK_BIT, &p) != 0) errs[0] = errno;
     }
     if (s->util_min >= 0 || s->util_max >= 0) {
         struct sched_attr_k a = {.size = sizeof(a), .sched_flags = FLAG_KEEP_ALL};
@@ -234,18 +244,20 @@ static void apply_settings(const struct settings *s, int32_t errs[3]) {
             a.sched_flags |= FLAG_UTIL_CLAMP_MAX;
             a.sched_util_max = (uint32_t)s->util_max;
         }
-        if (sched_setattr_k(0, &a) != 0 && !errs[0]) errs[0] = errno;
+        if (sched_setattr_k(tid, &a) != 0 && !errs[0]) errs[0] = errno;
     }
     if (s->has_nice) {
-        if (setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), s->nice) != 0) errs[1] = errno;
+        if (setpriority(PRIO_PROCESS, tid ? (id_t)tid : (id_t)syscall(SYS_gettid), s->nice) != 0) errs[1] = errno;
     }
     if (s->ncpus > 0) {
         cpu_set_t set;
         CPU_ZERO(&set);
         for (int i = 0; i < s->ncpus; i++) CPU_SET(s->cpus[i], &set);
-        if (sched_setaffinity(0, sizeof(set), &set) != 0) errs[2] = errno;
+        if (sched_setaffinity(tid, sizeof(set), &set) != 0) errs[2] = errno;
     }
 }
+
+static void apply_settings(const struct settings *s, int32_t errs[3]) { apply_settings_to(0, s, 0, errs); }
 
 /* Fill a settings struct from Python values; returns -1 with an exception set.
  * `extra` is None or (dl_runtime, dl_deadline, dl_period, util_min, util_max), -1 for a uclamp left as is. */
@@ -1738,6 +1750,181 @@ static PyObject *probe_set_pdeathsig(PyObject *mod, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(apply_to_doc,
+"apply_to(tid, policy, priority, nice, cpus[, extra]) -> (err_sched, err_nice, err_cpus)\n\n"
+"Apply settings to another thread (a program's thread a rule matched), as apply() does to the caller.");
+
+static PyObject *probe_apply_to(PyObject *mod, PyObject *args) {
+    int tid;
+    PyObject *policy, *priority, *nice, *cpus, *extra = Py_None;
+    if (!PyArg_ParseTuple(args, "iOOOO|O", &tid, &policy, &priority, &nice, &cpus, &extra)) return NULL;
+    struct settings s;
+    if (parse_settings(policy, priority, nice, cpus, extra, &s)) return NULL;
+    int32_t errs[3];
+    Py_BEGIN_ALLOW_THREADS
+    apply_settings_to(tid, &s, 0, errs);
+    Py_END_ALLOW_THREADS
+    return Py_BuildValue("(iii)", errs[0], errs[1], errs[2]);
+}
+
+/* Stages a program's start reports on its report pipe, each as (stage, errno). */
+#define STAGE_CWD 1
+#define STAGE_EXEC 2
+
+static char **byte_strings(PyObject *seq_in, const char *what) {
+    PyObject *seq = PySequence_Fast(seq_in, what);
+    if (!seq) return NULL;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    char **out = PyMem_Calloc((size_t)n + 1, sizeof(char *));
+    if (!out) {
+        Py_DECREF(seq);
+        PyErr_NoMemory();
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PySequence_Fast_GET_ITEM(seq, i);
+        if (!PyBytes_Check(item)) {
+            PyErr_Format(PyExc_TypeError, "%s: item %zd is not bytes", what, i);
+            goto fail;
+        }
+        const char *text = PyBytes_AS_STRING(item);
+        out[i] = PyMem_Malloc((size_t)PyBytes_GET_SIZE(item) + 1);
+        if (!out[i]) {
+            PyErr_NoMemory();
+            goto fail;
+        }
+        memcpy(out[i], text, (size_t)PyBytes_GET_SIZE(item) + 1);
+    }
+    Py_DECREF(seq);
+    return out;
+fail:
+    for (Py_ssize_t i = 0; i < n; i++) PyMem_Free(out[i]);
+    PyMem_Free(out);
+    Py_DECREF(seq);
+    return NULL;
+}
+
+static void free_strings(char **v) {
+    if (!v) return;
+    for (char **p = v; *p; p++) PyMem_Free(*p);
+    PyMem_Free(v);
+}
+
+/* Close every descriptor from 3 up but `keep`: close_range(2) where the kernel has it, one by one where not. */
+static void close_others(int keep, long maxfd) {
+#ifdef SYS_close_range
+    if ((keep <= 3 || syscall(SYS_close_range, 3U, (unsigned)keep - 1, 0U) == 0) && syscall(SYS_close_range, (unsigned)keep + 1, ~0U, 0U) == 0) return;
+#endif
+    for (int fd = 3; fd < maxfd; fd++) {
+        if (fd != keep) close(fd);
+    }
+}
+
+static void write_all(int fd, const void *buf, size_t len) {
+    const char *p = buf;
+    while (len) {
+        ssize_t w = write(fd, p, len);
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) return;
+        p += w;
+        len -= (size_t)w;
+    }
+}
+
+PyDoc_STRVAR(spawn_program_doc,
+"spawn_program(path, argv, envp, cwd, settings, reset_on_fork, out_fd, err_fd) -> (pid, report_fd, gate_fd)\n\n"
+"Fork a child that leads its own process group, dies with the runner (PR_SET_PDEATHSIG), applies\n"
+"`settings` (policy, priority, nice, cpus, extra) to itself, writes their three errnos to report_fd,\n"
+"then waits for a byte on gate_fd before it execs `path` (bytes; argv and envp lists of bytes; cwd\n"
+"bytes or None) with stdin from /dev/null and stdout/stderr on the given fds.  A failed chdir or exec\n"
+"writes (stage, errno) to report_fd and exits 127; report_fd reaches end of file at a successful exec.\n"
+"Closing gate_fd without a byte makes the child exit 0 without exec.  Only async-signal-safe calls\n"
+"run between fork and exec: everything is built before the fork.");
+
+static PyObject *probe_spawn_program(PyObject *mod, PyObject *args) {
+    PyObject *path_o, *argv_o, *envp_o, *cwd_o, *settings_o;
+    int reset_on_fork, out_fd, err_fd;
+    if (!PyArg_ParseTuple(args, "SOOOOpii", &path_o, &argv_o, &envp_o, &cwd_o, &settings_o, &reset_on_fork, &out_fd, &err_fd)) return NULL;
+    PyObject *policy, *priority, *nice, *cpus, *extra = Py_None;
+    if (!PyArg_ParseTuple(settings_o, "OOOO|O", &policy, &priority, &nice, &cpus, &extra)) return NULL;
+    struct settings s;
+    if (parse_settings(policy, priority, nice, cpus, extra, &s)) return NULL;
+    if (cwd_o != Py_None && !PyBytes_Check(cwd_o)) return PyErr_Format(PyExc_TypeError, "cwd must be bytes or None");
+    char **argv = byte_strings(argv_o, "argv");
+    if (!argv) return NULL;
+    char **envp = byte_strings(envp_o, "envp");
+    if (!envp) {
+        free_strings(argv);
+        return NULL;
+    }
+    const char *path = PyBytes_AS_STRING(path_o);
+    const char *cwd = cwd_o == Py_None ? NULL : PyBytes_AS_STRING(cwd_o);
+    int report[2] = {-1, -1}, gate[2] = {-1, -1};
+    int devnull = open("/dev/null", O_RDONLY | O_CLOEXEC);
+    if (devnull < 0 || pipe2(report, O_CLOEXEC) != 0 || pipe2(gate, O_CLOEXEC) != 0) {
+        PyErr_SetFromErrno(PyExc_OSError);
+        goto fail;
+    }
+    pid_t parent = getpid();
+    long maxfd = sysconf(_SC_OPEN_MAX);
+    if (maxfd < 0 || maxfd > 65536) maxfd = 65536;
+    pid_t pid = fork();
+    if (pid < 0) {
+        PyErr_SetFromErrno(PyExc_OSError);
+        goto fail;
+    }
+    if (pid == 0) {
+        setpgid(0, 0);
+        prctl(PR_SET_PDEATHSIG, SIGKILL, 0, 0, 0);
+        if (getppid() != parent) _exit(0); /* the runner died before the line above */
+        struct sigaction dfl;
+        memset(&dfl, 0, sizeof(dfl));
+        dfl.sa_handler = SIG_DFL;
+        for (int sig = 1; sig < NSIG; sig++) sigaction(sig, &dfl, NULL);
+        sigset_t none;
+        sigemptyset(&none);
+        sigprocmask(SIG_SETMASK, &none, NULL);
+        int32_t errs[3];
+        apply_settings_to(0, &s, reset_on_fork, errs);
+        write_all(report[1], errs, sizeof(errs));
+        char go;
+        ssize_t got;
+        do got = read(gate[0], &go, 1);
+        while (got < 0 && errno == EINTR);
+        if (got != 1) _exit(0); /* the runner gave up on the cell before the program's start */
+        if (dup2(devnull, 0) < 0 || dup2(out_fd, 1) < 0 || dup2(err_fd, 2) < 0) {
+            int32_t r[2] = {STAGE_EXEC, errno};
+            write_all(report[1], r, sizeof(r));
+            _exit(127);
+        }
+        close_others(report[1], maxfd);
+        if (cwd && chdir(cwd) != 0) {
+            int32_t r[2] = {STAGE_CWD, errno};
+            write_all(report[1], r, sizeof(r));
+            _exit(127);
+        }
+        execve(path, argv, envp);
+        int32_t r[2] = {STAGE_EXEC, errno};
+        write_all(report[1], r, sizeof(r));
+        _exit(127);
+    }
+    close(report[1]);
+    close(gate[0]);
+    close(devnull);
+    free_strings(argv);
+    free_strings(envp);
+    return Py_BuildValue("(iii)", (int)pid, report[0], gate[1]);
+fail:
+    for (int k = 0; k < 2; k++) {
+        if (report[k] >= 0) close(report[k]);
+        if (gate[k] >= 0) close(gate[k]);
+    }
+    if (devnull >= 0) close(devnull);
+    free_strings(argv);
+    free_strings(envp);
+    return NULL;
+}
+
 static PyObject *probe_stopped(PyObject *mod, PyObject *Py_UNUSED(ignored)) {
     return PyBool_FromLong(g_stop);
 }
@@ -1912,6 +2099,8 @@ static PyMethodDef module_methods[] = {
     {"install_stop_handler", probe_install_stop_handler, METH_NOARGS, "SIGTERM/SIGINT/SIGUSR1 stop every loop of this process"},
     {"set_pdeathsig", probe_set_pdeathsig, METH_VARARGS, "set_pdeathsig(sig): receive sig when the parent dies"},
     {"stopped", probe_stopped, METH_NOARGS, "True once a stop signal arrived"},
+    {"apply_to", probe_apply_to, METH_VARARGS, apply_to_doc},
+    {"spawn_program", probe_spawn_program, METH_VARARGS, spawn_program_doc},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1929,6 +2118,8 @@ PyMODINIT_FUNC PyInit__probe(void) {
     Py_INCREF(&WatchdogType);
     PyModule_AddObject(m, "Watchdog", (PyObject *)&WatchdogType);
     PyModule_AddIntConstant(m, "FILE_HEADER", FILE_HEADER);
+    PyModule_AddIntConstant(m, "STAGE_CWD", STAGE_CWD);
+    PyModule_AddIntConstant(m, "STAGE_EXEC", STAGE_EXEC);
     PyModule_AddIntConstant(m, "SLOT_HEADER", SLOT_HEADER);
     PyModule_AddIntConstant(m, "SAMPLE_SIZE", sizeof(struct sample));
     PyModule_AddIntConstant(m, "HIST_BUCKETS", HIST_BUCKETS);

@@ -7,6 +7,8 @@ from collections.abc import Sequence
 from typing import Optional, Union
 
 FILE_HEADER: int
+STAGE_CWD: int
+STAGE_EXEC: int
 SLOT_HEADER: int
 SAMPLE_SIZE: int
 WORK_SLEEP: int
@@ -118,3 +120,24 @@ def set_default_stacksize(bytes: int) -> None: ...
 def install_stop_handler() -> None: ...
 def set_pdeathsig(sig: int) -> None: ...
 def stopped() -> bool: ...
+def apply_to(
+    tid: int,
+    policy: Optional[int],
+    priority: Optional[int],
+    nice: Optional[int],
+    cpus: Optional[Sequence[int]],
+    extra: Optional[Extra] = None,
+) -> tuple[int, int, int]: ...
+
+SettingsTuple = tuple[Optional[int], Optional[int], Optional[int], Optional[Sequence[int]], Optional[Extra]]
+
+def spawn_program(
+    path: bytes,
+    argv: Sequence[bytes],
+    envp: Sequence[bytes],
+    cwd: Optional[bytes],
+    settings: SettingsTuple,
+    reset_on_fork: bool,
+    out_fd: int,
+    err_fd: int,
+) -> tuple[int, int, int]: ...

@@ -24,10 +24,11 @@ from runner.results.document import (
     Status,
     ThreadHistograms,
     ThreadResult,
+    Verdict,
     thread_label,
     worst,
 )
-from runner.run import programs
+from runner.run import outside, programs
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
@@ -230,10 +231,31 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             )
         )
         measured.append((p, fig))
+    program_failures: list[str] = []
+    program_warnings: list[str] = []
+    for prog in raw.programs:
+        out = outside.outcome(prog, raw.timeline.start_ns, raw.timeline.stopped_ns or raw.timeline.ended_ns, raw.interrupted, degradation)
+        result.programs.append(out.result)
+        result.threads.extend(t for _, t in out.threads)
+        measured.extend((planned, t.figures) for planned, t in out.threads)
+        program_failures += out.failures
+        program_warnings += out.warnings
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
         mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
+        if not targets and raw.programs and not raw.interrupted:  # a program's thread that never appeared: never a silent pass
+            verdict = Verdict(
+                thread=exp.thread,
+                metric=exp.metric.value,
+                limit=exp.describe_limit(),
+                measured=None,
+                passed=False,
+                note="not measured (no thread of that name ran)",
+            )
+            if mark is not None:
+                verdict.line, verdict.col = mark.line, mark.col
+            result.expectations.append(verdict)
         for planned, fig in measured:
             if id(planned) in targets and (is_periodic(planned.work) or not metric_figure(exp.metric).needs_callbacks):
                 verdict = check(exp, verdict_label(planned, raw.processes), fig)
@@ -258,14 +280,17 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if r.dropped
         ]
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
+        + program_warnings
     )
     if stalls:
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")
-    result.status, result.reason = status(result, raw, allow_degraded, stalls)
+    result.status, result.reason = status(result, raw, allow_degraded, stalls, program_failures)
     return result
 
 
-def status(result: CellResult, raw: RawCell, allow_degraded: bool, stalls: Optional[list[str]] = None) -> tuple[Status, str]:
+def status(
+    result: CellResult, raw: RawCell, allow_degraded: bool, stalls: Optional[list[str]] = None, programs: Optional[list[str]] = None
+) -> tuple[Status, str]:
     """The cell's status and the reason given for it, most severe first.
 
     Interrupted beats everything (the figures are partial); a failure of the run itself (a
@@ -273,7 +298,12 @@ def status(result: CellResult, raw: RawCell, allow_degraded: bool, stalls: Optio
     error; then failed expectations; then settings that were not applied, which are an error
     unless the user allowed degraded runs.
     """
-    reasons = list(raw.failures) + list(raw.incidents) + ([": ".join([stalls[0], "; ".join(stalls[1:])])] if stalls else [])
+    reasons = (
+        list(raw.failures)
+        + list(raw.incidents)
+        + list(programs or [])
+        + ([": ".join([stalls[0], "; ".join(stalls[1:])])] if stalls else [])
+    )
     statuses = []
     if raw.interrupted:
         statuses.append(Status.INTERRUPTED)

@@ -8,6 +8,7 @@ sched_getaffinity on the thread id, and the thread table from
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from typing import Optional
 
 from runner.results.pstable import ThreadRow
@@ -139,3 +140,86 @@ def process_state(pid: int) -> Optional[str]:
 def _zombie(pid: str) -> bool:
     stat = _read(f"/proc/{pid}/stat")
     return stat[stat.rfind(")") + 2 :][:1] in ("Z", "X")
+
+
+@dataclass(frozen=True)
+class Counters:
+    """A thread's cumulative counters as the kernel keeps them: the figures of a thread the runner does not own."""
+
+    voluntary: int
+    involuntary: int
+    minor_faults: int
+    major_faults: int
+    cpu_time_ns: int  # time on a CPU (schedstat), exact to the ns
+    migrations: Optional[int]  # se.nr_migrations where the kernel exposes /proc/<tid>/sched (CONFIG_SCHED_DEBUG)
+    cpu: int  # the CPU it last ran on
+
+    def minus(self, base: Counters) -> Counters:
+        """The counts since `base` (an earlier reading of the same thread)."""
+        migrations = None if self.migrations is None or base.migrations is None else self.migrations - base.migrations
+        return Counters(
+            self.voluntary - base.voluntary,
+            self.involuntary - base.involuntary,
+            self.minor_faults - base.minor_faults,
+            self.major_faults - base.major_faults,
+            self.cpu_time_ns - base.cpu_time_ns,
+            migrations,
+            self.cpu,
+        )
+
+
+ZERO = Counters(0, 0, 0, 0, 0, 0, -1)
+
+
+def _sched_fields(text: str) -> dict[str, str]:
+    out = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def thread_counters(pid: int, tid: int) -> Optional[Counters]:
+    """One thread's counters from /proc/<pid>/task/<tid>/{stat,status,schedstat,sched}; None once it has exited."""
+    base = f"/proc/{pid}/task/{tid}"
+    try:
+        _, fields = parse_stat(_read(f"{base}/stat"))
+        status = _read(f"{base}/status")
+        run_ns = int(_read(f"{base}/schedstat").split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    switches = {"voluntary_ctxt_switches": 0, "nonvoluntary_ctxt_switches": 0}
+    for line in status.splitlines():
+        key, _, value = line.partition(":")
+        if key in switches:
+            switches[key] = int(value)
+    try:
+        migrations: Optional[int] = int(_sched_fields(_read(f"{base}/sched")).get("se.nr_migrations", ""))
+    except (OSError, ValueError):
+        migrations = None
+    return Counters(
+        switches["voluntary_ctxt_switches"],
+        switches["nonvoluntary_ctxt_switches"],
+        int(fields[10 - 3]),
+        int(fields[12 - 3]),
+        run_ns,
+        migrations,
+        int(fields[39 - 3]),
+    )
+
+
+def thread_comm(pid: int, tid: int) -> Optional[str]:
+    """A thread's name (comm); None once it has exited."""
+    try:
+        return _read(f"/proc/{pid}/task/{tid}/comm").rstrip("\n")
+    except OSError:
+        return None
+
+
+def task_ids(pid: int) -> list[int]:
+    """The TIDs of a process's threads; empty once it has exited."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return []

@@ -95,7 +95,10 @@ def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
     fig = fg.figure(name)
     value = fg.value(figs, fig)
     if value is None:
-        why = "no such events ran" if fig.scope is fg.Scope.EVENTS else "no callbacks"
+        why = {
+            fg.Scope.EVENTS: "no such events ran",
+            fg.Scope.OUTSIDE: "measured for programs' threads, and from the scheduler trace when it ran",
+        }.get(fig.scope, "no callbacks")
         return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note=f"not measured ({why})")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)
     return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok)

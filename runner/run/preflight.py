@@ -161,14 +161,14 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
             _refuse_cpus(where, h.cpus, online)
             if sched is not None and sched.policy.is_realtime:
                 out.rt.setdefault((sched.policy, sched.rt_priority), where)
-        out.lock = out.lock or next((proc.name for proc in sc.processes if proc.memory.lock), None)
+        out.lock = out.lock or next((proc.name for proc in sc.workers if proc.memory.lock), None)
         out.uclamp = out.uclamp or _asks_uclamp(sc)
     return out
 
 
 def _asks_uclamp(sc: Scenario) -> str | None:
     """The first thread (or phase) whose sched asks for util_min or util_max."""
-    for proc in sc.processes:
+    for proc in sc.workers:
         scheds = [(f"{proc.name}/{proc.main_name}", proc.main.sched)]
         for spec in proc.threads:
             scheds.append((f"{proc.name}/{spec.name}", spec.sched))

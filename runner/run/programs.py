@@ -172,7 +172,7 @@ def stall(work: PhasesWork, slot: SlotData, end_ns: Optional[int], start_ns: Opt
 def deadline_admission(scenario: Scenario, rt_runtime_us: Optional[int], rt_period_us: Optional[int], cpus: int) -> str:
     """Why the kernel refused SCHED_DEADLINE (EBUSY), in numbers: the cell's bandwidth against what the kernel admits."""
     asks: list[tuple[str, float]] = []
-    for proc in scenario.processes:
+    for proc in scenario.workers:
         scheds = [(proc.name, proc.main.sched)] + [(spec.name, spec.sched) for spec in proc.threads for _ in range(spec.count)]
         for spec in proc.threads:
             if isinstance(spec.work, PhasesWork):

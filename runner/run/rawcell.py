@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from runner.results.pstable import ThreadRow
+from runner.run.kernel import Counters
 from runner.run.samples import SlotData
+from runner.scenario.model import ProgramSpec
 from runner.scenario.plan import PlannedThread, Settings
 
 
@@ -117,6 +119,57 @@ class ResourceState:
 
 
 @dataclass(frozen=True)
+class Snapshot:
+    """A thread's name and settings at one instant: when it appeared, when a rule changed it, when it changed itself."""
+
+    at_ns: int  # CLOCK_MONOTONIC
+    comm: str
+    settings: Settings
+    why: str  # "appeared", "rule", "changed"
+
+
+@dataclass(frozen=True)
+class RawProgramThread:
+    """One thread of a program as the monitor saw it."""
+
+    tid: int
+    index: int  # order of appearance; 0 is the main thread
+    comm: str  # its name when last read
+    seen_ns: int  # when the monitor first listed it
+    named_ns: int  # when it was first seen under the name it ended with (a rule can match only from then)
+    gone_ns: Optional[int]  # when it was found gone; None while it lived to the end
+    rule: Optional[int]  # the index of the rule applied to it
+    rule_errors: ApplyErrors
+    rule_ns: Optional[int]  # when the rule was applied
+    counters: Optional[Counters]  # over the measured window (or from its appearance); None if never read
+    measured_ns: int  # the time those counters cover
+    cpus_seen: tuple[int, ...]  # CPUs it was found running on at the readings
+    history: tuple[Snapshot, ...]
+    applied: Optional[Settings]  # its settings when last read
+
+
+@dataclass(frozen=True)
+class RawProgram:
+    """A program of the cell: how it started and ended, its output, and its threads."""
+
+    spec: ProgramSpec
+    start: Settings  # the settings it inherited from the runner, before its own
+    pid: int  # 0 when it never started
+    path: str  # the program as found in PATH
+    start_errors: ApplyErrors  # the errno of each process-level setting applied before exec
+    failure: str  # why it could not start, in words; "" when it did
+    released_ns: Optional[int]  # exec
+    exited_ns: Optional[int]  # when it was found exited
+    exit_code: Optional[int]  # its exit status, or None when a signal ended it
+    exit_signal: Optional[int]
+    stopped: str  # how the runner ended it: "", "SIGTERM", "SIGKILL" (SIGTERM ignored for the grace period)
+    stdout: str  # file names in the cell folder
+    stderr: str
+    tail: tuple[str, ...]  # the last lines of its output (stderr, then stdout)
+    threads: tuple[RawProgramThread, ...]
+
+
+@dataclass(frozen=True)
 class Timeline:
     """CLOCK_MONOTONIC instants (ns) of the cell; None for what never happened."""
 
@@ -143,3 +196,4 @@ class RawCell:
     online_cpus: tuple[int, ...] = ()  # the CPUs the runner may use: an affinity of all of them reads as "all"
     rt_limit_us: tuple[Optional[int], Optional[int]] = (None, None)  # sched_rt_runtime_us, sched_rt_period_us
     resources: tuple[ResourceState, ...] = ()
+    programs: tuple[RawProgram, ...] = ()  # the user's programs, measured from outside

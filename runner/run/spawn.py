@@ -29,6 +29,7 @@ from runner.results.pstable import ThreadRow
 from runner.run import _probe, dmalatency, kernel, samples
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import child_env, python_module
+from runner.run.external import Monitor, ProgramRun, sched_json
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.preflight import Permissions
@@ -44,15 +45,14 @@ from runner.scenario.model import (
     Overrun,
     PeriodicWork,
     PhasesWork,
-    Policy,
     Protocol,
     ResourceKind,
     Samples,
     SamplesMode,
     Scenario,
-    Sched,
     SleepWork,
     SpinWork,
+    Until,
     Wait,
     Work,
 )
@@ -167,7 +167,7 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Opt
             events.append((_EVENT_TYPES[e.event], res, res2, mode, arg))
         settings = None
         if phase.sched is not None or phase.cpus is not None:
-            sched = _sched_json(phase.sched)
+            sched = sched_json(phase.sched)
             policy, priority, nice, extra = sched if sched else (None, None, None, None)
             settings = (policy, priority, nice, list(phase.cpus) if phase.cpus else None, extra)
         phases.append((phase.loop, first, len(events) - first, settings))
@@ -199,22 +199,6 @@ def work_tuple(
     if isinstance(work, SpinWork):
         return (_probe.WORK_SPIN, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
     return (_probe.WORK_SLEEP, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
-
-
-def _sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
-    """[policy, priority, nice, extra]: extra is (runtime, deadline, period, util_min, util_max) for deadline or uclamp, else None."""
-    if sched is None:
-        return None
-    extra = None
-    if sched.policy is Policy.DEADLINE or sched.util_min is not None or sched.util_max is not None:
-        extra = (
-            sched.runtime or 0,
-            sched.deadline or 0,
-            sched.period or 0,
-            -1 if sched.util_min is None else sched.util_min,
-            -1 if sched.util_max is None else sched.util_max,
-        )
-    return [sched.policy.kernel_id, sched.rt_priority, sched.nice, extra]
 
 
 @dataclass
@@ -320,7 +304,7 @@ def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -
 
 def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samples.Layout, gids: dict[int, int]) -> dict[str, Any]:
     """What one worker process is told to create, its buffer sized as `layout`; `gids` numbers every thread of the cell (by id)."""
-    proc = next(p for p in scenario.processes if p.name == threads[0].process)
+    proc = next(p for p in scenario.workers if p.name == threads[0].process)
     mem = proc.memory
     bound = scenario.latency_bound or 0
     by_index = {t.index: t for t in threads}
@@ -342,7 +326,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
         "main": {
             "name": proc.main_name,
             "apply": proc.main.apply.value,
-            "sched": _sched_json(proc.main.sched),
+            "sched": sched_json(proc.main.sched),
             "cpus": list(proc.main.cpus) if proc.main.cpus else None,
             "work": work(proc.main.work, 0),
         },
@@ -351,7 +335,7 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
                 "name": member.name,
                 "explicit": not spec.inherit,
                 "spawned": spec.spawned,
-                "sched": _sched_json(member.sched),
+                "sched": sched_json(member.sched),
                 "cpus": list(member.cpus) if member.cpus else None,
                 "work": work(member.work, index),
             }
@@ -390,7 +374,7 @@ def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
                 "main": {
                     "name": hog.name,
                     "apply": "before_threads",
-                    "sched": _sched_json(hog.sched),
+                    "sched": sched_json(hog.sched),
                     "cpus": list(hog.cpus) if hog.cpus else None,
                     "work": spin if as_processes else work_tuple(SleepWork()),
                 },
@@ -542,6 +526,8 @@ class _CellRun:
             )
         self.resources: Optional[mmap.mmap] = None
         self.hogs = _hog_workers(self.scenario, folder)
+        self.programs = [ProgramRun(spec, folder, start, kernel.online_cpus()) for spec in self.scenario.programs]
+        self.monitor: Optional[Monitor] = None
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
         self.table: list[ThreadRow] = []
@@ -588,6 +574,10 @@ class _CellRun:
                     self.guard.watch(self.commands[-1].pid)
                 except OSError as exc:
                     self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+        for p in self.programs:
+            if not self.reason:
+                p.launch(self.guard)
+                self.reason = p.failure
 
     def _create_resources(self) -> Optional[int]:
         """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
@@ -607,8 +597,13 @@ class _CellRun:
     def supervise(self) -> None:
         """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
         options, workers, hogs = self.options, self.workers, self.hogs
-        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands]
         now = time.monotonic_ns()
+        for p in self.programs:
+            p.release()
+            if p.failure:
+                self.reason = p.failure
+                return
+        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs]
         t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
         t_end = t0 + options.duration_ns
         self.t0, self.t_end = t0, t_end
@@ -623,12 +618,16 @@ class _CellRun:
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
-        while any(w.popen.poll() is None for w in workers):  # type: ignore[union-attr]
+        self.monitor = Monitor(self.programs)
+        self.monitor.window_start = t0
+        self.monitor.start()
+        while self._running(t_end):
             time.sleep(0.05 if options.follow else 0.2)
             if options.stop_requested():
                 raise Interrupted()
             if not self.table and time.monotonic() >= snapshot_at:
-                self.table = [row for w in workers for row in kernel.thread_rows(w.pid)]
+                pids = [w.pid for w in workers] + [p.pid for p in self.programs if p.pid and not p.poll()]
+                self.table = [row for pid in pids for row in kernel.thread_rows(pid)]
             self._watch_for_incidents(t0, t_end)
             for w in workers:
                 if options.follow:
@@ -639,10 +638,21 @@ class _CellRun:
                 left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
                 options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
         self.exit_time = time.monotonic_ns()
+        self.monitor.stop()
         for w in workers:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
             _read_done(w)
+
+    def _running(self, t_end: int) -> bool:
+        """Whether the cell goes on: a worker runs, or a program runs before the end (every `until: exit` one, before its exit)."""
+        if any(w.popen.poll() is None for w in self.workers):  # type: ignore[union-attr]
+            return True
+        running = [p for p in self.programs if not p.poll()]
+        if not running or time.monotonic_ns() >= t_end:
+            return False
+        waiting = [p for p in self.programs if p.spec.until is Until.EXIT]
+        return not waiting or any(p in running for p in waiting)
 
     def remove_buffers(self) -> None:
         """Unmap the cell's sample buffers: their memory goes with the last mapping (the workers' are gone by now)."""
@@ -680,7 +690,12 @@ class _CellRun:
                 )
 
     def stop(self) -> None:
-        """Stop the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
+        """Stop the programs and the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
+        if self.monitor is not None:
+            self.monitor.stop()
+        for p in self.programs:
+            p.abandon()
+            p.stop(self.guard)
         for h in self.hogs:
             h.signal(signal.SIGTERM)
         for c in self.commands:
@@ -753,6 +768,7 @@ class _CellRun:
             kernel.online_cpus(),
             kernel.rt_limit(),
             self._resource_states(),
+            tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:

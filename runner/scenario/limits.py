@@ -20,7 +20,7 @@ import resource
 from dataclasses import dataclass, field
 
 from runner import units
-from runner.scenario.model import HogKind, PeriodicWork, ProcessSpec, Scenario
+from runner.scenario.model import HogKind, PeriodicWork, ProcessSpec, ProgramSpec, Scenario
 
 Path = tuple[str | int, ...]
 
@@ -100,10 +100,10 @@ class _Tally:
 
 def cell_threads(scenario: Scenario) -> int:
     """Threads a cell creates: every instance's main thread and threads, and the hogs."""
-    total = sum(proc.instances * (1 + sum(t.count for t in proc.threads)) for proc in scenario.processes)
+    total = sum(proc.instances * (1 + sum(t.count for t in proc.threads)) for proc in scenario.workers)
     for hog in scenario.background.hogs:
         total += hog.count if hog.kind is HogKind.PROCESS else 1 + hog.count
-    return total + len(scenario.background.commands)
+    return total + len(scenario.background.commands) + len(scenario.programs)
 
 
 def locked_bytes(proc: ProcessSpec, default_stack: int) -> int:
@@ -171,7 +171,7 @@ def _check_threads(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
 def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     out: list[Finding] = []
     for i, proc in enumerate(scenario.processes):
-        if not proc.memory.lock or limits.memlock is None:
+        if not isinstance(proc, ProcessSpec) or not proc.memory.lock or limits.memlock is None:
             continue
         pinned = locked_bytes(proc, limits.default_stack)
         if pinned > limits.memlock:
@@ -189,7 +189,7 @@ def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
                 )
             )
     if limits.mem_available is not None:
-        total = sum(proc.instances * resident_bytes(proc, limits.default_stack) for proc in scenario.processes)
+        total = sum(proc.instances * resident_bytes(proc, limits.default_stack) for proc in scenario.workers)
         if total > limits.mem_available:
             out.append(
                 Finding(
@@ -211,6 +211,10 @@ def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     out: list[Finding] = []
     wanted: list[tuple[Path, tuple[int, ...] | None]] = []
     for i, proc in enumerate(scenario.processes):
+        if isinstance(proc, ProgramSpec):
+            wanted.append((("processes", i, "cpus"), proc.cpus))
+            wanted.extend((("processes", i, "threads", j, "cpus"), r.cpus) for j, r in enumerate(proc.threads))
+            continue
         wanted.append((("processes", i, "main", "cpus"), proc.main.cpus))
         wanted.extend((("processes", i, "threads", j, "cpus"), t.cpus) for j, t in enumerate(proc.threads))
     wanted.extend((("background", "hogs", h, "cpus"), hog.cpus) for h, hog in enumerate(scenario.background.hogs))

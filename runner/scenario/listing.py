@@ -6,6 +6,8 @@ the online CPUs so the listing says what this machine would do.
 
 from __future__ import annotations
 
+import shlex
+
 from tabulate import tabulate
 
 from runner import units
@@ -17,13 +19,15 @@ from runner.scenario.model import (
     PhasesWork,
     Pin,
     ProcessSpec,
+    ProgramSpec,
     Scenario,
     SleepWork,
     SpinWork,
     ThreadSpec,
+    Until,
     Work,
 )
-from runner.scenario.plan import Settings, plan_process
+from runner.scenario.plan import Settings, plan_process, program_settings, rule_settings
 
 
 def describe_work(work: Work) -> str:
@@ -110,7 +114,7 @@ def expansion(loaded: LoadedScenario) -> list[str]:
     on this machine (`count: cpus` is its CPUs), thread by thread; said once when every cell resolves alike."""
     blocks: dict[str, list[str]] = {}
     for cell in loaded.cells:
-        lines = [line for proc in cell.scenario.processes for line in spread_lines(proc)]
+        lines = [line for proc in cell.scenario.workers for line in spread_lines(proc)]
         if lines:
             blocks.setdefault("\n".join(lines), []).append(cell.id)
     out: list[str] = []
@@ -135,7 +139,9 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
         lines.append(f"  background: {hog.count} busy {noun} {hog.name!r}, {sched}, {where}")
     for cmd in sc.background.commands:
         lines.append(f"  background: command {cmd.argv!r}")
-    for proc in sc.processes:
+    for prog in sc.programs:
+        lines.extend(_program_lines(prog, start, online))
+    for proc in sc.workers:
         copies = f", {proc.instances} instances" if proc.instances > 1 else ""
         reset = ", reset-on-fork" if proc.reset_on_fork else ""
         apply = proc.main.apply.value.replace("_", " ")
@@ -160,6 +166,22 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
         exp = sc.expect[i]
         lines.append(f"  expect {exp.thread}: {exp.metric.value} {exp.describe_limit()}")
     return "\n".join(lines)
+
+
+def _program_lines(prog: ProgramSpec, start: Settings, online: tuple[int, ...]) -> list[str]:
+    """A program: its command, the settings it is started with, and its thread rules."""
+    main, others = program_settings(prog, start)
+    until = "runs until the cell ends" if prog.until is Until.END else "the cell ends when it exits"
+    reset = ", reset-on-fork" if prog.reset_on_fork else ""
+    lines = [f"  program {prog.name}: {shlex.join(prog.command)}; {until}{reset}"]
+    rows = [["main", "(its main thread)", main.label(), main.nice, main.cpus_label(online), "before exec"]]
+    if others != main:
+        rows.append(["", "(threads it creates)", others.label(), others.nice, others.cpus_label(online), "reset on fork"])
+    for rule in prog.threads:
+        wanted = rule_settings(prog, rule, start)
+        rows.append(["rule", rule.match, wanted.label(), wanted.nice, wanted.cpus_label(online), "when it appears"])
+    table = tabulate(rows, headers=["", "THREAD", "POLICY", "NICE", "CPUS", "APPLIED"], tablefmt="plain")
+    return lines + ["    " + row for row in table.splitlines()]
 
 
 def render(loaded: LoadedScenario, start: Settings, online: tuple[int, ...]) -> str:

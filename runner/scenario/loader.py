@@ -26,7 +26,18 @@ from runner.figures import Scope
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
 from runner.scenario import program, rtapp
-from runner.scenario.model import CPUS_CONTEXT, Expectation, PhasesWork, ProcessSpec, Resource, Scenario, metric_figure
+from runner.scenario.model import (
+    CPUS_CONTEXT,
+    AnyProcess,
+    Expectation,
+    PhasesWork,
+    ProgramSpec,
+    Resource,
+    Scenario,
+    Until,
+    metric_figure,
+    workers,
+)
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
 from runner.scenario.validate import problems_from, written_path
 from runner.scenario.yamlsource import Document, Mark, load_file, load_text
@@ -72,7 +83,7 @@ def spec_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-_PROCESSES = TypeAdapter(list[ProcessSpec])
+_PROCESSES = TypeAdapter(list[AnyProcess])
 _RESOURCES = TypeAdapter(dict[str, Resource])
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
 
@@ -226,7 +237,7 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
 
 def _cross_checks(
     doc: Document,
-    processes: list[ProcessSpec],
+    processes: list[AnyProcess],
     expectations: list[tuple[int, Expectation]],
     index: MatrixIndex,
     resources: dict[str, Resource] | None,
@@ -238,11 +249,20 @@ def _cross_checks(
     out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
     out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.spawn_problems(processes))
     seen: set[str] = set()
+    programs = {p.name for p in processes if isinstance(p, ProgramSpec)}
     for i, proc in enumerate(processes):
+        if isinstance(proc, ProgramSpec) and proc.until is Until.EXIT and len(programs) < len(processes):
+            out.append(
+                doc.problem(
+                    ("processes", i, "until"),
+                    "until: exit ends the cell when the program exits, but the runner's own processes run for the whole duration; "
+                    "run the load as background (hogs, commands) or use until: end",
+                )
+            )
         if proc.name in seen:
             out.append(doc.problem(("processes", i, "name"), f"process name {proc.name!r} is used twice; use instances: N for copies"))
         seen.add(proc.name)
-    planned = [t for proc in processes for t in plan_process(proc, Settings())]
+    planned = [t for proc in workers(processes) for t in plan_process(proc, Settings())]
     names: dict[str, list[str]] = {}
     for t in planned:
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
@@ -252,6 +272,8 @@ def _cross_checks(
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
         process, sep, thread = exp.thread.rpartition("/")
+        if process in programs if sep else not targets and programs:
+            continue  # a program's threads are known only once it runs: one that never appears fails its expectation then
         if sep and process not in names:
             out.append(doc.problem(path + ("thread",), f"no process named {process!r}{did_you_mean(process, names)}"))
         elif not targets:

@@ -20,11 +20,13 @@ from pydantic import (
     BaseModel,
     BeforeValidator,
     ConfigDict,
+    Discriminator,
     Field,
     ModelWrapValidatorHandler,
     PlainSerializer,
     PrivateAttr,
     SerializerFunctionWrapHandler,
+    Tag,
     ValidationInfo,
     WithJsonSchema,
     field_validator,
@@ -1178,6 +1180,146 @@ class ProcessSpec(Strict):
         return self.name
 
 
+# ----------------------------------------------------------------------- programs
+
+
+class Until(str, enum.Enum):
+    """When a program's cell ends."""
+
+    END = "end"  # the program runs the whole cell and is stopped at its end
+    EXIT = "exit"  # the cell ends when the program exits; the duration is its limit
+
+
+MAX_GRACE = 60_000_000_000  # SIGTERM to SIGKILL: a program gets at most a minute to exit
+
+
+def _argv(value: Any) -> Any:
+    """A command is a list of arguments, never a shell string."""
+    if isinstance(value, str):
+        raise ValueError(f"a command is a list such as ['stress-ng', '--cpu', '2'], not the string {value!r} (no shell runs it)")
+    return value
+
+
+def _argv_items(value: list[str]) -> list[str]:
+    if not value[0]:
+        raise ValueError("the program (the command's first item) is empty")
+    for arg in value:
+        if "\x00" in arg:
+            raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
+    return value
+
+
+class ThreadRule(Strict):
+    """Settings the runner gives the threads a program creates itself, chosen by name, the moment each appears."""
+
+    match: str = Field(description="thread name (comm) as a shell pattern: `ctl_loop`, `rt_sub*`, `worker-[0-3]`")
+    sched: Optional[Sched] = Field(None, description="scheduling applied to each matching thread")
+    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied to each matching thread")
+
+    @field_validator("match")
+    @classmethod
+    def _pattern(cls, value: str) -> str:
+        if not value:
+            raise ValueError("match is empty; expected a thread name or a pattern such as 'rt_sub*'")
+        char = control_character(value)
+        if char is not None:
+            raise ValueError(f"match {value!r} contains the control character {char!r}; thread names cannot hold one")
+        return value
+
+    @model_validator(mode="after")
+    def _does_something(self) -> ThreadRule:
+        if self.sched is None and self.cpus is None:
+            raise KeyProblem("match", f"the rule for {self.match!r} sets nothing; give it sched, cpus or both")
+        return self
+
+
+class ProgramSpec(Strict):
+    """A program of the user's own, run as a measured process: settings applied before exec, thread rules after.
+
+    The runner does not own its threads, so settings are given at the process level
+    (inherited by every thread it creates, as `chrt` and `taskset` in front of a
+    command) and per thread by name; everything is read back from the kernel.
+    """
+
+    name: str = Field(description="the process's label in reports and expectations (`name/thread`), 15 bytes at most")
+    command: Annotated[list[str], BeforeValidator(_argv)] = Field(
+        min_length=1, description="program and arguments as a list (never a shell string); the program is looked up in PATH"
+    )
+    cwd: Optional[str] = Field(None, description="working directory (default: the cell's folder)")
+    env: dict[str, str] = Field(default_factory=dict, description="environment variables added to the runner's")
+    sched: Optional[Sched] = Field(None, description="scheduling applied before exec: every thread the program creates inherits it")
+    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied before exec, inherited likewise")
+    reset_on_fork: bool = Field(
+        False, description="set SCHED_RESET_ON_FORK before exec: threads and children the program creates start from SCHED_OTHER"
+    )
+    threads: list[ThreadRule] = Field(
+        default_factory=list,
+        description="settings for the program's own threads by name, applied as each appears (first match wins)",
+    )
+    until: Until = Field(
+        Until.END, description="end: stopped at the end of the cell; exit: the cell ends when it exits (duration is the limit)"
+    )
+    grace: Duration = Field(1_000_000_000, description="time between SIGTERM and SIGKILL when the program is stopped")
+
+    _name = field_validator("name")(lambda cls, v: _check_comm(v))
+    _items = field_validator("command")(lambda cls, v: _argv_items(v))
+
+    @field_validator("cwd")
+    @classmethod
+    def _cwd(cls, value: Optional[str]) -> Optional[str]:
+        if value is not None and (not value or "\x00" in value):
+            raise ValueError(f"cwd {value!r} is not a path")
+        return value
+
+    @field_validator("env")
+    @classmethod
+    def _env(cls, value: dict[str, str]) -> dict[str, str]:
+        for key, text in value.items():
+            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", key):
+                raise ValueError(f"env: {key!r} is not a variable name; expected letters, digits and _, not starting with a digit")
+            if "\x00" in text:
+                raise ValueError(f"env: {key} contains a NUL byte, which no program can receive")
+        return value
+
+    @field_validator("grace")
+    @classmethod
+    def _grace(cls, value: int) -> int:
+        if value > MAX_GRACE:
+            raise ValueError(f"grace {units.format_duration(value)} is too long; at most {units.format_duration(MAX_GRACE)}")
+        return value
+
+    @model_validator(mode="after")
+    def _no_deadline(self) -> ProgramSpec:
+        if self.sched is not None and self.sched.policy is Policy.DEADLINE:
+            raise KeyProblem(
+                "sched",
+                "a SCHED_DEADLINE process cannot create threads or children (the kernel refuses its clone); "
+                "give deadline to a thread rule (threads: - match: ...) instead",
+            )
+        return self
+
+    @property
+    def main_name(self) -> str:
+        return self.name
+
+
+PROGRAM_TAG, WORKERS_TAG = "[program]", "[threads]"
+
+
+def _process_kind(value: Any) -> str:
+    """A process with a `command` runs the user's program; any other runs the runner's own threads."""
+    if isinstance(value, ProgramSpec) or (isinstance(value, dict) and "command" in value):
+        return PROGRAM_TAG
+    return WORKERS_TAG
+
+
+AnyProcess = Annotated[
+    Union[Annotated[ProcessSpec, Tag(WORKERS_TAG)], Annotated[ProgramSpec, Tag(PROGRAM_TAG)]],
+    Discriminator(_process_kind),
+]
+"""A scenario process: the runner's own threads (`threads:` with work), or the user's program (`command:`)."""
+
+
 # --------------------------------------------------------------------- background
 
 
@@ -1426,7 +1568,9 @@ class Scenario(Strict):
     name: str = Field(description="scenario name; default: the file name without .yaml")
     description: str = Field("", description="what the scenario reproduces and the effect to expect")
     duration: Duration = Field(10_000_000_000, description="run time of each cell (the CLI can override)")
-    processes: list[ProcessSpec] = Field(min_length=1)
+    processes: list[AnyProcess] = Field(
+        min_length=1, description="the runner's own processes (threads:) and the user's programs (command:)"
+    )
     background: Background = Field(default_factory=Background)
     matrix: Any = Field(None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
     expect: list[Expectation] = Field(default_factory=list)
@@ -1483,3 +1627,18 @@ class Scenario(Strict):
         if not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
             raise ValueError(f"name {value!r} may use letters, digits and _ . + - only (it names a results folder)")
         return value
+
+    @property
+    def workers(self) -> list[ProcessSpec]:
+        """The processes that run the runner's own threads."""
+        return workers(self.processes)
+
+    @property
+    def programs(self) -> list[ProgramSpec]:
+        """The processes that run the user's programs."""
+        return [p for p in self.processes if isinstance(p, ProgramSpec)]
+
+
+def workers(processes: list[ProcessSpec | ProgramSpec]) -> list[ProcessSpec]:
+    """The processes of a list that run the runner's own threads (programs left out)."""
+    return [p for p in processes if isinstance(p, ProcessSpec)]

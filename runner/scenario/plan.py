@@ -10,6 +10,7 @@ returns the settings each thread is expected to hold.  The runner records this a
 
 from __future__ import annotations
 
+import fnmatch
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Annotated, Any, Optional
@@ -17,7 +18,20 @@ from typing import Annotated, Any, Optional
 from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
 
 from runner import units
-from runner.scenario.model import ApplyWhen, EventKind, PeriodicWork, PhasesWork, Policy, ProcessSpec, Resource, Scenario, Sched, Work
+from runner.scenario.model import (
+    ApplyWhen,
+    EventKind,
+    PeriodicWork,
+    PhasesWork,
+    Policy,
+    ProcessSpec,
+    ProgramSpec,
+    Resource,
+    Scenario,
+    Sched,
+    ThreadRule,
+    Work,
+)
 from runner.scenario.program import SpawnSite, spawn_sites
 
 
@@ -158,10 +172,31 @@ def _at_site(proc: ProcessSpec, site: SpawnSite, main: Settings, settings_of: Ca
     return current
 
 
+def program_settings(prog: ProgramSpec, start: Settings) -> tuple[Settings, Settings]:
+    """What a program's main thread and the threads it creates hold before any thread rule: as `chrt` and `taskset` give them.
+
+    The program starts from the runner's settings with its own applied before exec; with
+    reset_on_fork (`chrt --reset-on-fork`) its main thread keeps them and the threads it
+    creates start from SCHED_OTHER and a nice of 0 or more.
+    """
+    main = start.with_sched(prog.sched, prog.cpus)
+    return main, main.reset_on_fork() if prog.reset_on_fork else main
+
+
+def rule_settings(prog: ProgramSpec, rule: ThreadRule, start: Settings) -> Settings:
+    """What a thread a rule matched should hold: what the program gave it, then the rule's settings."""
+    return program_settings(prog, start)[1].with_sched(rule.sched, rule.cpus)
+
+
+def first_rule(prog: ProgramSpec, comm: str) -> Optional[int]:
+    """The index of the first rule whose pattern matches a thread name, as a shell matches file names; None without."""
+    return next((i for i, rule in enumerate(prog.threads) if fnmatch.fnmatchcase(comm, rule.match)), None)
+
+
 def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:
     """Every measured thread of a cell, process by process, instance by instance."""
     out: list[PlannedThread] = []
-    for proc in scenario.processes:
+    for proc in scenario.workers:
         for instance in range(proc.instances):
             out.extend(plan_process(proc, start, instance, scenario.resources))
     return out

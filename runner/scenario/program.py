@@ -18,6 +18,7 @@ from typing import Optional, Union
 
 from runner.errors import did_you_mean
 from runner.scenario.model import (
+    AnyProcess,
     ApplyWhen,
     EventKind,
     PhasesWork,
@@ -31,9 +32,11 @@ from runner.scenario.model import (
 Path = tuple[Union[str, int], ...]
 
 
-def _programs(processes: list[ProcessSpec]) -> Iterator[tuple[Path, PhasesWork, int]]:
+def _programs(processes: list[AnyProcess]) -> Iterator[tuple[Path, PhasesWork, int]]:
     """Every program with its path and how many threads run it (count times instances)."""
     for i, proc in enumerate(processes):
+        if not isinstance(proc, ProcessSpec):
+            continue
         if isinstance(proc.main.work, PhasesWork):
             yield ("processes", i, "main", "work"), proc.main.work, proc.instances
         for j, spec in enumerate(proc.threads):
@@ -41,7 +44,7 @@ def _programs(processes: list[ProcessSpec]) -> Iterator[tuple[Path, PhasesWork, 
                 yield ("processes", i, "threads", j, "work"), spec.work, spec.count * proc.instances
 
 
-def barrier_parties(processes: list[ProcessSpec]) -> dict[str, int]:
+def barrier_parties(processes: list[AnyProcess]) -> dict[str, int]:
     """Threads that pass each barrier: every thread whose program names it, each copy counted."""
     out: dict[str, int] = {}
     for _, work, copies in _programs(processes):
@@ -50,7 +53,7 @@ def barrier_parties(processes: list[ProcessSpec]) -> dict[str, int]:
     return out
 
 
-def reference_problems(processes: list[ProcessSpec], resources: dict[str, Resource]) -> list[tuple[Path, str]]:
+def reference_problems(processes: list[AnyProcess], resources: dict[str, Resource]) -> list[tuple[Path, str]]:
     """Every event naming an undeclared resource or one of the wrong kind, and objects nobody could ever release."""
     out: list[tuple[Path, str]] = []
     used: dict[EventKind, set[str]] = {}
@@ -81,7 +84,7 @@ def reference_problems(processes: list[ProcessSpec], resources: dict[str, Resour
     return out
 
 
-def deadline_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
+def deadline_problems(processes: list[AnyProcess]) -> list[tuple[Path, str]]:
     """SCHED_DEADLINE rules the kernel enforces: full affinity, and no threads created by a deadline thread."""
     out: list[tuple[Path, str]] = []
     why_cpus = (
@@ -94,6 +97,8 @@ def deadline_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
             out.append((path + ("cpus",), why_cpus))
 
     for i, proc in enumerate(processes):
+        if not isinstance(proc, ProcessSpec):
+            continue
         main = proc.main
         check(("processes", i, "main"), main.sched, main.cpus)
         if main.sched is not None and main.sched.policy is Policy.DEADLINE and proc.threads and main.apply is ApplyWhen.BEFORE_THREADS:
@@ -139,10 +144,12 @@ def spawn_sites(proc: ProcessSpec, i: int) -> dict[str, list[SpawnSite]]:
     return out
 
 
-def spawn_problems(processes: list[ProcessSpec]) -> list[tuple[Path, str]]:
+def spawn_problems(processes: list[AnyProcess]) -> list[tuple[Path, str]]:
     """Spawns that name no spawnable thread of their process, spawned threads nothing starts, and deadline spawners."""
     out: list[tuple[Path, str]] = []
     for i, proc in enumerate(processes):
+        if not isinstance(proc, ProcessSpec):
+            continue
         sites = spawn_sites(proc, i)
         specs = {spec.name: (j, spec) for j, spec in enumerate(proc.threads)}
         for name, found in sites.items():

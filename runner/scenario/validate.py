@@ -15,10 +15,11 @@ from typing import Any, Union, cast, get_args, get_origin
 from pydantic import BaseModel, ValidationError
 
 from runner.errors import Problem, did_you_mean
-from runner.scenario.model import KeyProblem
+from runner.scenario.model import PROGRAM_TAG, WORKERS_TAG, KeyProblem, ProcessSpec, ProgramSpec
 from runner.scenario.yamlsource import Document, Path
 
 _SCALARS = (str, int, float, bool)
+PROCESS_TAGS: dict[str, type[BaseModel]] = {PROGRAM_TAG: ProgramSpec, WORKERS_TAG: ProcessSpec}
 
 
 def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
@@ -106,6 +107,8 @@ def _fields_at(root: type[BaseModel], loc: tuple[Any, ...]) -> list[str] | None:
             tp = get_args(tp)[0]
         elif origin is dict:
             tp = get_args(tp)[1]
+        elif origin in (Union, types.UnionType) and elem in PROCESS_TAGS:
+            tp = PROCESS_TAGS[elem]
         elif origin in (Union, types.UnionType):
             for member in get_args(tp):
                 member = _unwrap(member)

@@ -1,0 +1,380 @@
+"""The user's own programs as measured processes: settings before exec, thread rules as threads appear, /proc read-back.
+
+The runner does not own a program's threads, so everything about them comes from the
+kernel, from outside.  A program is forked by the native core, which applies the
+process's settings to itself (the way `chrt` and `taskset` do in front of a command)
+and waits at a gate before exec, so the runner knows its PID before it runs a single
+instruction of its own.  While the cell runs, a monitor thread of the runner lists the
+program's threads: each new thread is recorded with its settings, the first thread rule
+its name matches is applied to it (by TID, from outside, with the time it took), and its
+counters (switches, faults, CPU time, migrations, the CPU it ran on) are read from
+/proc at the start gate and every few milliseconds, so a thread that exits mid-cell keeps
+what it did up to its last reading.  None of this costs the program anything but the
+reads of its /proc files.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import struct
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Any, Optional
+
+from runner.run import _probe, kernel
+from runner.run.kernel import Counters
+from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread, Snapshot
+from runner.scenario.model import Policy, ProgramSpec, Sched
+from runner.scenario.plan import Settings, first_rule
+
+LIST_EVERY_S = 0.002  # how often the monitor lists a program's threads (a new thread waits at most this for its rule)
+COUNT_EVERY_S = 0.05  # how often it reads every thread's counters (what a thread that exits loses at most)
+RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
+TAIL_LINES = 10  # lines of a program's output shown when it fails
+TAIL_BYTES = 8192
+
+
+def sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
+    """[policy, priority, nice, extra]: extra is (runtime, deadline, period, util_min, util_max) for deadline or uclamp, else None."""
+    if sched is None:
+        return None
+    extra = None
+    if sched.policy is Policy.DEADLINE or sched.util_min is not None or sched.util_max is not None:
+        extra = (
+            sched.runtime or 0,
+            sched.deadline or 0,
+            sched.period or 0,
+            -1 if sched.util_min is None else sched.util_min,
+            -1 if sched.util_max is None else sched.util_max,
+        )
+    return [sched.policy.kernel_id, sched.rt_priority, sched.nice, extra]
+
+
+def settings_args(sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> _probe.SettingsTuple:
+    """(policy, priority, nice, cpus, extra) as the native core applies them; None leaves a setting as it is."""
+    policy, priority, nice, extra = sched_json(sched) or (None, None, None, None)
+    return policy, priority, nice, list(cpus) if cpus is not None else None, extra
+
+
+@dataclass
+class _Thread:
+    tid: int
+    index: int
+    comm: str
+    seen_ns: int
+    named_ns: int = 0  # when it was first seen under its current name (programs rename threads after creating them)
+    settings: Optional[Settings] = None
+    rule: Optional[int] = None
+    rule_errors: ApplyErrors = field(default_factory=ApplyErrors)
+    rule_ns: Optional[int] = None
+    base: Optional[Counters] = None
+    base_ns: int = 0
+    last: Optional[Counters] = None
+    last_ns: int = 0
+    gone_ns: Optional[int] = None
+    cpus: set[int] = field(default_factory=set)
+    history: list[Snapshot] = field(default_factory=list)
+
+
+def _environment(extra: dict[str, str]) -> dict[str, str]:
+    return {**os.environ, **extra}
+
+
+def resolve(spec: ProgramSpec) -> tuple[str, str]:
+    """(path, "") for the program as the exec will find it, or ("", why not) in words."""
+    program = spec.command[0]
+    env = _environment(spec.env)
+    if "/" in program:
+        where = program if os.path.isabs(program) or spec.cwd is None else os.path.join(spec.cwd, program)
+        if not os.path.exists(where):
+            return "", f"program {program!r} does not exist"
+        if not os.access(where, os.X_OK) or os.path.isdir(where):
+            return "", f"program {program!r} is not an executable file"
+        return os.path.abspath(where), ""
+    found = shutil.which(program, path=env.get("PATH", os.defpath))
+    if found is None:
+        return "", f"program {program!r} is not in PATH ({env.get('PATH', os.defpath)})"
+    return os.path.abspath(found), ""
+
+
+class ProgramRun:
+    """One program from its fork to its reaping; the monitor updates its threads while it runs."""
+
+    def __init__(self, spec: ProgramSpec, folder: str, start: Settings, online: tuple[int, ...]):
+        self.spec, self.folder, self.start_settings, self.online = spec, folder, start, online
+        self.pid = 0
+        self.path = ""
+        self.failure = ""
+        self.start_errors = ApplyErrors()
+        self.released_ns: Optional[int] = None
+        self.exited_ns: Optional[int] = None
+        self.status: Optional[int] = None  # the wait status once reaped
+        self.stopped = ""
+        self.stdout = f"{spec.name}.stdout"
+        self.stderr = f"{spec.name}.stderr"
+        self.threads: dict[int, _Thread] = {}
+        self._report = -1
+        self._gate = -1
+
+    def launch(self, guard: Any) -> None:
+        """Fork it with its settings applied, held before exec; `failure` says why when it cannot start."""
+        self.path, self.failure = resolve(self.spec)
+        if self.failure:
+            return
+        env = _environment(self.spec.env)
+        cwd = self.spec.cwd if self.spec.cwd is not None else self.folder
+        with open(os.path.join(self.folder, self.stdout), "wb") as out, open(os.path.join(self.folder, self.stderr), "wb") as err:
+            self.pid, self._report, self._gate = _probe.spawn_program(
+                os.fsencode(self.path),
+                [os.fsencode(a) for a in self.spec.command],
+                [os.fsencode(f"{k}={v}") for k, v in env.items()],
+                os.fsencode(cwd),
+                settings_args(self.spec.sched, self.spec.cpus),
+                self.spec.reset_on_fork,
+                out.fileno(),
+                err.fileno(),
+            )
+        guard.watch(self.pid)
+        data = _read_exactly(self._report, 12)
+        if len(data) == 12:
+            self.start_errors = ApplyErrors(*struct.unpack("3i", data))
+
+    def release(self) -> None:
+        """Let it exec; `failure` says why when the exec (or the chdir before it) failed."""
+        if self._gate < 0:
+            return
+        os.write(self._gate, b"g")
+        os.close(self._gate)
+        self._gate = -1
+        self.released_ns = time.monotonic_ns()
+        data = _read_exactly(self._report, 8)
+        os.close(self._report)
+        self._report = -1
+        if len(data) == 8:
+            stage, errno = struct.unpack("2i", data)
+            what = "change to its working directory" if stage == _probe.STAGE_CWD else "exec"
+            where = f" {self.spec.cwd!r}" if stage == _probe.STAGE_CWD else f" {self.path}"
+            self.failure = f"program {self.spec.name} could not {what}{where}: {os.strerror(errno)}"
+
+    def abandon(self) -> None:
+        """The cell will not run: close the gate without a byte, so the child exits without exec."""
+        for fd in (self._gate, self._report):
+            if fd >= 0:
+                os.close(fd)
+        self._gate = self._report = -1
+
+    def poll(self) -> bool:
+        """Reap it if it has exited; True once it has."""
+        if self.status is not None or not self.pid:
+            return True
+        pid, status = os.waitpid(self.pid, os.WNOHANG)
+        if pid:
+            self.status, self.exited_ns = status, time.monotonic_ns()
+        return self.status is not None
+
+    def stop(self, guard: Any) -> None:
+        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group goes too."""
+        if not self.pid:
+            return
+        if not self.poll():
+            _killpg(self.pid, signal.SIGTERM)
+            self.stopped = "SIGTERM"
+            until = time.monotonic() + self.spec.grace / 1e9
+            while not self.poll() and time.monotonic() < until:
+                time.sleep(0.005)
+            if not self.poll():
+                _killpg(self.pid, signal.SIGKILL)
+                self.stopped = "SIGKILL"
+                _, self.status = os.waitpid(self.pid, 0)
+                self.exited_ns = time.monotonic_ns()
+        _killpg(self.pid, signal.SIGKILL)
+        guard.forget(self.pid)
+
+    def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
+        code = sig = None
+        if self.status is not None:
+            if os.WIFSIGNALED(self.status):
+                sig = os.WTERMSIG(self.status)
+            else:
+                code = os.WEXITSTATUS(self.status)
+        threads = tuple(self._raw_thread(t, window_start, window_end) for t in sorted(self.threads.values(), key=lambda t: t.index))
+        return RawProgram(
+            self.spec,
+            self.start_settings,
+            self.pid,
+            self.path,
+            self.start_errors,
+            self.failure,
+            self.released_ns,
+            self.exited_ns,
+            code,
+            sig,
+            self.stopped,
+            self.stdout if self.pid else "",
+            self.stderr if self.pid else "",
+            self._tail(),
+            threads,
+        )
+
+    def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:
+        counters = t.last.minus(t.base) if t.last is not None and t.base is not None else None
+        end = t.gone_ns if t.gone_ns is not None else window_end
+        begin = max(t.seen_ns, window_start) if window_start is not None else t.seen_ns
+        return RawProgramThread(
+            t.tid,
+            t.index,
+            t.comm,
+            t.seen_ns,
+            t.named_ns,
+            t.gone_ns,
+            t.rule,
+            t.rule_errors,
+            t.rule_ns,
+            counters,
+            max(0, min(end, t.last_ns or end) - begin),
+            tuple(sorted(t.cpus)),
+            tuple(t.history),
+            t.settings,
+        )
+
+    def _tail(self) -> tuple[str, ...]:
+        lines: list[str] = []
+        for name in (self.stderr, self.stdout):
+            try:
+                with open(os.path.join(self.folder, name), "rb") as handle:
+                    handle.seek(max(0, os.fstat(handle.fileno()).st_size - TAIL_BYTES))
+                    text = handle.read().decode(errors="replace")
+            except OSError:
+                continue
+            lines += [f"{name}: {line}" for line in deque(text.splitlines(), TAIL_LINES)]
+        return tuple(lines[-TAIL_LINES:])
+
+
+def _read_exactly(fd: int, size: int) -> bytes:
+    data = b""
+    while len(data) < size:
+        chunk = os.read(fd, size - len(data))
+        if not chunk:
+            break
+        data += chunk
+    return data
+
+
+def _killpg(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+class Monitor:
+    """A thread of the runner that follows the programs' threads: new ones, rules, settings and counters.
+
+    It never touches a thread's scheduling except by a rule the scenario gives, and reads
+    only /proc; the measured programs run in their own processes, so this thread and
+    the GIL it takes are not theirs.
+    """
+
+    def __init__(self, programs: list[ProgramRun]):
+        self.programs = [p for p in programs if p.pid and not p.failure]
+        self.window_start: Optional[int] = None  # the start gate: counters are read as a base then
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="program-monitor", daemon=True)
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        if self.programs:
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop following; one last reading of every thread still there."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        with self._lock:
+            now = time.monotonic_ns()
+            for p in self.programs:
+                self._count(p, now)
+
+    def _run(self) -> None:
+        next_count = 0.0
+        while not self._stop.is_set():
+            now = time.monotonic_ns()
+            with self._lock:
+                for p in self.programs:
+                    self._list(p, now)
+                if (
+                    self.window_start is not None
+                    and now >= self.window_start
+                    and any(t.base is None for p in self.programs for t in p.threads.values() if t.gone_ns is None)
+                ):
+                    next_count = 0.0  # the start gate passed: take every thread's base now
+                if time.monotonic() >= next_count:
+                    for p in self.programs:
+                        self._count(p, now)
+                    next_count = time.monotonic() + COUNT_EVERY_S
+            self._stop.wait(LIST_EVERY_S)
+
+    def _list(self, p: ProgramRun, now: int) -> None:
+        """New threads get their snapshot and their rule; a young thread's name is re-read until a rule matches it."""
+        for tid in kernel.task_ids(p.pid):
+            t = p.threads.get(tid)
+            if t is None:
+                comm = kernel.thread_comm(p.pid, tid)
+                if comm is None:
+                    continue
+                t = p.threads[tid] = _Thread(tid, len(p.threads), comm, now, now)
+                self._snapshot(p, t, now, "appeared")
+            elif t.rule is None and now - t.seen_ns < RENAME_WATCH_NS:
+                comm = kernel.thread_comm(p.pid, tid)
+                if comm is None or comm == t.comm:
+                    continue
+                t.comm, t.named_ns = comm, now
+            else:
+                continue
+            self._apply_rule(p, t)
+
+    def _apply_rule(self, p: ProgramRun, t: _Thread) -> None:
+        index = first_rule(p.spec, t.comm)
+        if index is None or t.rule is not None:
+            return
+        rule = p.spec.threads[index]
+        errors = _probe.apply_to(t.tid, *settings_args(rule.sched, rule.cpus))
+        t.rule, t.rule_errors, t.rule_ns = index, ApplyErrors(*errors), time.monotonic_ns()
+        self._snapshot(p, t, t.rule_ns, "rule")
+
+    def _snapshot(self, p: ProgramRun, t: _Thread, now: int, why: str) -> None:
+        try:
+            settings = kernel.thread_settings(t.tid, p.online)
+        except OSError:
+            return
+        if why == "changed" and settings == t.settings:
+            return
+        t.settings = settings
+        t.history.append(Snapshot(now, t.comm, settings, why))
+
+    def _count(self, p: ProgramRun, now: int) -> None:
+        started = self.window_start is not None and now >= self.window_start
+        for t in p.threads.values():
+            if t.gone_ns is not None:
+                continue
+            counters = kernel.thread_counters(p.pid, t.tid)
+            if counters is None:
+                t.gone_ns = now
+                continue
+            comm = kernel.thread_comm(p.pid, t.tid)
+            if comm is not None and comm != t.comm:
+                t.comm, t.named_ns = comm, now
+                self._apply_rule(p, t)
+            self._snapshot(p, t, now, "changed")
+            if t.base is None and started:
+                # a thread that was there at the start gate counts from it; one born later, from zero
+                t.base = counters if t.seen_ns <= (self.window_start or 0) else replace(kernel.ZERO, migrations=0)
+                t.base_ns = now
+            if t.base is not None:
+                t.last, t.last_ns = counters, now
+                t.cpus.add(counters.cpu)

@@ -1,0 +1,198 @@
+"""What the user's programs did, decided from what the shell read from outside: pure, no I/O.
+
+A program's threads become threads of the results like the runner's own, named by their
+own names (`ctl_loop`, not the process name), with the figures /proc gives every thread:
+switches (totals and per second), faults, CPU time, migrations and the CPUs they were
+found on.  What the runner asked for (the process's settings before exec, a rule's
+settings) is compared with what the kernel reports, but only where the runner asked:
+a thread the program created and no rule matched holds whatever the program gave it.
+How the program ended decides whether the cell could be measured as written.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Optional
+
+from runner import units
+from runner.figures import Faults, Involuntary, ThreadFigures, Voluntary
+from runner.results.document import ProgramResult, SettingsSnapshot, ThreadResult
+from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
+from runner.scenario.model import SleepWork, Until
+from runner.scenario.plan import PlannedThread, Settings, program_settings, rule_settings
+
+DegradationFn = Callable[[Settings, Optional[Settings], ApplyErrors], list[str]]
+ORIGIN = "program"  # how a program thread's PlannedThread says it was not created by the runner
+
+
+@dataclass(frozen=True)
+class ProgramOutcome:
+    """One program's record, its threads (with what expectations match them by), and what went wrong."""
+
+    result: ProgramResult
+    threads: list[tuple[PlannedThread, ThreadResult]]
+    failures: list[str]  # the cell could not be measured as written: an error
+    warnings: list[str]
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return f"signal {number}"
+
+
+def _per_second(count: int, ns: int) -> Optional[float]:
+    return round(count * 1e9 / ns, 3) if ns > 0 else None
+
+
+def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
+    c = t.counters
+    if c is None:
+        return ThreadFigures(
+            callbacks=0,
+            missed_releases=0,
+            involuntary=Involuntary(total=0),
+            voluntary=Voluntary(total=0),
+            faults=Faults(minor=0, major=0),
+            complete=False,
+        )
+    return ThreadFigures(
+        callbacks=0,
+        missed_releases=0,
+        involuntary=Involuntary(total=c.involuntary, per_second=_per_second(c.involuntary, t.measured_ns)),
+        voluntary=Voluntary(total=c.voluntary, per_second=_per_second(c.voluntary, t.measured_ns)),
+        faults=Faults(minor=c.minor_faults, major=c.major_faults),
+        cpus_seen=t.cpus_seen,
+        complete=complete and t.gone_ns is None,
+        cpu_time_ns=c.cpu_time_ns,
+        migrations=c.migrations,
+    )
+
+
+def _ordinals(threads: tuple[RawProgramThread, ...]) -> dict[int, int]:
+    """Each thread's index in the results: 0 for the main thread, then its rank among threads of its name.
+
+    A thread's label (`talker/worker #2`) is its identity across runs; the order in which
+    a program's threads happen to be created is not stable, their names are.
+    """
+    seen: dict[str, int] = {}
+    out = {}
+    for t in threads:
+        if t.index == 0:
+            out[t.tid] = 0
+            continue
+        seen[t.comm] = seen.get(t.comm, 0) + 1
+        out[t.tid] = seen[t.comm]
+    return out
+
+
+def outcome(
+    raw: RawProgram,
+    t0: Optional[int],
+    end_ns: int,
+    interrupted: bool,
+    degradation: DegradationFn,
+) -> ProgramOutcome:
+    """A program's result, its threads and its failures; `start` is what it inherited from the runner.
+
+    `degradation` says how settings fell short of a request, in words (evaluate.degradation).
+    """
+    spec, start = raw.spec, raw.start
+    main_wanted, others_wanted = program_settings(spec, start)
+    failures: list[str] = []
+    warnings: list[str] = []
+    main = next((t for t in raw.threads if t.index == 0), None)
+    degraded = degradation(main_wanted, main.history[0].settings if main and main.history else None, raw.start_errors) if main else []
+    at = (lambda ns: f"{max(0, ns - t0) / 1e9:.2f}s into the cell") if t0 is not None else (lambda ns: "before the cell started")
+    exited_by_itself = raw.exited_ns is not None and not raw.stopped
+    how = ""
+    if raw.exit_signal is not None:
+        how = f"was killed by {_signal_name(raw.exit_signal)}"
+    elif raw.exit_code is not None:
+        how = f"exited with code {raw.exit_code}"
+    last = f"; its last output: {' | '.join(raw.tail)}" if raw.tail else "; it wrote nothing"
+    if raw.failure:
+        pass  # the shell could not start it: its failure is the cell's already
+    elif interrupted:
+        pass
+    elif exited_by_itself and raw.exited_ns is not None:
+        crashed = raw.exit_signal is not None or raw.exit_code != 0
+        if spec.until is Until.END:
+            failures.append(
+                f"program {spec.name} {how} {at(raw.exited_ns)}; with until: end it must run the whole cell "
+                f"(until: exit ends the cell when it exits){last}"
+            )
+        elif crashed:
+            failures.append(f"program {spec.name} {how} {at(raw.exited_ns)}{last}")
+    elif spec.until is Until.EXIT and raw.stopped:
+        failures.append(
+            f"program {spec.name} did not exit within the cell's {units.format_duration(end_ns - t0 if t0 else 0)} "
+            f"and was stopped with {raw.stopped}{last}"
+        )
+    if raw.stopped == "SIGKILL" and not raw.failure:
+        warnings.append(f"program {spec.name} did not exit within {units.format_duration(spec.grace)} of SIGTERM and was killed (SIGKILL)")
+    result = ProgramResult(
+        name=spec.name,
+        argv=list(spec.command),
+        path=raw.path,
+        pid=raw.pid or None,
+        started=raw.released_ns is not None and not raw.failure,
+        failure=raw.failure,
+        requested=main_wanted,
+        degraded=degraded,
+        exit_code=raw.exit_code,
+        exit_signal=_signal_name(raw.exit_signal) if raw.exit_signal is not None else None,
+        stopped=raw.stopped,
+        ran_ns=(raw.exited_ns - raw.released_ns) if raw.exited_ns is not None and raw.released_ns is not None else None,
+        stdout=raw.stdout,
+        stderr=raw.stderr,
+        tail=list(raw.tail),
+    )
+    ordinal = _ordinals(raw.threads)
+    threads = []
+    for t in raw.threads:
+        rule = spec.threads[t.rule] if t.rule is not None else None
+        if t.index == 0:
+            wanted, errors = main_wanted, raw.start_errors
+        elif rule is not None:
+            wanted, errors = rule_settings(spec, rule, start), t.rule_errors
+        else:
+            wanted, errors = others_wanted, ApplyErrors()
+        checked = t.index == 0 or rule is not None  # only where the runner asked for something
+        first = next((s.settings for s in t.history if s.why == ("rule" if rule is not None else "appeared")), None)
+        thread_degraded = degradation(wanted, first, errors) if checked and first is not None else []
+        planned = PlannedThread(spec.name, 0, ordinal[t.tid], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, ORIGIN)
+        threads.append(
+            (
+                planned,
+                ThreadResult(
+                    process=spec.name,
+                    instance=0,
+                    index=ordinal[t.tid],
+                    name=t.comm,
+                    pid=raw.pid,
+                    tid=t.tid,
+                    work="its main thread" if t.index == 0 else "a thread of the program",
+                    periodic=False,
+                    requested=wanted,
+                    applied=t.applied,
+                    degraded=thread_degraded,
+                    figures=_figures(t, not interrupted),
+                    program=True,
+                    rule=rule.match if rule else None,
+                    rule_after_ns=(t.rule_ns - t.named_ns) if t.rule_ns is not None else None,
+                    history=[
+                        SettingsSnapshot(at_ns=s.at_ns - (t0 if t0 is not None else s.at_ns), comm=s.comm, settings=s.settings, why=s.why)
+                        for s in t.history
+                    ],
+                ),
+            )
+        )
+    for i, rule in enumerate(spec.threads):
+        if not raw.failure and not any(t.rule == i for t in raw.threads):
+            seen = sorted({t.comm for t in raw.threads})
+            warnings.append(f"program {spec.name}: no thread matched the rule {rule.match!r}; its threads: {', '.join(seen) or 'none'}")
+    return ProgramOutcome(result, threads, failures, warnings)
