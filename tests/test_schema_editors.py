@@ -42,6 +42,7 @@ CANNOT_EXPRESS = {
     "priospread_below_1.yaml": "priospread, pin and count span three keys and the machine's CPUs",
     "program_spawn.yaml": "a spawn event names a thread declared elsewhere in the process, and who spawns whom is a graph",
     "program_references.yaml": "resource names an event uses must be declared under resources: a reference across the file",
+    "program_cross.yaml": "until: exit is refused beside the runner's own processes: a rule across the items of processes",
 }
 
 

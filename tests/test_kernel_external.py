@@ -1,0 +1,132 @@
+"""A user's own program (command:) against the real kernel: settings through exec, thread rules, figures from outside.
+
+The subject is tests/programs/rtprog.c, compiled here under a name of its own: a main thread,
+a periodic `ctl_loop` and three idle "middleware" threads.  Settings are checked with the real
+`ps` while the runner runs, and the figures are the kernel's own counters read from /proc;
+the effects asserted are large (every thread FIFO 80 or none but one; hundreds of
+involuntary switches per second against none), never exact timings.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+
+import pytest
+import yaml
+from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
+
+from runner.run.kernel import find_pids
+
+pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+NAME = "rtprog-kt"  # the program's comm: the file name it is exec'd from
+TWO_CPUS = pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="pins the program to CPU 1")
+
+
+@pytest.fixture(scope="module")
+def program(tmp_path_factory: pytest.TempPathFactory) -> str:
+    path = str(tmp_path_factory.mktemp("bin") / NAME)
+    subprocess.run(["gcc", "-O2", "-pthread", "-o", path, os.path.join(REPO, "tests", "programs", "rtprog.c")], check=True)
+    return path
+
+
+def _scenario(tmp_path, process: dict, **extra: object) -> str:
+    scenario = {"name": "prog", "duration": "1s", "processes": [{"name": "talker", **process}], **extra}
+    path = tmp_path / "prog.yaml"
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return str(path)
+
+
+def _run(tmp_path, path: str, *args: str, out_name: str = "out"):
+    out = tmp_path / out_name
+    done = finish(start_runner(path, "--out", str(out), "--settle", "0", *args, cwd=str(tmp_path)), str(out))
+    assert done.results is not None, done.err
+    assert not find_pids(NAME), "the program outlived its cell"
+    return done
+
+
+def _ps_rows(pid: int) -> dict[str, tuple[str, str]]:
+    """comm -> (RTPRIO, CLS) from the real ps."""
+    rows = [line.split() for line in ps_table(pid).splitlines()[1:]]
+    return {r[1]: (r[2], r[3]) for r in rows}
+
+
+def _live_table(tmp_path, path: str) -> tuple[dict[str, tuple[str, str]], dict]:
+    proc = start_runner(path, "--out", str(tmp_path / "out"), "--settle", "0", "--duration", "2s", cwd=str(tmp_path))
+    try:
+        pid = wait_for_threads(NAME, 5)
+        time.sleep(0.2)
+        table = _ps_rows(pid)
+    finally:
+        done = finish(proc, str(tmp_path / "out"))
+    assert done.results is not None, done.err
+    assert not find_pids(NAME)
+    return table, done.results
+
+
+def test_every_thread_the_program_creates_inherits_fifo_80_through_exec(tmp_path, program):
+    table, results = _live_table(tmp_path, _scenario(tmp_path, {"command": [program], "sched": "fifo:80"}))
+    assert set(table) == {NAME, "ctl_loop", "mw_exec", "mw_io", "mw_timer"}
+    assert all(row == ("80", "FF") for row in table.values()), table
+    threads = results["cells"][0]["threads"]
+    assert {t["name"] for t in threads} == set(table)
+    assert all(t["applied"]["policy"] == "fifo" and t["applied"]["priority"] == 80 and t["program"] for t in threads)
+    assert results["cells"][0]["status"] == "passed"
+
+
+def test_a_match_rule_gives_fifo_80_to_the_named_thread_only(tmp_path, program):
+    rules = [{"match": "ctl_*", "sched": "fifo:80"}]
+    table, results = _live_table(tmp_path, _scenario(tmp_path, {"command": [program, "--rename"], "threads": rules}))
+    assert table.pop("ctl_loop") == ("80", "FF")
+    assert all(row == ("-", "TS") for row in table.values()), table
+    ctl = thread(results, "ctl_loop")
+    assert ctl["rule"] == "ctl_*" and ctl["applied"]["policy"] == "fifo"
+    assert [h["why"] for h in ctl["history"]][:2] == ["appeared", "rule"]  # renamed 20 ms after its creation, then matched
+    assert thread(results, "mw_io")["applied"]["policy"] == "other"
+
+
+@TWO_CPUS
+def test_fifo_keeps_the_periodic_thread_from_being_preempted_by_a_hog_where_other_does_not(tmp_path, program):
+    rates = {}
+    for policy in ("other", "fifo:80"):
+        process = {"command": [program, "--period-us", "10000", "--burn-us", "4000"], "sched": policy, "cpus": "1"}
+        path = _scenario(tmp_path, process, background={"hogs": [{"count": "cpus"}]})
+        done = _run(tmp_path, path, "--duration", "1s", out_name=policy)
+        rates[policy] = thread(done.results, "ctl_loop")["figures"]["involuntary"]["per_second"]
+    assert rates["other"] >= 20, rates  # preempted by the hog on its CPU at every slice
+    assert rates["fifo:80"] <= 2, rates
+
+
+@pytest.mark.parametrize(
+    ("args", "until", "status", "words"),
+    [
+        (["--exit-after", "0.2"], "end", "error", "exited with code 0"),
+        (["--crash-after", "0.2"], "end", "error", "was killed by SIGSEGV"),
+        (["--exit-after", "0.2", "--exit-code", "3"], "exit", "error", "exited with code 3"),
+        (["--exit-after", "0.2"], "exit", "passed", ""),
+        (["--ignore-term"], "end", "passed", ""),
+    ],
+)
+def test_a_program_that_exits_crashes_or_ignores_sigterm_ends_its_cell_cleanly(tmp_path, program, args, until, status, words):
+    path = _scenario(tmp_path, {"command": [program, *args], "until": until, "grace": "200ms"})
+    started = time.monotonic()
+    done = _run(tmp_path, path, "--duration", "3s")
+    cell = done.results["cells"][0]
+    assert cell["status"] == status, cell["reason"]
+    assert words in cell["reason"]
+    prog = cell["programs"][0]
+    if "crash" in args[0]:
+        assert "crashing now" in " ".join(prog["tail"]) and prog["exit_signal"] == "SIGSEGV"
+    if until == "exit" and status == "passed":
+        assert prog["exit_code"] == 0 and time.monotonic() - started < 2.5  # the cell ended with the program, not at 3 s
+    if "--ignore-term" in args:
+        assert prog["stopped"] == "SIGKILL" and any("SIGKILL" in w for w in cell["warnings"])
+
+
+def test_a_program_that_cannot_start_is_an_error_in_words(tmp_path):
+    done = _run(tmp_path, _scenario(tmp_path, {"command": ["no-such-program-xyz"]}), "--duration", "0.5s")
+    cell = done.results["cells"][0]
+    assert cell["status"] == "error" and "'no-such-program-xyz' is not in PATH" in cell["reason"]

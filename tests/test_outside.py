@@ -1,0 +1,193 @@
+"""Programs (command:) in the pure evaluation core: raw readings from outside in, threads, failures and verdicts out."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from runner.results.document import Status
+from runner.run.evaluate import degradation, evaluate
+from runner.run.kernel import Counters
+from runner.run.outside import outcome
+from runner.run.rawcell import ApplyErrors, RawCell, RawProgram, RawProgramThread, Snapshot, Timeline
+from runner.scenario.loader import load_scenario
+from runner.scenario.model import Policy, ProgramSpec
+from runner.scenario.plan import Settings, first_rule, program_settings, rule_settings
+
+OTHER = Settings()
+FIFO80 = Settings(Policy.FIFO, 80, 0, (1,))
+T0 = 10_000_000_000
+SECOND = 1_000_000_000
+
+
+def _spec(**extra: object) -> ProgramSpec:
+    data = {"name": "talker", "command": ["rtprog"], "sched": "fifo:80", "cpus": "1", **extra}
+    return ProgramSpec.model_validate(data)
+
+
+def _thread(tid: int, index: int, comm: str, settings: Settings, rule: int | None = None, **extra: object) -> RawProgramThread:
+    history = [Snapshot(T0 - 5, comm, settings if rule is None else OTHER, "appeared")]
+    if rule is not None:
+        history.append(Snapshot(T0 - 4, comm, settings, "rule"))
+    fields: dict[str, object] = {
+        "tid": tid,
+        "index": index,
+        "comm": comm,
+        "seen_ns": T0 - 5,
+        "named_ns": T0 - 5,
+        "gone_ns": None,
+        "rule": rule,
+        "rule_errors": ApplyErrors(),
+        "rule_ns": T0 - 4 if rule is not None else None,
+        "counters": Counters(100, 250, 3, 0, 400_000_000, 2, 1),
+        "measured_ns": SECOND // 2,
+        "cpus_seen": (1,),
+        "history": tuple(history),
+        "applied": settings,
+    }
+    fields.update(extra)
+    return RawProgramThread(**fields)  # type: ignore[arg-type]
+
+
+def _program(spec: ProgramSpec, threads: tuple[RawProgramThread, ...], **extra: object) -> RawProgram:
+    fields: dict[str, object] = {
+        "spec": spec,
+        "start": OTHER,
+        "pid": 500,
+        "path": "/usr/bin/rtprog",
+        "start_errors": ApplyErrors(),
+        "failure": "",
+        "released_ns": T0 - 100,
+        "exited_ns": T0 + SECOND,
+        "exit_code": None,
+        "exit_signal": signal.SIGTERM,
+        "stopped": "SIGTERM",
+        "stdout": "talker.stdout",
+        "stderr": "talker.stderr",
+        "tail": ("talker.stderr: boom",),
+        "threads": threads,
+    }
+    fields.update(extra)
+    return RawProgram(**fields)  # type: ignore[arg-type]
+
+
+def test_a_rule_matches_by_shell_pattern_and_the_first_match_wins():
+    spec = _spec(threads=[{"match": "rt_sub*", "sched": "fifo:70"}, {"match": "rt_*", "sched": "rr:10"}])
+    assert first_rule(spec, "rt_sub_1") == 0
+    assert first_rule(spec, "rt_pub") == 1
+    assert first_rule(spec, "ctl_loop") is None
+    assert rule_settings(spec, spec.threads[0], OTHER) == Settings(Policy.FIFO, 70, 0, (1,))
+
+
+def test_reset_on_fork_keeps_the_main_threads_settings_and_resets_those_of_the_threads_it_creates():
+    main, others = program_settings(_spec(reset_on_fork=True), OTHER)
+    assert (main.policy, main.priority) == (Policy.FIFO, 80)
+    assert (others.policy, others.priority, others.cpus) == (Policy.OTHER, 0, (1,))
+    main, others = program_settings(_spec(), OTHER)
+    assert main == others
+
+
+def test_threads_are_named_by_their_own_names_with_stable_ordinals_and_rates_per_second():
+    spec = _spec()
+    raw = _program(
+        spec,
+        (
+            _thread(500, 0, "rtprog", FIFO80),
+            _thread(502, 2, "worker", FIFO80),
+            _thread(501, 1, "ctl_loop", FIFO80),
+            _thread(503, 3, "worker", FIFO80),
+        ),
+    )
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    labels = [t.label(False) for _, t in out.threads]
+    assert labels == ["talker/rtprog (main)", "talker/worker #1", "talker/ctl_loop #1", "talker/worker #2"]
+    ctl = out.threads[2][1]
+    assert ctl.program and ctl.figures.involuntary.total == 250
+    assert ctl.figures.involuntary.per_second == 500.0  # 250 in half a second
+    assert ctl.figures.voluntary.per_second == 200.0
+    assert (ctl.figures.cpu_time_ns, ctl.figures.migrations, ctl.figures.cpus_seen) == (400_000_000, 2, (1,))
+    assert out.failures == [] and out.warnings == []
+    assert out.result.exit_signal == "SIGTERM" and out.result.stopped == "SIGTERM" and out.result.started
+
+
+def test_only_what_the_runner_asked_for_is_checked_against_the_kernel():
+    spec = _spec(threads=[{"match": "ctl_loop", "sched": "fifo:90"}])
+    raw = _program(
+        spec,
+        (
+            _thread(500, 0, "rtprog", Settings(Policy.OTHER, 0, 0, (1,))),  # the kernel refused the process's FIFO 80
+            _thread(501, 1, "ctl_loop", FIFO80, rule=0),  # the rule asked for 90
+            _thread(502, 2, "helper", Settings(Policy.RR, 5, 0, None)),  # the program set its own: none of the runner's business
+        ),
+        start_errors=ApplyErrors(sched=1),
+    )
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    degraded = {t.name: t.degraded for _, t in out.threads}
+    assert degraded["rtprog"] == ["policy fifo:80 requested, other applied (Operation not permitted)"]
+    assert degraded["ctl_loop"] == ["policy fifo:90 requested, fifo:80 applied"]
+    assert degraded["helper"] == []
+    assert out.threads[1][1].rule == "ctl_loop" and out.threads[1][1].rule_after_ns == 1
+
+
+@pytest.mark.parametrize(
+    ("until", "code", "sig", "stopped", "failure"),
+    [
+        ("end", 0, None, "", "exited with code 0 0.50s into the cell; with until: end it must run the whole cell"),
+        ("end", None, signal.SIGSEGV, "", "was killed by SIGSEGV 0.50s into the cell"),
+        ("exit", 3, None, "", "exited with code 3 0.50s into the cell; its last output: talker.stderr: boom"),
+        ("exit", 0, None, "", None),
+        ("exit", None, signal.SIGTERM, "SIGTERM", "did not exit within the cell's 1s and was stopped with SIGTERM"),
+        ("end", None, signal.SIGTERM, "SIGTERM", None),
+    ],
+)
+def test_how_a_program_ended_decides_whether_the_cell_was_measured_as_written(until, code, sig, stopped, failure):
+    raw = _program(_spec(until=until), (_thread(500, 0, "rtprog", FIFO80),), exit_code=code, exit_signal=sig, stopped=stopped)
+    raw = RawProgram(**{**raw.__dict__, "exited_ns": T0 + SECOND // 2})
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    if failure is None:
+        assert out.failures == []
+    else:
+        assert len(out.failures) == 1 and failure in out.failures[0], out.failures
+
+
+def test_a_program_that_ignored_sigterm_is_a_warning_and_a_rule_that_matched_nothing_too():
+    raw = _program(
+        _spec(threads=[{"match": "rt_*", "sched": "fifo:70"}]),
+        (_thread(500, 0, "rtprog", FIFO80),),
+        exit_signal=signal.SIGKILL,
+        stopped="SIGKILL",
+    )
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert out.failures == []
+    assert out.warnings == [
+        "program talker did not exit within 1s of SIGTERM and was killed (SIGKILL)",
+        "program talker: no thread matched the rule 'rt_*'; its threads: rtprog",
+    ]
+
+
+def test_an_expectation_on_a_program_thread_that_never_appeared_fails_in_words(tmp_path):
+    path = tmp_path / "prog.yaml"
+    path.write_text(
+        "name: prog\nduration: 1s\nprocesses:\n  - name: talker\n    command: [rtprog]\n"
+        "expect:\n  - {thread: talker/ctl_loop, metric: involuntary.per_second, max: 5}\n"
+        "  - {thread: talker/rtprog, metric: involuntary.per_second, max: 5}\n"
+    )
+    loaded = load_scenario(os.fspath(path))
+    cell = loaded.cells[0]
+    spec = cell.scenario.programs[0]
+    raw = RawCell(
+        "2026-01-01T00:00:00+00:00",
+        (),
+        0,
+        Timeline(0, T0, T0 + SECOND, T0 + SECOND, T0 + SECOND),
+        programs=(_program(spec, (_thread(500, 0, "rtprog", OTHER),)),),
+    )
+    result = evaluate(cell, cell.scenario, raw, allow_degraded=False)
+    verdicts = {v.thread: v for v in result.expectations}
+    assert not verdicts["talker/ctl_loop"].passed and verdicts["talker/ctl_loop"].note == "not measured (no thread of that name ran)"
+    main = verdicts["talker/rtprog (main)"]
+    assert main.measured == 500.0 and not main.passed  # 250 involuntary switches in half a second, against at most 5/s
+    assert result.status is Status.FAILED
+    assert [t.name for t in result.threads] == ["rtprog"] and result.programs[0].pid == 500
