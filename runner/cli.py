@@ -19,7 +19,7 @@ from runner import __version__
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
 from runner.terminal import note, say, warn
 
-COMMANDS = ("run", "validate", "schema", "ps", "report", "compare", "merge", "import-rtapp", "completion")
+COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "import-rtapp", "completion")
 _TOP_HELP = """\
 usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
@@ -110,6 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "validate": _cmd_validate,
         "schema": _cmd_schema,
         "ps": _cmd_ps,
+        "watch": _cmd_watch,
         "report": _cmd_report,
         "compare": _cmd_compare,
         "merge": _cmd_merge,
@@ -275,6 +276,50 @@ def _cmd_ps(argv: list[str]) -> int:
         raise UsageError(f"runner ps: no live process matches {ns.target!r}")
     say(render_ps(rows, columns, pid_width()))
     return ExitCode.OK
+
+
+def _watch_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="runner watch",
+        description="Measure running processes from outside (their threads' settings, switches, faults, CPU time) "
+        "and write results.json and report.md as a run does; nothing is changed unless --rule asks.",
+    )
+    p.add_argument("targets", nargs="+", metavar="PID|NAME", help="a PID, or a process name (every live process whose COMMAND it is)")
+    p.add_argument("--duration", default="10s", help="how long to watch (default 10s); Ctrl-C stops early and keeps what was measured")
+    p.add_argument("--out", help="results folder (default reports/watch/<UTC time>)")
+    p.add_argument("--rule", action="append", default=[], help="a thread rule to apply to matching threads: PATTERN=SCHED@CPUS")
+    p.add_argument("--no-plots", action="store_true", help="write the report without plots")
+    return p
+
+
+def _cmd_watch(argv: list[str]) -> int:
+    ns = _watch_parser().parse_args(argv)
+    from runner import outdir
+    from runner.report.publish import write_report
+    from runner.run.kernel import pid_width
+    from runner.scenario.model import MAX_RUN, MIN_RUN
+    from runner.session import StopSignals, exit_code, parse_duration
+    from runner.terminal import render_cell
+    from runner.watch import default_folder, parse_rule, resolve_targets, watch
+
+    duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN)
+    rules = [parse_rule(r) for r in ns.rule]
+    pids = resolve_targets(ns.targets)
+    held = outdir.claim(ns.out or default_folder())
+    try:
+        with StopSignals() as stop:
+            doc = watch(pids, duration, held.folder, rules, stop.requested)
+        doc.command = ["runner", "watch", *argv]
+        doc.folder = held.folder
+        path = os.path.join(held.folder, "results.json")
+        doc.save(path)
+        report = write_report(doc, held.folder, None, not ns.no_plots, pid_width())
+    finally:
+        held.release()
+    cell = doc.cells[0]
+    say(render_cell(cell, pid_width()))
+    say(f"watch: {cell.status.value}{': ' + cell.reason if cell.reason else ''}; results: {path}; report: {report}")
+    return exit_code([cell.status])
 
 
 def _cmd_run(argv: list[str]) -> int:
@@ -497,6 +542,7 @@ _PARSERS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "validate": _validate_parser,
     "schema": _schema_parser,
     "ps": _ps_parser,
+    "watch": _watch_parser,
     "report": _report_parser,
     "compare": _compare_parser,
     "merge": _merge_parser,

@@ -66,8 +66,8 @@ class RunOptions:
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
-        duration = _duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
-        settle = _duration(ns.settle, "--settle", 0, MAX_SETTLE) if ns.settle is not None else DEFAULT_SETTLE_NS
+        duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
+        settle = parse_duration(ns.settle, "--settle", 0, MAX_SETTLE) if ns.settle is not None else DEFAULT_SETTLE_NS
         if not 1 <= ns.repeat <= MAX_REPEAT:
             raise UsageError(f"runner: --repeat {ns.repeat} is out of range; expected 1 to {MAX_REPEAT:,}")
         seed = None
@@ -104,7 +104,7 @@ class RunOptions:
         )
 
 
-def _duration(text: str, option: str, minimum: int, maximum: int) -> int:
+def parse_duration(text: str, option: str, minimum: int, maximum: int) -> int:
     """A duration option in ns, held to the same range a scenario file is (a cell runs 100ms to 24h)."""
     try:
         value = units.parse_duration(text)

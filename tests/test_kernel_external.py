@@ -130,3 +130,29 @@ def test_a_program_that_cannot_start_is_an_error_in_words(tmp_path):
     done = _run(tmp_path, _scenario(tmp_path, {"command": ["no-such-program-xyz"]}), "--duration", "0.5s")
     cell = done.results["cells"][0]
     assert cell["status"] == "error" and "'no-such-program-xyz' is not in PATH" in cell["reason"]
+
+
+def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_path, program):
+    proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
+    try:
+        pid = wait_for_threads(NAME, 5)
+        out = tmp_path / "watch"
+        done = finish(start_runner("watch", NAME, "--duration", "1s", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out))
+        assert done.code == 0, done.err
+        ps = _ps_rows(pid)
+    finally:
+        proc.kill()
+        proc.wait()
+    results = done.results
+    assert results is not None
+    cell = results["cells"][0]
+    table = {row["comm"]: ("-" if not row["rtprio"] else str(row["rtprio"]), row["cls"]) for row in _table_rows(cell)}
+    assert table == ps
+    ctl = thread(results, "ctl_loop")
+    assert ctl["figures"]["voluntary"]["per_second"] > 500  # a 1 ms loop sleeps about 1000 times a second
+    assert ctl["tid"] != pid and thread(results, NAME)["tid"] == pid
+
+
+def _table_rows(cell: dict) -> list[dict]:
+    """The mid-run table as results.json stores it (with the class ps prints, a computed field)."""
+    return [{"comm": r["comm"], "rtprio": r["rtprio"], "cls": r["cls"]} for r in cell["thread_table"]]

@@ -191,3 +191,19 @@ def test_an_expectation_on_a_program_thread_that_never_appeared_fails_in_words(t
     assert main.measured == 500.0 and not main.passed  # 250 involuntary switches in half a second, against at most 5/s
     assert result.status is Status.FAILED
     assert [t.name for t in result.threads] == ["rtprog"] and result.programs[0].pid == 500
+
+
+def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
+    from runner.errors import UsageError
+    from runner.watch import parse_rule, resolve_targets
+
+    rule = parse_rule("ctl_*=fifo:80@1")
+    assert (rule.match, rule.sched and rule.sched.label(), rule.cpus) == ("ctl_*", "fifo:80", (1,))
+    assert parse_rule("mw_*@0").sched is None
+    for bad, words in (("ctl_loop", "expected PATTERN=SCHED"), ("x=fifo:200", "rule"), ("=fifo:80", "expected PATTERN")):
+        with pytest.raises(UsageError, match=words):
+            parse_rule(bad)
+    with pytest.raises(UsageError, match="no live process is named 'no-such-proc-xyz'"):
+        resolve_targets(["no-such-proc-xyz"])
+    with pytest.raises(UsageError, match="no live process has PID 999999999"):
+        resolve_targets(["999999999"])

@@ -119,6 +119,11 @@ class ProgramRun:
         self.threads: dict[int, _Thread] = {}
         self._report = -1
         self._gate = -1
+        self.attached = False
+
+    def attach(self, pid: int) -> None:
+        """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
+        self.pid, self.attached = pid, True
 
     def launch(self, guard: Any) -> None:
         """Fork it with its settings applied, held before exec; `failure` says why when it cannot start."""
@@ -171,6 +176,10 @@ class ProgramRun:
         """Reap it if it has exited; True once it has."""
         if self.status is not None or not self.pid:
             return True
+        if self.attached:
+            if self.exited_ns is None and kernel.process_state(self.pid) in (None, "Z", "X"):
+                self.exited_ns = time.monotonic_ns()
+            return self.exited_ns is not None
         pid, status = os.waitpid(self.pid, os.WNOHANG)
         if pid:
             self.status, self.exited_ns = status, time.monotonic_ns()
@@ -178,7 +187,7 @@ class ProgramRun:
 
     def stop(self, guard: Any) -> None:
         """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group goes too."""
-        if not self.pid:
+        if not self.pid or self.attached:
             return
         if not self.poll():
             _killpg(self.pid, signal.SIGTERM)
@@ -218,6 +227,7 @@ class ProgramRun:
             self.stderr if self.pid else "",
             self._tail(),
             threads,
+            self.attached,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:

@@ -114,10 +114,11 @@ def outcome(
     elif raw.exit_code is not None:
         how = f"exited with code {raw.exit_code}"
     last = f"; its last output: {' | '.join(raw.tail)}" if raw.tail else "; it wrote nothing"
-    if raw.failure:
-        pass  # the shell could not start it: its failure is the cell's already
-    elif interrupted:
-        pass
+    if raw.failure or interrupted:
+        pass  # the shell could not start it (that is the cell's failure already), or the user stopped the cell
+    elif raw.attached:
+        if raw.exited_ns is not None:
+            failures.append(f"process {spec.name} (pid {raw.pid}) exited {at(raw.exited_ns)}; its threads were measured until then")
     elif exited_by_itself and raw.exited_ns is not None:
         crashed = raw.exit_signal is not None or raw.exit_code != 0
         if spec.until is Until.END:

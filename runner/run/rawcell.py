@@ -167,6 +167,7 @@ class RawProgram:
     stderr: str
     tail: tuple[str, ...]  # the last lines of its output (stderr, then stdout)
     threads: tuple[RawProgramThread, ...]
+    attached: bool = False  # a process the runner did not start (runner watch): it has no exit status for the runner
 
 
 @dataclass(frozen=True)
