@@ -19,7 +19,7 @@ from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
 from runner.scenario.model import PhasesWork, Policy, Scenario
-from runner.scenario.plan import Settings, plan_scenario
+from runner.scenario.plan import Settings, plan_scenario, program_settings, rule_settings
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
@@ -147,8 +147,11 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
     """What the cells ask for that needs a right; refuses (exit 2) priority 99 and CPUs this machine does not allow."""
     out = Needs()
     for sc in scenarios:
-        for t in plan_scenario(sc, start):
-            where, settings = f"{t.process}/{t.name}", t.settings
+        asked = [(f"{t.process}/{t.name}", t.settings) for t in plan_scenario(sc, start)]
+        for prog in sc.programs:
+            asked.append((f"program {prog.name}", program_settings(prog, start)[0]))
+            asked += [(f"program {prog.name} rule {rule.match!r}", rule_settings(prog, rule, start)) for rule in prog.threads]
+        for where, settings in asked:
             _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
             _refuse_cpus(where, settings.cpus, online)
             if settings.policy.is_realtime and (settings.policy != start.policy or settings.priority > start.priority):
