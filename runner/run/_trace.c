@@ -729,7 +729,8 @@ static int Reader_init(Reader *r, PyObject *args, PyObject *kwds) {
         return -1;
     if (page_size <= 0 || page_size > (1 << 24) || r->data_off <= 0 || r->data_off >= page_size || r->ts_off < 0 ||
         r->ts_off + 8 > r->data_off || r->commit_off < 0 || (r->commit_size != 4 && r->commit_size != 8) ||
-        r->commit_off + r->commit_size > r->data_off || r->type_off < 0 || (r->type_size != 1 && r->type_size != 2 && r->type_size != 4)) {
+        r->commit_off + r->commit_size > r->data_off || (r->commit_off < r->ts_off + 8 && r->ts_off < r->commit_off + r->commit_size) ||
+        r->type_off < 0 || (r->type_size != 1 && r->type_size != 2 && r->type_size != 4)) {
         PyErr_SetString(PyExc_ValueError, "unusable page header or common_type layout");
         return -1;
     }

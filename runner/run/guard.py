@@ -75,8 +75,11 @@ def remove_instance(path: str, wait_s: float = 0.0) -> bool:
     if os.path.basename(os.path.dirname(path)) != "instances" or not os.path.basename(path).startswith("runner-"):
         return False
     try:
-        with open(os.path.join(path, "tracing_on"), "w") as handle:
-            handle.write("0")
+        fd = os.open(os.path.join(path, "tracing_on"), os.O_WRONLY)  # never created where it is not
+        try:
+            os.write(fd, b"0")
+        finally:
+            os.close(fd)
     except OSError:
         pass
     until = time.monotonic() + wait_s
