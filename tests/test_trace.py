@@ -232,6 +232,28 @@ def test_a_waking_before_the_switch_out_it_races_with_counts():
     assert (a.wakeups, a.latency_max) == (1, 400)
 
 
+def test_a_switch_in_the_kernel_did_not_trace_drops_the_wake_up_and_is_counted():
+    events = [
+        (1_000, tp.switch(A, IDLE0, S)),
+        (2_000, tp.waking(A)),
+        # the switch from idle to A at 2_100 is not in the trace (as on CPU 1 of the development VM)
+        (3_000, tp.switch(A, IDLE0, S)),
+        (9_000, tp.switch(IDLE0, A, R)),  # with no waking before it: no wake-up, not one of 7 us
+        (9_500, tp.switch(A, IDLE0, S)),
+        (9_600, tp.waking(A)),
+        (9_700, tp.switch(IDLE0, A, R)),
+    ]
+    data = traced({0: events})
+    a = data.threads[100]
+    assert (a.wakeups, a.latency_max, a.unseen_switch_ins, a.voluntary) == (1, 100, 1, 3)
+    assert data.unseen_switch_ins == 1
+
+
+def test_the_first_switch_out_of_a_thread_running_when_the_trace_began_is_no_unseen_switch_in():
+    data = traced({0: [(1_000, tp.switch(A, IDLE0, S))]})
+    assert data.threads[100].unseen_switch_ins == 0 and data.threads[100].voluntary == 1
+
+
 def test_wakeup_new_starts_a_wake_up_and_a_fork_follows_the_child():
     child = (101, "trt-child", 120)
     events = [

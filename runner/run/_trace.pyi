@@ -10,6 +10,10 @@ FIELDS: tuple[tuple[str, tuple[str, ...]], ...]
 BUCKETS: int
 MAX_PREEMPTORS: int
 MAX_WORST: int
+MAX_HELD: int
+THREAD_BYTES: int
+HIST_BYTES: int
+HELD_BYTES: int
 FK_UINT: int
 FK_INT: int
 FK_CHARS: int
