@@ -1,6 +1,6 @@
 """Ring-buffer pages as trace_pipe_raw returns them, built in Python for the trace reader's tests.
 
-The layouts come from real format files of a 6.18 kernel (tests/data/tracefs), parsed
+The layouts come from real format files of a 6.18 kernel (tests/tracefs), parsed
 by runner/run/traceformat.py, so a synthetic page is what that kernel would write.
 Events are given with absolute timestamps; the builder writes the deltas, a
 TIME_EXTEND where a delta does not fit 27 bits, and starts a new page when one is full.
@@ -17,7 +17,7 @@ from typing import Any, Optional, Union
 from runner.run import _trace, traceformat
 from runner.run.traceformat import EventFormat, PageHeader
 
-DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "tracefs")
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "tracefs")  # real files of a 6.18 kernel
 TYPE_PADDING, TYPE_TIME_EXTEND, TYPE_TIME_STAMP = 29, 30, 31
 MISSED_EVENTS, MISSED_STORED = 1 << 31, 1 << 30
 R, R_PLUS, S, D, X = 0, 0x100, 0x1, 0x2, 0x10  # prev_state values as 6.18 reports them
