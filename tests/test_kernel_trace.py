@@ -158,3 +158,15 @@ def test_instances_of_a_dead_runner_are_removed_at_open():
         assert not any(os.path.exists(p) for p in stale)
         assert f"removed the tracing instance runner-{gone.pid}-0 of a runner that died" in tracer.notes
     assert not any(os.path.exists(p) for p in tracer.paths), "close() removes them too"
+
+
+def test_a_tracer_dropped_or_left_at_exit_stops_tracing():
+    tracer = tracing.open_trace([os.getpid()])
+    assert isinstance(tracer, tracing.Tracer)
+    paths = tracer.paths
+    del tracer
+    assert not any(os.path.exists(p) for p in paths), "dropped: the finalizer removed them"
+    script = "import os\nfrom runner.run import tracing\nt = tracing.open_trace([os.getpid()])\nprint(' '.join(t.paths))\n"
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    paths = tuple(done.stdout.split())
+    assert paths and not any(os.path.exists(p) for p in paths), "left at interpreter exit: removed then"

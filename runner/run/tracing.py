@@ -46,6 +46,7 @@ import itertools
 import os
 import re
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Optional
@@ -135,6 +136,35 @@ class TraceUnavailable:
     reason: str
 
 
+class _Teardown:
+    """Tracing off, the reader stopped, the instances removed: once, whoever calls first.
+
+    A separate object so a finalizer can hold it without holding the Tracer: a Tracer
+    dropped (or left at interpreter exit) without close() still stops the kernel tracing.
+    """
+
+    def __init__(self, paths: tuple[str, ...], reader: Any, guard: Optional[Guard], notes: list[str]) -> None:
+        self.paths = paths
+        self.reader = reader
+        self.guard = guard
+        self.notes = notes
+
+    def tracing_off(self) -> None:
+        for path in self.paths:
+            try:
+                _write(path, "tracing_on", "0")
+            except OSError:
+                pass
+
+    def __call__(self) -> None:
+        self.tracing_off()
+        try:
+            self.reader.stop()
+        except OSError:
+            pass
+        _remove_all(self.paths, self.guard, self.notes)
+
+
 class Tracer:
     """A running trace; `stop()` hands back the data, `close()` (or the with-block's end) cleans up in any case."""
 
@@ -143,11 +173,10 @@ class Tracer:
         self.paths = tuple(paths)  # the instance of the pid-filtered events first, then the migrations' one
         self.path = self.paths[0]
         self._reader = reader
-        self._guard = guard
         self._notes = notes
         self._started_ns = 0
         self._data: Optional[TraceData] = None
-        self._closed = False
+        self._teardown = weakref.finalize(self, _Teardown(self.paths, reader, guard, notes))
 
     @property
     def notes(self) -> tuple[str, ...]:
@@ -172,7 +201,7 @@ class Tracer:
         """Tracing off, the reader's final drain, the reader joined, the instance removed: the aggregates."""
         if self._data is not None:
             return self._data
-        if self._closed:
+        if not self._teardown.alive:
             raise RuntimeError("the trace was closed before it was stopped")
         for path in self.paths:
             _write(path, "tracing_on", "0")
@@ -183,30 +212,13 @@ class Tracer:
             self._notes.append(f"reading the trace failed: {error.strerror or error}; the figures may be incomplete")
         stats_lost = sum(_stats_lost(path) for path in self.paths)
         result = self._reader.result()
-        self._remove()
+        self._teardown()
         self._data = _trace_data(result, stats_lost, stopped_ns - self._started_ns, self._notes)
         return self._data
 
     def close(self) -> None:
         """Stop everything and remove the instance, without a result; does nothing the second time."""
-        if self._closed:
-            return
-        if self._data is None:
-            for path in self.paths:
-                try:
-                    _write(path, "tracing_on", "0")
-                except OSError:
-                    pass
-            try:
-                self._reader.stop()
-            except OSError:
-                pass
-        self._remove()
-
-    def _remove(self) -> None:
-        if not self._closed:
-            self._closed = True
-            _remove_all(self.paths, self._guard, self._notes)
+        self._teardown()
 
 
 def open_trace(
