@@ -211,6 +211,23 @@ def test_a_window_counts_only_the_events_inside_it_and_cuts_run_time():
     assert a.run_ns == (2_000 - 1_500) + (5_000 - 3_300) + (7_000 - 6_000)
 
 
+def test_a_window_set_after_events_outside_it_were_counted_says_so():
+    r = tp.reader()
+    r.track([100])
+    tp.feed(r, 0, [(1_000, tp.switch(IDLE0, A, R)), (5_000, tp.switch(A, IDLE0, S))])
+    r.stop()  # applied: 1_000 .. 5_000 counted under the open window
+    r.window(2_000, 4_500)
+    data = tracing.native_result(r.result())
+    assert r.result()["window_late_ns"] == (2_000 - 1_000) + (5_000 - 4_500)
+    assert data.notes == (
+        "the window was set after 1.5 µs of events outside it had been counted "
+        "(set its start before it begins, its end at most 10 ms after it passes)",
+    )
+    fresh = tp.reader()
+    fresh.window(2_000, 4_500)
+    assert fresh.result()["window_late_ns"] == 0
+
+
 def test_the_latest_waking_counts_and_one_that_found_it_running_is_dropped():
     events = [
         (1_000, tp.switch(IDLE0, A, R)),

@@ -140,6 +140,8 @@ typedef struct {
     size_t nrec, caprec;
     uint64_t seq;
     uint64_t last_ts;
+    uint64_t first_ts;        /* of the first event applied, 0 before */
+    int64_t window_late_ns;   /* time outside the window whose events were applied before it was set */
     /* window */
     int64_t win_start, win_end;
     /* counters */
@@ -374,6 +376,7 @@ static void apply(Reader *r, const struct rec *e) {
     struct thread *t;
     if (e->ts < r->last_ts) r->out_of_order++;
     else r->last_ts = e->ts;
+    if (!r->first_ts) r->first_ts = e->ts;
     switch (e->kind) {
     case K_SWITCH:
         apply_switch(r, e);
@@ -839,9 +842,19 @@ static PyObject *Reader_track(Reader *r, PyObject *arg) {
 static PyObject *Reader_window(Reader *r, PyObject *args) {
     long long start, end;
     if (!ready(r) || !PyArg_ParseTuple(args, "LL", &start, &end)) return NULL;
+    int64_t new_end = end < 0 ? INT64_MAX : end;
     lock_nogil(r);
+    if (r->first_ts) {
+        /* events already applied are counted as the old window said: what the new one
+         * excludes and the old one held is said, not undone */
+        int64_t first = (int64_t)r->first_ts, last = (int64_t)r->last_ts;
+        int64_t lo = first > r->win_start ? first : r->win_start, hi = last < r->win_end ? last : r->win_end;
+        int64_t before = (hi < start ? hi : start) - lo, after = hi - (lo > new_end ? lo : new_end);
+        if (before > 0) r->window_late_ns += before;
+        if (after > 0) r->window_late_ns += after;
+    }
     r->win_start = start;
-    r->win_end = end < 0 ? INT64_MAX : end;
+    r->win_end = new_end;
     pthread_mutex_unlock(&r->lock);
     Py_RETURN_NONE;
 }
@@ -1020,12 +1033,12 @@ static PyObject *Reader_result(Reader *r, PyObject *unused) {
         }
         Py_DECREF(d);
     }
-    out = Py_BuildValue("{s:O,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:L,s:K,s:I}", "threads", threads, "events",
+    out = Py_BuildValue("{s:O,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:K,s:L,s:L,s:K,s:I}", "threads", threads, "events",
                         (unsigned long long)r->events, "unknown", (unsigned long long)r->unknown, "malformed",
                         (unsigned long long)r->malformed, "untracked", (unsigned long long)r->untracked, "out_of_order",
                         (unsigned long long)r->out_of_order, "forced", (unsigned long long)r->forced, "missed_pages",
                         (unsigned long long)r->missed_pages, "lost_stored", (unsigned long long)r->lost_stored, "nomem",
-                        (unsigned long long)r->nomem, "reader_cpu_ns", (long long)r->cpu_ns, "held", (unsigned long long)r->nrec,
+                        (unsigned long long)r->nomem, "reader_cpu_ns", (long long)r->cpu_ns, "window_late_ns", (long long)r->window_late_ns, "held", (unsigned long long)r->nrec,
                         "tracked", r->nthreads);
 done:
     pthread_mutex_unlock(&r->lock);

@@ -54,6 +54,7 @@ from typing import Any, Optional
 from runner.run import traceformat
 from runner.run.guard import Guard, remove_instance
 from runner.run.traceformat import EventFormat, FormatError
+from runner.units import human_duration
 
 try:
     from runner.run import _trace
@@ -194,7 +195,12 @@ class Tracer:
         _follow(self.path, self._reader, pids, append=True)
 
     def window(self, start_ns: int, end_ns: Optional[int]) -> None:
-        """Count only events from `start_ns` to `end_ns` (CLOCK_MONOTONIC; None: to the end)."""
+        """Count only events from `start_ns` to `end_ns` (CLOCK_MONOTONIC; None: to the end).
+
+        Events are folded in as they are read, held back only 10 ms: set the start before
+        it comes and the end within 10 ms of it (then stop()).  Events a late window
+        excludes are still counted, and a note says for how long.
+        """
         self._reader.window(start_ns, -1 if end_ns is None else end_ns)
 
     def stop(self) -> TraceData:
@@ -483,6 +489,11 @@ def _trace_data(result: dict[str, Any], stats_lost: int, duration_ns: int, notes
         )
     if result["malformed"]:
         notes.append(f"{result['malformed']} trace records could not be decoded")
+    if result["window_late_ns"]:
+        notes.append(
+            f"the window was set after {human_duration(result['window_late_ns'])} of events outside it had been counted "
+            "(set its start before it begins, its end at most 10 ms after it passes)"
+        )
     if result["forced"]:
         notes.append(f"{result['forced']} events were applied before every CPU's buffer was read (the reader fell behind)")
     # the kernel's counters and the pages' flags count the same losses: the larger is the better count
