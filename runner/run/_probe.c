@@ -51,18 +51,13 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "histogram.h" /* HIST_* and hist_index(), shared with _trace.c */
+
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
 #define SAMPLE_BYTES 64
 #define MAX_CPU_WORDS 16
 
-/* Log-linear histogram: values below 2 * HIST_SUB are their own bucket; above, each
- * power of two is split into HIST_SUB buckets.  Values from 2^HIST_TOP_BITS ns (about
- * 18 minutes) up share the last bucket; the exact maximum is kept beside it. */
-#define HIST_SUB_BITS 7
-#define HIST_SUB (1 << HIST_SUB_BITS)
-#define HIST_TOP_BITS 40
-#define HIST_BUCKETS ((HIST_TOP_BITS - HIST_SUB_BITS + 1) * HIST_SUB)
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
 
 enum work_kind { WORK_SLEEP = 0, WORK_PERIODIC = 1, WORK_SPIN = 2, WORK_PROGRAM = 3 };
@@ -122,14 +117,6 @@ struct sample {
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
 _Static_assert(sizeof(struct sample) == SAMPLE_BYTES, "sample size");
-
-static inline int hist_index(int64_t v) {
-    if (v < 0) v = 0;
-    if (v < 2 * HIST_SUB) return (int)v;
-    if (v >= (int64_t)1 << HIST_TOP_BITS) return HIST_BUCKETS - 1;
-    int shift = 63 - __builtin_clzll((unsigned long long)v) - HIST_SUB_BITS;
-    return (shift + 1) * HIST_SUB + (int)(v >> shift) - HIST_SUB;
-}
 
 static inline void welford(uint64_t n, double *mean, double *m2, int64_t value) {
     double delta = (double)value - *mean;

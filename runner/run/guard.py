@@ -9,6 +9,11 @@ When stdin reaches end of file (the runner exited, normally or by SIGKILL, since
 the kernel closes its end of the pipe either way), the guard SIGKILLs every group
 still on its list and exits.
 
+A tracefs instance the runner traces in (runner/run/tracing.py) is registered the
+same way (`trace+PATH`, `trace-PATH`): one still registered at end of file has its
+tracing turned off and is removed, so a killed runner does not leave the kernel
+tracing.
+
 Run as `python -m runner.run.guard`; it imports only the standard library (and
 runner.run.child, which starts it), ignores the terminal's signals (it has its own
 session) and does nothing else.
@@ -16,33 +21,87 @@ session) and does nothing else.
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import subprocess
 import sys
+import time
+from dataclasses import dataclass, field
 from typing import IO, Optional
 
 from runner.run.child import child_env, python_module
 
 
-def serve(commands: IO[str]) -> set[int]:
-    """Follow `+PGID` / `-PGID` lines until end of file; return the groups still alive."""
-    groups: set[int] = set()
+@dataclass
+class Watched:
+    """What the guard still has to clean up: process groups and tracefs instances."""
+
+    groups: set[int] = field(default_factory=set)
+    instances: set[str] = field(default_factory=set)
+
+
+def follow(commands: IO[str]) -> Watched:
+    """Follow `+PGID` / `-PGID` and `trace+PATH` / `trace-PATH` lines until end of file; return what is left."""
+    left = Watched()
     for line in commands:
         line = line.strip()
-        if len(line) > 1 and line[1:].isdigit():
+        if line.startswith(("trace+", "trace-")) and len(line) > 6:
+            if line[5] == "+":
+                left.instances.add(line[6:])
+            else:
+                left.instances.discard(line[6:])
+        elif len(line) > 1 and line[1:].isdigit():
             pgid = int(line[1:])
             if line[0] == "+":
-                groups.add(pgid)
+                left.groups.add(pgid)
             elif line[0] == "-":
-                groups.discard(pgid)
-    return groups
+                left.groups.discard(pgid)
+    return left
+
+
+def serve(commands: IO[str]) -> set[int]:
+    """Follow the lines until end of file; return the groups still alive."""
+    return follow(commands).groups
+
+
+def remove_instance(path: str, wait_s: float = 0.0) -> bool:
+    """Turn tracing off in the tracefs instance `path` and remove it; whether it is gone.
+
+    Only `.../instances/runner-*` is touched.  A dead runner's files close while it
+    exits, possibly after the guard saw its pipe close: removal (EBUSY while a trace
+    file is open) is retried for `wait_s`.
+    """
+    if os.path.basename(os.path.dirname(path)) != "instances" or not os.path.basename(path).startswith("runner-"):
+        return False
+    try:
+        fd = os.open(os.path.join(path, "tracing_on"), os.O_WRONLY)  # never created where it is not
+        try:
+            os.write(fd, b"0")
+        finally:
+            os.close(fd)
+    except OSError:
+        pass
+    until = time.monotonic() + wait_s
+    while True:
+        try:
+            os.rmdir(path)
+            return True
+        except FileNotFoundError:
+            return True
+        except OSError as error:
+            if error.errno != errno.EBUSY or time.monotonic() >= until:
+                return False
+        time.sleep(0.02)
 
 
 def main() -> int:
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGTSTP):
         signal.signal(sig, signal.SIG_IGN)
-    for pgid in sorted(serve(sys.stdin)):
+    left = follow(sys.stdin)
+    for path in sorted(left.instances):  # tracing stops first: what the kill below does is not recorded
+        remove_instance(path, wait_s=2.0)
+    for pgid in sorted(left.groups):
         try:
             os.killpg(pgid, signal.SIGKILL)
         except OSError:
@@ -86,6 +145,14 @@ class Guard:
     def forget(self, pgid: int) -> None:
         """`pgid` was reaped: its number may be reused, so the guard must not kill it."""
         self._send(f"-{pgid}")
+
+    def watch_trace(self, path: str) -> None:
+        """Turn tracing off in the tracefs instance `path` and remove it should the runner die first."""
+        self._send(f"trace+{path}")
+
+    def forget_trace(self, path: str) -> None:
+        """The instance `path` was removed."""
+        self._send(f"trace-{path}")
 
     def close(self) -> None:
         """Stop the guard (what it still watches is killed: nothing, after an orderly stop)."""

@@ -1,0 +1,26 @@
+/*
+ * The log-linear histogram layout of runner/histogram.py, once for the C code
+ * (_probe.c and _trace.c both include it): values below 2 * HIST_SUB are their own
+ * bucket; above, each power of two is split into HIST_SUB buckets.  Values from
+ * 2^HIST_TOP_BITS ns (about 18 minutes) up share the last bucket; the exact maximum
+ * is kept beside it.  Negative values count as 0.
+ */
+#ifndef RUNNER_HISTOGRAM_H
+#define RUNNER_HISTOGRAM_H
+
+#include <stdint.h>
+
+#define HIST_SUB_BITS 7
+#define HIST_SUB (1 << HIST_SUB_BITS)
+#define HIST_TOP_BITS 40
+#define HIST_BUCKETS ((HIST_TOP_BITS - HIST_SUB_BITS + 1) * HIST_SUB)
+
+static inline int hist_index(int64_t v) {
+    if (v < 0) v = 0;
+    if (v < 2 * HIST_SUB) return (int)v;
+    if (v >= (int64_t)1 << HIST_TOP_BITS) return HIST_BUCKETS - 1;
+    int shift = 63 - __builtin_clzll((unsigned long long)v) - HIST_SUB_BITS;
+    return (shift + 1) * HIST_SUB + (int)(v >> shift) - HIST_SUB;
+}
+
+#endif

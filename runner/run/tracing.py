@@ -1,0 +1,559 @@
+"""The scheduler, measured from the kernel's own trace: who woke when, who took the CPU from whom.
+
+`open_trace(pids)` starts tracing the scheduler events of those processes (their
+threads, and every thread or child they create later) in a private tracefs instance,
+`instances/runner-<pid>-<n>`, so a user's own tracing in the global buffer is left
+alone.  The events are read and folded into per-thread aggregates by the native
+reader (runner/run/_trace.c), in a thread of its own that never takes the GIL and
+keeps bounded memory however long the run; `stop()` turns tracing off, reads what is
+left and removes the instance.  Nothing here fails the caller: whatever is missing
+(no tracefs, no permission, an event this kernel lacks) makes `open_trace` return
+`TraceUnavailable` with the reason in words.
+
+What the trace holds: the instance's `set_event_pid` lists every thread of the
+processes, and `options/event-fork` adds the threads and children they create.  The
+kernel then keeps a sched_switch when the task switched out or the one switched in is
+listed, a sched_waking when the woken task is listed (or the waker is), and every other
+event by the task that runs when it fires: so the switches and wake-ups of the listed
+threads and the switches of whatever preempted them (checked on 6.18: no switch with
+neither side listed).  sched_migrate_task would be kept only when the task running is
+listed, and migrations are done by others (the migration/N stopper after
+sched_setaffinity, a waker, the load balancer): on 6.18 a thread moved 400 times
+between CPUs showed none.  So migrations are traced in a second instance,
+`runner-<pid>-<n>-migrate`, with no pid filter and only that event; the reader keeps
+those of the listed threads.  `cpu_changes` counts the switch-ins on another CPU than
+the one before, whoever moved the thread.
+
+Not every switch is traced, filter or not: on the 6.18 development VM (haltpoll idle),
+CPU 1's switches out of idle never are (0 in 1 s of an unfiltered instance, where CPU
+0 had 29), so a thread woken on an idle CPU 1 runs with no switch-in traced.  The
+reader notices at its switch-out (it was not known to run), drops the wake-up
+pending (its latency is unknown, and measured from it the next one would be wrong)
+and counts it in `unseen_switch_ins`: the wake-ups measured are then fewer than those
+that happened, never wrong.
+
+A SIGKILLed runner cannot stop its tracing; the guard (runner/run/guard.py) does: the
+instance is registered with it while it exists, and instances of runners that died
+without a guard are removed by the next `open_trace`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import errno
+import itertools
+import os
+import re
+import time
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from runner.run import traceformat
+from runner.run.guard import Guard, remove_instance
+from runner.run.traceformat import EventFormat, FormatError
+from runner.units import human_duration
+
+try:
+    from runner.run import _trace
+except ImportError as error:  # a source tree without the extension built
+    _trace = None  # type: ignore[assignment]
+    _IMPORT_ERROR = str(error)
+
+TRACEFS_DIRS = ("/sys/kernel/tracing", "/sys/kernel/debug/tracing")
+INTERVAL_NS = 50_000_000  # how often the reader drains the buffers
+MAX_THREADS = 8192
+_STALE = re.compile(r"runner-(\d+)-\d+(-migrate)?$")
+_serial = itertools.count()
+
+
+@dataclass(frozen=True)
+class Preemptor:
+    """A task that took the CPU from a thread while it was runnable."""
+
+    tid: int
+    comm: str
+    prio: int  # as sched_switch reports it: -1 deadline, 0..98 RT (99 - rtprio), 100..139 normal (120 + nice)
+    count: int
+
+
+@dataclass(frozen=True)
+class LateWakeup:
+    """One of a thread's worst wake-ups."""
+
+    latency_ns: int  # from its sched_waking (sched_wakeup when waking is absent) to the sched_switch onto a CPU
+    at_ns: int  # CLOCK_MONOTONIC of that switch-in
+    cpu: int
+    delayer_tid: int  # the task switched out by that switch-in (0, "swapper/N": the CPU was idle)
+    delayer_comm: str
+    delayer_prio: int
+
+
+@dataclass(frozen=True)
+class TracedThread:
+    """One thread's scheduling, from the trace, inside the window."""
+
+    tid: int
+    comm: str  # as last seen in the trace
+    wakeups: int
+    latency: tuple[int, ...]  # counts per bucket of runner/histogram.py's layout (index()), length BUCKETS
+    latency_min: int
+    latency_max: int
+    preemptions: int  # switched out while runnable (prev_state R / R+)
+    voluntary: int  # switched out in any other state (sleeping, blocked, exiting)
+    preemptors: tuple[Preemptor, ...]  # most frequent first, at most 32 distinct
+    other_preemptors: int  # preemptions by tasks beyond those 32
+    migrations: int  # sched_migrate_task of this tid, as traced (see the module's docstring)
+    cpus: tuple[int, ...]  # CPUs it was switched in on
+    run_ns: int  # time on CPU between its switch-in and switch-out events, inside the window
+    worst: tuple[LateWakeup, ...]  # its 64 largest wake-up latencies, largest first
+    cpu_changes: int = 0  # switch-ins on another CPU than its previous one, whatever moved it
+    latency_sum: int = 0  # of all its wake-up latencies (the mean is latency_sum / wakeups)
+    exited: bool = False  # its sched_process_exit was traced
+    unseen_switch_ins: int = 0  # switch-outs with no traced switch-in before them (a wake-up then goes unmeasured)
+
+
+@dataclass(frozen=True)
+class TraceData:
+    """What `Tracer.stop` hands back."""
+
+    threads: dict[int, TracedThread]  # every tid that woke, ran or was preempted, that the pid filter kept
+    events: int  # events parsed
+    lost: int  # events the kernel dropped or overwrote (per_cpu/cpuN/stats, missed-events page flags)
+    untracked: int  # events for tids beyond the table's bound
+    reader_cpu_ns: int  # CPU time the reader thread spent
+    duration_ns: int = 0  # from tracing on to tracing off
+    out_of_order: int = 0  # events applied after a later one (held back too short a time; 0 expected)
+    unseen_switch_ins: int = 0  # of all threads: switches in the kernel did not trace (see the module's docstring)
+    notes: tuple[str, ...] = ()  # what the caller may want to say in a report (a stale instance removed, ...)
+
+
+@dataclass(frozen=True)
+class TraceUnavailable:
+    """Why the trace could not be taken, in words."""
+
+    reason: str
+
+
+class _Teardown:
+    """Tracing off, the reader stopped, the instances removed: once, whoever calls first.
+
+    A separate object so a finalizer can hold it without holding the Tracer: a Tracer
+    dropped (or left at interpreter exit) without close() still stops the kernel tracing.
+    """
+
+    def __init__(self, paths: tuple[str, ...], reader: Any, guard: Optional[Guard], notes: list[str]) -> None:
+        self.paths = paths
+        self.reader = reader
+        self.guard = guard
+        self.notes = notes
+
+    def tracing_off(self) -> None:
+        for path in self.paths:
+            try:
+                _write(path, "tracing_on", "0")
+            except OSError:
+                pass
+
+    def __call__(self) -> None:
+        self.tracing_off()
+        try:
+            self.reader.stop()
+        except OSError:
+            pass
+        _remove_all(self.paths, self.guard, self.notes)
+
+
+class Tracer:
+    """A running trace; `stop()` hands back the data, `close()` (or the with-block's end) cleans up in any case."""
+
+    def __init__(self, root: str, paths: Sequence[str], reader: Any, guard: Optional[Guard], notes: list[str]) -> None:
+        self.root = root
+        self.paths = tuple(paths)  # the instance of the pid-filtered events first, then the migrations' one
+        self.path = self.paths[0]
+        self._reader = reader
+        self._notes = notes
+        self._started_ns = 0
+        self._data: Optional[TraceData] = None
+        self._teardown = weakref.finalize(self, _Teardown(self.paths, reader, guard, notes))
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """What the caller may want to report so far (a stale instance removed, tracefs mounted)."""
+        return tuple(self._notes)
+
+    def __enter__(self) -> Tracer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def add_pids(self, pids: Sequence[int]) -> None:
+        """Follow processes started after `open_trace` (every thread they have now; event-fork adds later ones)."""
+        _follow(self.path, self._reader, pids, append=True)
+
+    def window(self, start_ns: int, end_ns: Optional[int]) -> None:
+        """Count only events from `start_ns` to `end_ns` (CLOCK_MONOTONIC; None: to the end).
+
+        Events are folded in as they are read, held back only 10 ms: set the start before
+        it comes and the end within 10 ms of it (then stop()).  Events a late window
+        excludes are still counted, and a note says for how long.
+        """
+        self._reader.window(start_ns, -1 if end_ns is None else end_ns)
+
+    def stop(self) -> TraceData:
+        """Tracing off, the reader's final drain, the reader joined, the instance removed: the aggregates."""
+        if self._data is not None:
+            return self._data
+        if not self._teardown.alive:
+            raise RuntimeError("the trace was closed before it was stopped")
+        for path in self.paths:
+            _write(path, "tracing_on", "0")
+        stopped_ns = time.monotonic_ns()
+        try:
+            self._reader.stop()
+        except OSError as error:
+            self._notes.append(f"reading the trace failed: {error.strerror or error}; the figures may be incomplete")
+        stats_lost = sum(_stats_lost(path) for path in self.paths)
+        result = self._reader.result()
+        self._teardown()
+        self._data = _trace_data(result, stats_lost, stopped_ns - self._started_ns, self._notes)
+        return self._data
+
+    def close(self) -> None:
+        """Stop everything and remove the instance, without a result; does nothing the second time."""
+        self._teardown()
+
+
+def open_trace(
+    pids: Sequence[int],
+    buffer_kb: int = 4096,
+    *,
+    guard: Optional[Guard] = None,
+    max_threads: int = MAX_THREADS,
+    interval_ns: int = INTERVAL_NS,
+) -> Tracer | TraceUnavailable:
+    """Trace the scheduler for `pids` (every thread, and what they create later); never raises for the system's state.
+
+    `buffer_kb` is the ring buffer per CPU; `guard`, when given, removes the instance
+    should this process die without doing it; `max_threads` bounds the reader's table.
+    """
+    if _trace is None:
+        return TraceUnavailable(f"the native trace reader runner.run._trace is not built ({_IMPORT_ERROR})")
+    root = find_tracefs()
+    if isinstance(root, TraceUnavailable):
+        return root
+    notes: list[str] = []
+    if root.mounted_here:
+        notes.append(f"mounted tracefs at {root.path}")
+    for name in remove_stale(root.path):
+        notes.append(f"removed the tracing instance {name} of a runner that died")
+    paths: list[str] = []
+    try:
+        paths.append(_new_instance(root.path))
+        if guard is not None:
+            guard.watch_trace(paths[0])
+        if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
+            os.mkdir(paths[0] + "-migrate")
+            paths.append(paths[0] + "-migrate")
+            if guard is not None:
+                guard.watch_trace(paths[1])
+        return _start(root.path, paths, pids, buffer_kb, guard, max_threads, interval_ns, notes)
+    except (OSError, FormatError, ValueError) as error:
+        _remove_all(paths, guard, [])
+        if isinstance(error, OSError):
+            where = f"the tracing instance {paths[-1]}" if paths else f"a tracing instance in {root.path}/instances"
+            return TraceUnavailable(_why(error, f"cannot set up {where}"))
+        return TraceUnavailable(f"cannot read the kernel's event formats: {error}")
+
+
+@dataclass(frozen=True)
+class TracefsRoot:
+    path: str
+    mounted_here: bool  # this process mounted it
+
+
+def tracefs_mounts(mounts: str) -> list[str]:
+    """Mount points of tracefs in /proc/mounts text, the usual places first."""
+    points = [fields[1] for fields in (line.split() for line in mounts.splitlines()) if len(fields) > 2 and fields[2] == "tracefs"]
+    return sorted(points, key=lambda p: TRACEFS_DIRS.index(p) if p in TRACEFS_DIRS else len(TRACEFS_DIRS))
+
+
+def find_tracefs() -> TracefsRoot | TraceUnavailable:
+    """Where tracefs is mounted; mounted at /sys/kernel/tracing when it is not; or why neither works."""
+    for point in tracefs_mounts(_read_or("/proc/mounts", "")):
+        if os.path.isdir(os.path.join(point, "instances")):
+            return TracefsRoot(point, False)
+    if "tracefs" not in _read_or("/proc/filesystems", ""):
+        return TraceUnavailable("this kernel has no tracefs (built without CONFIG_TRACING / CONFIG_FTRACE)")
+    target = TRACEFS_DIRS[0]
+    err = _mount("nodev", target, "tracefs")
+    if err == 0:
+        return TracefsRoot(target, True)
+    if err in (errno.EPERM, errno.EACCES):
+        return TraceUnavailable(f"tracefs is not mounted and mounting it needs CAP_SYS_ADMIN ({errno.errorcode[err]})")
+    code = errno.errorcode.get(err, str(err))
+    return TraceUnavailable(f"tracefs is not mounted and mounting it at {target} failed: {os.strerror(err)} ({code})")
+
+
+def remove_stale(root: str) -> list[str]:
+    """Remove the instances of runners that died without removing them (their pid is gone); their names."""
+    removed: list[str] = []
+    try:
+        names = os.listdir(os.path.join(root, "instances"))
+    except OSError:
+        return removed
+    for name in sorted(names):
+        m = _STALE.match(name)
+        dead = m is not None and int(m[1]) != os.getpid() and not os.path.exists(f"/proc/{m[1]}")
+        if dead and remove_instance(os.path.join(root, "instances", name)):
+            removed.append(name)
+    return removed
+
+
+def thread_ids(pid: int) -> list[int]:
+    """The threads of process `pid` now ([] once it has gone)."""
+    try:
+        return sorted(int(t) for t in os.listdir(f"/proc/{pid}/task") if t.isdigit())
+    except OSError:
+        return []
+
+
+def read_formats(events_dir: str) -> dict[str, Optional[EventFormat]]:
+    """Each kind's event format, from the first of its events this kernel has (None when it has none)."""
+    formats: dict[str, Optional[EventFormat]] = {}
+    for kind, names in traceformat.KIND_EVENTS.items():
+        formats[kind] = None
+        for name in names:
+            path = os.path.join(events_dir, "sched", name, "format")
+            if os.path.exists(path):
+                formats[kind] = traceformat.parse_format(_read(path), path)
+                break
+    return formats
+
+
+# ---- the instance ----
+
+
+def _start(
+    root: str,
+    paths: Sequence[str],
+    pids: Sequence[int],
+    buffer_kb: int,
+    guard: Optional[Guard],
+    max_threads: int,
+    interval_ns: int,
+    notes: list[str],
+) -> Tracer:
+    assert _trace is not None
+    path = paths[0]
+    for each in paths:
+        _write(each, "tracing_on", "0")  # a new instance records from the start
+    header = traceformat.parse_header_page(_read(os.path.join(path, "events", "header_page")), "events/header_page")
+    formats = read_formats(os.path.join(path, "events"))
+    switch = formats["switch"]
+    if switch is None:
+        raise FormatError("this kernel has no sched/sched_switch event")
+    layouts = traceformat.layouts(formats, _trace.FIELDS)
+    clocks = _read(os.path.join(path, "trace_clock")).replace("[", " ").replace("]", " ").split()
+    if "mono" not in clocks:
+        raise FormatError(f"trace_clock has no 'mono' (has {', '.join(clocks)}): timestamps would not compare with CLOCK_MONOTONIC")
+    for each in paths:
+        _write(each, "trace_clock", "mono")
+        _write(each, "buffer_size_kb", str(buffer_kb))
+        _write(each, "options/overwrite", "1")  # a full buffer overwrites: the gap is flagged on the page that follows it
+    _write(path, "options/event-fork", "1")
+    reader = _trace.Reader(
+        header.page_size,
+        (header.timestamp_offset, header.commit_offset, header.commit_size, header.data_offset),
+        traceformat.common_type(switch),
+        layouts,
+        traceformat.switch_state_mask(switch.print_fmt),
+        max_threads,
+    )
+    _follow(path, reader, pids, append=False)
+    for kind, fmt in formats.items():
+        if fmt is not None:
+            # migrations in their own instance (the module's docstring says why), when there is one
+            where = paths[1] if kind == "migrate" and len(paths) > 1 else path
+            _write(where, f"events/sched/{fmt.name}/enable", "1")
+    files = []
+    for each in paths:
+        for entry in sorted(os.listdir(os.path.join(each, "per_cpu")), key=lambda e: (len(e), e)):
+            if entry.startswith("cpu") and entry[3:].isdigit():
+                files.append((int(entry[3:]), os.path.join(each, "per_cpu", entry, "trace_pipe_raw")))
+    reader.start(files, interval_ns)
+    tracer = Tracer(root, paths, reader, guard, notes)
+    try:
+        tracer._started_ns = time.monotonic_ns()
+        for each in reversed(paths):
+            _write(each, "tracing_on", "1")
+    except OSError:
+        tracer.close()
+        raise
+    return tracer
+
+
+def _remove_all(paths: Sequence[str], guard: Optional[Guard], notes: list[str]) -> None:
+    for path in paths:
+        if not remove_instance(path):
+            notes.append(f"could not remove the tracing instance {path}")
+        if guard is not None:
+            guard.forget_trace(path)
+
+
+def _follow(path: str, reader: Any, pids: Sequence[int], append: bool) -> None:
+    """Give the reader and the kernel's pid filter every thread of `pids`, until none appears between the two."""
+    known: set[int] = set()
+    for _ in range(10):  # a thread created between listing and filtering is listed the next round
+        tids = sorted({t for pid in pids for t in thread_ids(pid)} - known)
+        if not tids:
+            return
+        reader.track(tids)  # the reader first: events of a tid may follow as soon as the kernel has it
+        _write_pids(os.path.join(path, "set_event_pid"), tids, truncate=not append and not known)
+        known.update(tids)
+
+
+def _write_pids(path: str, tids: Sequence[int], truncate: bool) -> None:
+    """Append `tids` to set_event_pid (truncate: replace), in writes the kernel parses whole."""
+    fd = os.open(path, os.O_WRONLY | (os.O_TRUNC if truncate else 0))
+    try:
+        chunk: list[str] = []
+        for tid in tids:
+            chunk.append(str(tid))
+            if len(chunk) == 256:
+                os.write(fd, " ".join(chunk).encode() + b"\n")
+                chunk = []
+        if chunk:
+            os.write(fd, " ".join(chunk).encode() + b"\n")
+    finally:
+        os.close(fd)
+
+
+def _new_instance(root: str) -> str:
+    while True:
+        path = os.path.join(root, "instances", f"runner-{os.getpid()}-{next(_serial)}")
+        try:
+            os.mkdir(path)
+            return path
+        except FileExistsError:
+            continue
+
+
+def _stats_lost(path: str) -> int:
+    """Events lost on every CPU of the instance, as per_cpu/cpuN/stats counts them (overrun, commit overrun, dropped)."""
+    lost = 0
+    try:
+        entries = os.listdir(os.path.join(path, "per_cpu"))
+    except OSError:
+        return 0
+    for entry in entries:
+        lost += stats_lost(_read_or(os.path.join(path, "per_cpu", entry, "stats"), ""))
+    return lost
+
+
+def stats_lost(text: str) -> int:
+    """The events a per_cpu/cpuN/stats text says were lost."""
+    lost = 0
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() in ("overrun", "commit overrun", "dropped events") and value.strip().isdigit():
+            lost += int(value)
+    return lost
+
+
+def _trace_data(result: dict[str, Any], stats_lost: int, duration_ns: int, notes: list[str]) -> TraceData:
+    threads = {}
+    for t in result["threads"]:
+        threads[t["tid"]] = TracedThread(
+            tid=t["tid"],
+            comm=_text(t["comm"]),
+            wakeups=t["wakeups"],
+            latency=t["latency"],
+            latency_min=t["latency_min"],
+            latency_max=t["latency_max"],
+            preemptions=t["preemptions"],
+            voluntary=t["voluntary"],
+            preemptors=tuple(Preemptor(tid, _text(comm), prio, count) for tid, comm, prio, count in t["preemptors"]),
+            other_preemptors=t["other_preemptors"],
+            migrations=t["migrations"],
+            cpus=t["cpus"],
+            run_ns=t["run_ns"],
+            worst=tuple(LateWakeup(lat, at, cpu, tid, _text(comm), prio) for lat, at, cpu, tid, comm, prio in t["worst"]),
+            cpu_changes=t["cpu_changes"],
+            latency_sum=t["latency_sum"],
+            exited=t["exited"],
+            unseen_switch_ins=t["unseen_switch_ins"],
+        )
+    if result["malformed"]:
+        notes.append(f"{result['malformed']} trace records could not be decoded")
+    if result["window_late_ns"]:
+        notes.append(
+            f"the window was set after {human_duration(result['window_late_ns'])} of events outside it had been counted "
+            "(set its start before it begins, its end at most 10 ms after it passes)"
+        )
+    if result["forced"]:
+        notes.append(f"{result['forced']} events were applied before every CPU's buffer was read (the reader fell behind)")
+    # the kernel's counters and the pages' flags count the same losses: the larger is the better count
+    lost = max(stats_lost, result["lost_stored"], result["missed_pages"])
+    return TraceData(
+        threads=dict(sorted(threads.items())),
+        events=result["events"],
+        lost=lost,
+        untracked=result["untracked"],
+        reader_cpu_ns=result["reader_cpu_ns"],
+        duration_ns=duration_ns,
+        out_of_order=result["out_of_order"],
+        unseen_switch_ins=sum(t.unseen_switch_ins for t in threads.values()),
+        notes=tuple(notes),
+    )
+
+
+def native_result(result: dict[str, Any], stats_lost: int = 0) -> TraceData:
+    """TraceData from a native Reader's result() (tests feed the reader pages of their own)."""
+    return _trace_data(result, stats_lost, 0, [])
+
+
+# ---- files ----
+
+
+def _text(raw: bytes) -> str:
+    return raw.decode("utf-8", "replace")
+
+
+def _read(path: str) -> str:
+    with open(path) as handle:
+        return handle.read()
+
+
+def _read_or(path: str, default: str) -> str:
+    try:
+        return _read(path)
+    except OSError:
+        return default
+
+
+def _write(path: str, name: str, value: str) -> None:
+    fd = os.open(os.path.join(path, name), os.O_WRONLY | os.O_TRUNC)
+    try:
+        os.write(fd, value.encode())
+    finally:
+        os.close(fd)
+
+
+def _mount(source: str, target: str, fstype: str) -> int:
+    """mount(2); 0 or the errno."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    if libc.mount(source.encode(), target.encode(), fstype.encode(), ctypes.c_ulong(0), None) == 0:
+        return 0
+    return ctypes.get_errno() or errno.EIO
+
+
+def _why(error: OSError, what: str) -> str:
+    code = errno.errorcode.get(error.errno or 0, str(error.errno))
+    if error.errno in (errno.EPERM, errno.EACCES):
+        return f"{what}: permission denied ({code}); tracing needs root (CAP_SYS_ADMIN)"
+    where = f" ({error.filename})" if error.filename else ""
+    return f"{what}: {error.strerror or error}{where} ({code})"
