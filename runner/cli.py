@@ -77,6 +77,11 @@ def _run_parser() -> argparse.ArgumentParser:
         help="hold /dev/cpu_dma_latency at US microseconds while cells run, as cyclictest does (default 0: no deep CPU idle states)",
     )
     d.add_argument("--no-dma-latency", action="store_true", help="leave /dev/cpu_dma_latency alone")
+    p.add_argument_group("machine").add_argument(
+        "--no-trace",
+        action="store_true",
+        help="do not trace the scheduler (no wake-up latency per wake-up, no preemption attribution; /proc figures stay)",
+    )
     r = p.add_argument_group("report")
     r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
     r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)

@@ -63,6 +63,7 @@ class RunOptions:
     live: bool = True  # a live progress line (a terminal, not CI)
     dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
     junit: Optional[str] = None  # --junit FILE: the run as JUnit XML, for CI test reporters
+    trace: bool = True  # trace the scheduler (tracefs) while cells run, where the kernel lets the runner
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
@@ -101,6 +102,7 @@ class RunOptions:
             live=not (ns.quiet or in_ci),
             dma_latency_us=dma_latency,
             junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
+            trace=not ns.no_trace,
         )
 
 
@@ -388,7 +390,12 @@ def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
             duration = options.duration_ns or cell.scenario.duration
             progress.start(unit, options.repeat, duration / 1e9)
             cell_options = CellOptions(
-                duration, options.allow_degraded, follow, progress.line if not options.follow else None, stop.requested
+                duration,
+                options.allow_degraded,
+                follow,
+                progress.line if not options.follow else None,
+                stop.requested,
+                trace=options.trace,
             )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))

@@ -156,3 +156,25 @@ def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_pat
 def _table_rows(cell: dict) -> list[dict]:
     """The mid-run table as results.json stores it (with the class ps prints, a computed field)."""
     return [{"comm": r["comm"], "rtprio": r["rtprio"], "cls": r["cls"]} for r in cell["thread_table"]]
+
+
+@TWO_CPUS
+def test_the_trace_names_the_hogs_as_preemptors_of_an_other_thread_and_nothing_preempts_a_fifo_one(tmp_path, program):
+    found = {}
+    for policy in ("other", "fifo:80"):
+        process = {"command": [program, "--period-us", "10000", "--burn-us", "4000"], "sched": policy, "cpus": "1"}
+        path = _scenario(tmp_path, process, background={"hogs": [{"count": "cpus", "name": "kthog"}]})
+        done = _run(tmp_path, path, "--duration", "1s", out_name=policy)
+        cell = done.results["cells"][0]
+        if not cell["trace"]["enabled"]:
+            pytest.skip(f"no scheduler trace here: {cell['trace']['reason']}")
+        assert cell["trace"]["lost"] == 0
+        found[policy] = thread(done.results, "ctl_loop")
+    other = found["other"]
+    by_hog = sum(p["count"] for p in other["preempted_by"] if p["comm"] == "kthog")
+    assert other["figures"]["preemptions"] >= 20 and by_hog >= other["figures"]["preemptions"] // 2, other["preempted_by"]
+    assert all(p["cls"] == "TS" for p in other["preempted_by"] if p["comm"] == "kthog")
+    fifo = found["fifo:80"]
+    assert not any(p["comm"] == "kthog" for p in fifo["preempted_by"]), fifo["preempted_by"]
+    assert fifo["figures"]["preemptions"] <= 2
+    assert fifo["figures"]["wakeup_ns"]["p50"] < 1_000_000  # from its sched_waking to running: far below its period

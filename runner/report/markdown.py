@@ -331,8 +331,10 @@ def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
 
 
 def _preemptor(p: Preemptor) -> str:
+    """`790 by hog[1234] (TS)`: the count, the task's name and TID, its class and RT priority as ps writes them."""
     prio = f" {p.rtprio}" if p.rtprio is not None else ""
-    return f"{p.count:,} by {p.comm} ({p.cls}{prio})"
+    who = p.comm if not p.tid else f"{p.comm}[{p.tid}]"
+    return f"{p.count:,} by {who} ({p.cls}{prio})"
 
 
 def preemption_lines(rows: Rows) -> list[str]:
@@ -343,13 +345,32 @@ def preemption_lines(rows: Rows) -> list[str]:
         if n is None:
             continue
         if not n:
-            out.append(f"{label}: never preempted")
-            continue
-        named = ", ".join(_preemptor(p) for p in t.preempted_by)
-        others = n - sum(p.count for p in t.preempted_by)
-        rest = f", {others:,} by others" if others > 0 else ""
-        out.append(f"{label}: preempted {n:,} time{'s' if n != 1 else ''}: {named}{rest}")
+            line = f"{label}: never preempted"
+        else:
+            named = ", ".join(_preemptor(p) for p in t.preempted_by)
+            others = n - sum(p.count for p in t.preempted_by)
+            rest = f", {others:,} by others" if others > 0 else ""
+            line = f"{label}: preempted {n:,} time{'s' if n != 1 else ''}: {named}{rest}"
+        if t.late_wakeups:
+            behind = ", ".join(_preemptor(p).replace(" by ", " behind ", 1) for p in t.late_wakeups_by)
+            line += f"; its {t.late_wakeups:,} worst wake-up{'s' if t.late_wakeups != 1 else ''} beyond p99 waited: {behind}"
+        out.append(line)
     return out
+
+
+def trace_line(cell: CellResult) -> str | None:
+    """What the scheduler trace was in this cell, or why there was none."""
+    info = cell.trace
+    if info is None:
+        return None
+    if not info.enabled:
+        return (
+            f"Scheduler trace: not taken ({info.reason}); wake-up latency per wake-up and who preempted whom are missing, "
+            "the /proc figures are complete."
+        )
+    lost = f"{info.lost:,} lost" if info.lost else "none lost"
+    cost = f"{info.reader_cpu_ns / 1e6:.1f} ms of CPU for the reader"
+    return f"Scheduler trace: {info.events:,} events ({lost}), {cost}."
 
 
 def _ended(p: ProgramResult) -> str:
@@ -732,6 +753,7 @@ class CellSection:
     programs: list[Markdown] = field(default_factory=list)
     outside: Table | None = None
     preemptions: list[str] = field(default_factory=list)
+    trace: str | None = None
 
 
 @dataclass
@@ -791,6 +813,7 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         programs=program_lines(cell),
         outside=outside_table(rows),
         preemptions=preemption_lines(rows),
+        trace=trace_line(cell),
     )
 
 

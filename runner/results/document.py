@@ -300,6 +300,12 @@ class ThreadResult(_Record):
     preempted_by: list[Preemptor] = Field(
         default_factory=list, description="who took the CPU while it was runnable, most often first (scheduler trace)"
     )
+    late_wakeups: NonNegativeInt = Field(
+        0, description="wake-ups above its trace p99 among its 64 worst, whose delayer is named in late_wakeups_by"
+    )
+    late_wakeups_by: list[Preemptor] = Field(
+        default_factory=list, description="who held the CPU while those late wake-ups waited for it (idle: the wake-up path itself)"
+    )
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property
@@ -309,6 +315,20 @@ class ThreadResult(_Record):
     def label(self, show_instance: bool) -> str:
         """This thread's name in rows and tables (see `thread_label`)."""
         return thread_label(self.process, self.instance, self.index, self.name, show_instance)
+
+
+class TraceInfo(_Record):
+    """The scheduler trace of a cell: whether it ran, what it read, what it lost, what it cost."""
+
+    enabled: bool
+    reason: str = Field("", description="why there was no trace, in words")
+    events: NonNegativeInt = 0
+    lost: NonNegativeInt = Field(0, description="events the kernel dropped or overwrote: the figures are undercounted")
+    untracked: NonNegativeInt = Field(0, description="events of threads beyond the reader's bounded table")
+    unseen_switch_ins: NonNegativeInt = Field(0, description="switches onto a CPU the kernel did not trace (their wake-ups go unmeasured)")
+    reader_cpu_ns: NonNegativeInt = Field(0, description="CPU time the native reader spent")
+    duration_ns: NonNegativeInt = 0
+    notes: list[str] = Field(default_factory=list)
 
 
 class ProgramResult(_Record):
@@ -502,6 +522,7 @@ class CellResult(_Record):
     machine: Optional[MachineInfo] = None
     thread_table: list[ThreadRow] = Field(default_factory=list, description="the threads as the kernel held them mid-run")
     programs: list[ProgramResult] = Field(default_factory=list, description="the user's programs (command:)")
+    trace: Optional[TraceInfo] = Field(None, description="the scheduler trace; null: a run from before tracing existed")
     threads: list[ThreadResult] = Field(default_factory=list)
     expectations: list[Verdict] = Field(default_factory=list)
     background: list[Background] = Field(default_factory=list)

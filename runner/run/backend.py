@@ -41,6 +41,7 @@ class CellOptions:
     progress: Optional[Callable[[str], None]] = None  # a live status line
     stop_requested: Callable[[], bool] = _never  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
     samples: Optional[SampleSink] = None  # per-callback samples, streamed while the cell runs; None: not kept
+    trace: bool = False  # trace the scheduler for the cell's processes (tracefs), where the kernel allows
 
 
 class SampleSink(Protocol):

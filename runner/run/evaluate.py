@@ -28,7 +28,7 @@ from runner.results.document import (
     thread_label,
     worst,
 )
-from runner.run import outside, programs
+from runner.run import outside, programs, traced
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
@@ -240,6 +240,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         measured.extend((planned, t.figures) for planned, t in out.threads)
         program_failures += out.failures
         program_warnings += out.warnings
+    result.threads, result.trace = traced.apply(result.threads, raw.trace, raw.trace_tasks)
+    measured = [(planned, t.figures) for (planned, _), t in zip(measured, result.threads)]
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]
         mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
@@ -281,6 +283,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         ]
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
         + program_warnings
+        + traced.warnings(result.trace)
     )
     if stalls:
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")

@@ -11,7 +11,7 @@ import os
 from dataclasses import dataclass
 from typing import Optional
 
-from runner.results.pstable import ThreadRow
+from runner.results.pstable import CLS, ThreadRow
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
 
@@ -223,3 +223,14 @@ def task_ids(pid: int) -> list[int]:
         return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
     except OSError:
         return []
+
+
+def task_of(tid: int) -> Optional[tuple[int, str]]:
+    """(its process, its class as ps writes it) for a live task named by TID; None once it is gone."""
+    try:
+        status = _read(f"/proc/{tid}/status")
+        policy = os.sched_getscheduler(tid) & ~RESET_ON_FORK
+    except OSError:
+        return None
+    tgid = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("Tgid:")), tid)
+    return tgid, CLS.get(policy, "?")

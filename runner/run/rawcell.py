@@ -19,6 +19,8 @@ from typing import Any, Optional
 from runner.results.pstable import ThreadRow
 from runner.run.kernel import Counters
 from runner.run.samples import SlotData
+from runner.run.traced import Task
+from runner.run.tracing import TraceData, TraceUnavailable
 from runner.scenario.model import ProgramSpec
 from runner.scenario.plan import PlannedThread, Settings
 
@@ -198,3 +200,5 @@ class RawCell:
     rt_limit_us: tuple[Optional[int], Optional[int]] = (None, None)  # sched_rt_runtime_us, sched_rt_period_us
     resources: tuple[ResourceState, ...] = ()
     programs: tuple[RawProgram, ...] = ()  # the user's programs, measured from outside
+    trace: Optional[TraceData | TraceUnavailable] = None  # the scheduler trace; None when not asked for
+    trace_tasks: dict[int, Task] = field(default_factory=dict)  # tasks the trace names, as /proc had them at its end

@@ -26,7 +26,7 @@ from typing import Any, Optional
 
 from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
-from runner.run import _probe, dmalatency, kernel, samples
+from runner.run import _probe, dmalatency, kernel, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import child_env, python_module
 from runner.run.external import Monitor, ProgramRun, sched_json
@@ -36,6 +36,7 @@ from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
 from runner.run.programs import settings_of
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, ResourceState, Timeline
+from runner.run.traced import Task
 from runner.scenario import program as programs
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import (
@@ -528,6 +529,9 @@ class _CellRun:
         self.hogs = _hog_workers(self.scenario, folder)
         self.programs = [ProgramRun(spec, folder, start, kernel.online_cpus()) for spec in self.scenario.programs]
         self.monitor: Optional[Monitor] = None
+        self.tracer: Optional[tracing.Tracer] = None
+        self.trace: Optional[tracing.TraceData | tracing.TraceUnavailable] = None
+        self.trace_tasks: dict[int, Task] = {}
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
         self.table: list[ThreadRow] = []
@@ -578,6 +582,13 @@ class _CellRun:
             if not self.reason:
                 p.launch(self.guard)
                 self.reason = p.failure
+        if self.options.trace and not self.reason:
+            traced = [w.pid for w in self.workers] + [p.pid for p in self.programs]
+            opened = tracing.open_trace(traced, guard=self.guard)
+            if isinstance(opened, tracing.TraceUnavailable):
+                self.trace = opened
+            else:
+                self.tracer = opened
 
     def _create_resources(self) -> Optional[int]:
         """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
@@ -597,15 +608,17 @@ class _CellRun:
     def supervise(self) -> None:
         """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
         options, workers, hogs = self.options, self.workers, self.hogs
-        now = time.monotonic_ns()
         for p in self.programs:
             p.release()
             if p.failure:
                 self.reason = p.failure
                 return
         pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs]
+        now = time.monotonic_ns()
         t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
         t_end = t0 + options.duration_ns
+        if self.tracer is not None:
+            self.tracer.window(t0, t_end)
         self.t0, self.t_end = t0, t_end
         periods = [t.period for t in self.planned if t.period]
         grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
@@ -639,10 +652,26 @@ class _CellRun:
                 options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
         self.exit_time = time.monotonic_ns()
         self.monitor.stop()
+        self._stop_trace()
         for w in workers:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
             _read_done(w)
+
+    def _stop_trace(self) -> None:
+        """Stop the trace and learn what can still be learnt of the tasks it names, while they live (hogs, programs)."""
+        if self.tracer is None:
+            return
+        data = self.tracer.stop()
+        self.tracer = None
+        self.trace = data
+        tids = {p.tid for t in data.threads.values() for p in t.preemptors} | {
+            w.delayer_tid for t in data.threads.values() for w in t.worst
+        }
+        for tid in tids:
+            task = kernel.task_of(tid)
+            if task is not None:
+                self.trace_tasks[tid] = Task(*task)
 
     def _running(self, t_end: int) -> bool:
         """Whether the cell goes on: a worker runs, or a program runs before the end (every `until: exit` one, before its exit)."""
@@ -693,6 +722,9 @@ class _CellRun:
         """Stop the programs and the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
         if self.monitor is not None:
             self.monitor.stop()
+        if self.tracer is not None:
+            self.tracer.close()
+            self.tracer = None
         for p in self.programs:
             p.abandon()
             p.stop(self.guard)
@@ -769,6 +801,8 @@ class _CellRun:
             kernel.rt_limit(),
             self._resource_states(),
             tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
+            self.trace,
+            dict(self.trace_tasks),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
