@@ -132,7 +132,7 @@ def test_a_killed_owner_leaves_no_instance_behind(tmp_path):
         "import time\nfrom runner.run import tracing\nfrom runner.run.guard import Guard\n"
         "g = Guard()\nt = tracing.open_trace([1], guard=g)\nprint(' '.join(t.paths), flush=True)\ntime.sleep(60)\n"
     )
-    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=tmp_path)
     assert owner.stdout is not None
     paths = owner.stdout.readline().split()
     assert paths and all(os.path.isdir(p) for p in paths)
@@ -167,6 +167,6 @@ def test_a_tracer_dropped_or_left_at_exit_stops_tracing():
     del tracer
     assert not any(os.path.exists(p) for p in paths), "dropped: the finalizer removed them"
     script = "import os\nfrom runner.run import tracing\nt = tracing.open_trace([os.getpid()])\nprint(' '.join(t.paths))\n"
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, cwd="/")
     paths = tuple(done.stdout.split())
     assert paths and not any(os.path.exists(p) for p in paths), "left at interpreter exit: removed then"
