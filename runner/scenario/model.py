@@ -1183,6 +1183,31 @@ class ProcessSpec(Strict):
 # ----------------------------------------------------------------------- programs
 
 
+def _argv_list(key: str) -> Any:
+    """A validator: `key` is a list of arguments, never a shell string (no shell runs it)."""
+
+    def check(value: Any) -> Any:
+        if isinstance(value, str):
+            raise ValueError(f"{key} must be a list such as ['stress-ng', '--cpu', '2'], not the string {value!r} (no shell runs it)")
+        return value
+
+    return check
+
+
+def _argv_items(key: str) -> Any:
+    """A validator: the program (`key`[0]) is named and no argument holds a NUL byte, which exec cannot pass."""
+
+    def check(value: list[str]) -> list[str]:
+        if not value[0]:
+            raise ValueError(f"{key}[0], the program, is empty")
+        for arg in value:
+            if "\x00" in arg:
+                raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
+        return value
+
+    return check
+
+
 class Until(str, enum.Enum):
     """When a program's cell ends."""
 
@@ -1191,22 +1216,6 @@ class Until(str, enum.Enum):
 
 
 MAX_GRACE = 60_000_000_000  # SIGTERM to SIGKILL: a program gets at most a minute to exit
-
-
-def _argv(value: Any) -> Any:
-    """A command is a list of arguments, never a shell string."""
-    if isinstance(value, str):
-        raise ValueError(f"a command is a list such as ['stress-ng', '--cpu', '2'], not the string {value!r} (no shell runs it)")
-    return value
-
-
-def _argv_items(value: list[str]) -> list[str]:
-    if not value[0]:
-        raise ValueError("the program (the command's first item) is empty")
-    for arg in value:
-        if "\x00" in arg:
-            raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
-    return value
 
 
 class ThreadRule(Strict):
@@ -1242,7 +1251,7 @@ class ProgramSpec(Strict):
     """
 
     name: str = Field(description="the process's label in reports and expectations (`name/thread`), 15 bytes at most")
-    command: Annotated[list[str], BeforeValidator(_argv)] = Field(
+    command: Annotated[list[str], BeforeValidator(_argv_list("command"))] = Field(
         min_length=1, description="program and arguments as a list (never a shell string); the program is looked up in PATH"
     )
     cwd: Optional[str] = Field(None, description="working directory (default: the cell's folder)")
@@ -1262,7 +1271,7 @@ class ProgramSpec(Strict):
     grace: Duration = Field(1_000_000_000, description="time between SIGTERM and SIGKILL when the program is stopped")
 
     _name = field_validator("name")(lambda cls, v: _check_comm(v))
-    _items = field_validator("command")(lambda cls, v: _argv_items(v))
+    _items = field_validator("command")(lambda cls, v: _argv_items("command")(v))
 
     @field_validator("cwd")
     @classmethod
@@ -1355,22 +1364,8 @@ class Command(Strict):
 
     _label = field_validator("name")(lambda cls, v: _no_control("name")(v))
 
-    @field_validator("argv", mode="before")
-    @classmethod
-    def _no_shell(cls, value: Any) -> Any:
-        if isinstance(value, str):
-            raise ValueError(f"argv must be a list such as ['stress-ng', '--cpu', '2'], not the string {value!r}")
-        return value
-
-    @field_validator("argv")
-    @classmethod
-    def _executable(cls, value: list[str]) -> list[str]:
-        if not value[0]:
-            raise ValueError("argv[0], the program, is empty")
-        for arg in value:
-            if "\x00" in arg:
-                raise ValueError(f"argument {arg!r} contains a NUL byte, which no program can receive")
-        return value
+    _no_shell = field_validator("argv", mode="before")(lambda cls, v: _argv_list("argv")(v))
+    _executable = field_validator("argv")(lambda cls, v: _argv_items("argv")(v))
 
 
 class Background(Strict):
