@@ -8,6 +8,13 @@ heaviest scheduler load two tasks make.  runner/run/tracing.py traces them; prin
 events/s, the native reader's CPU time as a share of one CPU, events lost, and this
 process's peak RSS before and after (the reader must not grow with the run).
 Targets: 0 lost with the default 4 MiB per CPU, reader under 5% of a CPU.
+
+Then what tracing costs the traced tasks themselves, in the kernel: the same ping-pong with
+both tasks on one CPU (every round trip two wake-ups and two switches, nothing else running
+between them), timed untraced and traced, alternating; the difference per round trip over
+the events the trace recorded per round trip is the kernel's cost of writing one event.  It
+is paid on the wake-up path of a traced thread (sched_waking, then the sched_switch onto its
+CPU), which is what moves the wake-up latency of a traced probe (README, Fidelity).
 Needs root (tracefs).  `--quick` (0.5 s, for CI) checks that it runs and prints its figures.
 """
 
@@ -17,6 +24,7 @@ import argparse
 import os
 import resource
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -39,6 +47,70 @@ while True:
     os.write(w1, b'x')
     os.read(r2, 1)
 """
+
+SAME_CPU = r"""
+import os, sys, time
+open('/proc/self/comm', 'w').write('trace-cost')
+n = int(sys.argv[1])
+r1, w1 = os.pipe()
+r2, w2 = os.pipe()
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+if os.fork() == 0:
+    for _ in range(n + 1):
+        os.read(r1, 1)
+        os.write(w2, b'x')
+    os._exit(0)
+os.write(w1, b'x')
+os.read(r2, 1)  # the child runs: both are in the trace's pid list from here on
+sys.stdout.write('ready\n')
+sys.stdout.flush()
+sys.stdin.readline()
+t0 = time.perf_counter_ns()
+for _ in range(n):
+    os.write(w1, b'x')
+    os.read(r2, 1)
+sys.stdout.write(f'{time.perf_counter_ns() - t0}\n')
+"""
+
+
+def round_trip(n: int, traced: bool, buffer_kb: int) -> tuple[float, float]:
+    """(ns per round trip, events the trace recorded per round trip; 0 untraced) of the one-CPU ping-pong."""
+    load = subprocess.Popen([sys.executable, "-c", SAME_CPU, str(n)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert load.stdin is not None and load.stdout is not None
+    tracer = None
+    try:
+        load.stdout.readline()
+        if traced:
+            with open(f"/proc/{load.pid}/task/{load.pid}/children") as handle:
+                pids = [load.pid, *(int(p) for p in handle.read().split())]
+            opened = tracing.open_trace(pids, buffer_kb=buffer_kb)
+            if isinstance(opened, tracing.TraceUnavailable):
+                raise SystemExit(f"trace unavailable: {opened.reason}")
+            tracer = opened
+        load.stdin.write("go\n")
+        load.stdin.flush()
+        elapsed = int(load.stdout.readline())
+        events = tracer.stop().events if tracer is not None else 0
+        tracer = None
+    finally:
+        if tracer is not None:
+            tracer.close()
+        load.kill()
+        load.wait()
+    return elapsed / n, events / n
+
+
+def event_cost(rounds: int, n: int, buffer_kb: int) -> None:
+    """Print the one-CPU ping-pong's round trip untraced and traced (medians over alternating rounds) and the cost per event."""
+    plain, traced, per_trip = [], [], []
+    for _ in range(rounds):
+        plain.append(round_trip(n, False, buffer_kb)[0])
+        ns, events = round_trip(n, True, buffer_kb)
+        traced.append(ns)
+        per_trip.append(events)
+    a, b, e = statistics.median(plain), statistics.median(traced), statistics.median(per_trip)
+    print(f"one-CPU round trip: {a / 1000:.2f} us untraced, {b / 1000:.2f} us traced ({e:.1f} events each); ", end="")
+    print(f"{(b - a) / e:.0f} ns per event written" if e else "no events recorded")
 
 
 def main() -> int:
@@ -70,6 +142,7 @@ def main() -> int:
     print(f"reader CPU {data.reader_cpu_ns / 1e6:.1f} ms = {100 * data.reader_cpu_ns / data.duration_ns:.2f}% of one CPU")
     print(f"lost {data.lost:,}, out of order {data.out_of_order}, unseen switch-ins {data.unseen_switch_ins:,}")
     print(f"peak RSS {rss_before / 1024:.1f} MiB before, {rss_after / 1024:.1f} MiB after")
+    event_cost(1 if args.quick else 5, 2_000 if args.quick else 100_000, args.buffer_kb)
     return 0
 
 
