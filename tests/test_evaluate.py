@@ -9,7 +9,7 @@ from runner.run.evaluate import degradation, evaluate, releases_due, status
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ReadyReport, Timeline
 from runner.run.samples import Sample, slot_of
 from runner.scenario.loader import load_scenario
-from runner.scenario.model import PeriodicWork, Policy
+from runner.scenario.model import Expectation, PeriodicWork, Policy
 from runner.scenario.plan import Settings, plan_scenario
 
 SCENARIOS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios")
@@ -104,8 +104,25 @@ def test_missed_releases_count_every_release_no_callback_served():
     assert main.figures.callbacks == 3 and main.figures.missed_releases == 7
 
 
-def test_a_cell_with_missed_releases_is_never_a_silent_pass():
+def test_a_thread_that_could_not_keep_up_fails_its_cell_by_an_implicit_verdict():
     cell, raw = _raw(3)  # 3 callbacks for 10 releases; fifo80's expectation does not look at misses
     result = evaluate(cell, cell.scenario, raw, False)
+    assert result.status is Status.FAILED
+    implicit = [v for v in result.expectations if v.line is None]
+    assert [(v.thread, v.metric, v.limit, v.measured, v.passed) for v in implicit] == [
+        ("minimal_schedul/minimal_schedul (main)", "missed_releases", "<= 0", 7, False)
+    ]
+    assert "could not keep up: missed 7 of 10 releases" in implicit[0].note
+    assert result.warnings == []  # said once, by the verdict
+
+
+def test_a_scenarios_own_bound_on_misses_replaces_the_implicit_verdict_and_the_words_stay():
+    cell, raw = _raw(3)
+    own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "missed_releases", "max": 7})
+    scenario = cell.scenario.model_copy(update={"expect": [*cell.scenario.expect, own]})
+    result = evaluate(cell, scenario, raw, False)
     assert result.status is Status.PASSED
+    assert [(v.measured, v.passed) for v in result.expectations if v.metric == "missed_releases"] == [(7, True)]
     assert len(result.warnings) == 1 and "could not keep up: missed 7 of 10 releases" in result.warnings[0]
+    strict = scenario.model_copy(update={"expect": [*cell.scenario.expect, own.model_copy(update={"max": 6})]})
+    assert evaluate(cell, strict, raw, False).status is Status.FAILED

@@ -34,7 +34,7 @@ from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
-from runner.scenario.model import PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
+from runner.scenario.model import Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, is_periodic
 
 QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
@@ -110,29 +110,68 @@ def _histograms(slot: SlotData) -> Optional[ThreadHistograms]:
     return ThreadHistograms(latency=st.latency, slack=st.slack, callback_wall=st.wall)
 
 
-def warnings(threads: list[ThreadResult], processes: int) -> list[str]:
+def behind(f: ThreadFigures) -> str:
+    """`missed 41 of 200 releases, 41 of 159 callbacks overran their period (worst slack −1.64 ms)`, or "" when the thread kept up."""
+    parts = []
+    if f.missed_releases:
+        parts.append(f"missed {f.missed_releases:,} of {f.releases:,} releases")
+    if f.overruns:
+        parts.append(f"{f.overruns:,} of {f.callbacks:,} callbacks overran their period")
+    worst = f" (worst slack {units.human_duration(f.slack_ns.min)})" if f.slack_ns and parts else ""
+    return ", ".join(parts) + worst
+
+
+def warnings(threads: list[ThreadResult], processes: int, failed: frozenset[str] = frozenset()) -> list[str]:
     """What the figures show went wrong without an expectation failing, in words: never a silent `passed`.
 
-    A periodic thread that missed releases or overran could not keep up with its period; a
-    thread whose samples could not all be written has figures that still count every callback.
+    A periodic thread that missed releases or overran could not keep up with its period
+    (said here when the scenario's own expectation bounds it; otherwise its implicit
+    verdict, failed, says it: `failed` names the threads that have one); a thread whose
+    samples could not all be written has figures that still count every callback.
     """
     out = []
     for t in threads:
         f = t.figures
         name = t.label(processes > 1)
-        if t.periodic and (f.missed_releases or f.overruns):
-            parts = []
-            if f.missed_releases:
-                parts.append(f"missed {f.missed_releases:,} of {f.releases:,} releases")
-            if f.overruns:
-                parts.append(f"{f.overruns:,} of {f.callbacks:,} callbacks overran their period")
-            worst = f" (worst slack {units.human_duration(f.slack_ns.min)})" if f.slack_ns else ""
-            out.append(f"{name} could not keep up: {', '.join(parts)}{worst}")
+        if t.periodic and (f.missed_releases or f.overruns) and name not in failed:
+            out.append(f"{name} could not keep up: {behind(f)}")
         if t.samples_lost:
             out.append(
                 f"{name}: {t.samples_lost:,} per-callback samples were overwritten before the runner could write them;"
                 " the figures still count every callback"
             )
+    return out
+
+
+KEEPS_UP_METRICS = ("missed_releases", "overruns")  # figures of the registry: a scenario's own bound on them replaces the implicit one
+
+
+def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: list[Expectation], raw: RawCell) -> list[Verdict]:
+    """A failed verdict for each periodic thread that missed releases or overran: a cell never passes on a thread that could not keep up.
+
+    The verdict is implicit (no line in the scenario); an expectation of the scenario's own
+    on `missed_releases` or `overruns` naming the thread in this cell replaces it, so a
+    scenario that accepts some misses says how many.
+    """
+    own = {
+        id(t) for exp in expectations if exp.metric.value in KEEPS_UP_METRICS for t in match_threads([p for p, _ in measured], exp.thread)
+    }
+    out = []
+    for planned, fig in measured:
+        if not is_periodic(planned.work) or id(planned) in own or not (fig.missed_releases or fig.overruns):
+            continue
+        metric = KEEPS_UP_METRICS[0] if fig.missed_releases else KEEPS_UP_METRICS[1]
+        out.append(
+            Verdict(
+                thread=verdict_label(planned, raw.processes),
+                metric=metric,
+                limit="<= 0",
+                measured=fig.missed_releases or fig.overruns,
+                passed=False,
+                note=f"could not keep up: {behind(fig)}; implicit (every release served) unless the scenario bounds "
+                "missed_releases or overruns for this thread itself",
+            )
+        )
     return out
 
 
@@ -264,6 +303,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 if mark is not None:  # where the expectation is written: CI annotations point there
                     verdict.line, verdict.col = mark.line, mark.col
                 result.expectations.append(verdict)
+    implicit = keeps_up(measured, [scenario.expect[i] for i in expectations_for(scenario, cell)], raw)
+    result.expectations += implicit
     result.thread_table = list(raw.table)
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)
@@ -274,7 +315,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
     result.overhead_ns = _overhead(raw)
     result.warnings = (
-        warnings(result.threads, raw.processes)
+        warnings(result.threads, raw.processes, frozenset(v.thread for v in implicit))
         + [
             f"queue {r.name}: {r.dropped:,} resumes were dropped because the thread suspending on it was "
             f"{QUEUE_DEPTH} activations behind; chain figures cover the activations that ran"
