@@ -7,8 +7,7 @@ the online CPUs so the listing says what this machine would do.
 from __future__ import annotations
 
 import shlex
-
-from tabulate import tabulate
+from typing import Any, Optional
 
 from runner import units
 from runner.scenario.loader import LoadedScenario, ResolvedCell, expectations_for
@@ -28,6 +27,13 @@ from runner.scenario.model import (
     Work,
 )
 from runner.scenario.plan import Settings, plan_process, program_settings, rule_settings
+
+
+def _plain(rows: list[list[Any]], headers: Optional[list[str]] = None) -> str:
+    """Rows as tabulate's plain table; tabulate is imported here, so `runner validate` does not pay for it (with wcwidth, about 50 ms)."""
+    from tabulate import tabulate
+
+    return tabulate(rows, headers=headers or (), tablefmt="plain")
 
 
 def describe_work(work: Work) -> str:
@@ -105,7 +111,7 @@ def spread_lines(proc: ProcessSpec) -> list[str]:
             ]
             for m in spec.members()
         ]
-        out.extend("  " + row for row in tabulate(rows, tablefmt="plain").splitlines())
+        out.extend("  " + row for row in _plain(rows).splitlines())
     return out
 
 
@@ -159,7 +165,7 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) ->
                     describe_work(t.work),
                 ]
             )
-        table = tabulate(rows, headers=["#", "THREAD", "POLICY", "NICE", "CPUS", "SETTINGS", "WORK"], tablefmt="plain")
+        table = _plain(rows, ["#", "THREAD", "POLICY", "NICE", "CPUS", "SETTINGS", "WORK"])
         lines.extend("    " + row for row in table.splitlines())
         lines.extend(f"    {describe_spread(spec)}" for spec in proc.threads if spec.varies)
     for i in expectations_for(sc, cell):
@@ -180,7 +186,7 @@ def _program_lines(prog: ProgramSpec, start: Settings, online: tuple[int, ...]) 
     for rule in prog.threads:
         wanted = rule_settings(prog, rule, start)
         rows.append(["rule", rule.match, wanted.label(), wanted.nice, wanted.cpus_label(online), "when it appears"])
-    table = tabulate(rows, headers=["", "THREAD", "POLICY", "NICE", "CPUS", "APPLIED"], tablefmt="plain")
+    table = _plain(rows, ["", "THREAD", "POLICY", "NICE", "CPUS", "APPLIED"])
     return lines + ["    " + row for row in table.splitlines()]
 
 

@@ -25,7 +25,7 @@ from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.figures import Scope
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
-from runner.scenario import program, rtapp
+from runner.scenario import program
 from runner.scenario.model import (
     CPUS_CONTEXT,
     AnyProcess,
@@ -131,6 +131,8 @@ def _rtapp_document(path: str, notes: list[str]) -> Document:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
     except UnicodeDecodeError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+    from runner.scenario import rtapp  # only for rt-app files: YAML scenarios do not pay for importing it
+
     conversion = rtapp.convert(text, path)
     notes.extend(conversion.notes)
     return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")
