@@ -700,3 +700,28 @@ def test_the_core_import_path_imports_no_plotting_and_no_numpy():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     # tabulate (with wcwidth and importlib.metadata, about 50 ms) only when a listing is printed, rt-app's converter for rt-app files
     assert done.stdout.splitlines() == ["[]", "[]", "False"], done.stdout
+
+
+def test_preemption_lines_name_who_preempted_and_for_periodic_threads_which_callbacks():
+    """A periodic thread runs only in its callbacks: its line says how many were preempted before who did it."""
+    from runner.results.document import Preemptor
+
+    cell = matrix().cells[-1]  # the OTHER cell: its callbacks were preempted
+    t = next(t for t in cell.threads if t.periodic)
+    f = t.figures.model_copy(update={"preemptions": 146})
+    by = [Preemptor(comm="hog", tid=41, pid=41, cls="TS", count=100), Preemptor(comm="ksoftirqd/1", tid=9, cls="TS", count=40)]
+    late = [Preemptor(comm="hog", tid=41, pid=41, cls="TS", count=1)]
+    periodic = t.model_copy(update={"figures": f, "preempted_by": by, "late_wakeups": 1, "late_wakeups_by": late})
+    hit, calls = f.involuntary.callbacks_with_any, f.callbacks
+    assert hit and calls
+    assert report.preemption_lines([("p/main", periodic)]) == [
+        f"p/main: {hit:,} of {calls:,} callbacks preempted, preempted 146 times: 100 by hog[41] (TS), 40 by ksoftirqd/1[9] (TS), "
+        "6 by others; its 1 worst wake-up beyond p99 waited: 1 behind hog[41] (TS)"
+    ]
+    sleeper = periodic.model_copy(update={"periodic": False, "late_wakeups": 0, "late_wakeups_by": []})
+    assert report.preemption_lines([("p/idle", sleeper)]) == [
+        "p/idle: preempted 146 times: 100 by hog[41] (TS), 40 by ksoftirqd/1[9] (TS), 6 by others"
+    ]
+    never = sleeper.model_copy(update={"figures": f.model_copy(update={"preemptions": 0}), "preempted_by": []})
+    untraced = sleeper.model_copy(update={"figures": f.model_copy(update={"preemptions": None})})
+    assert report.preemption_lines([("p/a", never), ("p/b", untraced)]) == ["p/a: never preempted"]

@@ -338,19 +338,28 @@ def _preemptor(p: Preemptor) -> str:
 
 
 def preemption_lines(rows: Rows) -> list[str]:
-    """`talker/ctl_loop #1: preempted 812 times: 790 by hog0-1 (TS), 22 by ksoftirqd/1 (TS)`, for every thread the trace followed."""
+    """`talker/ctl_loop #1: preempted 812 times: 790 by hog0-1 (TS), 22 by ksoftirqd/1 (TS)`, for every thread the trace followed.
+
+    A periodic thread of the runner's own says first how many of its callbacks were
+    preempted (`111 of 159 callbacks preempted, preempted 146 times: ...`): it runs only in
+    its callbacks, so who preempted it is who made those callbacks late.
+    """
     out = []
     for label, t in rows:
         n = t.figures.preemptions
         if n is None:
             continue
+        inv = t.figures.involuntary
+        hit = inv.callbacks_with_any if t.periodic else None
+        # a periodic thread of the runner runs only in its callbacks: its preemptors are why its callbacks were preempted
+        during = f"{hit:,} of {t.figures.callbacks:,} callbacks preempted, " if hit else ""
         if not n:
             line = f"{label}: never preempted"
         else:
             named = ", ".join(_preemptor(p) for p in t.preempted_by)
             others = n - sum(p.count for p in t.preempted_by)
             rest = f", {others:,} by others" if others > 0 else ""
-            line = f"{label}: preempted {n:,} time{'s' if n != 1 else ''}: {named}{rest}"
+            line = f"{label}: {during}preempted {n:,} time{'s' if n != 1 else ''}: {named}{rest}"
         if t.late_wakeups:
             behind = ", ".join(_preemptor(p).replace(" by ", " behind ", 1) for p in t.late_wakeups_by)
             line += f"; its {t.late_wakeups:,} worst wake-up{'s' if t.late_wakeups != 1 else ''} beyond p99 waited: {behind}"
