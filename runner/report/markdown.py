@@ -351,7 +351,6 @@ def preemption_lines(rows: Rows) -> list[str]:
             continue
         inv = t.figures.involuntary
         hit = inv.callbacks_with_any if t.periodic else None
-        # a periodic thread of the runner runs only in its callbacks: its preemptors are why its callbacks were preempted
         during = f"{hit:,} of {t.figures.callbacks:,} callbacks preempted, " if hit else ""
         if not n:
             line = f"{label}: never preempted"
