@@ -504,17 +504,10 @@ def _import_rtapp_parser() -> argparse.ArgumentParser:
 
 def _cmd_import_rtapp(argv: list[str]) -> int:
     ns = _import_rtapp_parser().parse_args(argv)
-    from runner.errors import Problem
     from runner.results.files import write_atomic
-    from runner.scenario.rtapp import MAX_BYTES, convert
+    from runner.scenario.rtapp import convert, read
 
-    try:
-        with open(ns.file, encoding="utf-8") as handle:
-            text = handle.read(MAX_BYTES + 1)
-    except OSError as exc:
-        raise ScenarioError([Problem(ns.file, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError([Problem(ns.file, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+    text = read(ns.file)
     conversion = convert(text, ns.file)
     for text_note in conversion.notes:
         warn(f"{ns.file}: {text_note}")

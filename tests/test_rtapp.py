@@ -793,3 +793,17 @@ def test_cli_bad_input_exits_2_with_the_problems(tmp_path):
 
 def test_cli_is_in_the_top_help():
     assert "runner import-rtapp JSON [-o FILE]" in run_cli("--help").out
+
+
+def test_an_oversized_json_is_refused_unread_by_import_and_by_validate(tmp_path):
+    """Both read an rt-app file through `rtapp.read`, which stops one character past MAX_BYTES, and refuse it in the same words."""
+    from runner.scenario.rtapp import MAX_BYTES, read
+
+    huge = tmp_path / "huge.json"
+    huge.write_text('{"tasks": {"t": {"run": 1}}, "x": "' + "a" * (3 << 20) + '"}')
+    assert len(read(str(huge))) == MAX_BYTES + 1
+    for command in (("import-rtapp", str(huge)), ("validate", str(huge))):
+        done = run_cli(*command)
+        assert done.code == 2 and "larger than 1048576 bytes" in done.err, (command, done.err)
+    missing = run_cli("validate", str(tmp_path / "none.json"))
+    assert missing.code == 2 and "none.json:1:1: cannot read file: No such file or directory" in missing.err

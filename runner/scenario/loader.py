@@ -124,15 +124,9 @@ def _rtapp_document(path: str, notes: list[str]) -> Document:
     What did not map exactly is added to `notes`.  Problems the scenario checks find are located
     in the converted YAML (which `runner import-rtapp FILE` prints); the file name says so.
     """
-    try:
-        with open(path, encoding="utf-8") as handle:
-            text = handle.read()
-    except OSError as exc:
-        raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
     from runner.scenario import rtapp  # only for rt-app files: YAML scenarios do not pay for importing it
 
+    text = rtapp.read(path)
     conversion = rtapp.convert(text, path)
     notes.extend(conversion.notes)
     return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")

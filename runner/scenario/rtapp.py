@@ -494,6 +494,17 @@ def _cut(text: str, limit: int) -> str:
     return text.encode()[:limit].decode(errors="ignore")
 
 
+def read(path: str) -> str:
+    """The text of an rt-app file, at most MAX_BYTES (and one more, so `convert` can say it is too large); problems as ScenarioError."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            return handle.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+
+
 def convert(text: str, name: str) -> Conversion:
     """Convert rt-app workload JSON `text` into a scenario.
 
