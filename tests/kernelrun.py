@@ -94,3 +94,16 @@ def documented_exit(results: dict[str, Any]) -> int:
 def failed_metrics(results: dict[str, Any]) -> set[str]:
     """The metrics of every expectation that failed, in every cell."""
     return {v["metric"] for c in results["cells"] for v in c["expectations"] if not v["passed"]}
+
+
+def ran_cleanly(code: int, results: dict[str, Any]) -> bool:
+    """Every cell ran to its end without an error, and nothing failed but, at most, the implicit keeping-up verdict.
+
+    For tests whose subject is not timing: a host that stalls the VM for longer than a short period
+    makes a thread miss a release, which the runner rightly reports (exit 1), and which is not what
+    such a test checks.  Any other failure, any error, and any other exit code still fail it.
+    """
+    implicit = {"missed_releases", "overruns"}
+    failed = [v for c in results["cells"] for v in c["expectations"] if not v["passed"]]
+    clean = all(v["line"] is None and v["metric"] in implicit for v in failed)
+    return code == documented_exit(results) and clean and all(c["status"] in ("passed", "failed") for c in results["cells"])

@@ -12,7 +12,7 @@ import os
 
 import pytest
 import yaml
-from kernelrun import can_use_rt, finish, start_runner, thread
+from kernelrun import can_use_rt, finish, ran_cleanly, start_runner, thread
 
 from runner import histogram as hg
 from runner.results.samplesfile import SAMPLE_COLUMNS
@@ -130,7 +130,7 @@ def test_a_locked_preallocated_thread_shows_no_minor_fault_at_all(tmp_path):
     }
     done, out = run(tmp_path, scenario)
     f = thread(done.results, "nf")["figures"]
-    assert done.code == 0 and f["callbacks"] >= 2000
+    assert ran_cleanly(done.code, done.results) and f["callbacks"] >= 2000, done.err
     assert f["faults"]["minor"] == 0 and f["faults"]["major"] == 0
     assert len(rows(out, done.results)["nf[0]/nf (main)"]) == f["callbacks"]
 
@@ -151,7 +151,7 @@ def test_samples_last_n_keeps_the_last_callbacks_and_none_keeps_no_file(tmp_path
     callbacks = thread(done.results, "smp")["figures"]["callbacks"]
     assert callbacks > 100 and [r["seq"] for r in kept] == list(range(callbacks - 50, callbacks))
     done, out = run(tmp_path / "none", _sampled("none"))
-    assert done.code == 0 and done.results["cells"][0]["samples_file"] is None
+    assert ran_cleanly(done.code, done.results) and done.results["cells"][0]["samples_file"] is None, done.err
     assert thread(done.results, "smp")["figures"]["latency_ns"]["p99"] > 0  # the figures do not need the rows
 
 
