@@ -17,7 +17,10 @@ import pytest
 import yaml
 from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
 
+from runner.run import kernel
+from runner.run.external import Monitor, ProgramRun
 from runner.run.kernel import find_pids
+from runner.scenario.model import Policy, ProgramSpec
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 
@@ -178,3 +181,38 @@ def test_the_trace_names_the_hogs_as_preemptors_of_an_other_thread_and_nothing_p
     assert not any(p["comm"] == "kthog" for p in fifo["preempted_by"]), fifo["preempted_by"]
     assert fifo["figures"]["preemptions"] <= 2
     assert fifo["figures"]["wakeup_ns"]["p50"] < 1_000_000  # from its sched_waking to running: far below its period
+
+
+class _NoGuard:
+    def watch(self, pid: int) -> None:
+        pass
+
+    def forget(self, pid: int) -> None:
+        pass
+
+
+@pytest.mark.parametrize("by_events", [True, False], ids=["events", "listing"])
+def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing_and_the_thread_sees_it(tmp_path, program, by_events):
+    spec = ProgramSpec.model_validate(
+        {"name": "talker", "command": [program, "--rename"], "threads": [{"match": "ctl_*", "sched": "fifo:10"}], "grace": "100ms"}
+    )
+    run = ProgramRun(spec, str(tmp_path), kernel.current_settings(), kernel.online_cpus())
+    run.launch(_NoGuard())
+    monitor = Monitor([run]) if by_events else Monitor([run], lambda pids: (None, "left out by the test"))
+    try:
+        monitor.listen()
+        run.release()
+        monitor.window_start = time.monotonic_ns()
+        monitor.start()
+        time.sleep(0.2)
+    finally:
+        monitor.stop()
+        run.stop(_NoGuard())
+    raw = run.raw(monitor.window_start, time.monotonic_ns())
+    if by_events and raw.seen_by != "events":
+        pytest.skip(f"no process events here: {raw.seen_note}")
+    assert (raw.seen_by, raw.seen_note) == (("events", "") if by_events else ("listing", "left out by the test"))
+    ctl = next(t for t in raw.threads if t.comm == "ctl_loop")
+    assert ctl.rule == 0 and ctl.applied is not None and ctl.applied.policy is Policy.FIFO
+    assert ctl.rule_ns is not None and ctl.rule_ns >= ctl.named_ns >= ctl.seen_ns + 15_000_000  # renamed 20 ms after it appeared
+    assert "policy changed" in (tmp_path / "talker.stdout").read_text()  # the thread itself found itself FIFO

@@ -7,7 +7,8 @@ import signal
 
 import pytest
 
-from runner.results.document import Status
+from runner.report.markdown import program_lines
+from runner.results.document import CellResult, Status
 from runner.run.evaluate import degradation, evaluate
 from runner.run.kernel import Counters
 from runner.run.outside import outcome
@@ -207,3 +208,15 @@ def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
         resolve_targets(["no-such-proc-xyz"])
     with pytest.raises(UsageError, match="no live process has PID 999999999"):
         resolve_targets(["999999999"])
+
+
+def test_how_the_threads_were_found_is_kept_and_the_report_says_when_it_was_the_slower_listing():
+    threads = (_thread(500, 0, "rtprog", FIFO80),)
+    by_events = outcome(_program(_spec(), threads, seen_by="events"), T0, T0 + SECOND, False, degradation).result
+    note = "the kernel did not acknowledge a listen"
+    listed = outcome(_program(_spec(), threads, seen_by="listing", seen_note=note), T0, T0 + SECOND, False, degradation).result
+    assert (by_events.threads_seen_by, listed.threads_seen_by, listed.threads_seen_note) == ("events", "listing", note)
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[by_events])
+    assert "listing /proc" not in program_lines(cell)[0]
+    cell.programs = [listed]
+    assert f"its threads were found by listing /proc every 2 ms, not by the kernel's process events ({note})" in program_lines(cell)[0]

@@ -399,10 +399,14 @@ def program_lines(cell: CellResult) -> list[Markdown]:
         pid = f" (pid {p.pid})" if p.pid else ""
         ran = f" after {units.human_duration(p.ran_ns)}" if p.ran_ns is not None and not p.stopped else ""
         output = f"; output: {md_code(p.stdout)}, {md_code(p.stderr)}" if p.stdout else ""
+        listed = ""
+        if p.threads_seen_by == "listing":
+            why = f" ({p.threads_seen_note})" if p.threads_seen_note else ""
+            listed = f"; its threads were found by listing /proc every 2 ms, not by the kernel's process events{why}"
         out.append(
             Markdown(
                 f"{md_text(p.name)}: {md_code(' '.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
-                f"{md_text(_ended(p))}{ran}{output}"
+                f"{md_text(_ended(p))}{ran}{output}{md_text(listed)}"
             )
         )
     return out

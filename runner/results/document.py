@@ -349,6 +349,13 @@ class ProgramResult(_Record):
     stdout: str = Field("", description="file of its standard output, in the cell's folder")
     stderr: str = ""
     tail: list[str] = Field(default_factory=list, description="the last lines of its output")
+    threads_seen_by: str = Field(
+        "",
+        description="how its new and renamed threads were found: 'events' (the kernel's process events as they happen; rule_after_ns "
+        "counts from the kernel's instant of the creation or renaming) or 'listing' (/proc every 2 ms; rule_after_ns counts from "
+        "the listing that saw the name); '' in files written before it was recorded",
+    )
+    threads_seen_note: str = Field("", description="why not by events, in words")
 
 
 class Overhead(_Record):

@@ -22,17 +22,23 @@ import struct
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, Optional
 
 from runner.run import _probe, kernel
 from runner.run.kernel import Counters
+from runner.run.procevents import Kind, ProcEvents
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread, Snapshot
 from runner.scenario.model import Policy, ProgramSpec, Sched
 from runner.scenario.plan import Settings, first_rule
 
-LIST_EVERY_S = 0.002  # how often the monitor lists a program's threads (a new thread waits at most this for its rule)
-COUNT_EVERY_S = 0.05  # how often it reads every thread's counters (what a thread that exits loses at most)
+LIST_EVERY_S = 0.002  # without process events, how often the monitor lists a program's threads (a new thread's wait for its rule)
+COUNT_EVERY_S = 0.05  # how often it reads every thread's counters (what a thread that exits loses at most), and lists them with events
+EVENT_WAIT_S = 0.05  # the listener's longest wait for an event before it looks whether to stop
+SEEN_BY_EVENTS = "events"
+SEEN_BY_LISTING = "listing"
+OpenEvents = Callable[[frozenset[int]], tuple[Optional[ProcEvents], str]]  # subscribes to the events of these processes
 RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
 TAIL_LINES = 10  # lines of a program's output shown when it fails
 TAIL_BYTES = 8192
@@ -120,6 +126,8 @@ class ProgramRun:
         self._report = -1
         self._gate = -1
         self.attached = False
+        self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
+        self.seen_note = ""  # why not by events, in words
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
@@ -228,6 +236,8 @@ class ProgramRun:
             self._tail(),
             threads,
             self.attached,
+            self.seen_by,
+            self.seen_note,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:
@@ -286,33 +296,62 @@ class Monitor:
 
     It never touches a thread's scheduling except by a rule the scenario gives, and reads
     only /proc; the measured programs run in their own processes, so this thread and
-    the GIL it takes are not theirs.
+    the GIL it takes are not theirs.  Where the kernel sends its process events, a second
+    thread applies rules the moment a thread appears or takes a matching name, and the
+    listing slows to a safety net; elsewhere the listing runs every LIST_EVERY_S.
     """
 
-    def __init__(self, programs: list[ProgramRun]):
+    def __init__(self, programs: list[ProgramRun], open_events: OpenEvents = ProcEvents.open):
         self.programs = [p for p in programs if p.pid and not p.failure]
         self.window_start: Optional[int] = None  # the start gate: counters are read as a base then
+        self.events: Optional[ProcEvents] = None
+        self.events_note = ""  # why there are no events, in words
+        self.events_lost = 0  # times the kernel dropped events because the listener fell behind
+        self._open_events = open_events
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="program-monitor", daemon=True)
+        self._listener = threading.Thread(target=self._listen, name="program-events", daemon=True)
         self._lock = threading.Lock()
 
+    def listen(self) -> None:
+        """Subscribe to the kernel's process events now (before the programs exec), so none of their threads is missed."""
+        if self.programs and self.events is None and not self.events_note:
+            self.events, self.events_note = self._open_events(frozenset(p.pid for p in self.programs))
+        for p in self.programs:
+            p.seen_by = SEEN_BY_EVENTS if self.events is not None else SEEN_BY_LISTING
+            p.seen_note = self.events_note
+
     def start(self) -> None:
-        if self.programs:
-            self._thread.start()
+        """List the programs' threads once, then follow them: events (when the kernel sends them) and the listing."""
+        if not self.programs:
+            return
+        self.listen()
+        with self._lock:
+            now = time.monotonic_ns()
+            for p in self.programs:
+                self._list(p, now)
+        self._thread.start()
+        if self.events is not None:
+            self._listener.start()
 
     def stop(self) -> None:
         """Stop following; one last reading of every thread still there."""
         self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join()
+        for thread in (self._thread, self._listener):
+            if thread.is_alive():
+                thread.join()
+        if self.events is not None:
+            self.events.close()
+            self.events = None
         with self._lock:
             now = time.monotonic_ns()
             for p in self.programs:
                 self._count(p, now)
 
     def _run(self) -> None:
+        every = LIST_EVERY_S if self.events is None else COUNT_EVERY_S
         next_count = 0.0
-        while not self._stop.is_set():
+        while not self._stop.wait(every):
             now = time.monotonic_ns()
             with self._lock:
                 for p in self.programs:
@@ -327,7 +366,54 @@ class Monitor:
                     for p in self.programs:
                         self._count(p, now)
                     next_count = time.monotonic() + COUNT_EVERY_S
-            self._stop.wait(LIST_EVERY_S)
+
+    def _listen(self) -> None:
+        """Apply the events as they come: a new thread (the kernel's instant of its creation), a new name (of its renaming)."""
+        assert self.events is not None
+        programs = {p.pid: p for p in self.programs}
+        while not self._stop.is_set():
+            events = self.events.read(EVENT_WAIT_S)
+            with self._lock:
+                if events is None:
+                    self.events_lost += 1
+                    now = time.monotonic_ns()
+                    for p in self.programs:
+                        self._list(p, now)
+                    continue
+                for event in events:
+                    program = programs.get(event.tgid)
+                    if program is None:
+                        continue
+                    if event.kind is Kind.FORK:
+                        self._appeared(program, event.tid, event.at_ns)
+                    elif event.kind is Kind.COMM:
+                        self._renamed(program, event.tid, event.comm, event.at_ns)
+
+    def _appeared(self, p: ProgramRun, tid: int, at_ns: int) -> None:
+        t = p.threads.get(tid)
+        if t is not None:
+            if at_ns < t.seen_ns:  # listed before its creation's event was read: it was there since the event
+                if t.named_ns == t.seen_ns:
+                    t.named_ns = at_ns
+                t.seen_ns = at_ns
+            return
+        comm = kernel.thread_comm(p.pid, tid)
+        if comm is None:
+            return
+        t = p.threads[tid] = _Thread(tid, len(p.threads), comm, at_ns, at_ns)
+        self._snapshot(p, t, at_ns, "appeared")
+        self._apply_rule(p, t)
+
+    def _renamed(self, p: ProgramRun, tid: int, comm: str, at_ns: int) -> None:
+        t = p.threads.get(tid)
+        if t is None:
+            self._appeared(p, tid, at_ns)
+            return
+        if comm != t.comm:
+            t.comm, t.named_ns = comm, at_ns
+            self._apply_rule(p, t)
+        elif at_ns <= (t.rule_ns if t.rule_ns is not None else at_ns):
+            t.named_ns = at_ns  # its new name was read from /proc before this event was: the name dates from the event
 
     def _list(self, p: ProgramRun, now: int) -> None:
         """New threads get their snapshot and their rule; a young thread's name is re-read until a rule matches it."""

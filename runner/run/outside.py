@@ -151,6 +151,8 @@ def outcome(
         stdout=raw.stdout,
         stderr=raw.stderr,
         tail=list(raw.tail),
+        threads_seen_by=raw.seen_by,
+        threads_seen_note=raw.seen_note,
     )
     ordinal = _ordinals(raw.threads)
     threads = []

@@ -170,6 +170,8 @@ class RawProgram:
     tail: tuple[str, ...]  # the last lines of its output (stderr, then stdout)
     threads: tuple[RawProgramThread, ...]
     attached: bool = False  # a process the runner did not start (runner watch): it has no exit status for the runner
+    seen_by: str = ""  # how its threads were found: "events" (the kernel's process events) or "listing" (/proc)
+    seen_note: str = ""  # why not by events, in words
 
 
 @dataclass(frozen=True)

@@ -608,6 +608,8 @@ class _CellRun:
     def supervise(self) -> None:
         """Open the start gate, then watch the workers until they exit: progress, follow lines, a mid-run table."""
         options, workers, hogs = self.options, self.workers, self.hogs
+        self.monitor = Monitor(self.programs)
+        self.monitor.listen()  # before exec: the events of the programs' first threads are kept for it
         for p in self.programs:
             p.release()
             if p.failure:
@@ -631,7 +633,6 @@ class _CellRun:
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
-        self.monitor = Monitor(self.programs)
         self.monitor.window_start = t0
         self.monitor.start()
         while self._running(t_end):

@@ -8,11 +8,13 @@
  *   --exit-after S  exit with --exit-code (default 0) after S seconds
  *   --crash-after S raise SIGSEGV after S seconds
  *   --ignore-term   ignore SIGTERM (the runner must SIGKILL it)
- *   --rename        create ctl_loop as `tmp_name` and rename it 20 ms later (programs name threads late)
+ *   --rename        create ctl_loop as `tmp_name` and rename it 20 ms later (programs name threads late); it then
+ *                   prints how long after its renaming it found its own policy changed (by a rule), from inside
  * It prints one line per event on stdout and flushes it, so its output can be checked.
  */
 #define _GNU_SOURCE
 #include <pthread.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -33,7 +35,13 @@ static void *ctl_loop(void *arg) {
     (void)arg;
     if (do_rename) {
         usleep(20000);
+        long long named = now_ns(CLOCK_MONOTONIC);
         pthread_setname_np(pthread_self(), "ctl_loop");
+        struct timespec poll = {0, 20000};
+        while (sched_getscheduler(0) == SCHED_OTHER && now_ns(CLOCK_MONOTONIC) - named < 1000000000LL) nanosleep(&poll, NULL);
+        if (sched_getscheduler(0) != SCHED_OTHER) printf("rtprog: ctl_loop's policy changed %lld us after its renaming\n", (now_ns(CLOCK_MONOTONIC) - named) / 1000);
+        else printf("rtprog: ctl_loop's policy did not change within 1 s of its renaming\n");
+        fflush(stdout);
     }
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
