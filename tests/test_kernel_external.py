@@ -17,7 +17,7 @@ import pytest
 import yaml
 from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
 
-from runner.run import kernel
+from runner.run import kernel, memcg
 from runner.run.external import Monitor, ProgramRun
 from runner.run.kernel import find_pids
 from runner.scenario.model import Policy, ProgramSpec
@@ -216,3 +216,28 @@ def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing
     assert ctl.rule == 0 and ctl.applied is not None and ctl.applied.policy is Policy.FIFO
     assert ctl.rule_ns is not None and ctl.rule_ns >= ctl.named_ns >= ctl.seen_ns + 15_000_000  # renamed 20 ms after it appeared
     assert "policy changed" in (tmp_path / "talker.stdout").read_text()  # the thread itself found itself FIFO
+
+
+def test_memory_max_holds_a_program_to_its_cgroup_and_the_oom_killer_ends_one_that_passes_it(tmp_path, program):
+    where, why = memcg.hierarchy()
+    if where is None:
+        pytest.skip(f"no memory cgroup for programs here: {why}")
+    scenario = {
+        "name": "mem",
+        "duration": "1s",
+        "processes": [
+            {"name": "small", "command": [program, "--alloc-mib", "16"], "memory_max": "64MiB"},
+            {"name": "big", "command": [program, "--alloc-mib", "128"], "memory_max": "32MiB"},
+        ],
+    }
+    path = tmp_path / "mem.yaml"
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    done = _run(tmp_path, str(path))
+    cell = done.results["cells"][0]
+    programs = {p["name"]: p for p in cell["programs"]}
+    small, big = programs["small"], programs["big"]
+    assert small["memory_max"] == 64 << 20 and small["memory_peak"] >= 16 << 20 and small["oom_kills"] == 0  # read back from its cgroup
+    assert small["stopped"] == "SIGTERM"
+    assert big["exit_signal"] == "SIGKILL" and big["oom_kills"] >= 1 and big["memory_peak"] <= 32 << 20
+    assert cell["status"] == "error" and "program big was killed by the OOM killer" in cell["reason"]
+    assert not [name for name in os.listdir(where.folder) if name.startswith("runner-")], "a program's cgroup outlived its cell"

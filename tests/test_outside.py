@@ -220,3 +220,27 @@ def test_how_the_threads_were_found_is_kept_and_the_report_says_when_it_was_the_
     assert "listing /proc" not in program_lines(cell)[0]
     cell.programs = [listed]
     assert f"its threads were found by listing /proc every 2 ms, not by the kernel's process events ({note})" in program_lines(cell)[0]
+
+
+def test_a_program_the_oom_killer_ended_at_its_memory_max_is_an_error_that_says_so():
+    spec = _spec(memory_max="32MiB")
+    raw = _program(spec, (_thread(500, 0, "rtprog", FIFO80),), exit_signal=signal.SIGKILL, stopped="", oom_kills=1, memory_limit=32 << 20)
+    raw = RawProgram(**{**raw.__dict__, "exited_ns": T0 + SECOND // 2, "memory_peak": 32 << 20})
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert len(out.failures) == 1
+    assert "was killed by the OOM killer (SIGKILL): its cgroup reached its memory_max of 32MiB" in out.failures[0]
+    assert (out.result.memory_max, out.result.memory_peak, out.result.oom_kills) == (32 << 20, 32 << 20, 1)
+    cell = CellResult(id="c", spec_hash="-", status=Status.ERROR, started_at="", duration_ns=SECOND, programs=[out.result])
+    assert (
+        "killed by the OOM killer (SIGKILL) at its memory_max after 500.00 ms; memory_max 32 MiB, peak 32 MiB, 1 OOM kill"
+        in (program_lines(cell)[0])
+    )
+
+
+def test_an_oom_kill_of_something_the_program_started_is_a_warning_and_an_unapplied_limit_is_a_degradation():
+    spec = _spec(memory_max="32MiB")
+    raw = _program(spec, (_thread(500, 0, "rtprog", FIFO80),), oom_kills=2, memory_limit=32 << 20)
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert out.failures == [] and "program talker: the OOM killer ended 2 of its tasks at its memory_max of 32MiB" in out.warnings
+    raw = _program(spec, (_thread(500, 0, "rtprog", FIFO80),), memory_note="cgroup v1: Permission denied")
+    assert "memory_max 32MiB not applied: cgroup v1: Permission denied" in outcome(raw, T0, T0 + SECOND, False, degradation).result.degraded

@@ -37,6 +37,7 @@ CANNOT_EXPRESS = {
     "deadline_rules.yaml": "a deadline thread creating threads, or pinned inside its root domain, spans sched, apply and cpus",
     "huge_numbers.yaml": "the 24-digit limit counts digits without leading zeros and the decimal point; a pattern cannot",
     "matrix_cell_error.yaml": "the policy and priority come from the matrix: only a cell, with its values substituted, is wrong",
+    "program_memory.yaml": "memory_max's minimum compares a size written with its own unit (4MiB, 4096KiB, 0.5GiB)",
     "matrix_include_cap.yaml": "the cell count is the product of the axes plus what include adds",
     "matrix_undefined_reference.yaml": "whether matrix.prio is an axis is a reference from one part of the file to another",
     "priospread_below_1.yaml": "priospread, pin and count span three keys and the machine's CPUs",

@@ -387,6 +387,8 @@ def _ended(p: ProgramResult) -> str:
     if p.stopped:
         how = "stopped with SIGTERM" if p.stopped == "SIGTERM" else "killed with SIGKILL after ignoring SIGTERM"
         return f"{how} at the end of the cell"
+    if p.exit_signal == "SIGKILL" and p.oom_kills:
+        return "killed by the OOM killer (SIGKILL) at its memory_max"
     if p.exit_signal:
         return f"killed by {p.exit_signal}"
     return f"exited with code {p.exit_code}" if p.exit_code is not None else "still running when the cell ended"
@@ -399,6 +401,11 @@ def program_lines(cell: CellResult) -> list[Markdown]:
         pid = f" (pid {p.pid})" if p.pid else ""
         ran = f" after {units.human_duration(p.ran_ns)}" if p.ran_ns is not None and not p.stopped else ""
         output = f"; output: {md_code(p.stdout)}, {md_code(p.stderr)}" if p.stdout else ""
+        memory = ""
+        if p.memory_max is not None:
+            peak = f", peak {fmt_bytes(p.memory_peak)}" if p.memory_peak is not None else ""
+            kills = f", {p.oom_kills} OOM kill{'s' if p.oom_kills != 1 else ''}" if p.oom_kills else ""
+            memory = f"; memory_max {fmt_bytes(p.memory_max)}{peak}{kills}"
         listed = ""
         if p.threads_seen_by == "listing":
             why = f" ({p.threads_seen_note})" if p.threads_seen_note else ""
@@ -406,7 +413,7 @@ def program_lines(cell: CellResult) -> list[Markdown]:
         out.append(
             Markdown(
                 f"{md_text(p.name)}: {md_code(' '.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
-                f"{md_text(_ended(p))}{ran}{output}{md_text(listed)}"
+                f"{md_text(_ended(p))}{ran}{md_text(memory)}{output}{md_text(listed)}"
             )
         )
     return out

@@ -356,6 +356,9 @@ class ProgramResult(_Record):
         "the listing that saw the name); '' in files written before it was recorded",
     )
     threads_seen_note: str = Field("", description="why not by events, in words")
+    memory_max: Optional[int] = Field(None, description="its memory limit (bytes) as its memory cgroup held it; null: none")
+    memory_peak: Optional[int] = Field(None, description="the most memory (bytes) its cgroup was charged with, itself and all it started")
+    oom_kills: Optional[int] = Field(None, description="its tasks (itself or what it started) the OOM killer ended at memory_max")
 
 
 class Overhead(_Record):

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, Optional
 
-from runner.run import _probe, kernel
+from runner.run import _probe, kernel, memcg
 from runner.run.kernel import Counters
 from runner.run.procevents import Kind, ProcEvents
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread, Snapshot
@@ -127,6 +127,11 @@ class ProgramRun:
         self._gate = -1
         self.attached = False
         self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
+        self.memory: Optional[memcg.MemoryCgroup] = None  # its memory cgroup while it runs (memory_max)
+        self.memory_note = ""  # why memory_max could not be applied, in words
+        self.memory_limit: Optional[int] = None  # the limit as read back from the cgroup
+        self.memory_peak: Optional[int] = None
+        self.oom_kills: Optional[int] = None
         self.seen_note = ""  # why not by events, in words
 
     def attach(self, pid: int) -> None:
@@ -155,6 +160,8 @@ class ProgramRun:
         data = _read_exactly(self._report, 12)
         if len(data) == 12:
             self.start_errors = ApplyErrors(*struct.unpack("3i", data))
+        if self.spec.memory_max is not None:
+            self._limit_memory(self.spec.memory_max)
 
     def release(self) -> None:
         """Let it exec; `failure` says why when the exec (or the chdir before it) failed."""
@@ -194,8 +201,9 @@ class ProgramRun:
         return self.status is not None
 
     def stop(self, guard: Any) -> None:
-        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group goes too."""
+        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""
         if not self.pid or self.attached:
+            self._close_memory()
             return
         if not self.poll():
             _killpg(self.pid, signal.SIGTERM)
@@ -210,6 +218,31 @@ class ProgramRun:
                 self.exited_ns = time.monotonic_ns()
         _killpg(self.pid, signal.SIGKILL)
         guard.forget(self.pid)
+        self._close_memory()
+
+    def _limit_memory(self, limit: int) -> None:
+        """Put the program, still at its gate, in a memory cgroup of its own with `limit`; `memory_note` says why not."""
+        where, why = memcg.hierarchy()
+        if where is None:
+            self.memory_note = why
+            return
+        try:
+            self.memory = memcg.MemoryCgroup.create(where, self.spec.name, limit)
+            self.memory.add(self.pid)
+        except OSError as error:
+            self.memory_note = f"cgroup v{where.version}: {error.strerror}"
+            self._close_memory()
+            return
+        self.memory_limit = self.memory.limit()
+
+    def _close_memory(self) -> None:
+        """Its cgroup's peak and OOM kills, then the cgroup itself (with anything the program left in it)."""
+        if self.memory is None:
+            return
+        self.memory_peak, self.oom_kills = self.memory.peak(), self.memory.oom_kills()
+        self.memory.kill_all()
+        self.memory.remove()
+        self.memory = None
 
     def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
         code = sig = None
@@ -238,6 +271,10 @@ class ProgramRun:
             self.attached,
             self.seen_by,
             self.seen_note,
+            self.memory_limit,
+            self.memory_peak,
+            self.oom_kills,
+            self.memory_note,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:

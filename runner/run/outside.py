@@ -109,7 +109,12 @@ def outcome(
     at = (lambda ns: f"{max(0, ns - t0) / 1e9:.2f}s into the cell") if t0 is not None else (lambda ns: "before the cell started")
     exited_by_itself = raw.exited_ns is not None and not raw.stopped
     how = ""
-    if raw.exit_signal is not None:
+    oom = bool(raw.oom_kills) and raw.exit_signal == signal.SIGKILL and raw.stopped != "SIGKILL"
+    if spec.memory_max is not None and raw.memory_note:
+        degraded.append(f"memory_max {units.format_size(spec.memory_max)} not applied: {raw.memory_note}")
+    if oom:
+        how = f"was killed by the OOM killer (SIGKILL): its cgroup reached its memory_max of {units.format_size(raw.memory_limit or 0)}"
+    elif raw.exit_signal is not None:
         how = f"was killed by {_signal_name(raw.exit_signal)}"
     elif raw.exit_code is not None:
         how = f"exited with code {raw.exit_code}"
@@ -133,6 +138,11 @@ def outcome(
             f"program {spec.name} did not exit within the cell's {units.format_duration(end_ns - t0 if t0 else 0)} "
             f"and was stopped with {raw.stopped}{last}"
         )
+    if raw.oom_kills and not oom:
+        warnings.append(
+            f"program {spec.name}: the OOM killer ended {raw.oom_kills} of its tasks at its memory_max of "
+            f"{units.format_size(raw.memory_limit or 0)}"
+        )
     if raw.stopped == "SIGKILL" and not raw.failure:
         warnings.append(f"program {spec.name} did not exit within {units.format_duration(spec.grace)} of SIGTERM and was killed (SIGKILL)")
     result = ProgramResult(
@@ -153,6 +163,9 @@ def outcome(
         tail=list(raw.tail),
         threads_seen_by=raw.seen_by,
         threads_seen_note=raw.seen_note,
+        memory_max=raw.memory_limit,
+        memory_peak=raw.memory_peak,
+        oom_kills=raw.oom_kills,
     )
     ordinal = _ordinals(raw.threads)
     threads = []

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
+from runner.run import memcg
 from runner.scenario.model import PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings, plan_scenario, program_settings, rule_settings
 
@@ -141,6 +142,7 @@ class Needs:
     min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
     lock: str | None = None  # a process that locks its memory
     uclamp: str | None = None  # a thread that asks for util_min / util_max
+    memory_max: str | None = None  # a program with a memory limit
 
 
 def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, online: set[int]) -> Needs:
@@ -166,6 +168,7 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
                 out.rt.setdefault((sched.policy, sched.rt_priority), where)
         out.lock = out.lock or next((proc.name for proc in sc.workers if proc.memory.lock), None)
         out.uclamp = out.uclamp or _asks_uclamp(sc)
+        out.memory_max = out.memory_max or next((f"program {prog.name}" for prog in sc.programs if prog.memory_max is not None), None)
     return out
 
 
@@ -216,6 +219,13 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
             f"{wanted.uclamp} asks for util_min / util_max (uclamp), which this kernel does not have ({UCLAMP_KNOB} is "
             "absent: it was built without CONFIG_UCLAMP_TASK); remove them, or run on a kernel with uclamp"
         )
+    if wanted.memory_max is not None:
+        _, why = memcg.hierarchy()
+        if why:
+            missing.append(
+                f"{wanted.memory_max} asks for memory_max, but the runner cannot give it a memory cgroup of its own: {why}; "
+                "remove memory_max, or run where the runner may create memory cgroups (root on the host, or a delegated cgroup)"
+            )
     memlock = perm.rlimit_memlock
     if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)

@@ -172,6 +172,10 @@ class RawProgram:
     attached: bool = False  # a process the runner did not start (runner watch): it has no exit status for the runner
     seen_by: str = ""  # how its threads were found: "events" (the kernel's process events) or "listing" (/proc)
     seen_note: str = ""  # why not by events, in words
+    memory_limit: Optional[int] = None  # memory_max as its cgroup holds it, read back
+    memory_peak: Optional[int] = None  # the most its cgroup was charged with
+    oom_kills: Optional[int] = None  # its tasks the OOM killer ended
+    memory_note: str = ""  # why memory_max could not be applied
 
 
 @dataclass(frozen=True)

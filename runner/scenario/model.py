@@ -1216,6 +1216,7 @@ class Until(str, enum.Enum):
 
 
 MAX_GRACE = 60_000_000_000  # SIGTERM to SIGKILL: a program gets at most a minute to exit
+MIN_MEMORY_MAX = 4 << 20  # below this the exec itself (the loader, libc) fails in the cgroup, not the program
 
 
 class ThreadRule(Strict):
@@ -1269,6 +1270,11 @@ class ProgramSpec(Strict):
         Until.END, description="end: stopped at the end of the cell; exit: the cell ends when it exits (duration is the limit)"
     )
     grace: Duration = Field(1_000_000_000, description="time between SIGTERM and SIGKILL when the program is stopped")
+    memory_max: Optional[Size] = Field(
+        None,
+        description="a memory limit for the program and all it starts, in a memory cgroup of its own (systemd's MemoryMax=, "
+        "docker --memory): past it the kernel reclaims, then its OOM killer ends the program",
+    )
 
     _name = field_validator("name")(lambda cls, v: _check_comm(v))
     _items = field_validator("command")(lambda cls, v: _argv_items("command")(v))
@@ -1295,6 +1301,15 @@ class ProgramSpec(Strict):
     def _grace(cls, value: int) -> int:
         if value > MAX_GRACE:
             raise ValueError(f"grace {units.format_duration(value)} is too long; at most {units.format_duration(MAX_GRACE)}")
+        return value
+
+    @field_validator("memory_max")
+    @classmethod
+    def _memory_max(cls, value: Optional[int]) -> Optional[int]:
+        if value is not None and value < MIN_MEMORY_MAX:
+            raise ValueError(
+                f"memory_max {units.format_size(value)} is too small for any program to start; at least {units.format_size(MIN_MEMORY_MAX)}"
+            )
         return value
 
     @model_validator(mode="after")

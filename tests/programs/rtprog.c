@@ -8,6 +8,7 @@
  *   --exit-after S  exit with --exit-code (default 0) after S seconds
  *   --crash-after S raise SIGSEGV after S seconds
  *   --ignore-term   ignore SIGTERM (the runner must SIGKILL it)
+ *   --alloc-mib N   allocate N MiB and write every page of it at start, and keep it (memory_max)
  *   --rename        create ctl_loop as `tmp_name` and rename it 20 ms later (programs name threads late); it then
  *                   prints how long after its renaming it found its own policy changed (by a rule), from inside
  * It prints one line per event on stdout and flushes it, so its output can be checked.
@@ -77,6 +78,7 @@ static void start(const char *name, void *(*fn)(void *)) {
 int main(int argc, char **argv) {
     double exit_after = -1, crash_after = -1;
     int code = 0;
+    long alloc_mib = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--period-us") && i + 1 < argc) period_ns = atol(argv[++i]) * 1000;
         else if (!strcmp(argv[i], "--burn-us") && i + 1 < argc) burn_ns = atol(argv[++i]) * 1000;
@@ -85,10 +87,21 @@ int main(int argc, char **argv) {
         else if (!strcmp(argv[i], "--exit-code") && i + 1 < argc) code = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--ignore-term")) signal(SIGTERM, SIG_IGN);
         else if (!strcmp(argv[i], "--rename")) do_rename = 1;
+        else if (!strcmp(argv[i], "--alloc-mib") && i + 1 < argc) alloc_mib = atol(argv[++i]);
         else {
             fprintf(stderr, "rtprog: unknown option %s\n", argv[i]);
             return 2;
         }
+    }
+    if (alloc_mib > 0) {
+        char *block = malloc((size_t)alloc_mib << 20);
+        if (!block) {
+            perror("malloc");
+            return 2;
+        }
+        memset(block, 1, (size_t)alloc_mib << 20);
+        printf("rtprog: allocated %ld MiB\n", alloc_mib);
+        fflush(stdout);
     }
     start(do_rename ? "tmp_name" : "ctl_loop", ctl_loop);
     start("mw_exec", idle);
