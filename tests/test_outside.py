@@ -220,6 +220,9 @@ def test_how_the_threads_were_found_is_kept_and_the_report_says_when_it_was_the_
     assert "listing /proc" not in program_lines(cell)[0]
     cell.programs = [listed]
     assert f"its threads were found by listing /proc every 2 ms, not by the kernel's process events ({note})" in program_lines(cell)[0]
+    dropped = "the kernel dropped process events 1 time(s) (the runner fell behind); threads that appeared then were found by listing"
+    cell.programs = [by_events.model_copy(update={"threads_seen_note": dropped})]
+    assert program_lines(cell)[0].endswith(dropped)
 
 
 def test_a_program_the_oom_killer_ended_at_its_memory_max_is_an_error_that_says_so():

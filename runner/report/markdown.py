@@ -410,6 +410,8 @@ def program_lines(cell: CellResult) -> list[Markdown]:
         if p.threads_seen_by == "listing":
             why = f" ({p.threads_seen_note})" if p.threads_seen_note else ""
             listed = f"; its threads were found by listing /proc every 2 ms, not by the kernel's process events{why}"
+        elif p.threads_seen_note:
+            listed = f"; {p.threads_seen_note}"
         out.append(
             Markdown(
                 f"{md_text(p.name)}: {md_code(' '.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "

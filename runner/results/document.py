@@ -355,7 +355,7 @@ class ProgramResult(_Record):
         "counts from the kernel's instant of the creation or renaming) or 'listing' (/proc every 2 ms; rule_after_ns counts from "
         "the listing that saw the name); '' in files written before it was recorded",
     )
-    threads_seen_note: str = Field("", description="why not by events, in words")
+    threads_seen_note: str = Field("", description="why not (or not always) by events, in words")
     memory_max: Optional[int] = Field(None, description="its memory limit (bytes) as its memory cgroup held it; null: none")
     memory_peak: Optional[int] = Field(None, description="the most memory (bytes) its cgroup was charged with, itself and all it started")
     oom_kills: Optional[int] = Field(None, description="its tasks (itself or what it started) the OOM killer ended at memory_max")

@@ -127,12 +127,12 @@ class ProgramRun:
         self._gate = -1
         self.attached = False
         self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
+        self.seen_note = ""  # why not (or not always) by events, in words
         self.memory: Optional[memcg.MemoryCgroup] = None  # its memory cgroup while it runs (memory_max)
         self.memory_note = ""  # why memory_max could not be applied, in words
         self.memory_limit: Optional[int] = None  # the limit as read back from the cgroup
         self.memory_peak: Optional[int] = None
         self.oom_kills: Optional[int] = None
-        self.seen_note = ""  # why not by events, in words
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
@@ -415,6 +415,10 @@ class Monitor:
                     self.events_lost += 1
                     now = time.monotonic_ns()
                     for p in self.programs:
+                        p.seen_note = (
+                            f"the kernel dropped process events {self.events_lost} time(s) (the runner fell behind); "
+                            "threads that appeared then were found by listing"
+                        )
                         self._list(p, now)
                     continue
                 for event in events:
