@@ -92,8 +92,14 @@ def documented_exit(results: dict[str, Any]) -> int:
 
 
 def failed_metrics(results: dict[str, Any]) -> set[str]:
-    """The metrics of every expectation that failed, in every cell."""
-    return {v["metric"] for c in results["cells"] for v in c["expectations"] if not v["passed"]}
+    """The metrics of every expectation the scenario states that failed, in every cell.
+
+    The implicit keeping-up verdict (no line in the file: every release served) is left out, as
+    `ran_cleanly` leaves it: a VM stall longer than a 1 ms period makes a thread miss a release,
+    which the runner rightly fails, and which is not what the tests asking this check.  Their
+    exit-code checks still see it.
+    """
+    return {v["metric"] for c in results["cells"] for v in c["expectations"] if not v["passed"] and v["line"] is not None}
 
 
 def ran_cleanly(code: int, results: dict[str, Any]) -> bool:
