@@ -71,37 +71,53 @@ class Histogram(BaseModel):
         The upper bound of its bucket, so a latency is never understated; with `low`, the
         lower bound, for figures where low is bad (slack), so those are never flattered either.
         """
+        return self.quantiles((q,), low)[0]
+
+    def quantiles(self, qs: Sequence[float], low: bool = False) -> list[int]:
+        """`quantile` of each of `qs` (ascending), in one walk of the buckets."""
         total = self.count
         if not total:
             raise ValueError("an empty histogram has no quantiles")
-        rank = max(1, math.ceil(q * total))
+        out: list[int] = []
+        ranks = [max(1, math.ceil(q * total)) for q in qs]
         seen = 0
         for lo, hi, n in self.buckets:
             seen += n
-            if seen >= rank:
-                return max(self.min, min(lo if low else hi, self.max))
-        return self.max
+            while len(out) < len(ranks) and seen >= ranks[len(out)]:
+                out.append(max(self.min, min(lo if low else hi, self.max)))
+            if len(out) == len(ranks):
+                return out
+        return out + [self.max] * (len(ranks) - len(out))
 
     def above(self, bound: int) -> int:
         """Values above `bound`, counting a bucket that straddles it as above (an upper estimate)."""
         return sum(n for _low, high, n in self.buckets if high > bound)
 
 
+def nonzero(counts: Sequence[int]) -> list[tuple[int, int]]:
+    """(index, count) of the counters that are not zero, ascending (the runner reads the native core's in place instead)."""
+    return [(i, int(n)) for i, n in enumerate(counts) if n]
+
+
 def from_counts(counts: Sequence[int], low: int, high: int, negative: Optional[Sequence[int]] = None) -> Optional[Histogram]:
     """A histogram from native counters (`negative` counts the negation of values below 0); None when empty."""
-    rows: list[tuple[int, int, int]] = []
-    if negative is not None:
-        for i in range(len(negative) - 1, -1, -1):
-            if negative[i]:
-                lo, hi = bounds(i)
-                rows.append((-hi, -lo, int(negative[i])))
-    for i, n in enumerate(counts):
-        if n:
-            lo, hi = bounds(i)
-            rows.append((lo, hi, int(n)))
-    if not rows:
+    return from_rows(nonzero(counts), low, high, nonzero(negative) if negative is not None else None)
+
+
+def from_rows(
+    rows: Sequence[tuple[int, int]], low: int, high: int, negative: Optional[Sequence[tuple[int, int]]] = None
+) -> Optional[Histogram]:
+    """A histogram from the (index, count) of its counters that are not zero, ascending (`nonzero`); None when empty."""
+    out: list[tuple[int, int, int]] = []
+    for i, n in reversed(negative or ()):
+        lo, hi = bounds(i)
+        out.append((-hi, -lo, n))
+    for i, n in rows:
+        lo, hi = bounds(i)
+        out.append((lo, hi, n))
+    if not out:
         return None
-    return Histogram(buckets=rows, min=low, max=high)
+    return Histogram(buckets=out, min=low, max=high)
 
 
 def merge(histograms: Iterable[Optional[Histogram]]) -> Optional[Histogram]:

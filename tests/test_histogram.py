@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from array import array
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -54,7 +55,38 @@ def test_a_percentile_is_the_exact_one_to_the_bucket_and_never_flatters(values, 
     assert high - exact <= width and exact - low <= width
 
 
+@settings(max_examples=200)
+@given(st.lists(st.integers(min_value=-(10**9), max_value=10**10), min_size=1, max_size=300), st.booleans())
+def test_quantiles_in_one_walk_are_each_quantile_to_the_bucket(values, low):
+    hist = hg.from_values(values)
+    assert hist is not None
+    qs = [0.01, 0.5, 0.9, 0.99, 0.999, 1.0]
+    for q, got in zip(qs, hist.quantiles(qs, low=low)):
+        exact = _nearest_rank(values, q)
+        assert (got <= exact) if low else (got >= exact)
+        assert abs(got - exact) <= abs(exact) * hg.RELATIVE_PRECISION + 1
+
+
 def test_above_counts_values_over_a_bound():
     hist = hg.from_values([100, 200, 300, 5000])
     assert hist is not None and hist.above(250) == 2 and hist.above(10_000) == 0
     assert hg.from_values([]) is None
+
+
+@settings(max_examples=300)
+@given(st.dictionaries(st.integers(0, hg.BUCKETS - 1), st.integers(1, 2**63), max_size=40), st.sampled_from(["list", "array"]))
+def test_nonzero_finds_every_counter_that_is_not_zero_and_only_those(filled, kind):
+    counts = [0] * hg.BUCKETS
+    for i, n in filled.items():
+        counts[i] = n
+    given_counts = counts if kind == "list" else array("Q", counts)
+    assert hg.nonzero(given_counts) == sorted(filled.items())
+
+
+def test_nonzero_sees_the_first_and_the_last_counter():
+    counts = [0] * hg.BUCKETS
+    counts[0] = counts[-1] = 1
+    assert hg.nonzero(counts) == [(0, 1), (hg.BUCKETS - 1, 1)]
+    assert hg.nonzero([0] * hg.BUCKETS) == []
+    counts[0], counts[-1] = 0, 256  # a count whose low byte is zero
+    assert hg.nonzero(counts) == [(hg.BUCKETS - 1, 256)]

@@ -102,7 +102,7 @@ def test_a_fifo_sleeper_beside_a_hog_is_woken_and_never_preempted(procs):
     data, paths = trace([rt, hog])
     report("FIFO 80 sleeper and a hog", data)
     t = data.threads[rt]
-    lat = histogram.from_counts(t.latency, t.latency_min, t.latency_max)
+    lat = histogram.from_rows(t.latency, t.latency_min, t.latency_max)
     assert lat is not None
     print(f"FIFO 80 wake-ups {t.wakeups}, p50 {lat.quantile(0.5) / 1000:.1f} us, max {t.latency_max / 1000:.1f} us")
     assert data.lost == 0

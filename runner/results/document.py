@@ -39,6 +39,7 @@ reads the result as a /2 document.  A file of a newer schema is refused, saying 
 from __future__ import annotations
 
 import enum
+import functools
 import os
 import types
 import typing
@@ -124,8 +125,9 @@ class _Record(BaseModel):
             raise TypeError(
                 f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; fields: {', '.join(type(self).model_fields)}"
             )
+        nested = _nested_records(type(self))
         for name, value in data.items():  # records given as dicts are built as records, so their keys are checked too
-            found = _record_type(type(self).model_fields[name].annotation) if name in type(self).model_fields else None
+            found = nested.get(name)
             if found and found[0] and isinstance(value, list):
                 data[name] = [found[1](**v) if isinstance(v, dict) else v for v in value]
             elif found and not found[0] and isinstance(value, dict):
@@ -137,8 +139,19 @@ class _Record(BaseModel):
     __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
 
     @classmethod
-    def _keywords(cls) -> set[str]:
-        return {alias for name, f in cls.model_fields.items() for alias in (name, f.alias) if alias}
+    def _keywords(cls) -> frozenset[str]:
+        return _keywords_of(cls)
+
+
+@functools.cache
+def _keywords_of(cls: type[_Record]) -> frozenset[str]:
+    return frozenset(alias for name, f in cls.model_fields.items() for alias in (name, f.alias) if alias)
+
+
+@functools.cache
+def _nested_records(cls: type[_Record]) -> dict[str, tuple[bool, type[_Record]]]:
+    """The fields of `cls` that hold records, worked out once per class (a cell of 1,024 threads builds 3,000 records)."""
+    return {name: found for name, f in cls.model_fields.items() if (found := _record_type(f.annotation))}
 
 
 def _record_type(annotation: Any) -> tuple[bool, type[_Record]] | None:

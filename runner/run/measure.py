@@ -69,7 +69,7 @@ def spread(
         return None
     return fg.Spread(
         min=hist.min,
-        **{name: hist.quantile(q) for name, q in QUANTILES.items()},
+        **dict(zip(QUANTILES, hist.quantiles(list(QUANTILES.values())))),
         max=hist.max,
         mean=round(mean) if mean is not None and n else None,
         stddev=round(math.sqrt(max(0.0, m2) / n)) if mean is not None and n else None,
@@ -82,7 +82,7 @@ def _slack(st: CallbackStats) -> Optional[fg.Slack]:
     if hist is None or not hist.count:
         return None
     return fg.Slack(
-        min=hist.min, p1=hist.quantile(0.01, low=True), p50=hist.quantile(0.5, low=True), max=hist.max, mean=round(st.slack_mean)
+        min=hist.min, **dict(zip(("p1", "p50"), hist.quantiles((0.01, 0.5), low=True))), max=hist.max, mean=round(st.slack_mean)
     )
 
 

@@ -15,12 +15,12 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-from array import array
 from dataclasses import dataclass, field
 from typing import Optional
 
 from runner import histogram as hg
 from runner.histogram import Histogram
+from runner.run import _probe
 
 FILE_HEADER = 64
 SLOT_HEADER = 512
@@ -298,11 +298,9 @@ def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
     return tuple(w * 64 + b for w, word in enumerate(words) for b in range(64) if word >> b & 1)
 
 
-def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> array[int]:
-    counts = array("Q")
-    start = at + SLOT_HEADER + which * hg.BUCKETS * 8
-    counts.frombytes(bytes(buf[start : start + hg.BUCKETS * 8]))
-    return counts
+def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> list[tuple[int, int]]:
+    """The counters of a slot's histogram `which` that are not zero, read in place by the native core."""
+    return _probe.nonzero(buf, at + SLOT_HEADER + which * hg.BUCKETS * 8, hg.BUCKETS)
 
 
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
@@ -311,9 +309,7 @@ def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
     gids, counts, waits, other, dropped = f[7:11], f[11:15], f[15:19], f[19], f[20]
     histogram = None
     if count:
-        counts_arr = array("Q")
-        counts_arr.frombytes(bytes(buf[at + EV_HDR : at + EV_HDR + hg.BUCKETS * 8]))
-        histogram = hg.from_counts(counts_arr, low, high)
+        histogram = hg.from_rows(_probe.nonzero(buf, at + EV_HDR, hg.BUCKETS), low, high)
     return EventStats(
         count=count,
         total=total,
@@ -356,9 +352,9 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
     loops = f[15]
     latency = slack = wall = None
     if layout.histograms and loops:
-        latency = hg.from_counts(_hist(buf, at, 0), lat_min, lat_max)
-        slack = hg.from_counts(_hist(buf, at, 1), slack_min, slack_max, _hist(buf, at, 2))
-        wall = hg.from_counts(_hist(buf, at, 3), wall_min, wall_max)
+        latency = hg.from_rows(_hist(buf, at, 0), lat_min, lat_max)
+        slack = hg.from_rows(_hist(buf, at, 1), slack_min, slack_max, _hist(buf, at, 2))
+        wall = hg.from_rows(_hist(buf, at, 3), wall_min, wall_max)
     stats = CallbackStats(
         releases=releases,
         overruns=overruns,

@@ -14,7 +14,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Optional
 
-from runner.histogram import from_counts
+from runner.histogram import from_rows
 from runner.results.document import Preemptor as StoredPreemptor
 from runner.results.document import ThreadResult, TraceInfo
 from runner.run.measure import spread
@@ -60,7 +60,7 @@ def _late(t: TracedThread, bound: int, tasks: dict[int, Task]) -> list[StoredPre
 
 def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task]) -> ThreadResult:
     """A thread's result with the trace's figures and attributions added."""
-    hist = from_counts(t.latency, t.latency_min, t.latency_max)
+    hist = from_rows(t.latency, t.latency_min, t.latency_max)
     wakeup = spread(hist)
     if wakeup is not None and t.wakeups:
         wakeup = wakeup.model_copy(update={"mean": round(t.latency_sum / t.wakeups)})  # the reader sums, it keeps no squares

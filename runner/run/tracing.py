@@ -98,7 +98,7 @@ class TracedThread:
     tid: int
     comm: str  # as last seen in the trace
     wakeups: int
-    latency: tuple[int, ...]  # counts per bucket of runner/histogram.py's layout (index()), length BUCKETS
+    latency: tuple[tuple[int, int], ...]  # (bucket, count) of runner/histogram.py's layout (index()), empty buckets left out
     latency_min: int
     latency_max: int
     preemptions: int  # switched out while runnable (prev_state R / R+)
