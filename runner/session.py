@@ -279,6 +279,7 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
     perms = backend.preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
     for problem in perms.missing:
         warn(f"{problem}; running degraded")
+    backend.prepare(options.trace)
     if doc is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         folder = options.out or os.path.join("reports", loaded.name, stamp)
@@ -399,11 +400,11 @@ def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
             )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            result, loop.write_error = _one_cell(cell, cell_folder, run.start, cell_options, backend)
+            result, loop.write_error, window_end = _one_cell(cell, cell_folder, run.start, cell_options, backend)
             progress.finish(time.monotonic() - began)
             loop.statuses.append(result.status)
             try:
-                _record(doc, result, unit, results_path)
+                _record(doc, result, unit, results_path, window_end)
             except OSError as exc:
                 doc.cells.remove(result)
                 loop.write_error = loop.write_error or exc
@@ -418,8 +419,11 @@ def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
 
 def _one_cell(
     cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, backend: Backend
-) -> tuple[CellResult, Optional[OSError]]:
-    """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled."""
+) -> tuple[CellResult, Optional[OSError], Optional[int]]:
+    """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled.
+
+    Also returned: when the cell's measured window ended (CLOCK_MONOTONIC ns; None if it never began).
+    """
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     keep = cell.scenario.samples.mode is not SamplesMode.NONE
     writer = SamplesWriter(os.path.join(folder, "samples.csv.gz")) if keep else None
@@ -430,17 +434,18 @@ def _one_cell(
     except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
         if writer is not None:
             writer.abort()
-        return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc
+        return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc, None
     scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
     result = evaluate(cell, scenario, raw, options.allow_degraded)
+    end = raw.timeline.end_ns
     if writer is None:
-        return result, None
+        return result, None, end
     try:
         writer.close()
     except OSError as exc:
-        return with_write_error(result, writer.path, exc), exc
+        return with_write_error(result, writer.path, exc), exc, end
     result.samples_file = writer.path
-    return result, None
+    return result, None, end
 
 
 class _SamplesFile:
@@ -460,11 +465,13 @@ def _settle(settle_ns: int, stop: StopSignals) -> None:
         time.sleep(min(left, 0.1))
 
 
-def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str) -> None:
-    """Add a finished cell to the document and save it at once."""
+def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str, window_end: Optional[int] = None) -> None:
+    """Add a finished cell to the document and save it at once (`window_end`: when its measured window ended)."""
     result.machine = doc.machine
     result.repeat = unit.repeat
     if result.samples_file and os.path.isabs(result.samples_file):
         result.samples_file = os.path.relpath(result.samples_file, doc.folder)
     doc.cells.append(result)
+    if window_end is not None:
+        result.overhead_ns.end_to_saved = time.monotonic_ns() - window_end
     doc.save(results_path)

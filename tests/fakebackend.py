@@ -40,6 +40,7 @@ class Act:
     degrade: bool = False  # RT policies come back as SCHED_OTHER
     oserror: Optional[int] = None  # errno of creating the cell's files
     follow_lines: int = 0  # --follow lines to print
+    released_late: tuple[tuple[str, int], ...] = ()  # measured processes that read their `go` after the common start
 
 
 @dataclass
@@ -47,6 +48,7 @@ class FakeBackend:
     acts: dict[str, Act] = field(default_factory=dict)
     ran: list[str] = field(default_factory=list)
     closed: bool = False
+    prepared: Optional[bool] = None  # prepare()'s trace argument, once the session called it
     dma_refused: str = ""  # why the fake /dev/cpu_dma_latency cannot be held; "" holds it
     dma_requests: list[Optional[int]] = field(default_factory=list)
     dma_held_during: list[str] = field(default_factory=list)  # the cells that ran while the fake device was held
@@ -76,6 +78,9 @@ class FakeBackend:
 
     def pid_width(self) -> int:
         return 5
+
+    def prepare(self, trace: bool) -> None:
+        self.prepared = trace
 
     def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
         act = self.acts.get(cell.id, Act())
@@ -144,6 +149,7 @@ class FakeBackend:
             act.incidents,
             interrupted,
             (BackgroundProcess("hog", "hog", 4343),),
+            released_late=act.released_late,
         )
 
     def close(self) -> None:

@@ -70,6 +70,26 @@ def test_a_run_error_in_a_cell_exits_4_with_its_reason(tmp_path, act, words):
     assert results["status"] == "error"
 
 
+def test_a_process_released_after_the_common_start_is_a_warning_in_words(tmp_path):
+    late = Act(released_late=(("process minimal_schedul[0]", 3_400_000),))
+    code, results = run(FIFO80, tmp_path / "r", FakeBackend({"default": late}), "--duration", "1s")
+    cell = results["cells"][0]
+    assert code == 0 and cell["status"] == "passed"
+    said = [w for w in cell["warnings"] if w.startswith("process minimal_schedul[0] was released 3.40 ms after the common start")]
+    assert said and "runner's doing" in said[0], cell["warnings"]
+    _, results = run(FIFO80, tmp_path / "s", FakeBackend(), "--duration", "1s")
+    assert not [w for w in results["cells"][0]["warnings"] if "common start" in w]
+
+
+def test_the_session_prepares_the_backend_once_with_the_trace_choice(tmp_path):
+    backend = FakeBackend()
+    run(FIFO80, tmp_path / "r", backend, "--duration", "1s")
+    assert backend.prepared is True
+    backend = FakeBackend()
+    run(FIFO80, tmp_path / "s", backend, "--duration", "1s", "--no-trace")
+    assert backend.prepared is False
+
+
 def test_unapplied_settings_are_an_error_unless_degraded_runs_are_allowed(tmp_path):
     code, results = run(FIFO80, tmp_path / "a", FakeBackend({"default": Act(degrade=True)}), "--duration", "1s")
     assert code == 4 and results["cells"][0]["status"] == "error"

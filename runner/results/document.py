@@ -377,8 +377,11 @@ class ProgramResult(_Record):
 class Overhead(_Record):
     """What the runner itself costs a cell, in ns: None where it could not be measured."""
 
-    start_to_first_callback: Optional[int] = None
-    last_callback_to_exit: Optional[int] = None
+    start_to_first_callback: Optional[int] = Field(None, description="from the runner starting on the cell to its first callback")
+    last_callback_to_exit: Optional[int] = Field(None, description="from the last callback's end to the cell's processes exiting")
+    end_to_saved: Optional[int] = Field(
+        None, description="from the end of the measured window to the results file's write (that write's own time excluded)"
+    )
 
 
 class BackgroundKind(str, enum.Enum):

@@ -57,6 +57,9 @@ class Backend(Protocol):
     def start_settings(self) -> Settings:
         """The settings the processes the runner starts inherit (the runner's own)."""
 
+    def prepare(self, trace: bool) -> None:
+        """Get ready for the cells once the run is allowed to go (processes to fork from, the trace's instances)."""
+
     def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
         """What this user may do; raises PermissionProblem (exit 3) for a right the cells need and lack."""
 

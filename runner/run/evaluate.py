@@ -325,6 +325,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
         + program_warnings
         + traced.warnings(result.trace)
+        + [
+            f"{label} was released {units.human_duration(late)} after the common start (the runner's start margin was too short):"
+            " its threads' first releases were late by the runner's doing, not the scheduler's"
+            for label, late in raw.released_late
+        ]
     )
     if stalls:
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")

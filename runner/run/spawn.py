@@ -13,10 +13,12 @@ from __future__ import annotations
 import json
 import mmap
 import os
+import select
 import selectors
 import signal
 import struct
 import subprocess
+import threading
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
@@ -37,6 +39,7 @@ from runner.run.preflight import check as preflight_check
 from runner.run.programs import settings_of
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, ResourceState, Timeline
 from runner.run.traced import Task
+from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.scenario import program as programs
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import (
@@ -60,8 +63,23 @@ from runner.scenario.model import (
 from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
 
 READY_TIMEOUT_S = 20.0
-SETTLE_S = 0.1  # background load runs this long before the measured start
-START_MARGIN_S = 0.02  # time for every worker to receive `go` before the common start
+# Background commands (stress-ng and the like) run this long before the measured start: how long
+# they take to load the machine is theirs to know.  Hogs need no head start: they spin from their
+# `go`, and the kernel places them on idle CPUs at once (two hogs of this VM were on two CPUs
+# within 10 us of `go`, in five runs of five).
+COMMAND_HEAD_START_S = 0.1
+
+
+def start_margin(processes: int) -> float:
+    """Seconds from sending `go` to the common start: time for every worker and hog to read it and release.
+
+    Measured on the development VM with one busy loop per CPU: the worker of a fifo80
+    cell read its `go` 0.1 to 3.7 ms after it was sent, hogs 0.3 to 3.8 ms.  One read
+    later than the start is said in the cell's warnings (the worker reports it).
+    """
+    return min(0.030, 0.010 + 0.0005 * processes)
+
+
 STOP_GRACE_S = 2.0
 
 
@@ -71,6 +89,17 @@ class KernelBackend:
     def __init__(self) -> None:
         self.watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
         self.guard = Guard()
+        self.traces = tracing.TraceInstances(guard=self.guard)  # set up once, kept to the end of the run
+        self.zygote: Optional[Zygote] = None
+        self._preparing: Optional[threading.Thread] = None
+
+    def prepare(self, trace: bool) -> None:
+        """Start, beside the run's own preparations, what every cell uses: the zygote, the trace's instances."""
+        self.zygote = Zygote.start(self.guard)
+        if trace:
+            seed = [self.zygote.proc.pid] if self.zygote is not None else []
+            self._preparing = threading.Thread(target=self.traces.prepare, args=(seed,), name="runner-trace-setup", daemon=True)
+            self._preparing.start()
 
     def start_settings(self) -> Settings:
         return kernel.current_settings()
@@ -88,9 +117,17 @@ class KernelBackend:
         return kernel.pid_width()
 
     def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
-        return run_cell(cell, folder, start, options, self.watchdog, self.guard)
+        if self._preparing is not None:
+            self._preparing.join()
+            self._preparing = None
+        return run_cell(cell, folder, start, options, self)
 
     def close(self) -> None:
+        if self._preparing is not None:
+            self._preparing.join()
+        if self.zygote is not None:
+            self.zygote.close(self.guard)
+        self.traces.close()
         self.watchdog.close()
         self.guard.close()
 
@@ -212,12 +249,13 @@ class Worker:
     planned: list[PlannedThread]
     measured: bool
     log_path: str
-    popen: Optional[subprocess.Popen[str]] = None
+    popen: Optional[subprocess.Popen[str] | ZygoteChild] = None
     ready: Optional[dict[str, Any]] = None
     done: bool = False
     buffer: Optional[samples.Buffer] = None
     seen: list[int] = field(default_factory=list)
     written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
+    late_ns: int = 0  # how long after the common start it was released (its `done` says)
 
     @property
     def pid(self) -> int:
@@ -228,33 +266,62 @@ class Worker:
     def nslots(self) -> int:
         return self.layout.nthreads
 
-    def start(self, guard: Guard, resources_fd: Optional[int] = None) -> None:
+    def start(self, guard: Guard, resources_fd: Optional[int] = None, zygote: Optional[Zygote] = None) -> None:
+        """Start the worker (forked by the zygote when there is one that serves) and send it its spec."""
         fd = samples.create(self.spec["comm"], self.layout)
+        passed = [fd] if resources_fd is None else [fd, resources_fd]
         try:
             self.buffer = samples.Buffer(fd, self.layout)  # the mapping outlives the descriptor, and the worker
             self.written = [0] * self.nslots
-            with open(self.log_path, "w") as log:  # the worker holds its own copies of the descriptors
-                self.popen = subprocess.Popen(
-                    python_module("runner.run.worker"),
-                    stdin=subprocess.PIPE,
-                    stdout=subprocess.PIPE,
-                    stderr=log,
-                    text=True,
-                    bufsize=1,
-                    start_new_session=True,
-                    close_fds=True,
-                    pass_fds=(fd,) if resources_fd is None else (fd, resources_fd),
-                    cwd="/",
-                    env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
-                )
+            forked = self._fork(zygote, passed) if zygote is not None else None
+            if forked is not None:
+                self.popen = forked
+                child_fds = list(range(3, 3 + len(passed)))  # where a forked worker finds them
+            else:
+                self.popen = self._popen(passed)
+                child_fds = passed
         finally:
             os.close(fd)
-        self.spec["samples_fd"] = fd
-        self.spec["resources_fd"] = resources_fd
+        self.spec["samples_fd"] = child_fds[0]
+        self.spec["resources_fd"] = child_fds[1] if resources_fd is not None else None
         guard.watch(self.popen.pid)
         assert self.popen.stdin is not None
         self.popen.stdin.write(json.dumps(self.spec) + "\n")
         self.popen.stdin.flush()
+
+    def _popen(self, passed: list[int]) -> subprocess.Popen[str]:
+        """A fresh interpreter running the worker: the way without a zygote."""
+        with open(self.log_path, "w") as log:  # the worker holds its own copies of the descriptors
+            return subprocess.Popen(
+                python_module("runner.run.worker"),
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                text=True,
+                bufsize=1,
+                start_new_session=True,
+                close_fds=True,
+                pass_fds=passed,
+                cwd="/",
+                env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
+            )
+
+    def _fork(self, zygote: Zygote, passed: list[int]) -> Optional[ZygoteChild]:
+        """The worker forked by the zygote; None when the zygote does not serve (the caller starts one itself)."""
+        if zygote.sock is None:
+            return None
+        ends = [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
+        log = os.open(self.log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+        try:
+            pid = zygote.spawn(ends[0], ends[3], log, passed)
+        except ZygoteError:
+            os.close(ends[1])
+            os.close(ends[2])
+            return None
+        finally:
+            for each in (ends[0], ends[3], log):
+                os.close(each)
+        return ZygoteChild(zygote, pid, open(ends[1], "w", buffering=1), open(ends[2]))
 
     def send(self, line: str) -> None:
         try:
@@ -422,8 +489,10 @@ def _read_done(w: Worker) -> None:
     assert w.popen is not None and w.popen.stdout is not None
     try:
         for line in w.popen.stdout:
-            if json.loads(line).get("done"):
+            message = json.loads(line)
+            if message.get("done"):
                 w.done = True
+                w.late_ns = int(message.get("late_ns", 0))
     except (ValueError, OSError):
         pass
 
@@ -468,13 +537,13 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> Non
                 w.written[t.index] += len(taken)
 
 
-def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard) -> RawCell:
+def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend) -> RawCell:
     """Run one cell's processes and return what they left behind, interrupted or not.
 
     An OSError creating the cell's files (a full disk, a folder that vanished) propagates
     once every process the cell started is stopped; the caller decides what it means for the run.
     """
-    run = _CellRun(cell, os.path.abspath(folder), start, options, watchdog, guard)
+    run = _CellRun(cell, os.path.abspath(folder), start, options, shared)
     try:
         run.start()
         if not run.reason:
@@ -498,8 +567,9 @@ def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOpti
 class _CellRun:
     """One cell's processes from start to collection: start, supervise, stop, collect, in that order."""
 
-    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, watchdog: Any, guard: Guard):
-        self.cell, self.folder, self.options, self.watchdog, self.guard = cell, folder, options, watchdog, guard
+    def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend):
+        self.cell, self.folder, self.options = cell, folder, options
+        self.watchdog, self.guard, self.traces, self.zygote = shared.watchdog, shared.guard, shared.traces, shared.zygote
         self.scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
         os.makedirs(folder, exist_ok=True)
         self.began = time.monotonic()
@@ -549,9 +619,9 @@ class _CellRun:
         res_fd = self._create_resources()
         try:
             for w in self.workers:
-                w.start(self.guard, res_fd)
+                w.start(self.guard, res_fd, self.zygote)
             for w in self.hogs:
-                w.start(self.guard)
+                w.start(self.guard, zygote=self.zygote)
         finally:
             if res_fd is not None:
                 os.close(res_fd)
@@ -584,7 +654,7 @@ class _CellRun:
                 self.reason = p.failure
         if self.options.trace and not self.reason:
             traced = [w.pid for w in self.workers] + [p.pid for p in self.programs]
-            opened = tracing.open_trace(traced, guard=self.guard)
+            opened = self.traces.open(traced)
             if isinstance(opened, tracing.TraceUnavailable):
                 self.trace = opened
             else:
@@ -617,7 +687,8 @@ class _CellRun:
                 return
         pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs]
         now = time.monotonic_ns()
-        t0 = now + int((SETTLE_S + START_MARGIN_S) * 1e9)
+        head_start = COMMAND_HEAD_START_S if self.commands else 0.0
+        t0 = now + int((head_start + start_margin(len(workers) + len(hogs))) * 1e9)
         t_end = t0 + options.duration_ns
         if self.tracer is not None:
             self.tracer.window(t0, t_end)
@@ -625,32 +696,23 @@ class _CellRun:
         periods = [t.period for t in self.planned if t.period]
         grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
         self.watchdog.arm(t_end + grace + int(1e9), pids)
-        for h in hogs:
-            h.send(f"go {now} {t_end + grace}")
-        for w in workers:
+        for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
             w.send(f"go {t0} {t_end}")
             w.seen = [0] * w.nslots
+        for h in hogs:
+            h.send(f"go {now} {t_end + grace}")
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
         self.monitor.window_start = t0
         self.monitor.start()
-        while self._running(t_end):
-            time.sleep(0.05 if options.follow else 0.2)
-            if options.stop_requested():
-                raise Interrupted()
-            if not self.table and time.monotonic() >= snapshot_at:
-                pids = [w.pid for w in workers] + [p.pid for p in self.programs if p.pid and not p.poll()]
-                self.table = [row for pid in pids for row in kernel.thread_rows(pid)]
-            self._watch_for_incidents(t0, t_end)
-            for w in workers:
-                if options.follow:
-                    _follow_lines(w, epoch_offset, options.follow)
-                _drain(w, options, self.last_only, final=False)
-            if options.progress:
-                done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
-                left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
-                options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
+        exits = _Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
+        try:
+            while self._running(t_end):
+                exits.wait(0.05 if options.follow else 0.2)
+                self._tick(t0, t_end, snapshot_at, epoch_offset, total_expected)
+        finally:
+            exits.close()
         self.exit_time = time.monotonic_ns()
         self.monitor.stop()
         self._stop_trace()
@@ -658,6 +720,24 @@ class _CellRun:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
             _read_done(w)
+
+    def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
+        """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
+        options, workers = self.options, self.workers
+        if options.stop_requested():
+            raise Interrupted()
+        if not self.table and time.monotonic() >= snapshot_at:
+            pids = [w.pid for w in workers] + [p.pid for p in self.programs if p.pid and not p.poll()]
+            self.table = [row for pid in pids for row in kernel.thread_rows(pid)]
+        self._watch_for_incidents(t0, t_end)
+        for w in workers:
+            if options.follow:
+                _follow_lines(w, epoch_offset, options.follow)
+            _drain(w, options, self.last_only, final=False)
+        if options.progress:
+            done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
+            left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
+            options.progress(f"cell {self.cell.id}: {done}/{total_expected or '-'} callbacks, {left:4.1f}s left")
 
     def _stop_trace(self) -> None:
         """Stop the trace and learn what can still be learnt of the tasks it names, while they live (hogs, programs)."""
@@ -804,6 +884,7 @@ class _CellRun:
             tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
             self.trace,
             dict(self.trace_tasks),
+            tuple((w.label, w.late_ns) for w in self.workers if w.late_ns > 0),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
@@ -815,6 +896,44 @@ class _CellRun:
             f = struct.unpack_from("<iiiiq6q2Q", self.resources, i * _probe.RES_BYTES)
             out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8]))
         return tuple(out)
+
+
+class _Exits:
+    """The cell's processes as pidfds: the supervising loop wakes the moment one exits, not at its next tick.
+
+    A worker the zygote forked is reaped by the zygote, which then says so on its socket:
+    the loop wakes on that message too, since the worker's exit is known only then.
+    Without pidfds (before Linux 5.3) it waits out the tick, as a sleep would.
+    """
+
+    def __init__(self, pids: list[int], zygote: Optional[Zygote] = None) -> None:
+        self.poller = select.poll()
+        self.fds: list[int] = []
+        self.zygote_fd = -1
+        for pid in pids:
+            try:
+                fd = os.pidfd_open(pid)
+            except OSError:  # gone already (its exit is seen by the caller's poll), or no pidfds
+                continue
+            self.fds.append(fd)
+            self.poller.register(fd, select.POLLIN)
+        if zygote is not None and zygote.sock is not None and self.fds:
+            self.zygote_fd = zygote.sock.fileno()
+            self.poller.register(self.zygote_fd, select.POLLIN)
+
+    def wait(self, timeout_s: float) -> None:
+        """Until a process exits or `timeout_s` passes; an exited one no longer wakes it."""
+        if not self.fds:
+            time.sleep(timeout_s)
+            return
+        for fd, _ in self.poller.poll(timeout_s * 1000):
+            if fd != self.zygote_fd:  # the zygote's messages are taken by the caller's poll of its workers
+                self.poller.unregister(fd)
+
+    def close(self) -> None:
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = []
 
 
 def _ready_report(w: Worker) -> Optional[ReadyReport]:

@@ -1,12 +1,14 @@
 """The scheduler, measured from the kernel's own trace: who woke when, who took the CPU from whom.
 
-`open_trace(pids)` starts tracing the scheduler events of those processes (their
-threads, and every thread or child they create later) in a private tracefs instance,
-`instances/runner-<pid>-<n>`, so a user's own tracing in the global buffer is left
-alone.  The events are read and folded into per-thread aggregates by the native
+`TraceInstances.open(pids)` starts tracing the scheduler events of those processes
+(their threads, and every thread or child they create later) in a private tracefs
+instance, `instances/runner-<pid>-<n>`, so a user's own tracing in the global buffer is
+left alone.  The events are read and folded into per-thread aggregates by the native
 reader (runner/run/_trace.c), in a thread of its own that never takes the GIL and
-keeps bounded memory however long the run; `stop()` turns tracing off, reads what is
-left and removes the instance.  Nothing here fails the caller: whatever is missing
+keeps bounded memory however long the run; `stop()` turns tracing off and reads what
+is left.  A run keeps its instances from its first cell to its end (setting one up
+and removing it cost the kernel 130 ms); `open_trace(pids)` is a one-off trace that
+removes its own.  Nothing here fails the caller: whatever is missing
 (no tracefs, no permission, an event this kernel lacks) makes `open_trace` return
 `TraceUnavailable` with the reason in words.
 
@@ -45,6 +47,7 @@ import errno
 import itertools
 import os
 import re
+import threading
 import time
 import weakref
 from collections.abc import Sequence
@@ -137,47 +140,19 @@ class TraceUnavailable:
     reason: str
 
 
-class _Teardown:
-    """Tracing off, the reader stopped, the instances removed: once, whoever calls first.
-
-    A separate object so a finalizer can hold it without holding the Tracer: a Tracer
-    dropped (or left at interpreter exit) without close() still stops the kernel tracing.
-    """
-
-    def __init__(self, paths: tuple[str, ...], reader: Any, guard: Optional[Guard], notes: list[str]) -> None:
-        self.paths = paths
-        self.reader = reader
-        self.guard = guard
-        self.notes = notes
-
-    def tracing_off(self) -> None:
-        for path in self.paths:
-            try:
-                _write(path, "tracing_on", "0")
-            except OSError:
-                pass
-
-    def __call__(self) -> None:
-        self.tracing_off()
-        try:
-            self.reader.stop()
-        except OSError:
-            pass
-        _remove_all(self.paths, self.guard, self.notes)
-
-
 class Tracer:
     """A running trace; `stop()` hands back the data, `close()` (or the with-block's end) cleans up in any case."""
 
-    def __init__(self, root: str, paths: Sequence[str], reader: Any, guard: Optional[Guard], notes: list[str]) -> None:
-        self.root = root
-        self.paths = tuple(paths)  # the instance of the pid-filtered events first, then the migrations' one
+    def __init__(self, instances: TraceInstances, reader: Any, lost_before: int, notes: list[str], owns: bool) -> None:
+        self.instances = instances
+        self.paths = instances.paths  # the instance of the pid-filtered events first, then the migrations' one
         self.path = self.paths[0]
         self._reader = reader
+        self._lost_before = lost_before  # the instances' loss counters when this trace began: they are not reset
         self._notes = notes
         self._started_ns = 0
         self._data: Optional[TraceData] = None
-        self._teardown = weakref.finalize(self, _Teardown(self.paths, reader, guard, notes))
+        self._teardown = weakref.finalize(self, _end_trace, instances, reader, owns)
 
     @property
     def notes(self) -> tuple[str, ...]:
@@ -192,7 +167,7 @@ class Tracer:
 
     def add_pids(self, pids: Sequence[int]) -> None:
         """Follow processes started after `open_trace` (every thread they have now; event-fork adds later ones)."""
-        _follow(self.path, self._reader, pids, append=True)
+        _follow(self.path, self._reader, pids)
 
     def window(self, start_ns: int, end_ns: Optional[int]) -> None:
         """Count only events from `start_ns` to `end_ns` (CLOCK_MONOTONIC; None: to the end).
@@ -204,27 +179,192 @@ class Tracer:
         self._reader.window(start_ns, -1 if end_ns is None else end_ns)
 
     def stop(self) -> TraceData:
-        """Tracing off, the reader's final drain, the reader joined, the instance removed: the aggregates."""
+        """Tracing off, the reader's final drain, the reader joined, the instances handed back: the aggregates."""
         if self._data is not None:
             return self._data
         if not self._teardown.alive:
             raise RuntimeError("the trace was closed before it was stopped")
-        for path in self.paths:
-            _write(path, "tracing_on", "0")
+        self.instances.tracing_off()
         stopped_ns = time.monotonic_ns()
         try:
             self._reader.stop()
         except OSError as error:
             self._notes.append(f"reading the trace failed: {error.strerror or error}; the figures may be incomplete")
-        stats_lost = sum(_stats_lost(path) for path in self.paths)
+        lost = self.instances.lost() - self._lost_before
         result = self._reader.result()
         self._teardown()
-        self._data = _trace_data(result, stats_lost, stopped_ns - self._started_ns, self._notes)
+        self._data = _trace_data(result, lost, stopped_ns - self._started_ns, self._notes)
         return self._data
 
     def close(self) -> None:
-        """Stop everything and remove the instance, without a result; does nothing the second time."""
+        """Stop tracing and the reader, without a result; does nothing the second time."""
         self._teardown()
+
+
+def _end_trace(instances: TraceInstances, reader: Any, owns: bool) -> None:
+    """Tracing off and the reader stopped, once, whoever calls first (a finalizer holds this, not the Tracer)."""
+    instances.tracing_off()
+    try:
+        reader.stop()
+    except OSError:
+        pass
+    instances.release(remove=owns)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What the native reader needs to know of this kernel's buffers and events: read once per instance pair."""
+
+    header: traceformat.PageHeader
+    switch: EventFormat
+    layouts: Any
+    formats: dict[str, Optional[EventFormat]]
+
+
+class TraceInstances:
+    """The runner's pair of tracefs instances, set up once and reused by every trace it opens, one at a time.
+
+    Creating an instance, setting its clock and sizing its buffers cost about 60 ms on the
+    development VM and removing it 70 ms (the kernel waits for RCU each time), so a run
+    keeps its pair from the first cell to its end: a cell only rewrites the pid filter,
+    starts a new reader and turns tracing on.  Between traces tracing is off and the
+    reader has drained the buffers, so nothing of a cell reaches the next; the kernel's
+    loss counters are not reset (that waits for RCU too) but read before each trace.
+    `close()` (or the finalizer, or the guard should the runner die) removes the pair.
+    """
+
+    def __init__(self, buffer_kb: int = 4096, guard: Optional[Guard] = None) -> None:
+        self.buffer_kb = buffer_kb
+        self.guard = guard
+        self.paths: tuple[str, ...] = ()
+        self._layout: Optional[_Layout] = None
+        self._unavailable: Optional[TraceUnavailable] = None
+        self._notes: list[str] = []  # said by the first trace only
+        self._busy = False
+        self._remove = weakref.finalize(self, _remove_all, self.paths, guard, [])
+
+    def open(
+        self, pids: Sequence[int], *, max_threads: int = MAX_THREADS, interval_ns: int = INTERVAL_NS, owns: bool = False
+    ) -> Tracer | TraceUnavailable:
+        """Trace the scheduler for `pids` (every thread, and what they create later); never raises for the system's state.
+
+        The first call sets the instances up; if that fails, every call says why.  `owns`:
+        the tracer removes the instances when it ends (a one-off trace).
+        """
+        if self._busy:
+            raise RuntimeError("a trace is already running in these instances")
+        self.prepare()
+        if self._unavailable is not None:
+            return self._unavailable
+        try:
+            return self._start(pids, max_threads, interval_ns, owns)
+        except (OSError, ValueError) as error:
+            self.tracing_off()
+            if isinstance(error, OSError):
+                return TraceUnavailable(_why(error, f"cannot start tracing in {self.paths[0]}"))
+            return TraceUnavailable(f"cannot start the trace reader: {error}")
+
+    def prepare(self, seed: Sequence[int] = ()) -> None:
+        """Set the instances up now, ahead of the first trace (a run does it while it prepares).
+
+        `seed`: processes whose children every trace follows from their fork on (the
+        zygote).  The kernel adds such a child and its threads to the pid filter as it
+        forks them and removes them as they exit, so a trace of them writes nothing to
+        the filter: every write to a filter that is not empty makes the kernel wait for
+        RCU, about 35 ms on the development VM.
+        """
+        if self._layout is None and self._unavailable is None:
+            self._unavailable = self._set_up()
+            if self._unavailable is None and seed:
+                try:
+                    _write_pids(os.path.join(self.paths[0], "set_event_pid"), seed)
+                except OSError:
+                    pass  # each trace then writes its own pids
+
+    def tracing_off(self) -> None:
+        for path in self.paths:
+            try:
+                _write(path, "tracing_on", "0")
+            except OSError:
+                pass
+
+    def lost(self) -> int:
+        """Events lost so far on every CPU of the instances, as the kernel counts them."""
+        return sum(_stats_lost(path) for path in self.paths)
+
+    def release(self, remove: bool) -> None:
+        """A trace ended: the instances are free again (removed, for a one-off trace)."""
+        self._busy = False
+        if remove:
+            self.close()
+
+    def close(self) -> None:
+        """Tracing off and the instances removed; does nothing the second time."""
+        self._remove()
+
+    def _set_up(self) -> Optional[TraceUnavailable]:
+        """Create and configure the pair; None, or why not (and nothing is left behind)."""
+        if _trace is None:
+            return TraceUnavailable(f"the native trace reader runner.run._trace is not built ({_IMPORT_ERROR})")
+        root = find_tracefs()
+        if isinstance(root, TraceUnavailable):
+            return root
+        if root.mounted_here:
+            self._notes.append(f"mounted tracefs at {root.path}")
+        for name in remove_stale(root.path):
+            self._notes.append(f"removed the tracing instance {name} of a runner that died")
+        paths: list[str] = []
+        try:
+            paths.append(_new_instance(root.path))
+            if self.guard is not None:
+                self.guard.watch_trace(paths[0])
+            if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
+                os.mkdir(paths[0] + "-migrate")
+                paths.append(paths[0] + "-migrate")
+                if self.guard is not None:
+                    self.guard.watch_trace(paths[1])
+            self._layout = _configure(paths, self.buffer_kb)
+        except (OSError, FormatError, ValueError) as error:
+            _remove_all(paths, self.guard, [])
+            if isinstance(error, OSError):
+                where = f"the tracing instance {paths[-1]}" if paths else f"a tracing instance in {root.path}/instances"
+                return TraceUnavailable(_why(error, f"cannot set up {where}"))
+            return TraceUnavailable(f"cannot read the kernel's event formats: {error}")
+        self.paths = tuple(paths)
+        self._remove.detach()
+        self._remove = weakref.finalize(self, _remove_all, self.paths, self.guard, [])
+        return None
+
+    def _start(self, pids: Sequence[int], max_threads: int, interval_ns: int, owns: bool) -> Tracer:
+        assert _trace is not None and self._layout is not None
+        layout, path = self._layout, self.paths[0]
+        reader = _trace.Reader(
+            layout.header.page_size,
+            (layout.header.timestamp_offset, layout.header.commit_offset, layout.header.commit_size, layout.header.data_offset),
+            traceformat.common_type(layout.switch),
+            layout.layouts,
+            traceformat.switch_state_mask(layout.switch.print_fmt),
+            max_threads,
+        )
+        _follow(path, reader, pids)
+        files = []
+        for each in self.paths:
+            for entry in sorted(os.listdir(os.path.join(each, "per_cpu")), key=lambda e: (len(e), e)):
+                if entry.startswith("cpu") and entry[3:].isdigit():
+                    files.append((int(entry[3:]), os.path.join(each, "per_cpu", entry, "trace_pipe_raw")))
+        lost_before = self.lost()
+        reader.start(files, interval_ns)
+        self._busy = True
+        notes, self._notes = self._notes, []
+        tracer = Tracer(self, reader, lost_before, notes, owns)
+        try:
+            tracer._started_ns = time.monotonic_ns()
+            for each in reversed(self.paths):
+                _write(each, "tracing_on", "1")
+        except OSError:
+            tracer.close()
+            raise
+        return tracer
 
 
 def open_trace(
@@ -235,38 +375,16 @@ def open_trace(
     max_threads: int = MAX_THREADS,
     interval_ns: int = INTERVAL_NS,
 ) -> Tracer | TraceUnavailable:
-    """Trace the scheduler for `pids` (every thread, and what they create later); never raises for the system's state.
+    """A one-off trace of `pids` in instances of its own, removed when it ends (a run reuses a `TraceInstances`).
 
-    `buffer_kb` is the ring buffer per CPU; `guard`, when given, removes the instance
+    `buffer_kb` is the ring buffer per CPU; `guard`, when given, removes the instances
     should this process die without doing it; `max_threads` bounds the reader's table.
     """
-    if _trace is None:
-        return TraceUnavailable(f"the native trace reader runner.run._trace is not built ({_IMPORT_ERROR})")
-    root = find_tracefs()
-    if isinstance(root, TraceUnavailable):
-        return root
-    notes: list[str] = []
-    if root.mounted_here:
-        notes.append(f"mounted tracefs at {root.path}")
-    for name in remove_stale(root.path):
-        notes.append(f"removed the tracing instance {name} of a runner that died")
-    paths: list[str] = []
-    try:
-        paths.append(_new_instance(root.path))
-        if guard is not None:
-            guard.watch_trace(paths[0])
-        if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
-            os.mkdir(paths[0] + "-migrate")
-            paths.append(paths[0] + "-migrate")
-            if guard is not None:
-                guard.watch_trace(paths[1])
-        return _start(root.path, paths, pids, buffer_kb, guard, max_threads, interval_ns, notes)
-    except (OSError, FormatError, ValueError) as error:
-        _remove_all(paths, guard, [])
-        if isinstance(error, OSError):
-            where = f"the tracing instance {paths[-1]}" if paths else f"a tracing instance in {root.path}/instances"
-            return TraceUnavailable(_why(error, f"cannot set up {where}"))
-        return TraceUnavailable(f"cannot read the kernel's event formats: {error}")
+    instances = TraceInstances(buffer_kb, guard)
+    opened = instances.open(pids, max_threads=max_threads, interval_ns=interval_ns, owns=True)
+    if isinstance(opened, TraceUnavailable):
+        instances.close()
+    return opened
 
 
 @dataclass(frozen=True)
@@ -337,16 +455,8 @@ def read_formats(events_dir: str) -> dict[str, Optional[EventFormat]]:
 # ---- the instance ----
 
 
-def _start(
-    root: str,
-    paths: Sequence[str],
-    pids: Sequence[int],
-    buffer_kb: int,
-    guard: Optional[Guard],
-    max_threads: int,
-    interval_ns: int,
-    notes: list[str],
-) -> Tracer:
+def _configure(paths: Sequence[str], buffer_kb: int) -> _Layout:
+    """Set up new instances once: tracing off, the mono clock, buffer size, overwrite, event-fork, the events enabled."""
     assert _trace is not None
     path = paths[0]
     for each in paths:
@@ -365,69 +475,64 @@ def _start(
         _write(each, "buffer_size_kb", str(buffer_kb))
         _write(each, "options/overwrite", "1")  # a full buffer overwrites: the gap is flagged on the page that follows it
     _write(path, "options/event-fork", "1")
-    reader = _trace.Reader(
-        header.page_size,
-        (header.timestamp_offset, header.commit_offset, header.commit_size, header.data_offset),
-        traceformat.common_type(switch),
-        layouts,
-        traceformat.switch_state_mask(switch.print_fmt),
-        max_threads,
-    )
-    _follow(path, reader, pids, append=False)
     for kind, fmt in formats.items():
         if fmt is not None:
             # migrations in their own instance (the module's docstring says why), when there is one
             where = paths[1] if kind == "migrate" and len(paths) > 1 else path
             _write(where, f"events/sched/{fmt.name}/enable", "1")
-    files = []
-    for each in paths:
-        for entry in sorted(os.listdir(os.path.join(each, "per_cpu")), key=lambda e: (len(e), e)):
-            if entry.startswith("cpu") and entry[3:].isdigit():
-                files.append((int(entry[3:]), os.path.join(each, "per_cpu", entry, "trace_pipe_raw")))
-    reader.start(files, interval_ns)
-    tracer = Tracer(root, paths, reader, guard, notes)
-    try:
-        tracer._started_ns = time.monotonic_ns()
-        for each in reversed(paths):
-            _write(each, "tracing_on", "1")
-    except OSError:
-        tracer.close()
-        raise
-    return tracer
+    return _Layout(header, switch, layouts, formats)
 
 
 def _remove_all(paths: Sequence[str], guard: Optional[Guard], notes: list[str]) -> None:
-    for path in paths:
-        if not remove_instance(path):
+    """Remove the instances, side by side: each removal waits for RCU (about 70 ms on the development VM)."""
+    gone = [False] * len(paths)
+
+    def remove(n: int) -> None:
+        gone[n] = remove_instance(paths[n])
+
+    others = [threading.Thread(target=remove, args=(n,), name="runner-trace-rmdir") for n in range(1, len(paths))]
+    for thread in others:
+        thread.start()
+    if paths:
+        remove(0)
+    for thread in others:
+        thread.join()
+    for path, removed in zip(paths, gone):
+        if not removed:
             notes.append(f"could not remove the tracing instance {path}")
         if guard is not None:
             guard.forget_trace(path)
 
 
-def _follow(path: str, reader: Any, pids: Sequence[int], append: bool) -> None:
-    """Give the reader and the kernel's pid filter every thread of `pids`, until none appears between the two."""
+def _follow(path: str, reader: Any, pids: Sequence[int]) -> None:
+    """Give the reader and the kernel's pid filter every thread of `pids`, until none appears between the two.
+
+    Only the threads the filter lacks are written (the kernel adds a listed task's
+    children and threads itself, and removes them as they exit), in one write: each
+    write to a filter that is not empty makes the kernel wait for RCU (about 35 ms on
+    the development VM), and 8,000 tids took 2 ms into an empty one.
+    """
     known: set[int] = set()
     for _ in range(10):  # a thread created between listing and filtering is listed the next round
         tids = sorted({t for pid in pids for t in thread_ids(pid)} - known)
         if not tids:
             return
         reader.track(tids)  # the reader first: events of a tid may follow as soon as the kernel has it
-        _write_pids(os.path.join(path, "set_event_pid"), tids, truncate=not append and not known)
+        filtered = os.path.join(path, "set_event_pid")
+        listed = {int(word) for word in _read(filtered).split() if word.isdigit()}
+        missing = [tid for tid in tids if tid not in listed]
+        if missing:
+            _write_pids(filtered, missing)
         known.update(tids)
 
 
-def _write_pids(path: str, tids: Sequence[int], truncate: bool) -> None:
-    """Append `tids` to set_event_pid (truncate: replace), in writes the kernel parses whole."""
-    fd = os.open(path, os.O_WRONLY | (os.O_TRUNC if truncate else 0))
+def _write_pids(path: str, tids: Sequence[int]) -> None:
+    """Add `tids` to set_event_pid, in one write."""
+    data = (" ".join(str(tid) for tid in tids) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY)
     try:
-        chunk: list[str] = []
-        for tid in tids:
-            chunk.append(str(tid))
-            if len(chunk) == 256:
-                os.write(fd, " ".join(chunk).encode() + b"\n")
-                chunk = []
-        if chunk:
-            os.write(fd, " ".join(chunk).encode() + b"\n")
+        while data:
+            data = data[os.write(fd, data) :]
     finally:
         os.close(fd)
 

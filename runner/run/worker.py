@@ -13,7 +13,8 @@ Steps, in the order the ros2-realtime-examples take them:
      event of another thread creates them mid-run;
   4. main thread settings if applied after_threads;
   5. lock memory and preallocate, once every thread exists;
-  6. report ready (TIDs, errors) and wait for `go START END`;
+  6. report ready (TIDs, errors) and wait for `go START END` (a hog's START is now; how
+     long after START a measured process was released goes back with `done`);
   7. run: every thread starts at START (CLOCK_MONOTONIC) and stops at END.
 """
 
@@ -24,6 +25,7 @@ import mmap
 import os
 import signal
 import sys
+import time
 from typing import Any
 
 from runner.run import _probe
@@ -138,9 +140,10 @@ def run(spec: dict[str, Any]) -> int:
         return 0  # the runner gave up on this cell; threads exit through Group's destructor
     start_ns, end_ns = int(line[1]), int(line[2])
     group.release(start_ns, end_ns)
+    late_ns = time.monotonic_ns() - start_ns  # > 0: released after the common start, by the runner's doing
     group.run_main(0)
     group.join()
-    _send({"done": True, "stopped": _probe.stopped()})
+    _send({"done": True, "stopped": _probe.stopped(), "late_ns": max(0, late_ns)})
     return 0
 
 
