@@ -104,14 +104,17 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
 
     from runner import figures as fg
     from runner.report.fmt import fmt_figure
+    from runner.report.selection import TERMINAL_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
     from runner.results.pstable import render_ps
 
     warned = f", {len(cell.warnings)} warning{'s' if len(cell.warnings) > 1 else ''}" if cell.warnings else ""
     out = [f"cell {cell.id}: {_MARK[cell.status.value]}{warned} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
+    picked = threads_shown(cell, TERMINAL_ROWS)
     if cell.thread_table:
+        ps_rows, _ = ps_rows_shown(cell.thread_table, picked)
         out.append("")
-        out.extend("  " + line for line in render_ps(cell.thread_table, pid_width=pid_width).splitlines())
-    periodic = [t for t in cell.threads if t.periodic]
+        out.extend("  " + line for line in render_ps(ps_rows, pid_width=pid_width).splitlines())
+    periodic = [t for t in picked.threads if t.periodic]
     if periodic:
         overloaded = not all(fg.kept_up(t.figures) for t in periodic)
         shown = [f for f in fg.REGISTRY if f.column and (overloaded or not f.overload)]
@@ -123,13 +126,23 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         ]
         out.append("")
         out.extend("  " + line for line in tabulate(rows, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())
-    for v in cell.expectations:
+    if picked.hidden:
+        out.append(f"  ({picked.note()})")
+    verdicts, more = verdicts_shown(cell.expectations, TERMINAL_ROWS)
+    for v in verdicts:
         measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
         out.append(
             f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
         )
-    for t in cell.threads:
-        for why in t.degraded:
-            out.append(f"  DEGRADED {t.process}/{t.name}: {why}")
-    out.extend(f"  WARNING {text}" for text in cell.warnings)
+    if more:
+        failed = sum(not v.passed for v in cell.expectations) - sum(not v.passed for v in verdicts)
+        out.append(f"  ... {more:,} more verdicts ({failed:,} of them failed): see the report or results.json")
+    degraded, more = lines_shown([f"{t.process}/{t.name}: {why}" for t in cell.threads for why in t.degraded], TERMINAL_ROWS)
+    out.extend(f"  DEGRADED {line}" for line in degraded)
+    if more:
+        out.append(f"  ... {more:,} more degraded settings: see the report or results.json")
+    warnings, more = lines_shown(cell.warnings, TERMINAL_ROWS)
+    out.extend(f"  WARNING {text}" for text in warnings)
+    if more:
+        out.append(f"  ... {more:,} more warnings: see the report or results.json")
     return "\n".join(out) + "\n"

@@ -33,6 +33,7 @@ from runner.report.fmt import (
     md_text,
     pipe_table,
 )
+from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
 from runner.results.document import BackgroundKind, CellResult, Preemptor, ProgramResult, RunDocument, Status, ThreadResult, Verdict
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
@@ -544,7 +545,8 @@ def verdict_table(cell: CellResult) -> Table | None:
     if not cell.expectations:
         return None
     rows = []
-    for v in cell.expectations:
+    verdicts, more = verdicts_shown(cell.expectations, REPORT_ROWS)
+    for v in verdicts:
         bounds = limit_values(v)
         sc = fg.scale(v.figure.unit, [v.measured, *(b for _, b in bounds or [])])
         limit = " and ".join(f"{op} {sc.number(b)}" for op, b in bounds) if bounds is not None else v.limit
@@ -558,6 +560,9 @@ def verdict_table(cell: CellResult) -> Table | None:
                 measured,
             ]
         )
+    if more:
+        failed = sum(not v.passed for v in cell.expectations) - sum(not v.passed for v in verdicts)
+        rows.append(["…", f"{more:,} more", f"{failed:,} of them failed: see results.json", "", ""])
     return Table(["Verdict", "Thread", "Expectation", "Limit", "Measured"], rows, [LEFT, LEFT, LEFT, RIGHT, RIGHT])
 
 
@@ -775,6 +780,8 @@ class CellSection:
     outside: Table | None = None
     preemptions: list[str] = field(default_factory=list)
     trace: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    shown: str = ""  # which threads the tables show, when not every one
 
 
 @dataclass
@@ -813,14 +820,18 @@ def _load_line(cell: CellResult) -> Markdown:
 
 
 def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width: int) -> CellSection:
-    rows = [(labels[t.key], t) for t in cell.threads]
+    picked = threads_shown(cell, REPORT_ROWS)
+    rows = [(labels[t.key], t) for t in picked.threads]
+    ps_rows, _ = ps_rows_shown(cell.thread_table, picked)
+    warnings, more_warnings = lines_shown(cell.warnings, REPORT_ROWS)
+    degraded, more_degraded = lines_shown([f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded], REPORT_ROWS)
     return CellSection(
         cell=cell,
         title=section_title(cell, repeated),
         anchor=anchor(cell, repeated),
         icon=ICON[cell.status],
         finding=cell_finding(cell, labels),
-        ps=md_code_block(render_ps(cell.thread_table, pid_width=pid_width), "text") if cell.thread_table else None,
+        ps=md_code_block(render_ps(ps_rows, pid_width=pid_width), "text") if cell.thread_table else None,
         threads=threads_table(rows),
         switches=switches_table(rows),
         latency=latency_table(rows),
@@ -829,7 +840,9 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         events=events_table(cell, labels),
         phases=phases_table(cell, labels),
         verdicts=verdict_table(cell),
-        degraded=[f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded],
+        degraded=degraded + ([f"... {more_degraded:,} more: see results.json"] if more_degraded else []),
+        warnings=warnings + ([f"... {more_warnings:,} more warnings: see results.json"] if more_warnings else []),
+        shown=picked.note(),
         load=_load_line(cell),
         programs=program_lines(cell),
         outside=outside_table(rows),
