@@ -54,7 +54,7 @@ def run(src: str, scenario: str, out: str, *extra: str) -> tuple[float, dict]:
     began = time.monotonic()
     done = subprocess.run(
         [sys.executable, "-m", "runner", scenario, "--out", out, "--quiet", "--no-report", *extra],
-        cwd=src or REPO,
+        cwd=out_parent(out),  # not the repository: `python -m runner` there would import its source tree, unbuilt
         env=env,
         capture_output=True,
         text=True,
@@ -65,6 +65,10 @@ def run(src: str, scenario: str, out: str, *extra: str) -> tuple[float, dict]:
         raise SystemExit(f"runner {scenario} exited {done.returncode}: {done.stderr.strip()[-2000:]}")
     with open(os.path.join(out, "results.json")) as handle:
         return wall, json.load(handle)
+
+
+def out_parent(out: str) -> str:
+    return os.path.dirname(os.path.abspath(out))
 
 
 def ms(ns: object) -> str:
@@ -124,7 +128,8 @@ def save_time(src: str, path: str) -> float:
         "d = load(sys.argv[1]); t = time.perf_counter(); d.save(sys.argv[1]); print(time.perf_counter() - t)"
     )
     env = {**os.environ, **({"PYTHONPATH": src} if src else {})}
-    done = subprocess.run([sys.executable, "-c", code, path], env=env, capture_output=True, text=True, check=True)
+    argv = [sys.executable, "-c", code, path]
+    done = subprocess.run(argv, env=env, cwd=os.path.dirname(path), capture_output=True, text=True, check=True)
     return float(done.stdout)
 
 
