@@ -311,18 +311,21 @@ class Worker:
         """The worker forked by the zygote; None when the zygote does not serve (the caller starts one itself)."""
         if zygote.sock is None:
             return None
-        log = os.open(self.log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
-        ends = [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
+        opened: list[int] = []  # every descriptor made here, closed on any failure
         try:
-            pid = zygote.spawn(ends[0], ends[3], log, passed)
-        except ZygoteError:
-            os.close(ends[1])
-            os.close(ends[2])
-            return None
-        finally:
-            for each in (ends[0], ends[3], log):
+            opened.append(os.open(self.log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644))
+            opened += [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
+            log, stdin_r, stdin_w, stdout_r, stdout_w = opened
+            pid = zygote.spawn(stdin_r, stdout_w, log, passed)
+        except BaseException as error:
+            for each in opened:
                 os.close(each)
-        return ZygoteChild(zygote, pid, open(ends[1], "w", buffering=1), open(ends[2]))
+            if isinstance(error, ZygoteError):
+                return None
+            raise
+        for each in (log, stdin_r, stdout_w):  # the child holds its own copies now
+            os.close(each)
+        return ZygoteChild(zygote, pid, open(stdin_w, "w", buffering=1), open(stdout_r))
 
     def send(self, line: str) -> None:
         try:

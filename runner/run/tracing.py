@@ -218,7 +218,6 @@ class _Layout:
     header: traceformat.PageHeader
     switch: EventFormat
     layouts: Any
-    formats: dict[str, Optional[EventFormat]]
 
 
 class TraceInstances:
@@ -282,6 +281,7 @@ class TraceInstances:
                     pass  # each trace then writes its own pids
 
     def tracing_off(self) -> None:
+        """Stop recording in every instance (the events stay enabled, the pid filter as it is)."""
         for path in self.paths:
             try:
                 _write(path, "tracing_on", "0")
@@ -480,7 +480,7 @@ def _configure(paths: Sequence[str], buffer_kb: int) -> _Layout:
             # migrations in their own instance (the module's docstring says why), when there is one
             where = paths[1] if kind == "migrate" and len(paths) > 1 else path
             _write(where, f"events/sched/{fmt.name}/enable", "1")
-    return _Layout(header, switch, layouts, formats)
+    return _Layout(header, switch, layouts)
 
 
 def _remove_all(paths: Sequence[str], guard: Optional[Guard], notes: list[str]) -> None:
