@@ -26,6 +26,7 @@ import time
 
 from runner.report import compare
 from runner.report import markdown as report
+from runner.results.document import RunDocument
 from runner.results.read import load
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -44,7 +45,7 @@ print(time.perf_counter() - began, len(os.listdir(os.path.join(sys.argv[2], "plo
 """
 
 
-def big_matrix(cells: int):
+def big_matrix(cells: int) -> RunDocument:
     doc = load(os.path.join(REPO, "tests", "data", "policy_matrix"))
     base = doc.cells
     out = []

@@ -1,9 +1,10 @@
 """Run a scenario: permissions, output folder, one cell after another, results, report, exit code.
 
 Cells run one at a time (they compete for the CPUs), each repeat a cell of its
-own, with a settle pause between them.  results.json is rewritten atomically
-after every cell, so `--resume DIR` can finish an interrupted run and a SIGKILL
-loses at most the cell in flight.
+own, with a settle pause between them.  Each finished cell is journaled at once
+(`runner.results.journal`) and results.json rewritten atomically as that allows,
+so `--resume DIR` can finish an interrupted run and a SIGKILL loses at most the
+cell in flight.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from runner.errors import ExitCode, Problem, ScenarioError, UsageError, from_os_
 from runner.report.compare import Threshold, parse_threshold, thresholds_with
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file
+from runner.results.journal import ResultsStore
 from runner.results.read import load
 from runner.results.samplesfile import SamplesWriter
 from runner.run.backend import Backend, CellOptions
@@ -331,8 +333,9 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     options, doc, folder, stop = run.options, run.doc, run.folder, run.stop
     doc.folder = os.path.abspath(folder)
     results_path = os.path.join(folder, "results.json")
+    store = ResultsStore(results_path)
     try:
-        doc.save(results_path)
+        store.begin(doc)
     except OSError as exc:
         raise from_os_error(exc, "cannot write the results file") from None
     units_left = plan_units(list(run.by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
@@ -342,12 +345,12 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         doc.machine.dma_latency = dma  # the cells this run records carry the hold they ran under
         if options.dma_latency_us is not None and not dma.held:
             warn(f"{dma.note}; CPUs may enter deep idle states during the run (--no-dma-latency to not try)")
-        loop = _cell_loop(units_left, run)
+        loop = _cell_loop(units_left, run, store)
     statuses = loop.final(stop.requested())
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value
     try:
-        doc.save(results_path)
+        store.finish(doc)
     except OSError as exc:
         loop.write_error = loop.write_error or exc
     if loop.write_error is not None:
@@ -369,7 +372,7 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     return int(exit_code(statuses, regressions))
 
 
-def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
+def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
     """Run the cells one after another, recording each as it finishes; stop at a stop request or a write error."""
     options, doc, folder, stop, backend = run.options, run.doc, run.folder, run.stop, run.backend
     loop = _Loop([c.status for c in doc.cells])
@@ -380,7 +383,6 @@ def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
         say(line)
 
     follow = follow_line if options.follow else None
-    results_path = os.path.join(folder, "results.json")
     try:
         for n, unit in enumerate(units):
             if n and options.settle_ns:
@@ -404,9 +406,10 @@ def _cell_loop(units: list[Unit], run: _Claimed) -> _Loop:
             progress.finish(time.monotonic() - began)
             loop.statuses.append(result.status)
             try:
-                _record(doc, result, unit, results_path, window_end)
+                _record(doc, result, unit, store, window_end)
             except OSError as exc:
-                doc.cells.remove(result)
+                if not store.holds(result):
+                    doc.cells.remove(result)
                 loop.write_error = loop.write_error or exc
             say(render_cell(result, backend.pid_width()))
             if loop.write_error is not None or stop.requested():
@@ -465,8 +468,8 @@ def _settle(settle_ns: int, stop: StopSignals) -> None:
         time.sleep(min(left, 0.1))
 
 
-def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str, window_end: Optional[int] = None) -> None:
-    """Add a finished cell to the document and save it at once (`window_end`: when its measured window ended)."""
+def _record(doc: RunDocument, result: CellResult, unit: Unit, store: ResultsStore, window_end: Optional[int] = None) -> None:
+    """Add a finished cell to the document and store it at once (`window_end`: when its measured window ended)."""
     result.machine = doc.machine
     result.repeat = unit.repeat
     if result.samples_file and os.path.isabs(result.samples_file):
@@ -474,4 +477,4 @@ def _record(doc: RunDocument, result: CellResult, unit: Unit, results_path: str,
     doc.cells.append(result)
     if window_end is not None:
         result.overhead_ns.end_to_saved = time.monotonic_ns() - window_end
-    doc.save(results_path)
+    store.add(doc, result)

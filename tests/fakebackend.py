@@ -41,6 +41,11 @@ class Act:
     oserror: Optional[int] = None  # errno of creating the cell's files
     follow_lines: int = 0  # --follow lines to print
     released_late: tuple[tuple[str, int], ...] = ()  # measured processes that read their `go` after the common start
+    dies: bool = False  # the runner dies here, as under SIGKILL: nothing after this cell's start runs
+
+
+class Died(BaseException):
+    """The fake runner's death: a BaseException that no `except Exception` or OSError handler of the session takes."""
 
 
 @dataclass
@@ -87,6 +92,8 @@ class FakeBackend:
         self.ran.append(cell.id)
         if self.dma_holding:
             self.dma_held_during.append(cell.id)
+        if act.dies:
+            raise Died(cell.id)
         if act.oserror is not None:
             raise OSError(act.oserror, os.strerror(act.oserror), os.path.join(folder, "p.0.smp"))
         for _ in range(act.signals):

@@ -598,9 +598,14 @@ class RunDocument(_Record):
     def tool_version(self) -> str:
         return self.tool.version
 
-    def save(self, path: str) -> None:
-        """Write the document to `path` atomically; a figure that is not a number is stored as null."""
-        write_atomic(path, self.model_dump_json(indent=2, by_alias=True) + "\n")
+    def save(self, path: str) -> int:
+        """Write the document to `path` atomically; a figure that is not a number is stored as null.
+
+        Returns the size written, in bytes.
+        """
+        blob = (self.model_dump_json(indent=2, by_alias=True) + "\n").encode("utf-8")
+        write_atomic(path, blob)
+        return len(blob)
 
     def samples_path(self, cell: CellResult) -> str | None:
         """The cell's samples file, refused (ScenarioError) unless it lies inside the results folder.

@@ -15,8 +15,9 @@ from pydantic import (
 
 from runner import __version__
 from runner.errors import Problem, ScenarioError
-from runner.results.document import LEGACY_SCHEMA, SCHEMA, RunDocument
+from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
+from runner.results.journal import journal_path, merge_journal
 from runner.results.legacy import _V1File, upgrade_v1
 
 # ---------------------------------------------------------------- reading a results file
@@ -56,6 +57,7 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
+    doc.cells.extend(merge_journal(doc, journal_cells(journal_path(doc.folder))))
     problems = [
         Problem(path, 1, 1, f"cells.{c.id}.samples_file", why)
         for c in doc.cells
@@ -64,6 +66,41 @@ def load(path: str) -> RunDocument:
     if problems:
         raise ScenarioError(problems)
     return doc
+
+
+def journal_cells(path: str) -> list[CellResult]:
+    """The cells journaled at `path` (none if there is no journal), each line checked as strictly as results.json.
+
+    A last line without its newline was cut short by the run's death and is left out.
+    """
+    try:
+        with open(path, "rb") as handle:
+            lines = handle.read().split(b"\n")
+    except FileNotFoundError:
+        return []
+    except OSError as exc:
+        raise ScenarioError([Problem(path, 1, 1, "", f"cannot read the cells journal: {exc.strerror}")]) from None
+    cells: list[CellResult] = []
+    for number, line in enumerate(lines[:-1], start=1):  # the last item is what follows the last newline
+        problems = _journal_line(path, number, line, cells)
+        if problems:
+            raise ScenarioError(problems)
+    return cells
+
+
+def _journal_line(path: str, number: int, line: bytes, cells: list[CellResult]) -> list[Problem]:
+    """Check one journal line and add its cell to `cells`; the problems found, placed on that line."""
+    try:
+        data = parse_json(path, line)
+    except ScenarioError as exc:
+        return [dataclasses.replace(p, line=number) for p in exc.problems]
+    problems = range_problems(path, data)
+    if not problems:
+        try:
+            cells.append(CellResult.model_validate_json(json.dumps(data), strict=True))
+        except ValidationError as exc:
+            problems = validation_problems(path, exc)
+    return [dataclasses.replace(p, line=number) for p in problems]  # the line is the cell; key paths are within it
 
 
 def _schema_version(path: str, data: Any) -> int:

@@ -1,0 +1,141 @@
+"""results.json and its journal: every finished cell on disk at once, at a cost that stays linear in the run.
+
+The policy is pure and tested by arithmetic; the store and the reader with real files; the
+session with the fake backend, including a runner that dies between two rewrites.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+
+import pytest
+from fakebackend import Act, Died, FakeBackend
+from test_session import FIFO_CELLS, MATRIX, OTHER, preempted_other, run
+
+from runner.cli import _run_parser
+from runner.errors import ScenarioError
+from runner.results import journal
+from runner.results.document import CellResult, RunDocument
+from runner.results.journal import JOURNAL, REWRITE_BELOW, ResultsStore, rewrite_due
+from runner.results.read import load
+from runner.scenario.loader import load_scenario
+from runner.session import RunOptions, run_scenario
+
+CELL_BYTES = 34_000  # a policy_matrix cell as results.json holds it
+
+
+def _simulate(cells: int, header: int = 8_000) -> tuple[int, int, int]:
+    """Bytes a run of `cells` writes under the policy: results.json rewrites, the journal, and the final file's size."""
+    saved, pending, rewritten, journaled = header, 0, header, 0
+    for n in range(1, cells + 1):
+        pending += CELL_BYTES
+        journaled += CELL_BYTES
+        if rewrite_due(saved, pending):
+            saved, pending = header + n * CELL_BYTES, 0
+            rewritten += saved
+    final = header + cells * CELL_BYTES
+    return rewritten + final, journaled, final
+
+
+def test_small_results_are_rewritten_after_every_cell():
+    assert rewrite_due(REWRITE_BELOW - 1, 1)
+    assert not rewrite_due(REWRITE_BELOW, REWRITE_BELOW - 1)
+    assert rewrite_due(REWRITE_BELOW, REWRITE_BELOW)
+
+
+@pytest.mark.parametrize("cells", [1_000, 10_000])
+def test_what_a_large_matrix_writes_grows_linearly_with_its_cells(cells):
+    rewritten, journaled, final = _simulate(cells)
+    # every cell rewritten whole would write about cells / 2 times the final file (17 GB for 1,000 cells)
+    assert rewritten + journaled < 5 * final + 30 * REWRITE_BELOW
+
+
+def _cell(n: int) -> CellResult:
+    return CellResult(id=f"c{n}", spec_hash="h", status="passed")
+
+
+def _doc_with(store: ResultsStore, cells: int) -> RunDocument:
+    doc = RunDocument()
+    store.begin(doc)
+    for n in range(cells):
+        doc.cells.append(_cell(n))
+        store.add(doc, doc.cells[-1])
+    return doc
+
+
+def test_a_reader_sees_journaled_cells_that_results_json_does_not_hold_yet(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)  # rewrite only at doubling, as a large run does
+    store = ResultsStore(str(tmp_path / "results.json"))
+    _doc_with(store, 6)
+    on_disk = json.loads((tmp_path / "results.json").read_text())
+    assert len(on_disk["cells"]) < 6, "the policy never skipped a rewrite: this test proves nothing"
+    assert [c.id for c in load(str(tmp_path)).cells] == [f"c{n}" for n in range(6)]
+
+
+def test_finishing_writes_every_cell_and_removes_the_journal(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    store = ResultsStore(str(tmp_path / "results.json"))
+    doc = _doc_with(store, 5)
+    assert (tmp_path / JOURNAL).exists()
+    store.finish(doc)
+    assert not (tmp_path / JOURNAL).exists()
+    assert [c["id"] for c in json.loads((tmp_path / "results.json").read_text())["cells"]] == [f"c{n}" for n in range(5)]
+
+
+def test_a_last_line_cut_short_is_the_cell_in_flight_and_left_out(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)
+    with open(tmp_path / JOURNAL, "ab") as handle:
+        handle.write(_cell(3).model_dump_json().encode()[:40])
+    assert [c.id for c in load(str(tmp_path)).cells] == ["c0", "c1", "c2"]
+
+
+def test_a_damaged_journal_line_is_refused_with_its_place(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)
+    lines = (tmp_path / JOURNAL).read_text().splitlines(keepends=True)
+    lines[1] = lines[1].replace('"status":"passed"', '"status":"splendid"')
+    (tmp_path / JOURNAL).write_text("".join(lines))
+    with pytest.raises(ScenarioError) as caught:
+        load(str(tmp_path))
+    text = str(caught.value)
+    assert f"{tmp_path / JOURNAL}:2:1: status:" in text and "splendid" in text
+
+
+def test_a_write_that_fails_halfway_leaves_no_torn_line(tmp_path, monkeypatch):
+    store = ResultsStore(str(tmp_path / "results.json"))
+    doc = _doc_with(store, 2)
+    size = (tmp_path / JOURNAL).stat().st_size
+    real_write = os.write
+
+    def half_then_full(fd: int, data: bytes) -> int:
+        if len(data) > 20:
+            return real_write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(journal.os, "write", half_then_full)
+    doc.cells.append(_cell(2))
+    with pytest.raises(OSError) as caught:
+        store.add(doc, doc.cells[-1])
+    assert caught.value.filename == store.journal and not store.holds(doc.cells[-1])
+    assert (tmp_path / JOURNAL).stat().st_size == size
+
+
+def test_a_runner_that_dies_between_rewrites_loses_no_finished_cell_and_resumes_after_them(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    out = tmp_path / "r"
+    acts = preempted_other()
+    with pytest.raises(Died):
+        run(MATRIX, out, FakeBackend({**acts, FIFO_CELLS[3]: Act(dies=True)}))
+    on_disk = json.loads((out / "results.json").read_text())
+    assert len(on_disk["cells"]) < 3, "results.json was rewritten after every cell: this test proves nothing"
+    assert [c.id for c in load(str(out)).cells] == FIFO_CELLS[:3]
+    backend = FakeBackend(acts)
+    ns = _run_parser().parse_args([MATRIX, "--resume", str(out), "--quiet", "--no-plots"])
+    code = run_scenario(load_scenario(MATRIX), RunOptions.from_namespace(ns, env={}), backend)
+    assert code == 0 and backend.ran == [FIFO_CELLS[3], OTHER]
+    results = json.loads((out / "results.json").read_text())
+    assert [c["id"] for c in results["cells"]] == FIFO_CELLS + [OTHER] and results["status"] == "passed"
+    assert not (out / JOURNAL).exists()
