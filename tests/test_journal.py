@@ -30,11 +30,12 @@ def _simulate(cells: int, header: int = 8_000) -> tuple[int, int, int]:
     """Bytes a run of `cells` writes under the policy: results.json rewrites, the journal, and the final file's size."""
     saved, pending, rewritten, journaled = header, 0, header, 0
     for n in range(1, cells + 1):
-        pending += CELL_BYTES
-        journaled += CELL_BYTES
         if rewrite_due(saved, pending):
             saved, pending = header + n * CELL_BYTES, 0
             rewritten += saved
+        else:
+            pending += CELL_BYTES
+            journaled += CELL_BYTES
     final = header + cells * CELL_BYTES
     return rewritten + final, journaled, final
 
@@ -77,11 +78,11 @@ def test_a_reader_sees_journaled_cells_that_results_json_does_not_hold_yet(tmp_p
 def test_finishing_writes_every_cell_and_removes_the_journal(tmp_path, monkeypatch):
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     store = ResultsStore(str(tmp_path / "results.json"))
-    doc = _doc_with(store, 5)
+    doc = _doc_with(store, 2)
     assert (tmp_path / JOURNAL).exists()
     store.finish(doc)
     assert not (tmp_path / JOURNAL).exists()
-    assert [c["id"] for c in json.loads((tmp_path / "results.json").read_text())["cells"]] == [f"c{n}" for n in range(5)]
+    assert [c["id"] for c in json.loads((tmp_path / "results.json").read_text())["cells"]] == ["c0", "c1"]
 
 
 def test_a_last_line_cut_short_is_the_cell_in_flight_and_left_out(tmp_path, monkeypatch):
@@ -105,9 +106,12 @@ def test_a_damaged_journal_line_is_refused_with_its_place(tmp_path, monkeypatch)
 
 
 def test_a_write_that_fails_halfway_leaves_no_torn_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     store = ResultsStore(str(tmp_path / "results.json"))
     doc = _doc_with(store, 2)
     size = (tmp_path / JOURNAL).stat().st_size
+    assert not rewrite_due(store.saved_bytes, store.pending_bytes), "the next cell would not be journaled"
+
     real_write = os.write
 
     def half_then_full(fd: int, data: bytes) -> int:
@@ -121,6 +125,17 @@ def test_a_write_that_fails_halfway_leaves_no_torn_line(tmp_path, monkeypatch):
         store.add(doc, doc.cells[-1])
     assert caught.value.filename == store.journal and not store.holds(doc.cells[-1])
     assert (tmp_path / JOURNAL).stat().st_size == size
+
+
+def test_a_rewrite_empties_the_journal_and_a_small_run_never_keeps_one(tmp_path, monkeypatch):
+    store = ResultsStore(str(tmp_path / "results.json"))
+    _doc_with(store, 3)
+    assert not (tmp_path / JOURNAL).exists(), "results.json under 1 MiB is rewritten after every cell"
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    doc = _doc_with(store, 30)
+    assert len(json.loads((tmp_path / "results.json").read_text())["cells"]) + len(
+        (tmp_path / JOURNAL).read_text().splitlines()
+    ) == len(doc.cells), "a cell is in results.json or the journal, never both, once results.json was rewritten"
 
 
 def test_a_runner_that_dies_between_rewrites_loses_no_finished_cell_and_resumes_after_them(tmp_path, monkeypatch):

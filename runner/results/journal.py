@@ -2,11 +2,11 @@
 
 Rewriting results.json whole after every cell made a matrix quadratic: a 1,000-cell run of
 34 KB cells ends with a 34 MB file, and rewriting it after each cell wrote about 17 GB and
-took minutes.  Instead each finished cell is appended, as one JSON line, to `cells.jsonl`
-beside results.json and synced; results.json itself is rewritten after every cell while it
-is small, and then only each time the journal has grown by as much as results.json last
-held, so the bytes written stay within a few times the final file.  The last save of a run
-writes results.json whole and removes the journal.
+took minutes.  Now results.json is rewritten after every cell only while it is small; beyond,
+each finished cell is appended, as one JSON line, to `cells.jsonl` beside it and synced, and
+results.json is rewritten (and the journal emptied) once the journal has grown by as much as
+results.json last held, so the bytes written stay within a few times the final file.  The
+last save of a run writes results.json whole and removes the journal.
 
 Readers (`runner.results.read.load`) add the journal's cells that results.json does not hold
 yet, so a run killed between two rewrites still shows every finished cell.  A last line
@@ -66,7 +66,7 @@ class ResultsStore:
     results_path: str
     saved_bytes: int = 0
     pending_bytes: int = 0
-    journaled: set[tuple[str, int]] = field(default_factory=set)
+    stored: set[tuple[str, int]] = field(default_factory=set)
 
     @property
     def journal(self) -> str:
@@ -75,34 +75,33 @@ class ResultsStore:
     def begin(self, doc: RunDocument) -> None:
         """Write `doc` whole (it holds whatever an earlier segment of the run journaled) and start an empty journal."""
         self.rewrite(doc)
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.journal)
 
     def add(self, doc: RunDocument, cell: CellResult) -> None:
-        """Journal `cell`, already the last of `doc.cells`, then rewrite results.json if it is due.
+        """Store `cell`, already the last of `doc.cells`: results.json rewritten if that is due, else a journal line.
 
-        An OSError (a full disk) while journaling leaves results.json as it was and the journal
-        without a line for `cell`: readers see the cells before it.  One while rewriting leaves
-        `cell` journaled (`holds` says so), hence kept.
+        An OSError (a full disk) leaves results.json whole and the journal without a line for
+        `cell`: readers see the cells before it, and `holds(cell)` is false.
         """
-        self.pending_bytes += self._append(cell)
-        self.journaled.add(cell_key(cell))
         if rewrite_due(self.saved_bytes, self.pending_bytes):
             self.rewrite(doc)
+        else:
+            self.pending_bytes += self._append(cell)
+        self.stored.add(cell_key(cell))
 
     def holds(self, cell: CellResult) -> bool:
-        """Whether `cell` reached the journal, so a reader will see it even if results.json could not be rewritten."""
-        return cell_key(cell) in self.journaled
+        """Whether `cell` is on disk, in results.json or the journal."""
+        return cell_key(cell) in self.stored
 
     def finish(self, doc: RunDocument) -> None:
-        """Write `doc` whole; the journal then holds nothing results.json lacks, so it goes."""
+        """Write `doc` whole, which leaves the journal nothing to hold."""
         self.rewrite(doc)
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.journal)
 
     def rewrite(self, doc: RunDocument) -> None:
+        """Write `doc` whole, then drop the journal, whose cells it now holds (a reader skips those it already has)."""
         self.saved_bytes = doc.save(self.results_path)
         self.pending_bytes = 0
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.journal)
 
     def _append(self, cell: CellResult) -> int:
         line = (cell.model_dump_json(by_alias=True) + "\n").encode("utf-8")
