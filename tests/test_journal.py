@@ -133,9 +133,9 @@ def test_a_rewrite_empties_the_journal_and_a_small_run_never_keeps_one(tmp_path,
     assert not (tmp_path / JOURNAL).exists(), "results.json under 1 MiB is rewritten after every cell"
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     doc = _doc_with(store, 30)
-    assert len(json.loads((tmp_path / "results.json").read_text())["cells"]) + len(
-        (tmp_path / JOURNAL).read_text().splitlines()
-    ) == len(doc.cells), "a cell is in results.json or the journal, never both, once results.json was rewritten"
+    assert len(json.loads((tmp_path / "results.json").read_text())["cells"]) + len((tmp_path / JOURNAL).read_text().splitlines()) == len(
+        doc.cells
+    ), "a cell is in results.json or the journal, never both, once results.json was rewritten"
 
 
 def test_a_runner_that_dies_between_rewrites_loses_no_finished_cell_and_resumes_after_them(tmp_path, monkeypatch):
