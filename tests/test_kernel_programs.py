@@ -44,7 +44,8 @@ def event(t: dict, kind: str) -> dict:
 
 @TWO_CPUS
 def test_priority_inheritance_bounds_the_high_threads_lock_wait(tmp_path):
-    done = run_file(tmp_path, os.path.join(REPO, "scenarios", "priority_inversion.yaml"))
+    # 2 s: about 100 activations of its 20 ms period, as the other programs get in 1 s
+    done = run_file(tmp_path, os.path.join(REPO, "scenarios", "priority_inversion.yaml"), "--duration", "2s")
     res = done.results
     plain = thread(res, "high", cell(res, "protocol=none"))
     inherit = thread(res, "high", cell(res, "protocol=inherit"))
