@@ -16,7 +16,10 @@ both become one list of signed bucket ranges.  Pure: no I/O.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
+import operator
 from collections.abc import Iterable, Sequence
 from typing import Optional
 
@@ -49,6 +52,9 @@ def bounds(i: int) -> tuple[int, int]:
     return low, low + (1 << shift) - 1
 
 
+_COUNT = operator.itemgetter(2)
+
+
 class Histogram(BaseModel):
     """Counts by bucket, as stored in results.json: `[low_ns, high_ns, count]` rows, ascending, non-empty buckets only.
 
@@ -63,7 +69,7 @@ class Histogram(BaseModel):
 
     @property
     def count(self) -> int:
-        return sum(c for _, _, c in self.buckets)
+        return sum(map(_COUNT, self.buckets))
 
     def quantile(self, q: float, low: bool = False) -> int:
         """The nearest-rank q-quantile, to the bucket, within [min, max].
@@ -75,19 +81,16 @@ class Histogram(BaseModel):
 
     def quantiles(self, qs: Sequence[float], low: bool = False) -> list[int]:
         """`quantile` of each of `qs` (ascending), in one walk of the buckets."""
-        total = self.count
+        seen = list(itertools.accumulate(map(_COUNT, self.buckets)))  # values up to each bucket (C loops: large cells have thousands)
+        total = seen[-1] if seen else 0
         if not total:
             raise ValueError("an empty histogram has no quantiles")
         out: list[int] = []
-        ranks = [max(1, math.ceil(q * total)) for q in qs]
-        seen = 0
-        for lo, hi, n in self.buckets:
-            seen += n
-            while len(out) < len(ranks) and seen >= ranks[len(out)]:
-                out.append(max(self.min, min(lo if low else hi, self.max)))
-            if len(out) == len(ranks):
-                return out
-        return out + [self.max] * (len(ranks) - len(out))
+        for q in qs:
+            i = bisect.bisect_left(seen, max(1, math.ceil(q * total)))
+            lo, hi, _ = self.buckets[min(i, len(seen) - 1)]
+            out.append(max(self.min, min(lo if low else hi, self.max)))
+        return out
 
     def above(self, bound: int) -> int:
         """Values above `bound`, counting a bucket that straddles it as above (an upper estimate)."""
@@ -117,7 +120,7 @@ def from_rows(
         out.append((lo, hi, n))
     if not out:
         return None
-    return Histogram(buckets=out, min=low, max=high)
+    return Histogram.model_construct(buckets=out, min=low, max=high)  # built here from bucket numbers: nothing to validate
 
 
 def merge(histograms: Iterable[Optional[Histogram]]) -> Optional[Histogram]:

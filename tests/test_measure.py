@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from runner import histogram as hg
 from runner.run.measure import check, thread_figures
-from runner.run.samples import Sample, slot_of
+from runner.run.samples import Sample, _bits, slot_of
 from runner.scenario.model import Expectation
 
 PERIOD = 100_000_000
@@ -86,3 +89,14 @@ def test_the_latency_bound_counts_the_releases_above_it():
     f = thread_figures(slot_of(samples, PERIOD, bound=100_000), periodic=True, bound=100_000)
     assert f.latency_ns is not None and f.latency_ns.above_bound == 2  # 500 us, and the release skipped before #3
     assert thread_figures(slot_of(samples, PERIOD), periodic=True).latency_ns.above_bound is None  # type: ignore[union-attr]
+
+
+@given(st.lists(st.integers(min_value=0, max_value=2**64 - 1), min_size=16, max_size=16))
+def test_a_cpu_mask_reads_as_the_numbers_of_its_bits(words):
+    expected = tuple(w * 64 + b for w, word in enumerate(words) for b in range(64) if word >> b & 1)
+    assert _bits(tuple(words)) == expected
+
+
+def test_cpu_masks_at_the_ends_of_their_words():
+    assert _bits((1, 0, 2**63, *(0,) * 13)) == (0, 191)
+    assert _bits((0,) * 16) == ()

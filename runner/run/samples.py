@@ -295,7 +295,14 @@ def create(name: str, layout: Layout) -> int:
 
 
 def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
-    return tuple(w * 64 + b for w, word in enumerate(words) for b in range(64) if word >> b & 1)
+    """The numbers of the bits set in a CPU mask of 64-bit words, ascending (one step per bit set, not per bit)."""
+    out = []
+    for w, word in enumerate(words):
+        while word:
+            lowest = word & -word
+            out.append(w * 64 + lowest.bit_length() - 1)
+            word ^= lowest
+    return tuple(out)
 
 
 def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> list[tuple[int, int]]:
