@@ -170,7 +170,27 @@ def many_threads(folder: str, threads: int = 256, processes: int = 8, callbacks:
             made.append(t)
             for n in range(callbacks):
                 rows.append(
-                    [t.key, t.tid, n, n * 1_000_000, n * 1_000_000 + latencies[n], 0, latencies[n], 0, 0, switches[n], 1, 0, 0, 0, 0, 0]
+                    [
+                        t.key,
+                        t.tid,
+                        n,
+                        n * 1_000_000,
+                        n * 1_000_000 + latencies[n],
+                        0,
+                        latencies[n],
+                        0,
+                        0,
+                        switches[n],
+                        1,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                    ]
                 )
         cell.threads = made
         path = os.path.join(folder, cell.samples_file)

@@ -9,7 +9,10 @@ table), not against what the scenario asked for.
 
 from __future__ import annotations
 
+import csv
+import gzip
 import os
+import statistics
 
 import pytest
 import yaml
@@ -42,6 +45,45 @@ def event(t: dict, kind: str) -> dict:
     return next(e for e in t["events"] if e["kind"] == kind)
 
 
+def activation_column(tmp_path, results: dict, cell_id: str, column: str) -> dict[str, list[int]]:
+    """One column of a cell's samples file (a row per activation) of `run_file`'s run, by thread key."""
+    c = results["cells"][cell(results, cell_id)]
+    out: dict[str, list[int]] = {}
+    with gzip.open(tmp_path / "out" / c["samples_file"], "rt", newline="") as handle:
+        for row in csv.DictReader(handle):
+            out.setdefault(row["thread"], []).append(int(row[column]))
+    return out
+
+
+def test_each_activation_says_how_long_it_waited_at_a_barrier_and_on_a_condition(tmp_path):
+    # `lead` burns 3 ms, then meets `follower` at the barrier; `sender` burns 2 ms and signals `waiter`, who waits at once.
+    timer = {"timer": {"period": "10ms"}}
+    threads = [
+        ("lead", [timer, {"run": "3ms"}, {"barrier": "meet"}]),
+        ("follower", [timer, {"barrier": "meet"}]),
+        ("waiter", [timer, {"lock": "m"}, {"wait": {"cond": "go", "mutex": "m"}}, {"unlock": "m"}]),
+        ("sender", [timer, {"run": "2ms"}, {"signal": "go"}]),
+    ]
+    scenario = {
+        "name": "activations",
+        "resources": {"meet": {"kind": "barrier"}, "m": {"kind": "mutex"}, "go": {"kind": "cond"}},
+        "processes": [
+            {
+                "name": "acts",
+                "threads": [{"name": name, "sched": "fifo:50", "work": {"kind": "phases", "events": events}} for name, events in threads],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    res = done.results
+    barrier = activation_column(tmp_path, res, "default", "barrier_wait_ns")
+    cond = activation_column(tmp_path, res, "default", "cond_wait_ns")
+    assert len(barrier["acts[0]/follower #2"]) > 50
+    assert statistics.median(barrier["acts[0]/follower #2"]) > 2_000_000 > statistics.median(barrier["acts[0]/lead #1"])
+    assert statistics.median(cond["acts[0]/waiter #3"]) > 1_000_000 and max(cond["acts[0]/sender #4"]) == 0
+    assert max(activation_column(tmp_path, res, "default", "lock_wait_ns")["acts[0]/lead #1"]) == 0
+
+
 @TWO_CPUS
 def test_priority_inheritance_bounds_the_high_threads_lock_wait(tmp_path):
     # 2 s: about 100 activations of its 20 ms period, as the other programs get in 1 s
@@ -56,6 +98,12 @@ def test_priority_inheritance_bounds_the_high_threads_lock_wait(tmp_path):
         lock = event(t, "lock")
         assert lock["contended"] > 50 and [h["thread"] for h in lock["holders"]] == ["inversion/low #1"]
     assert done.code == 0, done.err
+    # Per activation, in the samples file: each of high's activations waited as the aggregate says; low and medium never did.
+    for cell_id, low_ms, high_ms in (("protocol=none", 4, 1000), ("protocol=inherit", 0, 3)):
+        waits = activation_column(tmp_path, res, cell_id, "lock_wait_ns")
+        high = waits["inversion[0]/high #3"]
+        assert len(high) > 50 and low_ms * 1_000_000 < statistics.median(high) < high_ms * 1_000_000, (cell_id, high[:10])
+        assert max(waits["inversion[0]/low #1"]) < 1_000_000 and max(waits["inversion[0]/medium #2"]) == 0
 
 
 def test_a_deadline_thread_keeps_its_runtime_where_an_other_one_misses(tmp_path):

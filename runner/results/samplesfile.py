@@ -3,7 +3,10 @@
 One row per callback: `scheduled_ns` is the release the callback served; `missed` the
 releases it skipped just before; `latency_ns` runs from the oldest release the wake-up
 answered (`scheduled_ns - missed * period`) to `wake_ns`; `slack_ns` from `end_ns` to the
-next release (negative: it overran).  Rows of several threads interleave in chunks, in
+next release (negative: it overran).  For programs (`kind: phases`) a row is an activation
+(from a timer to the next), and `lock_wait_ns`, `cond_wait_ns` and `barrier_wait_ns` are
+the time it spent blocked acquiring mutexes, in condition waits and at barriers (0 for
+periodic work; files of earlier runners lack these columns).  Rows of several threads interleave in chunks, in
 order within each thread; `seq` numbers a thread's callbacks from 0, so a gap shows rows
 that were not written (`samples: outliers`, or a runner that fell behind).
 """
@@ -40,6 +43,9 @@ SAMPLE_COLUMNS = (
     "cpu_start",
     "cpu_end",
     "missed",
+    "lock_wait_ns",
+    "cond_wait_ns",
+    "barrier_wait_ns",
 )
 
 

@@ -12,8 +12,8 @@
  * buffer (layout below) that the runner reads while the run goes on and after
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
- * Buffer layout (little endian, all offsets in bytes), version 3:
- *   file header, 64 bytes:  magic "RSMP0003", u32 version, u32 nthreads,
+ * Buffer layout (little endian, all offsets in bytes), version 4:
+ *   file header, 64 bytes:  magic "RSMP0004", u32 version, u32 nthreads,
  *                           u32 capacity, u32 slot_header_size, u32 sample_size,
  *                           u32 hist_buckets (0 when the group keeps none),
  *                           u64 slot_stride, u32 event_stats, u32 phase_stats
@@ -21,7 +21,7 @@
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
- *     ring of capacity samples of 64 bytes (struct sample): sample n at n % capacity
+ *     ring of capacity samples of 88 bytes (struct sample): sample n at n % capacity
  *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
  *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
  *
@@ -55,7 +55,7 @@
 
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
-#define SAMPLE_BYTES 64
+#define SAMPLE_BYTES 88
 #define MAX_CPU_WORDS 16
 
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
@@ -113,6 +113,10 @@ struct sample {
     int16_t cpu_start;
     int16_t cpu_end;
     int32_t missed;        /* releases skipped just before this one */
+    /* programs (kind: phases): time this activation spent blocked, by what on (0 for periodic work) */
+    int64_t lock_wait_ns;  /* acquiring mutexes */
+    int64_t cond_wait_ns;  /* in wait on a condition variable */
+    int64_t barrier_wait_ns;
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
@@ -413,6 +417,7 @@ struct program_state {
     int act_cpu;
     int act_timer;
     int64_t act_ru[4];
+    int64_t act_lock_wait, act_cond_wait, act_barrier_wait; /* blocked so far in the open activation */
     int64_t origin;              /* release that started this activation's chain, 0 if none */
     int chain_open;
     uint8_t *mem;
@@ -695,6 +700,9 @@ static void activation_close(struct slot *s, struct program_state *ps, int64_t e
     c.cpu_start = (int16_t)ps->act_cpu;
     c.cpu_end = (int16_t)sched_getcpu();
     c.missed = ps->act_missed;
+    c.lock_wait_ns = ps->act_lock_wait;
+    c.cond_wait_ns = ps->act_cond_wait;
+    c.barrier_wait_ns = ps->act_barrier_wait;
     note_cpu(s->hdr, c.cpu_end);
     s->hdr->loops++;
     record_callback(s, &c, ps->act_period);
@@ -745,6 +753,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     ps->act_wake = wake;
     ps->act_period = period;
     ps->act_missed = missed;
+    ps->act_lock_wait = ps->act_cond_wait = ps->act_barrier_wait = 0;
     ps->act_cpu = sched_getcpu();
     note_cpu(s->hdr, ps->act_cpu);
     read_ru(ps->act_ru);
@@ -771,7 +780,9 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
     if (rc != 0) return rc;
     m->owner = s->prog->gid;
     __atomic_add_fetch(&m->acquisitions, 1, __ATOMIC_RELAXED);
-    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+    int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
+    ev_record(s, i, waited);
+    ps->act_lock_wait += waited;
     if (ps->nheld < MAX_EVENTS) ps->held[ps->nheld++] = r;
     return 0;
 }
@@ -803,6 +814,7 @@ static void ev_wait(struct slot *s, struct program_state *ps, int i, const struc
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t now = now_ns(CLOCK_MONOTONIC);
     ev_record(s, i, now - t0);
+    ps->act_cond_wait += now - t0;
     chain_close(s, ps, t0);
     if (c->origin > 0) {
         ps->origin = c->origin;
@@ -823,7 +835,7 @@ static void ev_signal(struct slot *s, struct program_state *ps, int i, const str
     ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
 }
 
-static void ev_barrier(struct slot *s, int i, const struct event *e) {
+static void ev_barrier(struct slot *s, struct program_state *ps, int i, const struct event *e) {
     struct resource *b = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
     s->hdr->blocked_since_ns = t0;
@@ -844,7 +856,9 @@ static void ev_barrier(struct slot *s, int i, const struct event *e) {
     pthread_mutex_unlock(&b->m);
     if (!passed) return; /* the run ended at the barrier: the slot keeps where it stood */
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
-    ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+    int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
+    ev_record(s, i, waited);
+    ps->act_barrier_wait += waited;
 }
 
 static void ev_resume(struct slot *s, struct program_state *ps, int i, const struct event *e) {
@@ -958,7 +972,7 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
         case EV_WAIT: ev_wait(s, ps, i, e); break;
         case EV_SIGNAL: ev_signal(s, ps, i, e, 0); break;
         case EV_BROADCAST: ev_signal(s, ps, i, e, 1); break;
-        case EV_BARRIER: ev_barrier(s, i, e); break;
+        case EV_BARRIER: ev_barrier(s, ps, i, e); break;
         case EV_SUSPEND: ev_suspend(s, ps, i, e); break;
         case EV_RESUME: ev_resume(s, ps, i, e); break;
         case EV_YIELD:
@@ -1278,8 +1292,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0003", 8);
-    uint32_t meta[6] = {3, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
+    memcpy(g->base, "RSMP0004", 8);
+    uint32_t meta[6] = {4, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));

@@ -25,7 +25,7 @@ from runner.run import _probe
 FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
-SAMPLE = struct.Struct("<qqqqqiiiihhi")
+SAMPLE = struct.Struct("<qqqqqiiiihhiqqq")
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiq")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
@@ -33,7 +33,7 @@ EV_HDR = 192
 PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
-assert SAMPLE.size == 64 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
+assert SAMPLE.size == 88 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,9 @@ class Sample:
     cpu_start: int
     cpu_end: int
     missed: int
+    lock_wait_ns: int = 0  # programs: blocked acquiring mutexes during this activation
+    cond_wait_ns: int = 0  # programs: blocked in wait on a condition variable
+    barrier_wait_ns: int = 0  # programs: blocked at barriers
 
     def release_latency(self, period: int) -> int:
         """From the oldest release this wake-up answered (the first of those skipped, if any) to the wake-up."""
@@ -478,6 +481,9 @@ def rows(key: str, tid: int, period: int, taken: list[Sample]) -> list[tuple[obj
             s.cpu_start,
             s.cpu_end,
             s.missed,
+            s.lock_wait_ns,
+            s.cond_wait_ns,
+            s.barrier_wait_ns,
         )
         for s in taken
     ]
