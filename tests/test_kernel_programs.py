@@ -57,20 +57,27 @@ def activation_column(tmp_path, results: dict, cell_id: str, column: str) -> dic
 
 def test_each_activation_says_how_long_it_waited_at_a_barrier_and_on_a_condition(tmp_path):
     # `lead` burns 3 ms, then meets `follower` at the barrier; `sender` burns 2 ms and signals `waiter`, who waits at once.
-    timer = {"timer": {"period": "10ms"}}
+    # One named timer releases all four together (private timers start their grids at their first use, apart).
+    timer = {"timer": "tick"}
+    # The two that wait run at a higher priority, so they reach their wait at once on 2 CPUs.
     threads = [
-        ("lead", [timer, {"run": "3ms"}, {"barrier": "meet"}]),
-        ("follower", [timer, {"barrier": "meet"}]),
-        ("waiter", [timer, {"lock": "m"}, {"wait": {"cond": "go", "mutex": "m"}}, {"unlock": "m"}]),
-        ("sender", [timer, {"run": "2ms"}, {"signal": "go"}]),
+        ("lead", "fifo:50", [timer, {"run": "3ms"}, {"barrier": "meet"}]),
+        ("follower", "fifo:60", [timer, {"barrier": "meet"}]),
+        ("waiter", "fifo:60", [timer, {"lock": "m"}, {"wait": {"cond": "go", "mutex": "m"}}, {"unlock": "m"}]),
+        ("sender", "fifo:50", [timer, {"run": "2ms"}, {"signal": "go"}]),
     ]
     scenario = {
         "name": "activations",
-        "resources": {"meet": {"kind": "barrier"}, "m": {"kind": "mutex"}, "go": {"kind": "cond"}},
+        "resources": {
+            "tick": {"kind": "timer", "period": "10ms"},
+            "meet": {"kind": "barrier"},
+            "m": {"kind": "mutex"},
+            "go": {"kind": "cond"},
+        },
         "processes": [
             {
                 "name": "acts",
-                "threads": [{"name": name, "sched": "fifo:50", "work": {"kind": "phases", "events": events}} for name, events in threads],
+                "threads": [{"name": name, "sched": sched, "work": {"kind": "phases", "events": evs}} for name, sched, evs in threads],
             }
         ],
     }
