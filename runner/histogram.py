@@ -80,7 +80,7 @@ class Histogram(BaseModel):
         return self.quantiles((q,), low)[0]
 
     def quantiles(self, qs: Sequence[float], low: bool = False) -> list[int]:
-        """`quantile` of each of `qs` (ascending), in one walk of the buckets."""
+        """`quantile` of each of `qs`, from one pass of running counts (a bisection per quantile)."""
         seen = list(itertools.accumulate(map(_COUNT, self.buckets)))  # values up to each bucket (C loops: large cells have thousands)
         total = seen[-1] if seen else 0
         if not total:
