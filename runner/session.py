@@ -408,8 +408,7 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
             try:
                 _record(doc, result, unit, store, window_end)
             except OSError as exc:
-                if not store.holds(result):
-                    doc.cells.remove(result)
+                doc.cells.remove(result)
                 loop.write_error = loop.write_error or exc
             say(render_cell(result, backend.pid_width()))
             if loop.write_error is not None or stop.requested():

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from runner.results.document import CellResult, RunDocument
 from runner.results.files import FILE_MODE
@@ -66,7 +66,6 @@ class ResultsStore:
     results_path: str
     saved_bytes: int = 0
     pending_bytes: int = 0
-    stored: set[tuple[str, int]] = field(default_factory=set)
 
     @property
     def journal(self) -> str:
@@ -80,17 +79,12 @@ class ResultsStore:
         """Store `cell`, already the last of `doc.cells`: results.json rewritten if that is due, else a journal line.
 
         An OSError (a full disk) leaves results.json whole and the journal without a line for
-        `cell`: readers see the cells before it, and `holds(cell)` is false.
+        `cell`: readers see the cells before it.
         """
         if rewrite_due(self.saved_bytes, self.pending_bytes):
             self.rewrite(doc)
         else:
             self.pending_bytes += self._append(cell)
-        self.stored.add(cell_key(cell))
-
-    def holds(self, cell: CellResult) -> bool:
-        """Whether `cell` is on disk, in results.json or the journal."""
-        return cell_key(cell) in self.stored
 
     def finish(self, doc: RunDocument) -> None:
         """Write `doc` whole, which leaves the journal nothing to hold."""
