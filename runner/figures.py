@@ -88,7 +88,7 @@ def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
 class Scope(str, enum.Enum):
     """Which threads have the figure."""
 
-    CALLBACKS = "callbacks"  # only threads with periodic callbacks (per-callback figures, latency)
+    CALLBACKS = "callbacks"  # only threads that run callbacks (periodic, or released by resumes): per-callback figures, latency
     THREAD = "thread"  # every thread (whole-thread totals from getrusage)
     OUTSIDE = "outside"  # threads measured from outside: programs' threads (/proc), and any thread the scheduler trace followed
     EVENTS = "events"  # only threads whose program has the events the figure is about (locks, waits, chains)
@@ -123,6 +123,7 @@ class Figure:
     worse: Worse = Worse.HIGHER
     signed: bool = False  # may be negative (slack of a callback that overran)
     overload: bool = False  # tells whether a thread kept up: its column is shown when some thread did not
+    needs_period: bool = False  # measured against a period's releases: a thread released by resumes has no such figure
 
     @property
     def is_duration(self) -> bool:
@@ -232,7 +233,7 @@ _LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
 
 REGISTRY: tuple[Figure, ...] = (
     Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks"),
-    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",)),
+    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",), needs_period=True),
     Figure(
         "missed_releases",
         "releases missed (no callback ran for them)",
@@ -242,6 +243,7 @@ REGISTRY: tuple[Figure, ...] = (
         Threshold(absolute=0),
         column="missed",
         overload=True,
+        needs_period=True,
     ),
     Figure(
         "overruns",
@@ -252,6 +254,7 @@ REGISTRY: tuple[Figure, ...] = (
         Threshold(absolute=0),
         column="overruns",
         overload=True,
+        needs_period=True,
     ),
     Figure(
         "slack.min",
@@ -264,9 +267,10 @@ REGISTRY: tuple[Figure, ...] = (
         worse=Worse.LOWER,
         signed=True,
         overload=True,
+        needs_period=True,
     ),
     *(
-        Figure(f"slack.{q}", f"slack {q}", Unit.NS, Scope.CALLBACKS, ("slack_ns", q), worse=Worse.LOWER, signed=True)
+        Figure(f"slack.{q}", f"slack {q}", Unit.NS, Scope.CALLBACKS, ("slack_ns", q), worse=Worse.LOWER, signed=True, needs_period=True)
         for q in ("p1", "p50", "max", "mean")
     ),
     Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("involuntary", "total")),

@@ -114,7 +114,7 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         ps_rows, _ = ps_rows_shown(cell.thread_table, picked)
         out.append("")
         out.extend("  " + line for line in render_ps(ps_rows, pid_width=pid_width).splitlines())
-    periodic = [t for t in picked.threads if t.periodic]
+    periodic = [t for t in picked.threads if t.has_callbacks]
     if periodic:
         overloaded = not all(fg.kept_up(t.figures) for t in periodic)
         shown = [f for f in fg.REGISTRY if f.column and (overloaded or not f.overload)]

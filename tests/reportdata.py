@@ -190,6 +190,7 @@ def many_threads(folder: str, threads: int = 256, processes: int = 8, callbacks:
                         0,
                         0,
                         0,
+                        "",  # chain_ns: outside a chain
                     ]
                 )
         cell.threads = made

@@ -33,10 +33,10 @@ def run(tmp_path, scenario: dict, *args: str):
     return done, str(out)
 
 
-def rows(out: str, results: dict) -> dict[str, list[dict[str, int]]]:
-    """The samples file's rows by thread key, as integers."""
+def rows(out: str, results: dict) -> dict[str, list[dict[str, int | None]]]:
+    """The samples file's rows by thread key, as integers (None where a column is empty: no slack, no chain)."""
     cell = results["cells"][0]
-    by: dict[str, list[dict[str, int]]] = {}
+    by: dict[str, list[dict[str, int | None]]] = {}
     if not cell["samples_file"]:
         return by
     with gzip.open(os.path.join(out, cell["samples_file"]), "rt") as handle:
@@ -44,7 +44,7 @@ def rows(out: str, results: dict) -> dict[str, list[dict[str, int]]]:
         assert tuple(header) == SAMPLE_COLUMNS
         for line in handle:
             fields = line.strip().split(",")
-            by.setdefault(fields[0], []).append({k: int(v) for k, v in zip(header[1:], fields[1:])})
+            by.setdefault(fields[0], []).append({k: int(v) if v else None for k, v in zip(header[1:], fields[1:])})
     return by
 
 

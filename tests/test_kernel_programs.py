@@ -158,6 +158,30 @@ def test_a_chain_under_fifo_is_far_shorter_than_under_other(tmp_path):
     assert fifo["p99"] < 4_000_000 and other["p99"] > 2 * fifo["p99"]
 
 
+def test_each_stage_of_a_chain_has_a_row_per_activation_with_its_chain_latency(tmp_path):
+    done = run_file(tmp_path, os.path.join(REPO, "scenarios", "pipeline.yaml"), "--cell", "sched=fifo:60")
+    res = done.results
+    sensor, stage, controller = (thread(res, name) for name in ("sensor", "filter", "controller"))
+    assert (sensor["released"], stage["released"], controller["released"]) == (False, True, True)
+    for t in (stage, controller):
+        f = t["figures"]
+        # One activation per resume: as many as the sensor's callbacks (the last may be cut by the end of the run).
+        assert sensor["figures"]["callbacks"] - 1 <= f["callbacks"] <= sensor["figures"]["callbacks"], t["name"]
+        assert f["callbacks"] >= 80 and f["slack_ns"] is None and f["missed_releases"] == 0
+        assert f["latency_ns"]["p50"] < 1_000_000, "a FIFO stage runs within a millisecond of its resume"
+        assert f["callback_wall_ns"]["min"] >= 500_000, "each activation holds its stage's own work"
+    chains = activation_column(tmp_path, res, "sched=fifo:60", "chain_ns")
+    rows = chains["chain[0]/controller #3"]
+    f = controller["figures"]
+    # The rows and the native figure are the same measurements: one per activation, the same largest one.
+    assert len(rows) == f["callbacks"] and max(rows) == f["chain_ns"]["max"] and min(rows) == f["chain_ns"]["min"]
+    assert min(rows) >= 2_000_000, "end to end holds the three stages' 2 ms of work"
+    c = res["cells"][0]
+    with gzip.open(tmp_path / "out" / c["samples_file"], "rt", newline="") as handle:
+        slack = {row["slack_ns"] for row in csv.DictReader(handle) if row["thread"] == "chain[0]/controller #3"}
+    assert slack == {""}, "no period, no slack"
+
+
 @TWO_CPUS
 def test_each_phase_applies_its_policy_and_cpu_as_the_kernel_reports_on_entry(tmp_path):
     done = run_file(tmp_path, os.path.join(REPO, "scenarios", "phases.yaml"))

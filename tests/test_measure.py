@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from runner import histogram as hg
 from runner.run.measure import check, thread_figures
-from runner.run.samples import Sample, _bits, slot_of
+from runner.run.samples import Sample, _bits, rows, slot_of
 from runner.scenario.model import Expectation
 
 PERIOD = 100_000_000
@@ -100,3 +100,21 @@ def test_a_cpu_mask_reads_as_the_numbers_of_its_bits(words):
 def test_cpu_masks_at_the_ends_of_their_words():
     assert _bits((1, 0, 2**63, *(0,) * 13)) == (0, 191)
     assert _bits((0,) * 16) == ()
+
+
+def test_a_stage_released_by_resumes_has_callbacks_and_latency_but_nothing_measured_against_a_period():
+    # Released at 0, 10 and 30 ms by resumes; the second came while the first still ran (5 ms late).
+    taken = [
+        Sample(0, 50_000, 12_000_000, 0, 0, 1, 0, 0, 0, 0, 0, 0, origin_ns=1),
+        Sample(10_000_000, 12_000_000, 14_000_000, 0, 1, 0, 0, 0, 0, 0, 0, 0, origin_ns=1),
+        Sample(30_000_000, 30_020_000, 31_000_000, 0, 2, 0, 0, 0, 0, 0, 0, 0),
+    ]
+    f = thread_figures(slot_of(taken, 0), periodic=False, released=True)
+    assert f.callbacks == 3 and (f.releases, f.missed_releases, f.overruns, f.slack_ns) == (0, 0, 0, None)
+    assert f.latency_ns is not None and (f.latency_ns.min, f.latency_ns.max) == (20_000, 2_000_000)
+    assert f.callback_wall_ns is not None and f.callback_wall_ns.max == 11_950_000
+    assert f.involuntary.callbacks_with_any == 1
+    # Rows: no slack; the chain latency where the activation belongs to a chain.
+    written = rows("app[0]/stage #1", 7, 0, taken)
+    assert [(r[7], r[-1]) for r in written] == [(None, 11_999_999), (None, 13_999_999), (None, None)]
+    assert thread_figures(slot_of(taken, 0), periodic=False).callbacks == 0, "neither periodic nor released: no callbacks"

@@ -15,7 +15,7 @@ from runner.run.rawcell import ApplyErrors
 from runner.run.samples import EventStats, PhaseStats, SlotData
 from runner.run.spawn import program_tuple, resource_specs
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
-from runner.scenario.plan import Settings, is_periodic, plan_scenario
+from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
 
 
 def scenario(**extra) -> Scenario:
@@ -132,6 +132,32 @@ def test_a_program_with_a_timer_has_callbacks_at_its_period():
         ("a", 5_000_000, True),
         ("b", 5_000_000, True),
     ]
+
+
+def test_a_stage_without_a_timer_that_suspends_is_released_by_resumes():
+    queued = scenario(
+        resources={"hop": {"kind": "queue"}, "tick": {"kind": "timer", "period": "5ms"}},
+        processes=[
+            {
+                "name": "app",
+                "threads": [
+                    {"name": "first", "work": {"kind": "phases", "events": [{"timer": "tick"}, {"resume": "hop"}]}},
+                    {"name": "stage", "work": {"kind": "phases", "events": [{"suspend": "hop"}, {"run": "1ms"}]}},
+                    {"name": "both", "work": {"kind": "phases", "events": [{"timer": "tick"}, {"suspend": "hop"}, {"resume": "hop"}]}},
+                    {"name": "idle", "work": {"kind": "phases", "events": [{"sleep": "1ms"}]}},
+                ],
+            }
+        ],
+    )
+    threads = plan_scenario(queued, Settings())
+    assert [(t.name, t.period, t.released, t.has_callbacks) for t in threads] == [
+        ("app", None, False, False),
+        ("first", 5_000_000, False, True),
+        ("stage", None, True, True),
+        ("both", 5_000_000, False, True),  # a timer releases its activations; the suspend is a step of one
+        ("idle", None, False, False),
+    ]
+    assert [is_released(t.work) for t in threads] == [t.released for t in threads]
 
 
 def stats(values: list[int], holders=()) -> EventStats:

@@ -38,7 +38,7 @@ def pick_cell(doc: RunDocument, cell_id: str | None) -> CellResult:
 
 
 def _threads(cell: CellResult) -> list[tuple[ThreadResult, Histogram]]:
-    out = [(t, t.histograms.latency) for t in cell.threads if t.periodic and t.histograms and t.histograms.latency]
+    out = [(t, t.histograms.latency) for t in cell.threads if t.has_callbacks and t.histograms and t.histograms.latency]
     if not out:
         raise UsageError(f"runner report: cell {cell.id!r} has no latency histogram (no periodic thread ran, or the results predate them)")
     return out

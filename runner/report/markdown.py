@@ -34,7 +34,16 @@ from runner.report.fmt import (
     pipe_table,
 )
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
-from runner.results.document import BackgroundKind, CellResult, Preemptor, ProgramResult, RunDocument, Status, ThreadResult, Verdict
+from runner.results.document import (
+    BackgroundKind,
+    CellResult,
+    Preemptor,
+    ProgramResult,
+    RunDocument,
+    Status,
+    ThreadResult,
+    Verdict,
+)
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
@@ -95,8 +104,9 @@ def first_runs(cells: Sequence[CellResult]) -> list[CellResult]:
     return list(out.values())
 
 
-def periodic_threads(cell: CellResult) -> list[ThreadResult]:
-    return [t for t in cell.threads if t.periodic]
+def callback_threads(cell: CellResult) -> list[ThreadResult]:
+    """The threads that run callbacks: periodic ones, and a chain's stages released by resumes."""
+    return [t for t in cell.threads if t.has_callbacks]
 
 
 def _switches(f: ThreadFigures) -> str:
@@ -138,7 +148,7 @@ def _overload(f: ThreadFigures) -> str:
 
 
 def cell_finding(cell: CellResult, labels: dict[str, str]) -> Markdown:
-    threads = periodic_threads(cell)
+    threads = callback_threads(cell)
     if cell.status is Status.ERROR and not any(t.figures.callbacks for t in threads):
         return Markdown(f"No measurement: {md_text(cell.reason or 'the cell did not run')}.")
     if not threads:
@@ -205,7 +215,7 @@ def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
 def _by_thread(cells: Sequence[CellResult]) -> dict[str, list[tuple[CellResult, ThreadResult]]]:
     out: dict[str, list[tuple[CellResult, ThreadResult]]] = {}
     for cell in cells:
-        for t in periodic_threads(cell):
+        for t in callback_threads(cell):
             out.setdefault(t.key, []).append((cell, t))
     return out
 
@@ -240,7 +250,7 @@ def threads_table(rows: Rows, first: str = "Thread") -> Table:
             label + ("" if t.figures.complete else " (did not finish)"),
             policy_label(t.applied) + (" ⚠️" if t.degraded else ""),
             units.format_cpus(t.figures.cpus_seen) or "–",
-            fmt_int(t.figures.callbacks) if t.periodic else "–",
+            fmt_int(t.figures.callbacks) if t.has_callbacks else "–",
         ]
         for label, t in rows
     ]
@@ -351,7 +361,7 @@ def preemption_lines(rows: Rows) -> list[str]:
         if n is None:
             continue
         inv = t.figures.involuntary
-        hit = inv.callbacks_with_any if t.periodic else None
+        hit = inv.callbacks_with_any if t.has_callbacks else None
         during = f"{hit:,} of {t.figures.callbacks:,} callbacks preempted, " if hit else ""
         if not n:
             line = f"{label}: never preempted"
@@ -432,8 +442,8 @@ LATENCY_COLUMNS = (
 
 
 def latency_table(rows: Rows, first: str = "Thread") -> Table | None:
-    """Per periodic thread: wake-up latency percentiles, mean and deviation, all in one unit, and releases above the bound."""
-    periodic = [(label, t) for label, t in rows if t.periodic]
+    """Per thread with callbacks: wake-up latency percentiles, mean and deviation, all in one unit, and releases above the bound."""
+    periodic = [(label, t) for label, t in rows if t.has_callbacks]
     if not periodic:
         return None
     sc = fg.scale(fg.Unit.NS, (figure(t, name) for _, t in periodic for _, name in LATENCY_COLUMNS))
@@ -572,13 +582,13 @@ def summary_tables(cells: Sequence[CellResult], repeated: bool = False) -> list[
     Two tables, so a long cell id and ten columns do not make one table wider than GitHub's page;
     the misses and slack columns only when some cell did not keep up.
     """
-    overloaded = any(not fg.kept_up(t.figures) for cell in cells for t in periodic_threads(cell))
-    p99s = [max((p for t in periodic_threads(c) if (p := figure(t, "latency.p99")) is not None), default=None) for c in cells]
-    slacks = [min((t.figures.slack_ns.min for t in periodic_threads(c) if t.figures.slack_ns is not None), default=None) for c in cells]
+    overloaded = any(not fg.kept_up(t.figures) for cell in cells for t in callback_threads(cell))
+    p99s = [max((p for t in callback_threads(c) if (p := figure(t, "latency.p99")) is not None), default=None) for c in cells]
+    slacks = [min((t.figures.slack_ns.min for t in callback_threads(c) if t.figures.slack_ns is not None), default=None) for c in cells]
     lat, slack, per_cb = fg.scale(fg.Unit.NS, p99s), fg.scale(fg.Unit.NS, slacks), fg.scale(fg.Unit.PER_CALLBACK)
     status, worst = [], []
     for cell, p99, worst_slack in zip(cells, p99s, slacks):
-        threads = periodic_threads(cell)
+        threads = callback_threads(cell)
         link = Markdown(f"[{md_text(section_title(cell, repeated)[5:], in_table=True)}](#{anchor(cell, repeated)})")
         passed = sum(v.passed for v in cell.expectations)
         status.append(
@@ -625,7 +635,7 @@ def spread_table(cells: Sequence[CellResult], labels: dict[str, str]) -> Table |
     """For repeated cells: each periodic thread's key figures as median (min – max) over the repeats, one unit per column."""
     groups: dict[tuple[str, str], list[ThreadResult]] = {}
     for cell in cells:
-        for t in periodic_threads(cell):
+        for t in callback_threads(cell):
             groups.setdefault((cell.id, t.key), []).append(t)
     if not any(len(ts) > 1 for ts in groups.values()):
         return None
@@ -869,7 +879,7 @@ def threads_of_interest(cells: Sequence[CellResult], most: int = MAX_THREAD_VIEW
     """
     worst: dict[str, float] = {}
     for cell in cells:
-        for t in periodic_threads(cell):
+        for t in callback_threads(cell):
             p99 = figure(t, "latency.p99")
             worst[t.key] = max(worst.get(t.key, -1.0), float(p99) if p99 is not None else -1.0)
     order = {key: i for i, key in enumerate(worst)}

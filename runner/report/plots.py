@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from runner import histogram
 from runner.histogram import Histogram
 from runner.report.fmt import Markdown, md_code
-from runner.report.markdown import Plot, first_runs, matrix_order, periodic_threads, threads_of_interest
+from runner.report.markdown import Plot, callback_threads, first_runs, matrix_order, threads_of_interest
 from runner.results.document import CellResult, RunDocument, ThreadResult
 from runner.results.files import slug, write_atomic
 from runner.results.samplesfile import SampleRow, read_samples
@@ -115,7 +115,7 @@ def _series(label: str, t: ThreadResult, cell: CellResult, samples: _Samples) ->
 
 def _aggregate(cell: CellResult, samples: _Samples, label: str) -> Series:
     """Every periodic thread of `cell` as one latency histogram (the aggregate line); no switch series."""
-    return Series(label, histogram.merge(_latency(t, cell, samples) for t in periodic_threads(cell)), [])
+    return Series(label, histogram.merge(_latency(t, cell, samples) for t in callback_threads(cell)), [])
 
 
 def osadl_bins(hists: Sequence[Histogram]) -> tuple[list[float], list[list[int]]]:
@@ -247,13 +247,13 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
     """Write the plots of `doc` under `folder`/plots; return them in the report's order (paths relative to `folder`)."""
     labels = labels or {}
     ordered = matrix_order(doc)  # as the report orders them, so both pick the same threads of interest
-    cells = [c for c in ordered if any(t.figures.callbacks for t in periodic_threads(c))]
+    cells = [c for c in ordered if any(t.figures.callbacks for t in callback_threads(c))]
     keys = threads_of_interest(first_runs(ordered))
     if not cells or not keys:
         return []
     os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
     # rows of the threads of interest (their switches), and of any periodic thread without a native histogram (old results)
-    samples = _Samples(doc, set(keys) | {t.key for c in cells for t in periodic_threads(c) if _no_histogram(t)})
+    samples = _Samples(doc, set(keys) | {t.key for c in cells for t in callback_threads(c) if _no_histogram(t)})
     out: list[Plot] = []
 
     def draw(name: str, title: str, series: list[Series], total: int, what: str, switches: bool = True) -> None:
@@ -265,7 +265,7 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
             involuntary_panels(title, series, os.path.join(folder, inv), total, what)
             out.append(Plot(f"{title}: involuntary context switches per callback", inv))
 
-    periodic_keys = {t.key for c in cells for t in periodic_threads(c)}
+    periodic_keys = {t.key for c in cells for t in callback_threads(c)}
     if len({c.id for c in cells}) == 1:  # one cell (repeats aside): its threads of interest side by side
         cell = cells[0]
         by_key = {t.key: t for t in cell.threads}

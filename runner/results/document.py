@@ -295,7 +295,10 @@ class ThreadResult(_Record):
     pid: int
     tid: int
     work: str = Field(description="the thread's work, in words")
-    periodic: bool
+    periodic: bool = Field(description="runs callbacks released on a period (periodic work, or a program with a timer)")
+    released: bool = Field(
+        False, description="programs: its callbacks are released by resumes (a later stage of a chain): no slack or missed releases"
+    )
     requested: StoredSettings
     applied: Optional[StoredSettings] = Field(description="as read back from the kernel; null when the thread was gone")
     degraded: list[str] = Field(default_factory=list, description="how the applied settings fell short, in words")
@@ -319,6 +322,11 @@ class ThreadResult(_Record):
     late_wakeups_by: list[Preemptor] = Field(
         default_factory=list, description="who held the CPU while those late wake-ups waited for it (idle: the wake-up path itself)"
     )
+
+    @property
+    def has_callbacks(self) -> bool:
+        """It runs callbacks: periodic, or released by resumes."""
+        return self.periodic or self.released
 
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property

@@ -6,7 +6,12 @@ answered (`scheduled_ns - missed * period`) to `wake_ns`; `slack_ns` from `end_n
 next release (negative: it overran).  For programs (`kind: phases`) a row is an activation
 (from a timer to the next), and `lock_wait_ns`, `cond_wait_ns` and `barrier_wait_ns` are
 the time it spent blocked acquiring mutexes, in condition waits and at barriers (0 for
-periodic work; files of earlier runners lack these columns).  Rows of several threads interleave in chunks, in
+periodic work; files of earlier runners lack these columns).  A chain's later stage (a
+program without a timer that suspends on a queue) has a row per activation too, from the
+resume that released it (`scheduled_ns`) to its next suspend, with `slack_ns` empty: no
+period says when its next release is due.  `chain_ns` runs from the timer release that
+started the chain to the activation's end (empty outside a chain; files of earlier runners
+lack it).  Rows of several threads interleave in chunks, in
 order within each thread; `seq` numbers a thread's callbacks from 0, so a gap shows rows
 that were not written (`samples: outliers`, or a runner that fell behind).
 """
@@ -46,6 +51,7 @@ SAMPLE_COLUMNS = (
     "lock_wait_ns",
     "cond_wait_ns",
     "barrier_wait_ns",
+    "chain_ns",
 )
 
 

@@ -13,7 +13,7 @@
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
  * Buffer layout (little endian, all offsets in bytes), version 4:
- *   file header, 64 bytes:  magic "RSMP0004", u32 version, u32 nthreads,
+ *   file header, 64 bytes:  magic "RSMP0005", u32 version, u32 nthreads,
  *                           u32 capacity, u32 slot_header_size, u32 sample_size,
  *                           u32 hist_buckets (0 when the group keeps none),
  *                           u64 slot_stride, u32 event_stats, u32 phase_stats
@@ -21,7 +21,7 @@
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
- *     ring of capacity samples of 88 bytes (struct sample): sample n at n % capacity
+ *     ring of capacity samples of 96 bytes (struct sample): sample n at n % capacity
  *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
  *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
  *
@@ -55,7 +55,7 @@
 
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
-#define SAMPLE_BYTES 88
+#define SAMPLE_BYTES 96
 #define MAX_CPU_WORDS 16
 
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
@@ -117,6 +117,7 @@ struct sample {
     int64_t lock_wait_ns;  /* acquiring mutexes */
     int64_t cond_wait_ns;  /* in wait on a condition variable */
     int64_t barrier_wait_ns;
+    int64_t origin_ns;     /* programs: the timer release that started this activation's chain, 0 if none */
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
@@ -318,6 +319,9 @@ struct work {
  * switches, faults, CPUs and the settings the kernel reported on entry.  A timer
  * opens an activation that ends at the next timer: activations are the thread's
  * callbacks (releases, latency, slack, overruns and samples as periodic work).
+ * In a thread without a timer that suspends (a chain's later stage), a resume
+ * opens the activation and the next suspend ends it: latency from the resume,
+ * no slack (there is no next release to measure it against).
  */
 #define MAX_PHASES 32
 #define MAX_EVENTS 128
@@ -355,6 +359,7 @@ struct program {
     int64_t delay_ns;
     int64_t loop;  /* passes over the phases, 0: until the end of the run */
     int nphases, nevents;
+    int released;  /* no timer, and a suspend: its activations are released by resumes (a chain's later stage) */
     struct phase phases[MAX_PHASES];
     struct event events[MAX_EVENTS];
     int64_t mem_bytes;
@@ -415,7 +420,6 @@ struct program_state {
     int64_t act_release, act_wake, act_period;
     int32_t act_missed;
     int act_cpu;
-    int act_timer;
     int64_t act_ru[4];
     int64_t act_lock_wait, act_cond_wait, act_barrier_wait; /* blocked so far in the open activation */
     int64_t origin;              /* release that started this activation's chain, 0 if none */
@@ -514,12 +518,15 @@ static void record_callback(struct slot *s, const struct sample *c, int64_t peri
     for (int32_t k = c->missed; k >= 1; k--) record_latency(s, c->wake_ns - (c->scheduled_ns - k * period));
     record_latency(s, c->wake_ns - c->scheduled_ns);
     uint64_t n = h->loops; /* this callback's number, from 1 */
-    int64_t slack = c->scheduled_ns + period - c->end_ns;
+    /* Slack needs a next release on a grid: an activation released by a resume (period 0) has none. */
+    int64_t slack = period > 0 ? c->scheduled_ns + period - c->end_ns : 0;
     int64_t wall = c->end_ns - c->wake_ns;
-    if (slack < 0) h->overruns++;
-    if (n == 1 || slack < h->slack_min) h->slack_min = slack;
-    if (n == 1 || slack > h->slack_max) h->slack_max = slack;
-    welford(n, &h->slack_mean, &h->slack_m2, slack);
+    if (period > 0) {
+        if (slack < 0) h->overruns++;
+        if (n == 1 || slack < h->slack_min) h->slack_min = slack;
+        if (n == 1 || slack > h->slack_max) h->slack_max = slack;
+        welford(n, &h->slack_mean, &h->slack_m2, slack);
+    }
     if (n == 1 || wall < h->wall_min) h->wall_min = wall;
     if (n == 1 || wall > h->wall_max) h->wall_max = wall;
     h->nivcsw_sum += (uint64_t)c->nivcsw;
@@ -535,7 +542,9 @@ static void record_callback(struct slot *s, const struct sample *c, int64_t peri
     }
     h->last_end_ns = c->end_ns;
     if (s->hist) {
-        if (slack >= 0)
+        if (period <= 0)
+            ;
+        else if (slack >= 0)
             s->hist[HIST_BUCKETS + hist_index(slack)]++;
         else
             s->hist[2 * HIST_BUCKETS + hist_index(-slack)]++;
@@ -703,9 +712,23 @@ static void activation_close(struct slot *s, struct program_state *ps, int64_t e
     c.lock_wait_ns = ps->act_lock_wait;
     c.cond_wait_ns = ps->act_cond_wait;
     c.barrier_wait_ns = ps->act_barrier_wait;
+    c.origin_ns = ps->origin;
     note_cpu(s->hdr, c.cpu_end);
     s->hdr->loops++;
     record_callback(s, &c, ps->act_period);
+}
+
+/* An activation starts: released at `release` (a timer's tick, or a resume), running since `wake`. */
+static void activation_open(struct slot *s, struct program_state *ps, int64_t release, int64_t wake, int64_t period, int32_t missed) {
+    ps->act_open = 1;
+    ps->act_release = release;
+    ps->act_wake = wake;
+    ps->act_period = period;
+    ps->act_missed = missed;
+    ps->act_lock_wait = ps->act_cond_wait = ps->act_barrier_wait = 0;
+    ps->act_cpu = sched_getcpu();
+    note_cpu(s->hdr, ps->act_cpu);
+    read_ru(ps->act_ru);
 }
 
 static void chain_close(struct slot *s, struct program_state *ps, int64_t end) {
@@ -748,15 +771,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     t->last = rebased ? rebased : next;
     ev_record(s, i, wake - next);
-    ps->act_open = 1;
-    ps->act_release = next;
-    ps->act_wake = wake;
-    ps->act_period = period;
-    ps->act_missed = missed;
-    ps->act_lock_wait = ps->act_cond_wait = ps->act_barrier_wait = 0;
-    ps->act_cpu = sched_getcpu();
-    note_cpu(s->hdr, ps->act_cpu);
-    read_ru(ps->act_ru);
+    activation_open(s, ps, next, wake, period, missed);
     if (!ps->chain_open) ps->origin = next;
 }
 
@@ -881,6 +896,7 @@ static void ev_resume(struct slot *s, struct program_state *ps, int i, const str
 static void ev_suspend(struct slot *s, struct program_state *ps, int i, const struct event *e) {
     struct resource *q = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
+    if (s->prog->released) activation_close(s, ps, t0);
     chain_close(s, ps, t0);
     s->hdr->blocked_since_ns = t0;
     pthread_mutex_lock(&q->m);
@@ -904,6 +920,9 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
     ev_record(s, i, wake - (resumed > t0 ? resumed : t0));
     ps->origin = origin;
     ps->chain_open = 1;
+    /* A stage released by resumes: its activation was released by the resume, however long it was
+     * still busy with the last one (as a periodic callback's latency runs from its release). */
+    if (s->prog->released) activation_open(s, ps, resumed, wake, 0, 0);
 }
 
 static int create_thread(struct group *g, struct slot *s);
@@ -1292,8 +1311,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0004", 8);
-    uint32_t meta[6] = {4, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
+    memcpy(g->base, "RSMP0005", 8);
+    uint32_t meta[6] = {5, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));
@@ -1373,6 +1392,12 @@ static struct program *parse_program(const struct group *g, PyObject *spec) {
                 }
         }
     }
+    int timers = 0, suspends = 0;
+    for (Py_ssize_t i = 0; i < ne; i++) {
+        timers += p->events[i].type == EV_TIMER;
+        suspends += p->events[i].type == EV_SUSPEND;
+    }
+    p->released = timers == 0 && suspends > 0;
     for (Py_ssize_t i = 0; i < np; i++) {
         struct phase *f = &p->phases[i];
         long long floop;

@@ -35,7 +35,7 @@ from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
 from runner.scenario.model import Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
-from runner.scenario.plan import PlannedThread, Settings, is_periodic
+from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_periodic, is_released
 
 QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
 INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
@@ -100,7 +100,7 @@ def verdict_label(t: PlannedThread, processes: int) -> str:
 def _figures(raw: RawThread, timeline: Timeline, interrupted: bool, bound: Optional[int]) -> ThreadFigures:
     work = raw.planned.work
     due = releases_due(work, timeline, interrupted) if isinstance(work, PeriodicWork) else 0
-    return thread_figures(raw.slot, is_periodic(work), due, bound)
+    return thread_figures(raw.slot, is_periodic(work), due, bound, released=is_released(work))
 
 
 def _histograms(slot: SlotData) -> Optional[ThreadHistograms]:
@@ -257,6 +257,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 tid=t.slot.tid,
                 work=describe_work(p.work),
                 periodic=is_periodic(p.work),
+                released=is_released(p.work),
                 requested=p.settings,
                 applied=t.applied,
                 degraded=degraded,
@@ -298,7 +299,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 verdict.line, verdict.col = mark.line, mark.col
             result.expectations.append(verdict)
         for planned, fig in measured:
-            if id(planned) in targets and (is_periodic(planned.work) or not metric_figure(exp.metric).needs_callbacks):
+            if id(planned) in targets and (has_callbacks(planned.work) or not metric_figure(exp.metric).needs_callbacks):
                 verdict = check(exp, verdict_label(planned, raw.processes), fig)
                 if mark is not None:  # where the expectation is written: CI annotations point there
                     verdict.line, verdict.col = mark.line, mark.col

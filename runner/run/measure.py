@@ -21,19 +21,23 @@ def _round(value: Optional[float]) -> Optional[float]:
     return None if value is None else round(value, 4)
 
 
-def thread_figures(slot: SlotData, periodic: bool, releases_due: int = 0, bound: Optional[int] = None) -> ThreadFigures:
+def thread_figures(
+    slot: SlotData, periodic: bool, releases_due: int = 0, bound: Optional[int] = None, released: bool = False
+) -> ThreadFigures:
     """A thread's figures from its native slot, in integer ns; per-callback fields are None without callbacks.
 
     `releases_due` is how many releases the thread's period put in the cell: every one that no
     callback served is missed, the ones after the last callback too.  Latency counts every
-    release answered, those a late callback skipped included (see README, "Latency").
+    release answered, those a late callback skipped included (see README, "Latency").  A thread
+    `released` by resumes (not `periodic`) has callbacks and their figures, but no releases due,
+    misses, overruns or slack: no period says when its next release is.
     """
     st = slot.stats
-    callbacks = slot.loops if periodic else 0
+    callbacks = slot.loops if periodic or released else 0
     totals = slot.totals()
     if totals is None:  # the thread never finished: what its callbacks recorded is all there is
         totals = (st.nivcsw_sum, st.nvcsw_sum, st.minflt_sum, st.majflt_sum)
-    has = periodic and callbacks > 0
+    has = callbacks > 0
     return ThreadFigures(
         callbacks=callbacks,
         missed_releases=max(slot.missed, releases_due - callbacks) if periodic else 0,

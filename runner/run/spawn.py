@@ -60,7 +60,7 @@ from runner.scenario.model import (
     Wait,
     Work,
 )
-from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_scenario
+from runner.scenario.plan import PlannedThread, Settings, plan_scenario
 
 READY_TIMEOUT_S = 20.0
 # Background commands (stress-ng and the like) run this long before the measured start: how long
@@ -371,10 +371,12 @@ def _tail(path: str, lines: int = 3) -> str:
 def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -> int:
     """Samples each thread's ring holds: the whole cell when that is small, else enough for the runner to drain in time."""
     periods = [t.period for t in threads if t.period]
-    if not periods or policy.mode is SamplesMode.NONE:
+    if not any(t.has_callbacks for t in threads) or policy.mode is SamplesMode.NONE:
         return 0
     if policy.mode is SamplesMode.LAST:
         return policy.last or 0
+    if not periods:  # only stages released by resumes, at whatever rate their producers set
+        return min(RING_MAX, max(4096, RING_SECONDS * 1000))
     rate = max(1_000_000_000 // p for p in periods)  # callbacks per second of the fastest thread
     return min(RING_MAX, max(duration_ns // p + 16 for p in periods), max(4096, RING_SECONDS * rate))
 
@@ -511,7 +513,7 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
     assert w.buffer is not None
     cap = w.layout.capacity
     for t in w.planned:
-        if not is_periodic(t.work) or not cap:
+        if not t.has_callbacks or not cap:
             continue
         written = w.buffer.written(t.index)
         w.seen[t.index] = max(w.seen[t.index], written - cap + 1)
@@ -534,13 +536,13 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> Non
     if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
         return
     for t in w.planned:
-        if t.period:
+        if t.has_callbacks:
             taken = w.buffer.drain(t.index, stopped=final)
             if taken:
                 options.samples.write(
                     thread_key(t.process, t.instance, t.index, t.name),
                     int(w.ready["tids"][t.index]) if w.ready else 0,
-                    t.period,
+                    t.period or 0,
                     taken,
                 )
                 w.written[t.index] += len(taken)

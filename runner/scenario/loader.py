@@ -38,7 +38,7 @@ from runner.scenario.model import (
     metric_figure,
     workers,
 )
-from runner.scenario.plan import PlannedThread, Settings, is_periodic, plan_process
+from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_released, plan_process
 from runner.scenario.validate import problems_from, written_path
 from runner.scenario.yamlsource import Document, Mark, load_file, load_text
 
@@ -286,9 +286,17 @@ def _cross_checks(
                     f"{exp.metric.value} is measured on a program's events, but {exp.thread!r} runs no kind: phases work",
                 )
             )
-        elif metric_figure(exp.metric).needs_callbacks and not any(is_periodic(t.work) for t in targets):
+        elif metric_figure(exp.metric).needs_callbacks and not any(has_callbacks(t.work) for t in targets):
             out.append(
                 doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work")
+            )
+        elif metric_figure(exp.metric).needs_period and all(is_released(t.work) for t in targets):
+            out.append(
+                doc.problem(
+                    path + ("metric",),
+                    f"{exp.metric.value} is measured against a period, but {exp.thread!r} is released by resumes, not a timer; "
+                    "expected a figure such as latency.p99 or involuntary.per_callback_mean",
+                )
             )
         for key, wanted in exp.cells.items():
             if key not in keys:

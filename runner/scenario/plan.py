@@ -112,6 +112,16 @@ class PlannedThread:
     period: Optional[int] = None  # the period of its callbacks (periodic work, or a program's timer); None without
     spawned: bool = False  # created mid-run by a spawn event of another thread, not at the start
 
+    @property
+    def released(self) -> bool:
+        """Its callbacks are released by resumes on a queue (a chain's later stage), not by a period."""
+        return is_released(self.work)
+
+    @property
+    def has_callbacks(self) -> bool:
+        """It runs callbacks (activations): released by a period or by resumes."""
+        return self.period is not None or self.released
+
 
 def work_period(work: Work, resources: Optional[dict[str, Resource]] = None) -> Optional[int]:
     """The period a thread's callbacks are released at: periodic work's, or its program's timer's; None without."""
@@ -207,3 +217,18 @@ def is_periodic(work: Work) -> bool:
     if isinstance(work, PhasesWork):
         return any(e.event is EventKind.TIMER for _, e in work.events())
     return isinstance(work, PeriodicWork)
+
+
+def is_released(work: Work) -> bool:
+    """Whether a program's callbacks are released by resumes: it suspends on a queue and has no timer.
+
+    Such a thread (a pipeline's later stage) has an activation from each resume to its next
+    suspend, measured as a callback: latency from the resume, wall time, switches, faults and
+    waits, but no slack or missed releases, since no period says when the next one is due.
+    """
+    return isinstance(work, PhasesWork) and not is_periodic(work) and any(e.event is EventKind.SUSPEND for _, e in work.events())
+
+
+def has_callbacks(work: Work) -> bool:
+    """Whether the thread runs callbacks at all: periodic, or released by resumes."""
+    return is_periodic(work) or is_released(work)
