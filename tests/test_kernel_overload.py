@@ -181,3 +181,33 @@ def test_spin_waiting_gives_up_the_cpu_never_while_sleeping_does_every_period(tm
     spun = thread(spinning.results, "wspin")["figures"]
     assert slept["voluntary"]["total"] >= 1000 and spun["voluntary"]["total"] <= 10
     assert spun["callbacks"] >= 5000  # 10,000 releases in the second
+
+
+def test_the_most_preempted_callbacks_are_those_the_kernel_counted_switches_in_and_name_the_hog(tmp_path):
+    """The trace's preempted runs of a periodic thread against its own callbacks' rows (getrusage, read by the thread).
+
+    A run (switch-in after a wake-up to the next sleep) is a callback, so each kept run starts
+    just before a row's wake-up and has exactly that row's involuntary switches.
+    """
+    scenario = {
+        "name": "preempted",
+        "duration": "1s",
+        "processes": [{"name": "prm", "main": {"cpus": [0], "work": {"kind": "periodic", "period": "50ms", "burn": "20ms"}}}],
+        "background": {"hogs": [{"count": 1, "kind": "process", "cpus": [0]}]},
+        "expect": [{"thread": "prm", "metric": "missed_releases", "max": 20}],
+    }
+    done, out = run(tmp_path, scenario)
+    c = done.results["cells"][0]
+    if not c["trace"]["enabled"]:
+        pytest.skip(f"no scheduler trace here: {c['trace']['reason']}")
+    main = thread(done.results, "prm")
+    runs, start = main["preempted_runs"], c["trace"]["window_start_ns"]
+    assert len(runs) >= 5, "a SCHED_OTHER callback beside a busy loop on its CPU is preempted in most periods"
+    assert [r["preempted_ns"] for r in runs] == sorted((r["preempted_ns"] for r in runs), reverse=True)
+    written = rows(out, done.results)[main["key"]]
+    for r in runs:
+        row = min(written, key=lambda w: abs(w["wake_ns"] - (start + r["at_ns"])))
+        assert 0 <= row["wake_ns"] - (start + r["at_ns"]) < 1_000_000, (r, row)
+        assert row["nivcsw"] == r["preemptions"], (r, row)
+        assert r["preempted_ns"] <= r["wall_ns"] and r["by_ns"] <= r["preempted_ns"]
+    assert sum(r["by"]["comm"] == "hog" for r in runs) >= len(runs) // 2, [r["by"] for r in runs]

@@ -725,3 +725,27 @@ def test_preemption_lines_name_who_preempted_and_for_periodic_threads_which_call
     never = sleeper.model_copy(update={"figures": f.model_copy(update={"preemptions": 0}), "preempted_by": []})
     untraced = sleeper.model_copy(update={"figures": f.model_copy(update={"preemptions": None})})
     assert report.preemption_lines([("p/a", never), ("p/b", untraced)]) == ["p/a: never preempted"]
+
+
+def test_preemption_lines_end_with_the_most_preempted_callbacks_and_who_held_the_cpu():
+    from runner.results.document import PreemptedRun, Preemptor
+
+    cell = matrix().cells[-1]
+    t = next(t for t in cell.threads if t.periodic)
+    hog = Preemptor(comm="hog", tid=41, pid=41, cls="TS", count=5)
+    rt = Preemptor(comm="irq/24", tid=7, cls="FF", rtprio=50, count=1)
+    runs = [
+        PreemptedRun(at_ns=100_066_000, wall_ns=88_000_000, preempted_ns=48_000_000, preemptions=9, by=hog, by_ns=31_980_000),
+        PreemptedRun(at_ns=800_000_000, wall_ns=2_500_000, preempted_ns=40_000, preemptions=1, by=rt, by_ns=40_000),
+        PreemptedRun(at_ns=900_000_000, wall_ns=2_000_000, preempted_ns=30_000, preemptions=1, by=rt, by_ns=30_000),
+        PreemptedRun(at_ns=950_000_000, wall_ns=2_000_000, preempted_ns=20_000, preemptions=1, by=rt, by_ns=20_000),
+    ]
+    f = t.figures.model_copy(update={"preemptions": 12})
+    line = report.preemption_lines([("p/main", t.model_copy(update={"figures": f, "preempted_by": [hog], "preempted_runs": runs}))])[0]
+    assert line.endswith(
+        "; most preempted callbacks: at 0.100 s: 48.0 of 88.0 ms preempted, 9 times, 5 by hog[41] (TS) for 32.0 ms; "
+        "at 0.800 s: 40 of 2,500 µs preempted, 1 time, 1 by irq/24[7] (FF 50) for 40 µs; "
+        "at 0.900 s: 30 of 2,000 µs preempted, 1 time, 1 by irq/24[7] (FF 50) for 30 µs"
+    ), line
+    sleeper = t.model_copy(update={"periodic": False, "figures": f, "preempted_runs": runs[:1]})
+    assert "; most preempted runs: at 0.100 s" in report.preemption_lines([("p/idle", sleeper)])[0]

@@ -188,6 +188,56 @@ def test_worst_keeps_the_64_largest_largest_first_and_the_histogram_all():
     assert sum(counts.values()) == 101 and all(counts[histogram.index(v)] == 1 for v in latencies)
 
 
+def test_a_run_from_its_wake_up_to_its_sleep_keeps_its_preemptions_and_who_held_the_cpu_longest():
+    events = [
+        (1_000, tp.waking(A)),
+        (1_100, tp.switch(IDLE0, A, R)),  # the run starts
+        (2_000, tp.switch(A, HOG, R_PLUS)),  # HOG holds it 3 us
+        (5_000, tp.switch(HOG, A, R_PLUS)),
+        (6_000, tp.switch(A, B, R_PLUS)),  # B holds it 1 us
+        (7_000, tp.switch(B, A, S)),
+        (7_500, tp.switch(A, HOG, R_PLUS)),  # HOG again, 2 us
+        (9_500, tp.switch(HOG, A, R_PLUS)),
+        (10_000, tp.switch(A, HOG, S)),  # the run ends: A sleeps
+        (20_000, tp.waking(A)),
+        (20_100, tp.switch(HOG, A, R_PLUS)),  # a run with no preemption is not kept
+        (21_000, tp.switch(A, HOG, S)),
+    ]
+    a = traced({0: events}).threads[100]
+    assert a.runs == (tracing.PreemptedRun(1_100, 10_000, 6_000, 3, 400, "trt-hog", 120, 2, 5_000),)
+
+
+def test_the_16_most_preempted_runs_most_first_and_none_whose_end_or_return_went_unseen():
+    events: list[tuple[int, Union[bytes, Raw]]] = []
+    ts = 1_000_000
+    held = [(i * 7) % 23 + 1 for i in range(23)]  # 1..23 us, scrambled
+    for h in held:
+        events += [
+            (ts, tp.waking(A)),
+            (ts + 10, tp.switch(IDLE0, A, R)),
+            (ts + 100, tp.switch(A, HOG, R_PLUS)),
+            (ts + 100 + h * 1_000, tp.switch(HOG, A, R_PLUS)),
+            (ts + 200 + h * 1_000, tp.switch(A, IDLE0, S)),
+        ]
+        ts += 100_000
+    # A run cut by a new wake-up (its sleep unseen) and one still preempted at the end are not kept.
+    events += [(ts, tp.waking(A)), (ts + 10, tp.switch(IDLE0, A, R)), (ts + 100, tp.switch(A, HOG, R_PLUS))]
+    events += [(ts + 90_000, tp.waking(A)), (ts + 99_000, tp.switch(HOG, A, R_PLUS))]
+    a = traced({0: events}).threads[100]
+    assert [r.preempted_ns for r in a.runs] == [h * 1_000 for h in range(23, 7, -1)]
+    assert all((r.preemptions, r.taker_tid, r.taker_count, r.taker_ns) == (1, 400, 1, r.preempted_ns) for r in a.runs)
+
+
+def test_events_lost_end_the_run_under_way_unkept():
+    r = tp.reader()
+    r.track([100])
+    r.feed(0, tp.pages([(1_000, tp.waking(A)), (1_100, tp.switch(IDLE0, A, R)), (1_200, tp.switch(A, HOG, R_PLUS))]))
+    r.feed(0, tp.page(90_000, tp.data_event(0, tp.switch(HOG, A, R_PLUS)), missed=7))
+    r.feed(0, tp.page(95_000, tp.data_event(0, tp.switch(A, IDLE0, S))))
+    r.stop()
+    assert tracing.native_result(r.result()).threads[100].runs == (), "88.8 us preempted across a gap would be a guess"
+
+
 @pytest.mark.parametrize("value", [0, 1, 255, 256, 257, 1_000, 131_071, 131_072, 123_456_789, (1 << 40) - 1, (1 << 40) + 5])
 def test_the_histogram_buckets_are_those_of_runner_histogram(value):
     events = [(10, tp.waking(A)), (10 + value, tp.switch(IDLE0, A, R))]

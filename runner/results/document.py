@@ -285,6 +285,19 @@ class Preemptor(_Record):
     count: NonNegativeInt
 
 
+class PreemptedRun(_Record):
+    """One of a thread's most preempted runs, from the scheduler's trace: a run lasts from the
+    switch-in that ended a wake-up to the next voluntary switch-out, so for a thread with
+    callbacks it is one callback, and this says why that callback took long."""
+
+    at_ns: int = Field(description="its start, from the start of the measured window (add trace.window_start_ns for CLOCK_MONOTONIC)")
+    wall_ns: NonNegativeInt = Field(description="from its start to its end")
+    preempted_ns: NonNegativeInt = Field(description="time it was runnable but off its CPU")
+    preemptions: NonNegativeInt
+    by: Preemptor = Field(description="the task that held the CPU from it longest; count: its preemptions of this run")
+    by_ns: NonNegativeInt = Field(description="how long that task held the CPU from it")
+
+
 class ThreadResult(_Record):
     """One measured thread: identity, requested vs applied settings, figures."""
 
@@ -322,6 +335,9 @@ class ThreadResult(_Record):
     late_wakeups_by: list[Preemptor] = Field(
         default_factory=list, description="who held the CPU while those late wake-ups waited for it (idle: the wake-up path itself)"
     )
+    preempted_runs: list[PreemptedRun] = Field(
+        default_factory=list, description="its 16 most preempted runs (callbacks, for a thread with callbacks), most preempted first"
+    )
 
     @property
     def has_callbacks(self) -> bool:
@@ -349,6 +365,9 @@ class TraceInfo(_Record):
     unseen_switch_ins: NonNegativeInt = Field(0, description="switches onto a CPU the kernel did not trace (their wake-ups go unmeasured)")
     reader_cpu_ns: NonNegativeInt = Field(0, description="CPU time the native reader spent")
     duration_ns: NonNegativeInt = 0
+    window_start_ns: Optional[int] = Field(
+        None, description="CLOCK_MONOTONIC of the measured window's start, the clock of samples.csv.gz's times"
+    )
     notes: list[str] = Field(default_factory=list)
 
 

@@ -45,6 +45,8 @@
 #define COMM_LEN 16
 #define MAX_PREEMPTORS 32
 #define MAX_WORST 64
+#define MAX_RUNS 16      /* a thread's most preempted runs kept */
+#define RUN_TAKERS 4     /* distinct preemptors followed within one run */
 #define CPU_WORDS 16 /* CPUs 0..1023 */
 #define MAX_RECS (1 << 18)
 #define MAX_FIELDS 8
@@ -97,6 +99,17 @@ struct rec {
 
 struct preemptor { int32_t tid, prio; uint64_t count; char comm[COMM_LEN]; };
 struct late { int64_t latency, at; int32_t cpu, tid, prio; char comm[COMM_LEN]; };
+/* One run of a thread: from the switch-in that ended a wake-up to its next voluntary switch-out
+ * (for a periodic thread of the runner's, one callback), with the time it spent preempted and
+ * the task that held the CPU longest meanwhile. */
+struct taker { int32_t tid, prio; uint32_t count; int64_t ns; char comm[COMM_LEN]; };
+struct run {
+    int64_t start, preempted_ns;
+    uint32_t preemptions;
+    int ntakers;
+    struct taker takers[RUN_TAKERS];
+};
+struct kept_run { int64_t start, end, preempted_ns; uint32_t preemptions; struct taker top; }; /* top: the longest holder */
 
 struct thread {
     int32_t tid;
@@ -116,6 +129,12 @@ struct thread {
     int npre, nworst;
     struct preemptor pre[MAX_PREEMPTORS];
     struct late worst[MAX_WORST];  /* a min-heap on latency while running, sorted at the end */
+    struct run cur;           /* the run under way; cur.start 0 outside one */
+    uint64_t out_ts;          /* preempted at, within the run under way; 0 when on a CPU */
+    int32_t out_tid, out_prio;
+    char out_comm[COMM_LEN];
+    int nruns;
+    struct kept_run runs[MAX_RUNS]; /* the most preempted runs: a min-heap on preempted_ns */
 };
 
 typedef struct {
@@ -316,6 +335,68 @@ static void add_wakeup(Reader *r, struct thread *t, int64_t lat, const struct re
     }
 }
 
+static void run_heap_down(struct kept_run *h, int n, int i) {
+    for (;;) {
+        int l = 2 * i + 1, m = i;
+        if (l < n && h[l].preempted_ns < h[m].preempted_ns) m = l;
+        if (l + 1 < n && h[l + 1].preempted_ns < h[m].preempted_ns) m = l + 1;
+        if (m == i) return;
+        struct kept_run tmp = h[i];
+        h[i] = h[m];
+        h[m] = tmp;
+        i = m;
+    }
+}
+
+/* A run ended at `ts`: kept among the thread's most preempted when it was preempted at all. */
+static void run_close(struct thread *t, uint64_t ts) {
+    struct run *c = &t->cur;
+    if (c->start && c->preemptions && c->preempted_ns > 0) {
+        int top = 0;
+        for (int k = 1; k < c->ntakers; k++)
+            if (c->takers[k].ns > c->takers[top].ns) top = k;
+        struct kept_run kept = {.start = c->start, .end = (int64_t)ts, .preempted_ns = c->preempted_ns, .preemptions = c->preemptions};
+        kept.top = c->takers[top];
+        if (t->nruns < MAX_RUNS) {
+            int i = t->nruns++;
+            t->runs[i] = kept;
+            while (i > 0 && t->runs[(i - 1) / 2].preempted_ns > t->runs[i].preempted_ns) {
+                struct kept_run tmp = t->runs[i];
+                t->runs[i] = t->runs[(i - 1) / 2];
+                t->runs[(i - 1) / 2] = tmp;
+                i = (i - 1) / 2;
+            }
+        } else if (c->preempted_ns > t->runs[0].preempted_ns) {
+            t->runs[0] = kept;
+            run_heap_down(t->runs, t->nruns, 0);
+        }
+    }
+    memset(c, 0, sizeof *c);
+    t->out_ts = 0;
+}
+
+/* Back on a CPU after a preemption within a run: the time off it goes to the task that took it. */
+static void run_resume(struct thread *t, uint64_t ts) {
+    struct run *c = &t->cur;
+    int64_t off = (int64_t)(ts - t->out_ts);
+    t->out_ts = 0;
+    if (!c->start || off <= 0) return;
+    c->preempted_ns += off;
+    int k = 0;
+    while (k < c->ntakers && c->takers[k].tid != t->out_tid) k++;
+    if (k == c->ntakers) {
+        if (c->ntakers == RUN_TAKERS) return; /* a fifth distinct preemptor in one run: its time is in preempted_ns only */
+        c->ntakers++;
+        c->takers[k].tid = t->out_tid;
+        c->takers[k].count = 0;
+        c->takers[k].ns = 0;
+    }
+    c->takers[k].prio = t->out_prio;
+    copy_comm(c->takers[k].comm, t->out_comm);
+    c->takers[k].count++;
+    c->takers[k].ns += off;
+}
+
 static void apply_switch(Reader *r, const struct rec *e) {
     struct thread *p = subject(r, e->pid_a), *n = subject(r, e->pid_b);
     int in = inside(r, e->ts);
@@ -340,8 +421,16 @@ static void apply_switch(Reader *r, const struct rec *e) {
                 p->preemptions++;
                 add_preemptor(p, e->pid_b, e->prio_b, e->comm_b);
             }
-        } else if (in) {
-            p->voluntary++;
+            if (p->cur.start) {
+                p->cur.preemptions++;
+                p->out_ts = e->ts;
+                p->out_tid = e->pid_b;
+                p->out_prio = e->prio_b;
+                copy_comm(p->out_comm, e->comm_b);
+            }
+        } else {
+            if (in) p->voluntary++;
+            run_close(p, e->ts);
         }
     }
     if (n) {
@@ -350,6 +439,11 @@ static void apply_switch(Reader *r, const struct rec *e) {
         if (n->wake_ts) {
             if (in) add_wakeup(r, n, (int64_t)(e->ts - n->wake_ts), e);
             n->wake_ts = 0;
+            memset(&n->cur, 0, sizeof n->cur); /* a run whose end went unseen: not one to keep */
+            n->out_ts = 0;
+            if (in) n->cur.start = (int64_t)e->ts;
+        } else if (n->out_ts) {
+            run_resume(n, e->ts);
         }
         if (in) {
             if (e->cpu >= 0 && e->cpu < CPU_WORDS * 64) n->cpus[e->cpu / 64] |= 1ULL << (e->cpu % 64);
@@ -369,6 +463,8 @@ static void apply_gap(Reader *r, const struct rec *e) {
         if (!t) continue;
         t->wake_ts = 0;
         if (t->running && t->cpu == e->cpu) t->running = 0;
+        memset(&t->cur, 0, sizeof t->cur); /* a run across the gap would be any length */
+        t->out_ts = 0;
     }
 }
 
@@ -954,6 +1050,13 @@ static int preemptor_order(const void *a, const void *b) {
     return (x->tid > y->tid) - (x->tid < y->tid);
 }
 
+/* most preempted first; ties: the earlier first */
+static int run_order(const void *a, const void *b) {
+    const struct kept_run *x = a, *y = b;
+    if (x->preempted_ns != y->preempted_ns) return x->preempted_ns > y->preempted_ns ? -1 : 1;
+    return (x->start > y->start) - (x->start < y->start);
+}
+
 /* largest first; ties: the earlier first */
 static int late_order(const void *a, const void *b) {
     const struct late *x = a, *y = b;
@@ -1006,20 +1109,34 @@ static PyObject *thread_dict(Reader *r, struct thread *t) {
         if (!w) goto fail_worst;
         PyTuple_SET_ITEM(worsts, i, w);
     }
+    struct kept_run runs[MAX_RUNS];
+    memcpy(runs, t->runs, sizeof runs);
+    qsort(runs, (size_t)t->nruns, sizeof *runs, run_order);
+    PyObject *runt = PyTuple_New(t->nruns);
+    if (!runt) goto fail_worst;
+    for (int i = 0; i < t->nruns; i++) {
+        const struct taker *k = &runs[i].top;
+        PyObject *w = Py_BuildValue("(LLLIiyiIL)", (long long)runs[i].start, (long long)runs[i].end, (long long)runs[i].preempted_ns,
+                                    runs[i].preemptions, k->tid, k->comm, k->prio, k->count, (long long)k->ns);
+        if (!w) goto fail_runs;
+        PyTuple_SET_ITEM(runt, i, w);
+    }
     int ncpu = 0;
     for (int w = 0; w < CPU_WORDS; w++) ncpu += __builtin_popcountll(t->cpus[w]);
     PyObject *cpus = PyTuple_New(ncpu);
-    if (!cpus) goto fail_worst;
+    if (!cpus) goto fail_runs;
     for (int c = 0, k = 0; c < CPU_WORDS * 64; c++)
         if (t->cpus[c / 64] & (1ULL << (c % 64))) PyTuple_SET_ITEM(cpus, k++, PyLong_FromLong(c));
     PyObject *d = Py_BuildValue(
-        "{s:i,s:y,s:K,s:N,s:L,s:L,s:L,s:K,s:K,s:N,s:K,s:K,s:K,s:K,s:N,s:L,s:N,s:O}", "tid", t->tid, "comm", t->comm, "wakeups",
+        "{s:i,s:y,s:K,s:N,s:L,s:L,s:L,s:K,s:K,s:N,s:K,s:K,s:K,s:K,s:N,s:L,s:N,s:N,s:O}", "tid", t->tid, "comm", t->comm, "wakeups",
         (unsigned long long)t->wakeups, "latency", lat, "latency_min", (long long)(t->wakeups ? t->lat_min : 0), "latency_max",
         (long long)(t->wakeups ? t->lat_max : 0), "latency_sum", (long long)t->lat_sum, "preemptions", (unsigned long long)t->preemptions,
         "voluntary", (unsigned long long)t->voluntary, "preemptors", pres, "other_preemptors", (unsigned long long)t->other_preemptors,
         "migrations", (unsigned long long)t->migrations, "cpu_changes", (unsigned long long)t->cpu_changes, "unseen_switch_ins", (unsigned long long)t->unseen_ins, "cpus", cpus, "run_ns",
-        (long long)run, "worst", worsts, "exited", t->exited ? Py_True : Py_False);
+        (long long)run, "worst", worsts, "runs", runt, "exited", t->exited ? Py_True : Py_False);
     return d; /* N: the tuples' references went to the dict (or were released on failure) */
+fail_runs:
+    Py_DECREF(runt);
 fail_worst:
     Py_DECREF(worsts);
 fail_pres:

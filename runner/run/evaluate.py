@@ -280,7 +280,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         measured.extend((planned, t.figures) for planned, t in out.threads)
         program_failures += out.failures
         program_warnings += out.warnings
-    result.threads, result.trace = traced.apply(result.threads, raw.trace, raw.trace_tasks)
+    result.threads, result.trace = traced.apply(result.threads, raw.trace, raw.trace_tasks, raw.timeline.start_ns)
     measured = [(planned, t.figures) for (planned, _), t in zip(measured, result.threads)]
     for i in expectations_for(scenario, cell):
         exp = scenario.expect[i]

@@ -5,7 +5,8 @@ and what it could still learn about the tasks the trace names (their process and
 policy, read while they lived).  This turns them into figures every thread can have,
 the runner's own and a program's alike: the wake-up latency of every wake-up (from
 sched_waking to the switch onto a CPU) as a spread, preemptions with who took the CPU,
-the trace's migrations, and for the worst wake-ups, who held the CPU meanwhile.
+the trace's migrations, for the worst wake-ups who held the CPU meanwhile, and for the most
+preempted runs (callbacks, for a thread with callbacks) how long and by whom.
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ from dataclasses import dataclass
 from typing import Optional
 
 from runner.histogram import from_rows
+from runner.results.document import PreemptedRun as StoredRun
 from runner.results.document import Preemptor as StoredPreemptor
 from runner.results.document import ThreadResult, TraceInfo
 from runner.run.measure import spread
-from runner.run.tracing import TraceData, TracedThread, TraceUnavailable
+from runner.run.tracing import PreemptedRun, TraceData, TracedThread, TraceUnavailable
 
 IDLE = "idle"
 
@@ -58,7 +60,18 @@ def _late(t: TracedThread, bound: int, tasks: dict[int, Task]) -> list[StoredPre
     return [_stored(tid, comm, prio, n, tasks) for (tid, comm, prio), n in counts.most_common()]
 
 
-def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task]) -> ThreadResult:
+def _run(r: PreemptedRun, window_start: int, tasks: dict[int, Task]) -> StoredRun:
+    return StoredRun(
+        at_ns=r.start_ns - window_start,
+        wall_ns=max(0, r.end_ns - r.start_ns),
+        preempted_ns=r.preempted_ns,
+        preemptions=r.preemptions,
+        by=_stored(r.taker_tid, r.taker_comm, r.taker_prio, r.taker_count, tasks),
+        by_ns=r.taker_ns,
+    )
+
+
+def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task], window_start: int = 0) -> ThreadResult:
     """A thread's result with the trace's figures and attributions added."""
     hist = from_rows(t.latency, t.latency_min, t.latency_max)
     wakeup = spread(hist)
@@ -75,19 +88,29 @@ def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task]) ->
     preempted_by = [_stored(p.tid, p.comm, p.prio, p.count, tasks) for p in t.preemptors]
     late = _late(t, wakeup.p99, tasks) if wakeup is not None else []
     return thread.model_copy(
-        update={"figures": figures, "preempted_by": preempted_by, "late_wakeups_by": late, "late_wakeups": sum(p.count for p in late)}
+        update={
+            "figures": figures,
+            "preempted_by": preempted_by,
+            "late_wakeups_by": late,
+            "late_wakeups": sum(p.count for p in late),
+            "preempted_runs": [_run(r, window_start, tasks) for r in t.runs],
+        }
     )
 
 
 def apply(
-    threads: list[ThreadResult], trace: TraceData | TraceUnavailable | None, tasks: dict[int, Task]
+    threads: list[ThreadResult], trace: TraceData | TraceUnavailable | None, tasks: dict[int, Task], window_start: Optional[int] = None
 ) -> tuple[list[ThreadResult], TraceInfo]:
-    """Every thread with the trace's figures where the trace followed it, and what the trace was (or why there was none)."""
+    """Every thread with the trace's figures where the trace followed it, and what the trace was (or why there was none).
+
+    `window_start` (CLOCK_MONOTONIC of the measured window's start) is where preempted runs' times count from.
+    """
     if trace is None:
         return threads, TraceInfo(enabled=False, reason="not asked for (--no-trace)")
     if isinstance(trace, TraceUnavailable):
         return threads, TraceInfo(enabled=False, reason=trace.reason)
-    out = [with_trace(t, trace.threads[t.tid], tasks) if t.tid in trace.threads else t for t in threads]
+    origin = window_start or 0
+    out = [with_trace(t, trace.threads[t.tid], tasks, origin) if t.tid in trace.threads else t for t in threads]
     info = TraceInfo(
         enabled=True,
         events=trace.events,
@@ -96,6 +119,7 @@ def apply(
         unseen_switch_ins=trace.unseen_switch_ins,
         reader_cpu_ns=trace.reader_cpu_ns,
         duration_ns=trace.duration_ns,
+        window_start_ns=window_start,
         notes=list(trace.notes),
     )
     return out, info

@@ -95,6 +95,22 @@ class LateWakeup:
 
 
 @dataclass(frozen=True)
+class PreemptedRun:
+    """One of a thread's most preempted runs: from the switch-in that ended a wake-up to its next
+    voluntary switch-out (a callback, for a periodic thread of the runner's)."""
+
+    start_ns: int  # CLOCK_MONOTONIC of that switch-in
+    end_ns: int  # of the switch-out
+    preempted_ns: int  # runnable but off its CPU, within the run
+    preemptions: int
+    taker_tid: int  # the task that held the CPU longest meanwhile (of the first four distinct ones)
+    taker_comm: str
+    taker_prio: int  # as sched_switch reports it
+    taker_count: int  # the run's preemptions by it
+    taker_ns: int  # how long it held the CPU from this thread, within the run
+
+
+@dataclass(frozen=True)
 class TracedThread:
     """One thread's scheduling, from the trace, inside the window."""
 
@@ -116,6 +132,7 @@ class TracedThread:
     latency_sum: int = 0  # of all its wake-up latencies (the mean is latency_sum / wakeups)
     exited: bool = False  # its sched_process_exit was traced
     unseen_switch_ins: int = 0  # switch-outs with no traced switch-in before them (a wake-up then goes unmeasured)
+    runs: tuple[PreemptedRun, ...] = ()  # its 16 most preempted runs (preempted_ns), most first
 
 
 @dataclass(frozen=True)
@@ -591,6 +608,10 @@ def _trace_data(result: dict[str, Any], stats_lost: int, duration_ns: int, notes
             latency_sum=t["latency_sum"],
             exited=t["exited"],
             unseen_switch_ins=t["unseen_switch_ins"],
+            runs=tuple(
+                PreemptedRun(start, end, off, n, tid, _text(comm), prio, count, held)
+                for start, end, off, n, tid, comm, prio, count, held in t["runs"]
+            ),
         )
     if result["malformed"]:
         notes.append(f"{result['malformed']} trace records could not be decoded")
