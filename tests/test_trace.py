@@ -262,6 +262,25 @@ def test_a_window_counts_only_the_events_inside_it_and_cuts_run_time():
     assert a.run_ns == (2_000 - 1_500) + (5_000 - 3_300) + (7_000 - 6_000)
 
 
+def test_a_run_that_ends_after_the_window_is_not_kept():
+    """What a thread does once its measured work is over (a worker's epilogue) is not its last callback's."""
+    events = [
+        (3_000, tp.waking(A)),
+        (3_300, tp.switch(IDLE0, A, R)),
+        (4_000, tp.switch(A, HOG, R_PLUS)),
+        (5_000, tp.switch(HOG, A, R_PLUS)),
+        (5_500, tp.switch(A, IDLE0, S)),  # ends inside the window: kept
+        (6_000, tp.waking(A)),
+        (6_100, tp.switch(IDLE0, A, R)),
+        (6_500, tp.switch(A, HOG, R_PLUS)),
+        (6_900, tp.switch(HOG, A, R_PLUS)),
+        (9_000, tp.switch(A, IDLE0, S)),  # ends after it
+    ]
+    a = traced({0: events}, window=(1_500, 7_000)).threads[100]
+    assert [(r.start_ns, r.end_ns) for r in a.runs] == [(3_300, 5_500)]
+    assert a.preemptions == 2, "both preemptions were inside the window and count for the thread"
+
+
 def test_a_window_set_after_events_outside_it_were_counted_says_so():
     r = tp.reader()
     r.track([100])

@@ -607,6 +607,10 @@ static void run_periodic(struct slot *s) {
         }
         h->missed += (uint64_t)missed;
     }
+    /* No release left in the run: wait for its end as a thread waiting for its next release
+     * would, rather than run on into the worker's own epilogue (the trace ends this callback's
+     * run at this sleep, as it ends every other one's). */
+    if (!g_stop && next >= g->end_ns) sleep_until(g->end_ns);
 }
 
 static void run_spin(struct slot *s) {

@@ -348,10 +348,12 @@ static void run_heap_down(struct kept_run *h, int n, int i) {
     }
 }
 
-/* A run ended at `ts`: kept among the thread's most preempted when it was preempted at all. */
-static void run_close(struct thread *t, uint64_t ts) {
+/* A run ended at `ts`: kept among the thread's most preempted when it was preempted at all and
+ * ended inside the window (one that ends after it also holds what the thread did once its
+ * measured work was over, which is not the run's to carry). */
+static void run_close(Reader *r, struct thread *t, uint64_t ts) {
     struct run *c = &t->cur;
-    if (c->start && c->preemptions && c->preempted_ns > 0) {
+    if (c->start && c->preemptions && c->preempted_ns > 0 && (int64_t)ts <= r->win_end) {
         int top = 0;
         for (int k = 1; k < c->ntakers; k++)
             if (c->takers[k].ns > c->takers[top].ns) top = k;
@@ -430,7 +432,7 @@ static void apply_switch(Reader *r, const struct rec *e) {
             }
         } else {
             if (in) p->voluntary++;
-            run_close(p, e->ts);
+            run_close(r, p, e->ts);
         }
     }
     if (n) {
