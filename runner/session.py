@@ -456,8 +456,8 @@ class _SamplesFile:
     def __init__(self, writer: SamplesWriter):
         self.writer = writer
 
-    def write(self, key: str, tid: int, period_ns: int, samples: list[Sample]) -> None:
-        self.writer.writerows(sample_rows(key, tid, period_ns, samples))
+    def write(self, key: str, tid: int, samples: list[Sample]) -> None:
+        self.writer.writerows(sample_rows(key, tid, samples))
 
 
 def _settle(settle_ns: int, stop: StopSignals) -> None:

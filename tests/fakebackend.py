@@ -126,13 +126,13 @@ class FakeBackend:
                         0,
                         0,
                         0,
+                        period_ns=period,
                     )
                     for k in range(served)
                 ]
             tid = 10_000 + len(threads)
             slot = slot_of(
                 samples,
-                period,
                 tid=tid,
                 end_ru=(act.nivcsw * len(samples), len(samples), 0, 0),
                 cpus_seen=(0,),
@@ -141,7 +141,7 @@ class FakeBackend:
                 bound=scenario.latency_bound or 0,
             )
             if samples and options.samples is not None:
-                options.samples.write(thread_key(p.process, p.instance, p.index, p.name), tid, period, samples)
+                options.samples.write(thread_key(p.process, p.instance, p.index, p.name), tid, samples)
             applied = Settings(Policy.OTHER, 0, p.settings.nice, p.settings.cpus) if act.degrade else p.settings
             threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True, len(samples)))
             assert is_periodic(p.work) or not samples

@@ -191,6 +191,7 @@ def many_threads(folder: str, threads: int = 256, processes: int = 8, callbacks:
                         0,
                         0,
                         "",  # chain_ns: outside a chain
+                        1_000_000,  # period_ns
                     ]
                 )
         cell.threads = made

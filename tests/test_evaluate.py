@@ -63,13 +63,27 @@ def _raw(callbacks: int, interrupted: bool = False, failures: tuple[str, ...] = 
     for p in planned:
         samples = (
             tuple(
-                Sample(t0 + k * period, t0 + k * period + 20_000, t0 + k * period + 40_000_000, 40_000_000, k, 0, 1, 0, 0, 0, 0, 0)
+                Sample(
+                    t0 + k * period,
+                    t0 + k * period + 20_000,
+                    t0 + k * period + 40_000_000,
+                    40_000_000,
+                    k,
+                    0,
+                    1,
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                    period_ns=period,
+                )
                 for k in range(callbacks)
             )
             if p.index == 0
             else ()
         )
-        slot = slot_of(list(samples), period, tid=100 + p.index, cpus_seen=(0,), work_start_ns=t0)
+        slot = slot_of(list(samples), tid=100 + p.index, cpus_seen=(0,), work_start_ns=t0)
         threads.append(RawThread(p, 99, slot, applied if p.index == 0 else p.settings, ApplyErrors(), True))
     timeline = Timeline(0, t0, t0 + 10 * period, t0 + 10 * period, t0 + 11 * period)
     return cell, RawCell("now", tuple(threads), 1, timeline, failures=failures, interrupted=interrupted)

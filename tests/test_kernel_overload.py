@@ -101,12 +101,14 @@ def test_the_native_figures_are_the_documented_definitions_of_the_rows_written(t
                 r["cpu_start"],
                 r["cpu_end"],
                 r["missed"],
+                period_ns=r["period_ns"] or 0,
             )
             for r in written[t["key"]]
         ]
         assert len(samples) == t["figures"]["callbacks"] == t["samples_written"] and t["samples_lost"] == 0
-        assert [r["latency_ns"] for r in written[t["key"]]] == [s.release_latency(PERIOD) for s in samples]
-        mirror = stats_of(samples, PERIOD)
+        assert {s.period_ns for s in samples} == {PERIOD}, "every row says the period it was measured against"
+        assert [r["latency_ns"] for r in written[t["key"]]] == [s.release_latency() for s in samples]
+        mirror = stats_of(samples)
         assert mirror.latency is not None and mirror.slack is not None
         assert hg.Histogram.model_validate(t["histograms"]["latency"]) == mirror.latency
         assert hg.Histogram.model_validate(t["histograms"]["slack"]) == mirror.slack

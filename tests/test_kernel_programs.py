@@ -201,6 +201,36 @@ def test_each_phase_applies_its_policy_and_cpu_as_the_kernel_reports_on_entry(tm
     assert f["missed_releases"] < f["releases"] // 10
 
 
+def test_phases_at_other_periods_measure_each_activation_against_its_own_timer(tmp_path):
+    # rt-app's light/heavy pattern on the private timer (10 ms, then 20 ms), then a named 50 ms timer,
+    # and back: before a thread's timers could differ, coming back to one counted the other phases'
+    # time as its missed releases (65 of 112 for two named timers of 10 and 50 ms).
+    phases = [
+        {"name": "light", "loop": 5, "events": [{"timer": {"period": "10ms"}}, {"run": "1ms"}]},
+        {"name": "heavy", "loop": 3, "events": [{"timer": {"period": "20ms"}}, {"run": "4ms"}]},
+        {"name": "slow", "loop": 2, "events": [{"timer": "slow"}, {"run": "2ms"}]},
+    ]
+    scenario = {
+        "name": "periods",
+        "resources": {"slow": {"kind": "timer", "period": "50ms"}},
+        "processes": [{"name": "prd", "main": {"sched": "fifo:50", "work": {"kind": "phases", "phases": phases}}}],
+    }
+    done = run_inline(tmp_path, scenario)
+    f = thread(done.results, "prd")["figures"]
+    assert done.code == 0, done.out
+    assert f["callbacks"] >= 3 * 10 and f["missed_releases"] == 0 and f["overruns"] == 0
+    key = thread(done.results, "prd")["key"]
+    periods = activation_column(tmp_path, done.results, "default", "period_ns")[key]
+    released = activation_column(tmp_path, done.results, "default", "scheduled_ns")[key]
+    cycle = [10_000_000] * 5 + [20_000_000] * 3 + [50_000_000] * 2
+    assert periods == (cycle * (len(periods) // len(cycle) + 1))[: len(periods)], "each row carries the period of its timer event"
+    for i in range(1, len(periods)):
+        if periods[i] != 50_000_000 and periods[i - 1] != 50_000_000:
+            assert released[i] - released[i - 1] == periods[i], "the private grid advances by each event's own period"
+        elif periods[i] == periods[i - 1] == 50_000_000:
+            assert released[i] - released[i - 1] == 50_000_000
+
+
 def test_a_deadlock_ends_with_its_cell_as_an_error_naming_where_each_thread_stood(tmp_path):
     ab = [{"lock": "a"}, {"sleep": "20ms"}, {"lock": "b"}, {"unlock": "b"}, {"unlock": "a"}]
     ba = [{"lock": "b"}, {"sleep": "20ms"}, {"lock": "a"}, {"unlock": "a"}, {"unlock": "b"}]

@@ -14,12 +14,12 @@ PERIOD = 100_000_000
 
 
 def slot(samples, finished=True):
-    return slot_of(list(samples), PERIOD, state="done" if finished else "running", end_ru=(7, 30, 12900, 0), cpus_seen=(1,))
+    return slot_of(list(samples), state="done" if finished else "running", end_ru=(7, 30, 12900, 0), cpus_seen=(1,))
 
 
 def sample(i, lat_us, nivcsw, minflt=0, missed=0, end_ms=40):
     due = i * PERIOD
-    return Sample(due, due + lat_us * 1000, due + end_ms * 1_000_000, 40_000_000, i, nivcsw, 0, minflt, 0, 1, 0, missed)
+    return Sample(due, due + lat_us * 1000, due + end_ms * 1_000_000, 40_000_000, i, nivcsw, 0, minflt, 0, 1, 0, missed, period_ns=PERIOD)
 
 
 def top(value):
@@ -49,7 +49,8 @@ def test_figures_of_a_callback_thread():
 
 
 def test_an_unfinished_thread_counts_what_its_callbacks_recorded():
-    late = Sample(PERIOD, PERIOD + 10_000, PERIOD + 40_000_000, 40_000_000, 1, 5, 3, 4, 1, 1, 0, 0)  # 3 voluntary, 4 + 1 faults
+    # 3 voluntary switches, 4 + 1 faults
+    late = Sample(PERIOD, PERIOD + 10_000, PERIOD + 40_000_000, 40_000_000, 1, 5, 3, 4, 1, 1, 0, 0, period_ns=PERIOD)
     f = thread_figures(slot([sample(0, 10, 2, minflt=6), late], finished=False), periodic=True)
     assert not f.complete and f.involuntary.total == 7 and f.voluntary.total == 3
     assert (f.faults.minor, f.faults.major) == (10, 1)
@@ -86,9 +87,9 @@ def test_a_thread_that_cannot_keep_up_shows_its_misses_overruns_and_negative_sla
 
 def test_the_latency_bound_counts_the_releases_above_it():
     samples = [sample(0, 10, 0), sample(1, 500, 0), sample(3, 20, 0, missed=1)]
-    f = thread_figures(slot_of(samples, PERIOD, bound=100_000), periodic=True, bound=100_000)
+    f = thread_figures(slot_of(samples, bound=100_000), periodic=True, bound=100_000)
     assert f.latency_ns is not None and f.latency_ns.above_bound == 2  # 500 us, and the release skipped before #3
-    assert thread_figures(slot_of(samples, PERIOD), periodic=True).latency_ns.above_bound is None  # type: ignore[union-attr]
+    assert thread_figures(slot_of(samples), periodic=True).latency_ns.above_bound is None  # type: ignore[union-attr]
 
 
 @given(st.lists(st.integers(min_value=0, max_value=2**64 - 1), min_size=16, max_size=16))
@@ -109,12 +110,12 @@ def test_a_stage_released_by_resumes_has_callbacks_and_latency_but_nothing_measu
         Sample(10_000_000, 12_000_000, 14_000_000, 0, 1, 0, 0, 0, 0, 0, 0, 0, origin_ns=1),
         Sample(30_000_000, 30_020_000, 31_000_000, 0, 2, 0, 0, 0, 0, 0, 0, 0),
     ]
-    f = thread_figures(slot_of(taken, 0), periodic=False, released=True)
+    f = thread_figures(slot_of(taken), periodic=False, released=True)
     assert f.callbacks == 3 and (f.releases, f.missed_releases, f.overruns, f.slack_ns) == (0, 0, 0, None)
     assert f.latency_ns is not None and (f.latency_ns.min, f.latency_ns.max) == (20_000, 2_000_000)
     assert f.callback_wall_ns is not None and f.callback_wall_ns.max == 11_950_000
     assert f.involuntary.callbacks_with_any == 1
     # Rows: no slack; the chain latency where the activation belongs to a chain.
-    written = rows("app[0]/stage #1", 7, 0, taken)
-    assert [(r[7], r[-1]) for r in written] == [(None, 11_999_999), (None, 13_999_999), (None, None)]
-    assert thread_figures(slot_of(taken, 0), periodic=False).callbacks == 0, "neither periodic nor released: no callbacks"
+    written = rows("app[0]/stage #1", 7, taken)
+    assert [(r[7], r[-2], r[-1]) for r in written] == [(None, 11_999_999, 0), (None, 13_999_999, 0), (None, None, 0)]
+    assert thread_figures(slot_of(taken), periodic=False).callbacks == 0, "neither periodic nor released: no callbacks"

@@ -89,8 +89,6 @@ def test_locks_balance_within_a_phase_and_a_wait_holds_its_mutex():
     ):
         with pytest.raises(ValidationError, match=words):
             work(events)
-    with pytest.raises(ValidationError, match="timers share one period"):
-        PhasesWork.model_validate({"phases": [{"events": [{"timer": {"period": "1ms"}}]}, {"events": [{"timer": {"period": "2ms"}}]}]})
 
 
 def test_deadline_defaults_follow_rt_app_and_the_kernels_order_is_checked():
@@ -132,6 +130,32 @@ def test_a_program_with_a_timer_has_callbacks_at_its_period():
         ("a", 5_000_000, True),
         ("b", 5_000_000, True),
     ]
+
+
+def test_a_thread_whose_phases_follow_timers_of_other_periods_has_each_of_them_shortest_first():
+    s = Scenario.model_validate(
+        {
+            "name": "periods",
+            "resources": {"slow": {"kind": "timer", "period": "50ms"}},
+            "processes": [
+                {
+                    "name": "app",
+                    "main": {
+                        "work": {
+                            "kind": "phases",
+                            "phases": [
+                                {"events": [{"timer": {"period": "20ms"}}, {"run": "1ms"}]},
+                                {"events": [{"timer": "slow"}, {"run": "2ms"}]},
+                                {"events": [{"timer": {"period": "10ms"}}, {"run": "1ms"}]},
+                            ],
+                        }
+                    },
+                }
+            ],
+        }
+    )
+    (main,) = plan_scenario(s, Settings())
+    assert (main.periods, main.period) == ((10_000_000, 20_000_000, 50_000_000), 10_000_000)
 
 
 def test_a_stage_without_a_timer_that_suspends_is_released_by_resumes():

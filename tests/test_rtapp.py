@@ -315,6 +315,21 @@ def test_one_unique_timer_in_several_events_is_one_grid_as_in_rt_app():
     assert not any("timer" in n for n in c.notes)
 
 
+def test_a_unique_timer_whose_phases_give_it_other_periods_keeps_each_and_is_a_valid_scenario():
+    """rt-app's light/heavy pattern: one grid, advanced by each timer event's own period."""
+    c = conv(
+        """
+        {"tasks": {"t": {"loop": -1, "phases": {
+            "light": {"loop": 10, "run": 1000, "timer": {"ref": "unique", "period": 10000}},
+            "heavy": {"loop": 10, "run": 4000, "timer": {"ref": "unique", "period": 20000}}}}}}
+        """
+    )
+    phases = c.scenario["processes"][0]["threads"][0]["work"]["phases"]
+    assert [p["events"][1]["timer"]["period"] for p in phases] == ["10ms", "20ms"]
+    assert not any("timer" in n for n in c.notes), c.notes
+    Scenario.model_validate(c.scenario)
+
+
 def test_two_unique_timers_of_one_thread_becoming_one_grid_is_noted():
     c = conv(
         """

@@ -52,6 +52,7 @@ SAMPLE_COLUMNS = (
     "cond_wait_ns",
     "barrier_wait_ns",
     "chain_ns",
+    "period_ns",
 )
 
 

@@ -12,8 +12,8 @@
  * buffer (layout below) that the runner reads while the run goes on and after
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
- * Buffer layout (little endian, all offsets in bytes), version 4:
- *   file header, 64 bytes:  magic "RSMP0005", u32 version, u32 nthreads,
+ * Buffer layout (little endian, all offsets in bytes), version 6:
+ *   file header, 64 bytes:  magic "RSMP0006", u32 version, u32 nthreads,
  *                           u32 capacity, u32 slot_header_size, u32 sample_size,
  *                           u32 hist_buckets (0 when the group keeps none),
  *                           u64 slot_stride, u32 event_stats, u32 phase_stats
@@ -21,7 +21,7 @@
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
- *     ring of capacity samples of 96 bytes (struct sample): sample n at n % capacity
+ *     ring of capacity samples of 104 bytes (struct sample): sample n at n % capacity
  *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
  *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
  *
@@ -55,7 +55,7 @@
 
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
-#define SAMPLE_BYTES 96
+#define SAMPLE_BYTES 104
 #define MAX_CPU_WORDS 16
 
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
@@ -118,6 +118,7 @@ struct sample {
     int64_t cond_wait_ns;  /* in wait on a condition variable */
     int64_t barrier_wait_ns;
     int64_t origin_ns;     /* programs: the timer release that started this activation's chain, 0 if none */
+    int64_t period_ns;     /* the period of the timer that released it (a program's timers may differ); 0: a resume */
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
@@ -416,6 +417,7 @@ struct timer_state {
 /* What a running program keeps to itself (not in the shared buffer). */
 struct program_state {
     struct timer_state timers[MAX_EVENTS];
+    int timer_key;               /* the timer of the thread's last timer event (its key), -1 before one */
     int act_open;
     int64_t act_release, act_wake, act_period;
     int32_t act_missed;
@@ -594,6 +596,7 @@ static void run_periodic(struct slot *s) {
         c.cpu_start = (int16_t)cpu0;
         c.cpu_end = (int16_t)cpu1;
         c.missed = missed;
+        c.period_ns = w->period_ns;
         note_cpu(h, cpu0);
         note_cpu(h, cpu1);
         h->loops++;
@@ -717,6 +720,7 @@ static void activation_close(struct slot *s, struct program_state *ps, int64_t e
     c.cond_wait_ns = ps->act_cond_wait;
     c.barrier_wait_ns = ps->act_barrier_wait;
     c.origin_ns = ps->origin;
+    c.period_ns = ps->act_period;
     note_cpu(s->hdr, c.cpu_end);
     s->hdr->loops++;
     record_callback(s, &c, ps->act_period);
@@ -748,10 +752,12 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     activation_close(s, ps, now);
     int64_t period = e->arg, next, rebased = 0;
     int32_t missed = 0;
-    if (!t->started) {
-        /* A named timer's grid starts at the common start, a private one's at its first use. */
+    if (!t->started || ps->timer_key != e->key) {
+        /* A named timer's grid starts at the common start, a private one's at its first use.  A thread that
+         * comes back to a timer after following another (a phase of another period) joins it at its next
+         * release: the releases that passed meanwhile were never due to it, so none is missed. */
+        if (!t->started || e->res < 0) t->origin = e->res >= 0 ? g->start_ns : now;
         t->started = 1;
-        t->origin = e->res >= 0 ? g->start_ns : now;
         next = t->origin + ((now - t->origin) / period + 1) * period;
     } else {
         next = t->last + period;
@@ -766,6 +772,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
             } /* OVR_CATCHUP: keep the grid, run every late release at once */
         }
     }
+    ps->timer_key = e->key;
     if (next >= g->end_ns) { /* no release left in the run: the program is over */
         sleep_until(g->end_ns);
         return;
@@ -1099,6 +1106,7 @@ static struct program_state *program_prepare(struct slot *s) {
     struct program_state *ps = calloc(1, sizeof(*ps));
     if (!ps) return NULL;
     ps->io_fd = -1;
+    ps->timer_key = -1;
     if (s->prog->mem_bytes > 0) {
         ps->mem = malloc((size_t)s->prog->mem_bytes);
         if (ps->mem) memset(ps->mem, 0, (size_t)s->prog->mem_bytes);
@@ -1315,8 +1323,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0005", 8);
-    uint32_t meta[6] = {5, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
+    memcpy(g->base, "RSMP0006", 8);
+    uint32_t meta[6] = {6, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));
@@ -1386,7 +1394,7 @@ static struct program *parse_program(const struct group *g, PyObject *spec) {
             goto fail;
         }
         /* A timer's state is the first event naming the same timer: a named one by name, and the thread's
-         * private timers (which share one period) as one, so a phase that comes back resumes the grid. */
+         * private timers as one (rt-app's `unique` timer: its grid advances by each event's own period). */
         e->key = (int)i;
         if (e->type == EV_TIMER) {
             for (Py_ssize_t k = 0; k < i; k++)

@@ -47,7 +47,7 @@ class CellOptions:
 class SampleSink(Protocol):
     """Where per-callback samples go while a cell runs (the session's samples file)."""
 
-    def write(self, key: str, tid: int, period_ns: int, samples: list[Sample]) -> None:
+    def write(self, key: str, tid: int, samples: list[Sample]) -> None:
         """Take these callbacks of one thread, in order; never raises (a write error is kept for the end)."""
 
 

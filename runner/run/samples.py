@@ -1,8 +1,8 @@
 """The shared sample buffer written by the native core, read from Python.
 
-Layout (see _probe.c, version 5): a 64-byte file header, then per thread a 512-byte
+Layout (see _probe.c, version 6): a 64-byte file header, then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
-negative slack, callback wall time; see runner/histogram.py), a ring of 96-byte
+negative slack, callback wall time; see runner/histogram.py), a ring of 104-byte
 samples, and for programs (`kind: phases`) the figures of each event (with its
 histogram; one more for the chain latency) and of each phase.  The runner creates the buffer as a memfd (RAM that no writeback ever
 write-protects, gone with the runner), the worker maps it and its threads write
@@ -25,7 +25,7 @@ from runner.run import _probe
 FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
-SAMPLE = struct.Struct("<qqqqqiiiihhiqqqq")
+SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqq")
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiq")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
@@ -33,7 +33,7 @@ EV_HDR = 192
 PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
-assert SAMPLE.size == 96 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
+assert SAMPLE.size == 104 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
 
 
 @dataclass(frozen=True)
@@ -56,18 +56,19 @@ class Sample:
     cond_wait_ns: int = 0  # programs: blocked in wait on a condition variable
     barrier_wait_ns: int = 0  # programs: blocked at barriers
     origin_ns: int = 0  # programs: the timer release that started this activation's chain; 0: none
+    period_ns: int = 0  # the period of the timer that released it (a program's timers may differ); 0: released by a resume
 
     def chain_ns(self) -> Optional[int]:
         """From the chain's first release to this activation's end (programs in a chain); None outside a chain."""
         return self.end_ns - self.origin_ns if self.origin_ns > 0 else None
 
-    def release_latency(self, period: int) -> int:
+    def release_latency(self) -> int:
         """From the oldest release this wake-up answered (the first of those skipped, if any) to the wake-up."""
-        return self.wake_ns - self.scheduled_ns + self.missed * period
+        return self.wake_ns - self.scheduled_ns + self.missed * self.period_ns
 
-    def slack(self, period: int) -> Optional[int]:
+    def slack(self) -> Optional[int]:
         """From the end of the callback to its next release; negative when it overran; None without a period (released by a resume)."""
-        return self.scheduled_ns + period - self.end_ns if period > 0 else None
+        return self.scheduled_ns + self.period_ns - self.end_ns if self.period_ns > 0 else None
 
 
 @dataclass(frozen=True)
@@ -170,12 +171,12 @@ class SlotData:
         return tuple(e - s for e, s in zip(self.end_ru, self.start_ru))  # type: ignore[return-value]
 
 
-def stats_of(samples: list[Sample], period: int, bound: int = 0) -> CallbackStats:
+def stats_of(samples: list[Sample], bound: int = 0) -> CallbackStats:
     """What the native core computes from these callbacks, computed in Python: for fakes and cross-checks."""
     if not samples:
         return CallbackStats()
-    latencies = [s.wake_ns - s.scheduled_ns + k * period for s in samples for k in range(s.missed, -1, -1)]
-    slacks = [v for v in (s.slack(period) for s in samples) if v is not None]
+    latencies = [s.wake_ns - s.scheduled_ns + k * s.period_ns for s in samples for k in range(s.missed, -1, -1)]
+    slacks = [v for v in (s.slack() for s in samples) if v is not None]
     lat_mean, lat_m2 = _welford(latencies)
     slack_mean, slack_m2 = _welford(slacks)
     return CallbackStats(
@@ -204,7 +205,6 @@ def stats_of(samples: list[Sample], period: int, bound: int = 0) -> CallbackStat
 
 def slot_of(
     samples: list[Sample],
-    period: int,
     *,
     tid: int = 1,
     state: str = "done",
@@ -231,7 +231,7 @@ def slot_of(
         work_start_ns=work_start_ns,
         work_end_ns=work_end_ns,
         cpus_seen=tuple(sorted(set(cpus_seen) | {c for s in samples for c in (s.cpu_start, s.cpu_end)})),
-        stats=stats_of(samples, period, bound),
+        stats=stats_of(samples, bound),
     )
 
 
@@ -466,7 +466,7 @@ class Buffer:
         self.map.close()
 
 
-def rows(key: str, tid: int, period: int, taken: list[Sample]) -> list[tuple[object, ...]]:
+def rows(key: str, tid: int, taken: list[Sample]) -> list[tuple[object, ...]]:
     """Samples as rows of the samples file, in SAMPLE_COLUMNS order (latency from the oldest release answered)."""
     return [
         (
@@ -476,8 +476,8 @@ def rows(key: str, tid: int, period: int, taken: list[Sample]) -> list[tuple[obj
             s.scheduled_ns,
             s.wake_ns,
             s.end_ns,
-            s.release_latency(period),
-            s.slack(period),
+            s.release_latency(),
+            s.slack(),
             s.burn_wall_ns,
             s.nivcsw,
             s.nvcsw,
@@ -490,6 +490,7 @@ def rows(key: str, tid: int, period: int, taken: list[Sample]) -> list[tuple[obj
             s.cond_wait_ns,
             s.barrier_wait_ns,
             s.chain_ns(),
+            s.period_ns,
         )
         for s in taken
     ]

@@ -542,7 +542,6 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> Non
                 options.samples.write(
                     thread_key(t.process, t.instance, t.index, t.name),
                     int(w.ready["tids"][t.index]) if w.ready else 0,
-                    t.period or 0,
                     taken,
                 )
                 w.written[t.index] += len(taken)
@@ -704,8 +703,8 @@ class _CellRun:
         if self.tracer is not None:
             self.tracer.window(t0, t_end)
         self.t0, self.t_end = t0, t_end
-        periods = [t.period for t in self.planned if t.period]
-        grace = int(max(STOP_GRACE_S * 1e9, 2 * max(periods, default=0)))
+        longest = max((p for t in self.planned for p in t.periods), default=0)
+        grace = int(max(STOP_GRACE_S * 1e9, 2 * longest))
         self.watchdog.arm(t_end + grace + int(1e9), pids)
         for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
             w.send(f"go {t0} {t_end}")

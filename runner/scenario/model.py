@@ -833,14 +833,6 @@ class PhasesWork(Strict):
         for i, name in enumerate(names):
             if names.index(name) != i:
                 raise KeyProblem(("phases", i, "name"), f"phase name {name!r} is used twice in this thread")
-        periods = {e.period for p in self.phases for e in p.events if e.event is EventKind.TIMER and e.period is not None}
-        if len(periods) > 1:
-            raise KeyProblem(
-                "phases",
-                "a thread's timers share one period (its activations are measured against it); got "
-                + ", ".join(units.format_duration(p) for p in sorted(periods))
-                + "; put work with another period on another thread",
-            )
         return self
 
     def phase_names(self) -> list[str]:
@@ -850,15 +842,17 @@ class PhasesWork(Strict):
         """Every event with the index of its phase, in program order."""
         return [(k, e) for k, p in enumerate(self.phases) for e in p.events]
 
-    def timer_period(self, resources: dict[str, Resource]) -> Optional[int]:
-        """The period of the thread's timers (private or named), None when it has none."""
+    def timer_periods(self, resources: dict[str, Resource]) -> tuple[int, ...]:
+        """The periods of the thread's timers (private or named), shortest first; empty when it has none.
+
+        Each activation is measured against the period of the timer event that released it."""
+        periods = set()
         for _, e in self.events():
             if e.event is EventKind.TIMER:
-                if e.period is not None:
-                    return e.period
-                res = resources.get(e.timer or "")
-                return res.period if res is not None else None
-        return None
+                period = e.period if e.period is not None else getattr(resources.get(e.timer or ""), "period", None)
+                if period is not None:
+                    periods.add(period)
+        return tuple(sorted(periods))
 
 
 class Resource(Strict):

@@ -109,8 +109,13 @@ class PlannedThread:
     work: Work
     settings: Settings
     origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
-    period: Optional[int] = None  # the period of its callbacks (periodic work, or a program's timer); None without
+    periods: tuple[int, ...] = ()  # the periods its callbacks are released at (periodic work's, its program's timers'), shortest first
     spawned: bool = False  # created mid-run by a spawn event of another thread, not at the start
+
+    @property
+    def period(self) -> Optional[int]:
+        """The shortest period its callbacks are released at (the rate its ring is sized for); None without a timer."""
+        return self.periods[0] if self.periods else None
 
     @property
     def released(self) -> bool:
@@ -123,13 +128,13 @@ class PlannedThread:
         return self.period is not None or self.released
 
 
-def work_period(work: Work, resources: Optional[dict[str, Resource]] = None) -> Optional[int]:
-    """The period a thread's callbacks are released at: periodic work's, or its program's timer's; None without."""
+def work_periods(work: Work, resources: Optional[dict[str, Resource]] = None) -> tuple[int, ...]:
+    """The periods a thread's callbacks are released at, shortest first: periodic work's, or its program's timers'."""
     if isinstance(work, PeriodicWork):
-        return work.period
+        return (work.period,)
     if isinstance(work, PhasesWork):
-        return work.timer_period(resources or {})
-    return None
+        return work.timer_periods(resources or {})
+    return ()
 
 
 def plan_process(
@@ -139,8 +144,8 @@ def plan_process(
     base = start.reset_on_fork() if proc.reset_on_fork else start
     main_final = base.with_sched(proc.main.sched, proc.main.cpus)
     creator = main_final if proc.main.apply is ApplyWhen.BEFORE_THREADS else base
-    main_period = work_period(proc.main.work, resources)
-    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main", main_period)]
+    main_periods = work_periods(proc.main.work, resources)
+    out = [PlannedThread(proc.name, instance, 0, proc.main_name, proc.main_name, proc.main.work, main_final, "main", main_periods)]
     index = 1
     sites = spawn_sites(proc, 0)
 
@@ -165,8 +170,8 @@ def plan_process(
         origin = ("inherited" if spec.inherit else "explicit") if not own else ("own" if spec.inherit else "explicit+own")
         for member in spec.members():  # each its own CPU, priority and period when the spec spreads them
             final = initial.with_sched(member.sched, member.cpus)
-            period = work_period(member.work, resources)
-            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin, period, spec.spawned))
+            periods = work_periods(member.work, resources)
+            out.append(PlannedThread(proc.name, instance, index, member.name, spec.name, member.work, final, origin, periods, spec.spawned))
             index += 1
     return out
 
