@@ -16,6 +16,7 @@ import random
 import signal
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, Optional
@@ -32,7 +33,7 @@ from runner.run.backend import Backend, CellOptions
 from runner.run.dmalatency import MAX_US as MAX_DMA_LATENCY_US
 from runner.run.evaluate import evaluate, unrun, with_write_error
 from runner.run.preflight import Permissions
-from runner.run.samples import Sample
+from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
 from runner.scenario.loader import LoadedScenario, ResolvedCell
@@ -456,8 +457,10 @@ class _SamplesFile:
     def __init__(self, writer: SamplesWriter):
         self.writer = writer
 
-    def write(self, key: str, tid: int, samples: list[Sample]) -> None:
-        self.writer.writerows(sample_rows(key, tid, samples))
+    def write(
+        self, key: str, tid: int, samples: list[Sample], mutexes: Sequence[str] = (), holders: Mapping[int, str] = NO_HOLDERS
+    ) -> None:
+        self.writer.writerows(sample_rows(key, tid, samples, mutexes, holders))
 
 
 def _settle(settle_ns: int, stop: StopSignals) -> None:

@@ -192,6 +192,7 @@ def many_threads(folder: str, threads: int = 256, processes: int = 8, callbacks:
                         0,
                         "",  # chain_ns: outside a chain
                         1_000_000,  # period_ns
+                        "",  # lock_waits: it locks no mutex
                     ]
                 )
         cell.threads = made

@@ -7,6 +7,7 @@ negative against positive), never exact timings.
 
 from __future__ import annotations
 
+import csv
 import gzip
 import os
 
@@ -39,12 +40,13 @@ def rows(out: str, results: dict) -> dict[str, list[dict[str, int | None]]]:
     by: dict[str, list[dict[str, int | None]]] = {}
     if not cell["samples_file"]:
         return by
-    with gzip.open(os.path.join(out, cell["samples_file"]), "rt") as handle:
-        header = handle.readline().strip().split(",")
+    with gzip.open(os.path.join(out, cell["samples_file"]), "rt", newline="") as handle:
+        reader = csv.reader(handle)
+        header = next(reader)
         assert tuple(header) == SAMPLE_COLUMNS
-        for line in handle:
-            fields = line.strip().split(",")
-            by.setdefault(fields[0], []).append({k: int(v) if v else None for k, v in zip(header[1:], fields[1:])})
+        for fields in reader:
+            numbers = {k: int(v) if v else None for k, v in zip(header[1:], fields[1:]) if k != "lock_waits"}
+            by.setdefault(fields[0], []).append(numbers)
     return by
 
 

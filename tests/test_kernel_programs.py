@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import json
 import os
 import statistics
 
@@ -89,6 +90,50 @@ def test_each_activation_says_how_long_it_waited_at_a_barrier_and_on_a_condition
     assert statistics.median(barrier["acts[0]/follower #2"]) > 2_000_000 > statistics.median(barrier["acts[0]/lead #1"])
     assert statistics.median(cond["acts[0]/waiter #3"]) > 1_000_000 and max(cond["acts[0]/sender #4"]) == 0
     assert max(activation_column(tmp_path, res, "default", "lock_wait_ns")["acts[0]/lead #1"]) == 0
+
+
+@TWO_CPUS
+def test_each_activation_says_how_long_it_waited_for_each_mutex_and_who_held_it(tmp_path):
+    # One named timer releases all three. `taker` sleeps 0.3 ms (so both holders hold their mutex),
+    # then waits for b (held by hold_b, on its CPU, 0.7 ms of its 1 ms section left) and then for a
+    # (held by hold_a, on the other CPU, for 4 ms).
+    threads = [
+        ("hold_a", "fifo:50", 0, [{"timer": "tick"}, {"lock": "a"}, {"run": "4ms"}, {"unlock": "a"}]),
+        ("hold_b", "fifo:50", 1, [{"timer": "tick"}, {"lock": "b"}, {"run": "1ms"}, {"unlock": "b"}]),
+        ("taker", "fifo:60", 1, [{"timer": "tick"}, {"sleep": "300us"}, {"lock": "b"}, {"unlock": "b"}, {"lock": "a"}, {"unlock": "a"}]),
+    ]
+    scenario = {
+        "name": "two_locks",
+        "resources": {"tick": {"kind": "timer", "period": "20ms"}, "a": {"kind": "mutex"}, "b": {"kind": "mutex"}},
+        "processes": [
+            {
+                "name": "locks",
+                "threads": [
+                    {"name": name, "sched": sched, "cpus": cpu, "work": {"kind": "phases", "events": evs}}
+                    for name, sched, cpu, evs in threads
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    res = done.results
+    c = res["cells"][0]
+    rows = {}
+    with gzip.open(tmp_path / "out" / c["samples_file"], "rt", newline="") as handle:
+        for row in csv.DictReader(handle):
+            rows.setdefault(row["thread"], []).append(row)
+    taker = rows["locks[0]/taker #3"]
+    waits = [json.loads(r["lock_waits"]) for r in taker]
+    assert len(waits) > 30 and all(set(w) == {"a", "b"} for w in waits), waits[:3]
+    # The per-mutex waits add up to the activation's lock wait, and each names the thread that held it.
+    assert [w["a"]["wait_ns"] + w["b"]["wait_ns"] for w in waits] == [int(r["lock_wait_ns"]) for r in taker]
+    assert sum(w["a"]["held_by"] == "locks[0]/hold_a #1" for w in waits) > len(waits) * 0.9
+    assert sum(w["b"]["held_by"] == "locks[0]/hold_b #2" for w in waits) > len(waits) * 0.9
+    a, b = statistics.median(w["a"]["wait_ns"] for w in waits), statistics.median(w["b"]["wait_ns"] for w in waits)
+    assert a > 2_000_000 and 200_000 < b < a, (a, b)
+    # A holder's own activations took their mutex, almost always without waiting.
+    own = [json.loads(r["lock_waits"])["a"] for r in rows["locks[0]/hold_a #1"]]
+    assert all(w["taken"] == 1 and w["held_by"] is None for w in own) and sum(w["contended"] for w in own) < len(own) * 0.1
 
 
 @TWO_CPUS

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 from hypothesis import given
 from hypothesis import strategies as st
 
 from runner import histogram as hg
+from runner.results.samplesfile import SAMPLE_COLUMNS
 from runner.run.measure import check, thread_figures
-from runner.run.samples import Sample, _bits, rows, slot_of
+from runner.run.samples import LockWait, Sample, _bits, rows, slot_of
 from runner.scenario.model import Expectation
 
 PERIOD = 100_000_000
@@ -103,6 +106,36 @@ def test_cpu_masks_at_the_ends_of_their_words():
     assert _bits((0,) * 16) == ()
 
 
+def test_a_row_says_per_mutex_how_long_the_activation_waited_and_who_held_it():
+    taken = [
+        Sample(
+            0,
+            10,
+            9_000_000,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+            lock_wait_ns=6_500_000,
+            period_ns=PERIOD,
+            locks=(LockWait(6_000_000, 4, 1, 1), LockWait(500_000, -1, 2, 0), LockWait(0, -1, 0, 0)),
+        ),
+        Sample(PERIOD, PERIOD + 10, PERIOD + 1_000_000, 0, 1, 0, 0, 0, 0, 0, 0, 0, period_ns=PERIOD, locks=(LockWait(0, -1, 0, 0),) * 3),
+    ]
+    written = rows("app[0]/high #3", 9, taken, ("data", "log", "never"), {4: "app[0]/low #1"})
+    assert json.loads(written[0][-1]) == {
+        "data": {"wait_ns": 6_000_000, "taken": 1, "contended": 1, "held_by": "app[0]/low #1"},
+        "log": {"wait_ns": 500_000, "taken": 2, "contended": 0, "held_by": None},
+    }
+    assert written[1][-1] is None, "an activation that locked none of them"
+    assert rows("app[0]/t (main)", 9, taken)[0][-1] is None, "a thread that locks no mutex has no such cell"
+
+
 def test_a_stage_released_by_resumes_has_callbacks_and_latency_but_nothing_measured_against_a_period():
     # Released at 0, 10 and 30 ms by resumes; the second came while the first still ran (5 ms late).
     taken = [
@@ -117,5 +150,6 @@ def test_a_stage_released_by_resumes_has_callbacks_and_latency_but_nothing_measu
     assert f.involuntary.callbacks_with_any == 1
     # Rows: no slack; the chain latency where the activation belongs to a chain.
     written = rows("app[0]/stage #1", 7, taken)
-    assert [(r[7], r[-2], r[-1]) for r in written] == [(None, 11_999_999, 0), (None, 13_999_999, 0), (None, None, 0)]
+    at = [SAMPLE_COLUMNS.index(c) for c in ("slack_ns", "chain_ns", "period_ns")]
+    assert [tuple(r[i] for i in at) for r in written] == [(None, 11_999_999, 0), (None, 13_999_999, 0), (None, None, 0)]
     assert thread_figures(slot_of(taken), periodic=False).callbacks == 0, "neither periodic nor released: no callbacks"

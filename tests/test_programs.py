@@ -13,7 +13,7 @@ from runner.run import _probe, programs
 from runner.run.evaluate import degradation
 from runner.run.rawcell import ApplyErrors
 from runner.run.samples import EventStats, PhaseStats, SlotData
-from runner.run.spawn import program_tuple, resource_specs
+from runner.run.spawn import lock_slots, program_tuple, resource_specs
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
 from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
 
@@ -118,9 +118,31 @@ def test_the_native_core_gets_resources_by_index_and_each_phases_settings():
     gid, delay, loop, mem, phases, events = program_tuple(a, 7, sc)
     assert (gid, delay, loop, mem) == (7, 0, 3, 4096)
     assert events[0] == (_probe.EV_TIMER, 1, -1, _probe.OVR_REBASE, 5_000_000)  # the named timer's period and overrun
-    assert events[1] == (_probe.EV_LOCK, 0, -1, _probe.OVR_SKIP, 0) and events[2][4] == 1_000_000
+    assert events[1] == (_probe.EV_LOCK, 0, 0, _probe.OVR_SKIP, 0) and events[2][4] == 1_000_000  # m: the thread's lock slot 0
     assert phases[0] == (1, 0, 5, None)
     assert phases[1] == (2, 5, 2, (1, 40, None, [1], None))
+
+
+def test_each_mutex_a_thread_locks_has_a_lock_slot_in_the_order_it_is_first_locked_up_to_eight():
+    names = [f"m{i}" for i in range(10)]
+    events = [{"timer": {"period": "10ms"}}]
+    for name in ["m3", *names]:  # m3 first, then every one, m3 again among them
+        events += [{"lock": name}, {"unlock": name}]
+    sc = Scenario.model_validate(
+        {
+            "name": "slots",
+            "resources": {name: {"kind": "mutex"} for name in names},
+            "processes": [{"name": "app", "threads": [{"name": "t", "work": {"kind": "phases", "events": events}}]}],
+        }
+    )
+    work = sc.processes[0].threads[0].work
+    assert isinstance(work, PhasesWork)
+    assert work.locked_mutexes() == ("m3", "m0", "m1", "m2", "m4", "m5", "m6", "m7", "m8", "m9")
+    assert lock_slots(work) == ("m3", "m0", "m1", "m2", "m4", "m5", "m6", "m7")
+    *_, native = program_tuple(work, 0, sc)
+    slot_of_lock = [(sc_names[e[1]], e[2]) for e in native if e[0] == _probe.EV_LOCK for sc_names in [list(sc.resources)]]
+    assert slot_of_lock[:2] == [("m3", 0), ("m0", 1)] and ("m3", 0) in slot_of_lock[2:]
+    assert ("m8", -1) in slot_of_lock and ("m9", -1) in slot_of_lock, "beyond eight: in the activation's total only"
 
 
 def test_a_program_with_a_timer_has_callbacks_at_its_period():

@@ -53,6 +53,7 @@ SAMPLE_COLUMNS = (
     "barrier_wait_ns",
     "chain_ns",
     "period_ns",
+    "lock_waits",
 )
 
 

@@ -21,7 +21,8 @@
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
- *     ring of capacity samples of 104 bytes (struct sample): sample n at n % capacity
+ *     ring of capacity samples of sample_size bytes, sample n at n % capacity: a 104-byte struct sample,
+ *       then lock_slots 16-byte struct lock_wait (programs: the activation's wait on each mutex it locks)
  *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
  *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
  *
@@ -56,6 +57,7 @@
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
 #define SAMPLE_BYTES 104
+#define MAX_LOCK_SLOTS 8 /* mutexes a thread's activations keep apart, in the order its program first locks them */
 #define MAX_CPU_WORDS 16
 
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
@@ -122,7 +124,16 @@ struct sample {
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
+/* One activation's wait for one of the mutexes its thread locks. */
+struct lock_wait {
+    int64_t wait_ns;       /* acquiring it, summed over this activation's locks of it */
+    int32_t holder;        /* the thread (gid) that held it during the longest of those waits; -1 if never contended */
+    uint16_t taken;        /* times this activation locked it */
+    uint16_t contended;    /* of those, times it had to wait */
+};
+
 _Static_assert(sizeof(struct sample) == SAMPLE_BYTES, "sample size");
+_Static_assert(sizeof(struct lock_wait) == 16, "lock wait size");
 
 static inline void welford(uint64_t n, double *mean, double *m2, int64_t value) {
     double delta = (double)value - *mean;
@@ -424,6 +435,8 @@ struct program_state {
     int act_cpu;
     int64_t act_ru[4];
     int64_t act_lock_wait, act_cond_wait, act_barrier_wait; /* blocked so far in the open activation */
+    struct lock_wait act_locks[MAX_LOCK_SLOTS];            /* the open activation's waits by mutex (a lock event's slot) */
+    int64_t act_lock_longest[MAX_LOCK_SLOTS];              /* the longest contended wait of each, for its holder */
     int64_t origin;              /* release that started this activation's chain, 0 if none */
     int chain_open;
     uint8_t *mem;
@@ -444,7 +457,7 @@ struct slot {
     int explicit_defaults;
     struct slot_header *hdr;
     uint64_t *hist;      /* HIST_SETS * HIST_BUCKETS counters, NULL when the group keeps none */
-    struct sample *samples;
+    char *ring;                 /* capacity samples of group->sample_size bytes */
     struct program *prog;       /* kind: phases, else NULL */
     struct program_state *pstate;
     char *evbase;               /* event stats, prog->nevents + 1 of them (the last: chain latency) */
@@ -473,6 +486,8 @@ struct group {
     cpu_set_t all_cpus;
     long page_size;
     uint32_t nstats, nphases;   /* event and phase stats per slot */
+    uint32_t lock_slots;        /* struct lock_wait after each sample */
+    size_t sample_size;         /* sizeof(struct sample) + lock_slots * sizeof(struct lock_wait) */
     char *res;                  /* the shared resources segment, NULL if none */
     Py_ssize_t nres;
 };
@@ -513,7 +528,7 @@ static inline void record_latency(struct slot *s, int64_t latency) {
 }
 
 /* Everything a callback adds to the running figures, after it ended (outside the measured span). */
-static void record_callback(struct slot *s, const struct sample *c, int64_t period) {
+static void record_callback(struct slot *s, const struct sample *c, int64_t period, const struct lock_wait *locks) {
     struct slot_header *h = s->hdr;
     const struct work *w = &s->work;
     /* Skipped releases were answered by this wake-up too: each is as late as the wait for it. */
@@ -556,7 +571,15 @@ static void record_callback(struct slot *s, const struct sample *c, int64_t peri
     if (w->ring_mode == RING_OUTLIERS && !(c->missed || slack < 0 || (w->bound_ns > 0 && c->wake_ns - c->scheduled_ns + c->missed * period > w->bound_ns)))
         return;
     uint64_t at = h->count;
-    s->samples[at % s->capacity] = *c;
+    char *el = s->ring + (at % s->capacity) * s->group->sample_size;
+    memcpy(el, c, sizeof *c);
+    size_t lock_bytes = s->group->lock_slots * sizeof(struct lock_wait);
+    if (lock_bytes) {
+        if (locks)
+            memcpy(el + sizeof *c, locks, lock_bytes);
+        else
+            memset(el + sizeof *c, 0, lock_bytes);
+    }
     atomic_store_explicit((_Atomic uint64_t *)&h->count, at + 1, memory_order_release);
 }
 
@@ -600,7 +623,7 @@ static void run_periodic(struct slot *s) {
         note_cpu(h, cpu0);
         note_cpu(h, cpu1);
         h->loops++;
-        record_callback(s, &c, w->period_ns);
+        record_callback(s, &c, w->period_ns, NULL);
         missed = 0;
         next += w->period_ns;
         int64_t now = now_ns(CLOCK_MONOTONIC);
@@ -723,7 +746,7 @@ static void activation_close(struct slot *s, struct program_state *ps, int64_t e
     c.period_ns = ps->act_period;
     note_cpu(s->hdr, c.cpu_end);
     s->hdr->loops++;
-    record_callback(s, &c, ps->act_period);
+    record_callback(s, &c, ps->act_period, ps->act_locks);
 }
 
 /* An activation starts: released at `release` (a timer's tick, or a resume), running since `wake`. */
@@ -734,6 +757,10 @@ static void activation_open(struct slot *s, struct program_state *ps, int64_t re
     ps->act_period = period;
     ps->act_missed = missed;
     ps->act_lock_wait = ps->act_cond_wait = ps->act_barrier_wait = 0;
+    for (int k = 0; k < MAX_LOCK_SLOTS; k++) {
+        ps->act_locks[k] = (struct lock_wait){.holder = -1};
+        ps->act_lock_longest[k] = 0;
+    }
     ps->act_cpu = sched_getcpu();
     note_cpu(s->hdr, ps->act_cpu);
     read_ru(ps->act_ru);
@@ -786,12 +813,15 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     if (!ps->chain_open) ps->origin = next;
 }
 
-static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
+/* Lock mutex r for event i; `slot` is where the open activation keeps its waits for it (-1: none). */
+static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, int slot) {
     struct resource *m = res_at(s, r);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
     int rc = pthread_mutex_trylock(&m->m);
-    if (rc == EBUSY) {
-        int32_t holder = m->owner;
+    int32_t holder = -1;
+    int busy = rc == EBUSY;
+    if (busy) {
+        holder = m->owner;
         s->hdr->blocked_since_ns = t0;
         for (;;) {
             struct timespec ts = slice_realtime();
@@ -809,6 +839,18 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r) {
     int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
     ev_record(s, i, waited);
     ps->act_lock_wait += waited;
+    if (slot >= 0 && slot < MAX_LOCK_SLOTS) {
+        struct lock_wait *w = &ps->act_locks[slot];
+        w->wait_ns += waited;
+        if (w->taken < UINT16_MAX) w->taken++;
+        if (busy) {
+            if (w->contended < UINT16_MAX) w->contended++;
+            if (waited > ps->act_lock_longest[slot]) {
+                ps->act_lock_longest[slot] = waited;
+                w->holder = holder;
+            }
+        }
+    }
     if (ps->nheld < MAX_EVENTS) ps->held[ps->nheld++] = r;
     return 0;
 }
@@ -993,7 +1035,7 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
             break;
         }
         case EV_TIMER: ev_timer(s, ps, i, e); break;
-        case EV_LOCK: lock_mutex(s, ps, i, e->res); break;
+        case EV_LOCK: lock_mutex(s, ps, i, e->res, e->res2); break;
         case EV_UNLOCK:
             t0 = now_ns(CLOCK_MONOTONIC);
             unlock_mutex(s, ps, e->res);
@@ -1272,15 +1314,15 @@ static void Group_dealloc(GroupObject *self) {
 }
 
 static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
-    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", "histograms", "events", "phases", "resources", NULL};
+    static char *kwlist[] = {"buffer", "nthreads", "capacity", "all_cpus", "histograms", "events", "phases", "resources", "locks", NULL};
     PyObject *buffer, *all_cpus, *resources = Py_None;
-    unsigned int nthreads, capacity, nstats = 0, nphases = 0;
+    unsigned int nthreads, capacity, nstats = 0, nphases = 0, locks = 0;
     int with_hist = 1;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO|pIIO", kwlist, &buffer, &nthreads, &capacity, &all_cpus, &with_hist, &nstats,
-                                     &nphases, &resources))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OIIO|pIIOI", kwlist, &buffer, &nthreads, &capacity, &all_cpus, &with_hist, &nstats,
+                                     &nphases, &resources, &locks))
         return -1;
-    if (nstats > MAX_EVENTS + 1 || nphases > MAX_PHASES) {
-        PyErr_Format(PyExc_ValueError, "at most %d events and %d phases per thread", MAX_EVENTS, MAX_PHASES);
+    if (nstats > MAX_EVENTS + 1 || nphases > MAX_PHASES || locks > MAX_LOCK_SLOTS) {
+        PyErr_Format(PyExc_ValueError, "at most %d events, %d phases and %d lock slots per thread", MAX_EVENTS, MAX_PHASES, MAX_LOCK_SLOTS);
         return -1;
     }
     if (PyObject_GetBuffer(buffer, &self->view, PyBUF_WRITABLE) != 0) return -1;
@@ -1289,7 +1331,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         if (PyObject_GetBuffer(resources, &self->res_view, PyBUF_WRITABLE) != 0) return -1;
         self->has_res = 1;
     }
-    size_t ring_bytes = (size_t)capacity * sizeof(struct sample);
+    size_t sample_size = sizeof(struct sample) + locks * sizeof(struct lock_wait);
+    size_t ring_bytes = (size_t)capacity * sample_size;
     size_t stat_bytes = (size_t)nstats * (EV_HDR + HIST_BUCKETS * sizeof(uint64_t)) + (size_t)nphases * PHASE_BYTES;
     size_t stride = SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0) + ring_bytes + stat_bytes;
     Py_ssize_t need = FILE_HEADER + (Py_ssize_t)nthreads * (Py_ssize_t)stride;
@@ -1307,6 +1350,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
     g->stride = stride;
     g->nstats = nstats;
     g->nphases = nphases;
+    g->lock_slots = locks;
+    g->sample_size = sample_size;
     g->res = self->has_res ? self->res_view.buf : NULL;
     g->nres = self->has_res ? self->res_view.len / RES_BYTES : 0;
     g->page_size = sysconf(_SC_PAGESIZE);
@@ -1324,7 +1369,7 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         return -1;
     }
     memcpy(g->base, "RSMP0006", 8);
-    uint32_t meta[6] = {6, nthreads, capacity, SLOT_HEADER, SAMPLE_BYTES, with_hist ? HIST_BUCKETS : 0};
+    uint32_t meta[6] = {6, nthreads, capacity, SLOT_HEADER, (uint32_t)sample_size, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));
@@ -1337,9 +1382,9 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         s->index = (int)i;
         s->hdr = (struct slot_header *)at;
         s->hist = with_hist ? (uint64_t *)(at + SLOT_HEADER) : NULL;
-        s->samples = (struct sample *)(at + SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0));
+        s->ring = at + SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0);
         s->capacity = capacity;
-        s->evbase = (char *)s->samples + ring_bytes;
+        s->evbase = s->ring + ring_bytes;
         s->phbase = s->evbase + (size_t)nstats * (EV_HDR + HIST_BUCKETS * sizeof(uint64_t));
         s->stride = g->stride;
         memset(s->hdr, 0, SLOT_HEADER);
@@ -1387,10 +1432,12 @@ static struct program *parse_program(const struct group *g, PyObject *spec) {
         int needs = e->type == EV_LOCK || e->type == EV_UNLOCK || e->type == EV_WAIT || e->type == EV_SIGNAL || e->type == EV_BROADCAST ||
                     e->type == EV_BARRIER || e->type == EV_SUSPEND || e->type == EV_RESUME;
         if ((needs && (e->res < 0 || e->res >= g->nres)) || (e->type == EV_WAIT && (e->res2 < 0 || e->res2 >= g->nres)) ||
+            (e->type == EV_LOCK && (e->res2 < -1 || e->res2 >= (int)g->lock_slots)) ||
             (e->type == EV_TIMER && e->arg <= 0) ||
             (e->type == EV_SPAWN && (e->res < 0 || e->arg < 1 || e->res + e->arg > (long long)g->nslots)) || e->type < EV_RUN ||
             e->type > EV_IORUN || (e->type == EV_IORUN && mem < 1)) {
-            PyErr_Format(PyExc_ValueError, "event %zd (type %d) names resource %d of %zd, or has no period", i, e->type, e->res, g->nres);
+            PyErr_Format(PyExc_ValueError, "event %zd (type %d) names resource %d of %zd or lock slot %d of %u, or has no period", i, e->type,
+                         e->res, g->nres, e->res2, g->lock_slots);
             goto fail;
         }
         /* A timer's state is the first event naming the same timer: a named one by name, and the thread's
@@ -2196,6 +2243,8 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "STAGE_EXEC", STAGE_EXEC);
     PyModule_AddIntConstant(m, "SLOT_HEADER", SLOT_HEADER);
     PyModule_AddIntConstant(m, "SAMPLE_SIZE", sizeof(struct sample));
+    PyModule_AddIntConstant(m, "LOCK_WAIT_SIZE", sizeof(struct lock_wait));
+    PyModule_AddIntConstant(m, "MAX_LOCK_SLOTS", MAX_LOCK_SLOTS);
     PyModule_AddIntConstant(m, "HIST_BUCKETS", HIST_BUCKETS);
     PyModule_AddIntConstant(m, "HIST_SUB_BITS", HIST_SUB_BITS);
     PyModule_AddIntConstant(m, "HIST_SETS", HIST_SETS);

@@ -11,6 +11,8 @@ STAGE_CWD: int
 STAGE_EXEC: int
 SLOT_HEADER: int
 SAMPLE_SIZE: int
+LOCK_WAIT_SIZE: int
+MAX_LOCK_SLOTS: int
 WORK_SLEEP: int
 WORK_PERIODIC: int
 WORK_SPIN: int
@@ -76,6 +78,7 @@ class Group:
         events: int = 0,
         phases: int = 0,
         resources: Optional[mmap.mmap] = None,
+        locks: int = 0,
     ) -> None: ...
     def spawn(
         self,

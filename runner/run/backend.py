@@ -9,7 +9,7 @@ one, in milliseconds and without RT rights.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Optional, Protocol
@@ -17,7 +17,7 @@ from typing import Optional, Protocol
 from runner.results.document import DmaLatency, MachineInfo
 from runner.run.preflight import Permissions
 from runner.run.rawcell import RawCell
-from runner.run.samples import Sample
+from runner.run.samples import NO_HOLDERS, Sample
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import Scenario
 from runner.scenario.plan import Settings
@@ -47,7 +47,9 @@ class CellOptions:
 class SampleSink(Protocol):
     """Where per-callback samples go while a cell runs (the session's samples file)."""
 
-    def write(self, key: str, tid: int, samples: list[Sample]) -> None:
+    def write(
+        self, key: str, tid: int, samples: list[Sample], mutexes: Sequence[str] = (), holders: Mapping[int, str] = NO_HOLDERS
+    ) -> None:
         """Take these callbacks of one thread, in order; never raises (a write error is kept for the end)."""
 
 

@@ -3,7 +3,8 @@
 Layout (see _probe.c, version 6): a 64-byte file header, then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
 negative slack, callback wall time; see runner/histogram.py), a ring of 104-byte
-samples, and for programs (`kind: phases`) the figures of each event (with its
+samples (each followed by a 16-byte wait per lock slot, in a worker whose programs lock
+mutexes), and for programs (`kind: phases`) the figures of each event (with its
 histogram; one more for the chain latency) and of each phase.  The runner creates the buffer as a memfd (RAM that no writeback ever
 write-protects, gone with the runner), the worker maps it and its threads write
 into it; the runner drains the ring to disk while the cell runs and reads the
@@ -12,10 +13,13 @@ figures after, even when the worker was killed.  Nothing here grows with the run
 
 from __future__ import annotations
 
+import json
 import mmap
 import os
 import struct
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Optional
 
 from runner import histogram as hg
@@ -26,6 +30,7 @@ FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqq")
+LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiq")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
@@ -33,7 +38,23 @@ EV_HDR = 192
 PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
-assert SAMPLE.size == 104 and _SLOT.size == 456 and _EVENT.size == 152 and _PHASE.size == 360
+assert (
+    SAMPLE.size == _probe.SAMPLE_SIZE == 104
+    and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
+    and _SLOT.size == 456
+    and _EVENT.size == 152
+    and _PHASE.size == 360
+)
+
+
+@dataclass(frozen=True)
+class LockWait:
+    """One activation's wait for one mutex: summed over its locks of it, with who held it during the longest."""
+
+    wait_ns: int
+    holder: int  # the holder's gid (the cell's thread number) during the longest contended wait; -1: never contended
+    taken: int
+    contended: int
 
 
 @dataclass(frozen=True)
@@ -57,6 +78,7 @@ class Sample:
     barrier_wait_ns: int = 0  # programs: blocked at barriers
     origin_ns: int = 0  # programs: the timer release that started this activation's chain; 0: none
     period_ns: int = 0  # the period of the timer that released it (a program's timers may differ); 0: released by a resume
+    locks: tuple[LockWait, ...] = ()  # programs: its wait for each mutex the thread locks, by lock slot
 
     def chain_ns(self) -> Optional[int]:
         """From the chain's first release to this activation's end (programs in a chain); None outside a chain."""
@@ -253,6 +275,11 @@ class Layout:
     histograms: bool = True
     events: int = 0  # event stats per slot: the longest program's events plus one (its chain latency)
     phases: int = 0  # phase stats per slot
+    locks: int = 0  # lock slots after each sample: the most mutexes one program keeps apart
+
+    @property
+    def sample_size(self) -> int:
+        return SAMPLE.size + self.locks * LOCK_WAIT.size
 
     @property
     def hist_bytes(self) -> int:
@@ -264,7 +291,7 @@ class Layout:
 
     @property
     def stride(self) -> int:
-        return SLOT_HEADER + self.hist_bytes + self.capacity * SAMPLE.size + self.events * self.event_bytes + self.phases * PHASE_BYTES
+        return SLOT_HEADER + self.hist_bytes + self.capacity * self.sample_size + self.events * self.event_bytes + self.phases * PHASE_BYTES
 
     @property
     def size(self) -> int:
@@ -277,7 +304,7 @@ class Layout:
         return self.slot(index) + SLOT_HEADER + self.hist_bytes
 
     def event(self, index: int, event: int) -> int:
-        return self.ring(index) + self.capacity * SAMPLE.size + event * self.event_bytes
+        return self.ring(index) + self.capacity * self.sample_size + event * self.event_bytes
 
     def phase(self, index: int, phase: int) -> int:
         return self.event(index, self.events) + phase * PHASE_BYTES
@@ -434,8 +461,14 @@ class Buffer:
 
     def sample(self, index: int, n: int) -> Sample:
         """Sample number n of a slot's ring (the caller makes sure it has not been overwritten yet)."""
-        at = self.layout.ring(index) + (n % self.layout.capacity) * SAMPLE.size
-        return Sample(*SAMPLE.unpack_from(self.map, at))
+        return self._at(self.layout.ring(index) + (n % self.layout.capacity) * self.layout.sample_size)
+
+    def _at(self, at: int) -> Sample:
+        if not self.layout.locks:
+            return Sample(*SAMPLE.unpack_from(self.map, at))
+        at_lock = at + SAMPLE.size
+        locks = tuple(LockWait(*LOCK_WAIT.unpack_from(self.map, at_lock + k * LOCK_WAIT.size)) for k in range(self.layout.locks))
+        return replace(Sample(*SAMPLE.unpack_from(self.map, at)), locks=locks)
 
     def drain(self, index: int, stopped: bool = False) -> list[Sample]:
         """The samples written since the last call, in order; those the writer overwrote meanwhile are counted in `lost`.
@@ -447,8 +480,11 @@ class Buffer:
             return []
         end = self.written(index)
         start = max(self.taken[index], end - cap)
-        base = self.layout.ring(index)
-        out = [Sample(*SAMPLE.unpack_from(self.map, base + (n % cap) * SAMPLE.size)) for n in range(start, end)]
+        base, size = self.layout.ring(index), self.layout.sample_size
+        if self.layout.locks:
+            out = [self._at(base + (n % cap) * size) for n in range(start, end)]
+        else:  # the common case, without a call per sample
+            out = [Sample(*SAMPLE.unpack_from(self.map, base + (n % cap) * size)) for n in range(start, end)]
         # Sample n is being replaced once the writer reaches n + capacity, before it publishes that count.
         overwritten = self.written(index) - cap + (0 if stopped else 1)
         if overwritten > start:
@@ -466,8 +502,27 @@ class Buffer:
         self.map.close()
 
 
-def rows(key: str, tid: int, taken: list[Sample]) -> list[tuple[object, ...]]:
-    """Samples as rows of the samples file, in SAMPLE_COLUMNS order (latency from the oldest release answered)."""
+NO_HOLDERS: Mapping[int, str] = MappingProxyType({})  # no thread names: a cell whose threads lock no mutex
+
+
+def lock_waits(sample: Sample, mutexes: Sequence[str], holders: Mapping[int, str]) -> Optional[str]:
+    """An activation's waits by mutex as the samples file's `lock_waits` cell: JSON, `{"data": {"wait_ns": 6570000,
+    "taken": 1, "contended": 1, "held_by": "pi[0]/low #1"}}` (`held_by`: the holder's key during the longest
+    contended wait; null when never contended); None when the activation locked none of them."""
+    out = {
+        name: {"wait_ns": w.wait_ns, "taken": w.taken, "contended": w.contended, "held_by": holders.get(w.holder)}
+        for name, w in zip(mutexes, sample.locks)
+        if w.taken
+    }
+    return json.dumps(out, separators=(",", ":")) if out else None
+
+
+def rows(
+    key: str, tid: int, taken: list[Sample], mutexes: Sequence[str] = (), holders: Mapping[int, str] = NO_HOLDERS
+) -> list[tuple[object, ...]]:
+    """Samples as rows of the samples file, in SAMPLE_COLUMNS order (latency from the oldest release answered).
+
+    `mutexes` names the thread's lock slots, `holders` the cell's threads by gid (for `lock_waits`)."""
     return [
         (
             key,
@@ -491,6 +546,7 @@ def rows(key: str, tid: int, taken: list[Sample]) -> list[tuple[object, ...]]:
             s.barrier_wait_ns,
             s.chain_ns(),
             s.period_ns,
+            lock_waits(s, mutexes, holders) if mutexes else None,
         )
         for s in taken
     ]

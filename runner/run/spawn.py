@@ -20,7 +20,7 @@ import struct
 import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -184,6 +184,7 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Opt
     process and how many instances it has (the spawn event's resource and value).
     """
     index = {name: i for i, name in enumerate(scenario.resources)}
+    slots = lock_slots(work)
     events: list[tuple[int, int, int, int, int]] = []
     phases: list[tuple[int, int, int, Optional[_probe.PhaseSettings]]] = []
     for phase in work.phases:
@@ -203,6 +204,8 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Opt
                 res, arg = (templates or {})[e.thread or ""]
             elif e.resource is not None:
                 res = index[e.resource]
+                if e.event is EventKind.LOCK:
+                    res2 = slots.index(e.resource) if e.resource in slots else -1
             events.append((_EVENT_TYPES[e.event], res, res2, mode, arg))
         settings = None
         if phase.sched is not None or phase.cpus is not None:
@@ -424,7 +427,13 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
         ],
         "events": layout.events,
         "phases": layout.phases,
+        "locks": layout.locks,
     }
+
+
+def lock_slots(work: Work) -> tuple[str, ...]:
+    """The mutexes whose waits each of the thread's activations keeps apart (its first MAX_LOCK_SLOTS), in slot order."""
+    return work.locked_mutexes()[: _probe.MAX_LOCK_SLOTS] if isinstance(work, PhasesWork) else ()
 
 
 def _program_sizes(threads: list[PlannedThread]) -> tuple[int, int]:
@@ -528,10 +537,11 @@ def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) 
                 emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
 
 
-def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> None:
+def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool, holders: Mapping[int, str]) -> None:
     """Hand the samples written since the last call to the session's sink (the samples file), thread by thread.
 
     With `samples: last N` the ring is the N callbacks to keep: it is read once, at the end.
+    `holders` names the cell's threads by gid, for who held a mutex an activation waited for.
     """
     if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
         return
@@ -543,6 +553,8 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool) -> Non
                     thread_key(t.process, t.instance, t.index, t.name),
                     int(w.ready["tids"][t.index]) if w.ready else 0,
                     taken,
+                    lock_slots(t.work),
+                    holders,
                 )
                 w.written[t.index] += len(taken)
 
@@ -590,10 +602,15 @@ class _CellRun:
             self.by_process.setdefault((t.process, t.instance), []).append(t)
         self.workers: list[Worker] = []
         gids = {id(t): gid for gid, t in enumerate(self.planned)}
+        self.keys = {gid: thread_key(t.process, t.instance, t.index, t.name) for gid, t in enumerate(self.planned)}
         for (proc, inst), threads in self.by_process.items():
             events, phases = _program_sizes(threads)
             layout = samples.Layout(
-                len(threads), _capacity(threads, options.duration_ns, self.scenario.samples), events=events, phases=phases
+                len(threads),
+                _capacity(threads, options.duration_ns, self.scenario.samples),
+                events=events,
+                phases=phases,
+                locks=max((len(lock_slots(t.work)) for t in threads), default=0),
             )
             self.workers.append(
                 Worker(
@@ -743,7 +760,7 @@ class _CellRun:
         for w in workers:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
-            _drain(w, options, self.last_only, final=False)
+            _drain(w, options, self.last_only, final=False, holders=self.keys)
         if options.progress:
             done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
             left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
@@ -861,7 +878,7 @@ class _CellRun:
         for w in self.workers:
             if w.buffer is None:
                 continue
-            _drain(w, self.options, self.last_only, final=True)
+            _drain(w, self.options, self.last_only, final=True, holders=self.keys)
             slots = w.buffer.slots()
             report = _ready_report(w)
             for t, slot in zip(w.planned, slots):

@@ -95,6 +95,7 @@ def run(spec: dict[str, Any]) -> int:
         spec.get("events", 0),
         spec.get("phases", 0),
         resources,
+        spec.get("locks", 0),
     )
     main = spec["main"]
     group.adopt(0, main["name"], _program(main["work"]))

@@ -842,6 +842,11 @@ class PhasesWork(Strict):
         """Every event with the index of its phase, in program order."""
         return [(k, e) for k, p in enumerate(self.phases) for e in p.events]
 
+    def locked_mutexes(self) -> tuple[str, ...]:
+        """The mutexes its lock events name, in the order the program first locks them: where each
+        activation keeps its wait for each (its lock slots)."""
+        return tuple(dict.fromkeys(e.resource for _, e in self.events() if e.event is EventKind.LOCK and e.resource is not None))
+
     def timer_periods(self, resources: dict[str, Resource]) -> tuple[int, ...]:
         """The periods of the thread's timers (private or named), shortest first; empty when it has none.
 
