@@ -127,6 +127,7 @@ class FakeBackend:
                         0,
                         0,
                         period_ns=period,
+                        next_ns=t0 + (k + 1) * period,
                     )
                     for k in range(served)
                 ]

@@ -77,6 +77,7 @@ def _raw(callbacks: int, interrupted: bool = False, failures: tuple[str, ...] = 
                     0,
                     0,
                     period_ns=period,
+                    next_ns=t0 + (k + 1) * period,
                 )
                 for k in range(callbacks)
             )

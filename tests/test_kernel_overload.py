@@ -104,6 +104,7 @@ def test_the_native_figures_are_the_documented_definitions_of_the_rows_written(t
                 r["cpu_end"],
                 r["missed"],
                 period_ns=r["period_ns"] or 0,
+                next_ns=(r["scheduled_ns"] or 0) + PERIOD,  # periodic work: its next release is a period after its own
             )
             for r in written[t["key"]]
         ]

@@ -267,13 +267,17 @@ def test_phases_at_other_periods_measure_each_activation_against_its_own_timer(t
     key = thread(done.results, "prd")["key"]
     periods = activation_column(tmp_path, done.results, "default", "period_ns")[key]
     released = activation_column(tmp_path, done.results, "default", "scheduled_ns")[key]
+    ended = activation_column(tmp_path, done.results, "default", "end_ns")[key]
+    slack = activation_column(tmp_path, done.results, "default", "slack_ns")[key]
     cycle = [10_000_000] * 5 + [20_000_000] * 3 + [50_000_000] * 2
     assert periods == (cycle * (len(periods) // len(cycle) + 1))[: len(periods)], "each row carries the period of its timer event"
-    for i in range(1, len(periods)):
-        if periods[i] != 50_000_000 and periods[i - 1] != 50_000_000:
-            assert released[i] - released[i - 1] == periods[i], "the private grid advances by each event's own period"
-        elif periods[i] == periods[i - 1] == 50_000_000:
-            assert released[i] - released[i - 1] == 50_000_000
+    for i in range(len(periods) - 1):
+        private = periods[i] != 50_000_000 and periods[i + 1] != 50_000_000
+        if private or periods[i] == periods[i + 1]:  # the next release on its own grid: the slack runs to it
+            assert released[i + 1] - released[i] == periods[i + 1], "a grid advances by each timer event's own period"
+            assert slack[i] == released[i + 1] - ended[i], (i, periods[i : i + 2])
+        else:  # the next timer is another one: the slack runs to its own timer's next release
+            assert slack[i] == released[i] + periods[i] - ended[i], (i, periods[i : i + 2])
 
 
 def test_a_deadlock_ends_with_its_cell_as_an_error_naming_where_each_thread_stood(tmp_path):

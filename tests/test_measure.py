@@ -22,7 +22,22 @@ def slot(samples, finished=True):
 
 def sample(i, lat_us, nivcsw, minflt=0, missed=0, end_ms=40):
     due = i * PERIOD
-    return Sample(due, due + lat_us * 1000, due + end_ms * 1_000_000, 40_000_000, i, nivcsw, 0, minflt, 0, 1, 0, missed, period_ns=PERIOD)
+    return Sample(
+        due,
+        due + lat_us * 1000,
+        due + end_ms * 1_000_000,
+        40_000_000,
+        i,
+        nivcsw,
+        0,
+        minflt,
+        0,
+        1,
+        0,
+        missed,
+        period_ns=PERIOD,
+        next_ns=due + PERIOD,
+    )
 
 
 def top(value):
@@ -53,7 +68,7 @@ def test_figures_of_a_callback_thread():
 
 def test_an_unfinished_thread_counts_what_its_callbacks_recorded():
     # 3 voluntary switches, 4 + 1 faults
-    late = Sample(PERIOD, PERIOD + 10_000, PERIOD + 40_000_000, 40_000_000, 1, 5, 3, 4, 1, 1, 0, 0, period_ns=PERIOD)
+    late = Sample(PERIOD, PERIOD + 10_000, PERIOD + 40_000_000, 40_000_000, 1, 5, 3, 4, 1, 1, 0, 0, period_ns=PERIOD, next_ns=2 * PERIOD)
     f = thread_figures(slot([sample(0, 10, 2, minflt=6), late], finished=False), periodic=True)
     assert not f.complete and f.involuntary.total == 7 and f.voluntary.total == 3
     assert (f.faults.minor, f.faults.major) == (10, 1)

@@ -3,17 +3,21 @@
 from __future__ import annotations
 
 import errno
+import json
+import mmap
 import os
+import struct
+import time
 
 import pytest
 from pydantic import ValidationError
 
 from runner import histogram as hg
-from runner.run import _probe, programs
+from runner.run import _probe, kernel, programs, samples
 from runner.run.evaluate import degradation
 from runner.run.rawcell import ApplyErrors
-from runner.run.samples import EventStats, PhaseStats, SlotData
-from runner.run.spawn import lock_slots, program_tuple, resource_specs
+from runner.run.samples import EventStats, PhaseStats, SlotData, rows
+from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, work_tuple
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
 from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
 
@@ -415,3 +419,67 @@ def test_drops_of_one_spawn_event_by_many_threads_are_one_warning():
         f"{base.process} (3 threads): 15 `spawn c` found every instance taken (or the kernel refused the thread);"
         " raise the spawned thread's count"
     ]
+
+
+def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each_sample(tmp_path):
+    """A worker's three threads in this process (no rights needed): a periodic one, whose samples carry empty
+    lock slots, and a program that locks n then m every 2 ms; the buffer's own header, and every sample
+    the reader takes back, agree with the Python layout (its stride moves the last slot past the others)."""
+    sc = Scenario.model_validate(
+        {
+            "name": "slots",
+            "resources": {"m": {"kind": "mutex"}, "n": {"kind": "mutex"}},
+            "processes": [
+                {
+                    "name": "app",
+                    "threads": [
+                        {"name": "tick", "work": {"kind": "periodic", "period": "2ms"}},
+                        {
+                            "name": "locker",
+                            "work": {
+                                "kind": "phases",
+                                "events": [{"timer": {"period": "2ms"}}, {"lock": "n"}, {"unlock": "n"}, {"lock": "m"}, {"unlock": "m"}],
+                            },
+                        },
+                    ],
+                }
+            ],
+        }
+    )
+    planned = plan_scenario(sc, Settings())
+    events, phases = _program_sizes(planned)
+    layout = samples.Layout(3, 64, events=events, phases=phases, locks=max(len(lock_slots(t.work)) for t in planned))
+    assert layout.locks == 2
+    fd = samples.create("slots", layout)
+    res = mmap.mmap(-1, len(sc.resources) * _probe.RES_BYTES)
+    _probe.init_resources(res, resource_specs(sc))
+    try:
+        group = _probe.Group(mmap.mmap(fd, layout.size), 3, 64, kernel.online_cpus(), True, events, phases, res, layout.locks)
+        works = [
+            work_tuple(t.work, program=program_tuple(t.work, t.index, sc) if isinstance(t.work, PhasesWork) else None) for t in planned
+        ]
+        group.adopt(0, "slots-main", works[0])
+        for t in planned[1:]:
+            group.spawn(t.index, t.name, works[t.index], None, None, None, None, False, None, False)
+        assert group.wait_ready(5.0)
+        now = time.monotonic_ns()
+        group.release(now + 5_000_000, now + 45_000_000)
+        group.run_main(0)
+        group.join()
+        reader = samples.Buffer(fd, layout)
+        header = struct.unpack_from("<8s6IQ", reader.map, 0)
+        assert (header[0], header[5], header[7]) == (b"RSMP0006", layout.sample_size, layout.stride)
+        tick, locker = reader.drain(1, stopped=True), reader.drain(2, stopped=True)
+    finally:
+        _probe.set_name("pytest")
+        os.close(fd)
+    assert len(tick) >= 10 and all(s.period_ns == 2_000_000 and s.next_ns == s.scheduled_ns + 2_000_000 for s in tick)
+    assert all(all(w.taken == 0 for w in s.locks) for s in tick), "a periodic thread locks nothing"
+    assert len(locker) >= 10 and [s.seq for s in locker] == list(range(len(locker)))
+    for s in locker:
+        (n, m) = s.locks  # slots in the order the program first locks them
+        assert (n.taken, n.contended, n.holder, m.taken, m.contended, m.holder) == (1, 0, -1, 1, 0, -1)
+        assert n.wait_ns + m.wait_ns == s.lock_wait_ns
+        assert s.period_ns == 2_000_000 and s.next_ns == s.scheduled_ns + 2_000_000
+    written = rows("app[0]/locker #2", 1, locker, lock_slots(planned[2].work))
+    assert set(json.loads(str(written[0][-1]))) == {"n", "m"}

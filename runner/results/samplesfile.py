@@ -11,7 +11,10 @@ program without a timer that suspends on a queue) has a row per activation too, 
 resume that released it (`scheduled_ns`) to its next suspend, with `slack_ns` empty: no
 period says when its next release is due.  `chain_ns` runs from the timer release that
 started the chain to the activation's end (empty outside a chain; files of earlier runners
-lack it).  Rows of several threads interleave in chunks, in
+lack it).  `period_ns` is the grid's step to the release (a program's timers may differ; 0:
+released by a resume), the `period` above.  `lock_waits` splits an activation's lock wait by
+mutex, as JSON (`{"m": {"wait_ns": .., "taken": .., "contended": .., "held_by": key}}`), empty
+for an activation that locked none and for threads that lock no mutex.  Rows of several threads interleave in chunks, in
 order within each thread; `seq` numbers a thread's callbacks from 0, so a gap shows rows
 that were not written (`samples: outliers`, or a runner that fell behind).
 """

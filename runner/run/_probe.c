@@ -21,7 +21,7 @@
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
- *     ring of capacity samples of sample_size bytes, sample n at n % capacity: a 104-byte struct sample,
+ *     ring of capacity samples of sample_size bytes, sample n at n % capacity: a 112-byte struct sample,
  *       then lock_slots 16-byte struct lock_wait (programs: the activation's wait on each mutex it locks)
  *     event_stats times (192-byte struct event_stats + hist_buckets u64): programs' events, then the chain
  *     phase_stats times 384 bytes (struct phase_stats): programs' phases (a spawned thread's start read-back last)
@@ -56,7 +56,7 @@
 
 #define FILE_HEADER 64
 #define SLOT_HEADER 512
-#define SAMPLE_BYTES 104
+#define SAMPLE_BYTES 112
 #define MAX_LOCK_SLOTS 8 /* mutexes a thread's activations keep apart, in the order its program first locks them */
 #define MAX_CPU_WORDS 16
 
@@ -120,7 +120,8 @@ struct sample {
     int64_t cond_wait_ns;  /* in wait on a condition variable */
     int64_t barrier_wait_ns;
     int64_t origin_ns;     /* programs: the timer release that started this activation's chain, 0 if none */
-    int64_t period_ns;     /* the period of the timer that released it (a program's timers may differ); 0: a resume */
+    int64_t period_ns;     /* the grid's step to its release: the period of the timer event that released it; 0: a resume */
+    int64_t next_ns;       /* the release after it on its grid (slack = next_ns - end_ns); 0: none (a resume released it) */
 };
 
 _Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
@@ -528,17 +529,18 @@ static inline void record_latency(struct slot *s, int64_t latency) {
 }
 
 /* Everything a callback adds to the running figures, after it ended (outside the measured span). */
-static void record_callback(struct slot *s, const struct sample *c, int64_t period, const struct lock_wait *locks) {
+static void record_callback(struct slot *s, const struct sample *c, const struct lock_wait *locks) {
     struct slot_header *h = s->hdr;
     const struct work *w = &s->work;
+    int64_t period = c->period_ns;
     /* Skipped releases were answered by this wake-up too: each is as late as the wait for it. */
     for (int32_t k = c->missed; k >= 1; k--) record_latency(s, c->wake_ns - (c->scheduled_ns - k * period));
     record_latency(s, c->wake_ns - c->scheduled_ns);
     uint64_t n = h->loops; /* this callback's number, from 1 */
-    /* Slack needs a next release on a grid: an activation released by a resume (period 0) has none. */
-    int64_t slack = period > 0 ? c->scheduled_ns + period - c->end_ns : 0;
+    /* Slack needs a next release on a grid: an activation released by a resume has none. */
+    int64_t slack = c->next_ns > 0 ? c->next_ns - c->end_ns : 0;
     int64_t wall = c->end_ns - c->wake_ns;
-    if (period > 0) {
+    if (c->next_ns > 0) {
         if (slack < 0) h->overruns++;
         if (n == 1 || slack < h->slack_min) h->slack_min = slack;
         if (n == 1 || slack > h->slack_max) h->slack_max = slack;
@@ -559,7 +561,7 @@ static void record_callback(struct slot *s, const struct sample *c, int64_t peri
     }
     h->last_end_ns = c->end_ns;
     if (s->hist) {
-        if (period <= 0)
+        if (c->next_ns <= 0)
             ;
         else if (slack >= 0)
             s->hist[HIST_BUCKETS + hist_index(slack)]++;
@@ -620,10 +622,11 @@ static void run_periodic(struct slot *s) {
         c.cpu_end = (int16_t)cpu1;
         c.missed = missed;
         c.period_ns = w->period_ns;
+        c.next_ns = next + w->period_ns;
         note_cpu(h, cpu0);
         note_cpu(h, cpu1);
         h->loops++;
-        record_callback(s, &c, w->period_ns, NULL);
+        record_callback(s, &c, NULL);
         missed = 0;
         next += w->period_ns;
         int64_t now = now_ns(CLOCK_MONOTONIC);
@@ -720,7 +723,11 @@ static void burn_until_end(const struct group *g, int64_t ns, int wall) {
     }
 }
 
-static void activation_close(struct slot *s, struct program_state *ps, int64_t end) {
+/* The release after the open activation's by its own timer's period, as if its timer went on (0: released by a resume). */
+static inline int64_t own_next(const struct program_state *ps) { return ps->act_period > 0 ? ps->act_release + ps->act_period : 0; }
+
+/* The open activation ends at `end`; `next` is the release that follows it on its grid (0: none). */
+static void activation_close(struct slot *s, struct program_state *ps, int64_t end, int64_t next) {
     if (!ps->act_open) return;
     ps->act_open = 0;
     int64_t ru1[4];
@@ -744,9 +751,10 @@ static void activation_close(struct slot *s, struct program_state *ps, int64_t e
     c.barrier_wait_ns = ps->act_barrier_wait;
     c.origin_ns = ps->origin;
     c.period_ns = ps->act_period;
+    c.next_ns = next;
     note_cpu(s->hdr, c.cpu_end);
     s->hdr->loops++;
-    record_callback(s, &c, ps->act_period, ps->act_locks);
+    record_callback(s, &c, ps->act_locks);
 }
 
 /* An activation starts: released at `release` (a timer's tick, or a resume), running since `wake`. */
@@ -776,13 +784,17 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     struct group *g = s->group;
     struct timer_state *t = &ps->timers[e->key]; /* one state per timer: the first event naming it */
     int64_t now = now_ns(CLOCK_MONOTONIC);
-    activation_close(s, ps, now);
     int64_t period = e->arg, next, rebased = 0;
     int32_t missed = 0;
-    if (!t->started || ps->timer_key != e->key) {
-        /* A named timer's grid starts at the common start, a private one's at its first use.  A thread that
-         * comes back to a timer after following another (a phase of another period) joins it at its next
-         * release: the releases that passed meanwhile were never due to it, so none is missed. */
+    /* Whether the thread follows this timer: its last timer event was this timer's.  A thread that comes to
+     * a timer first, or after another timer released it, joins it at its next release (a named timer's
+     * next tick on its grid; a private one's one period from now, as at its first use): the releases that
+     * passed meanwhile were never due to it, so none is missed.  The open activation's next release is
+     * this timer's next on the grid when the thread follows it (its own period's when the private timer's
+     * period changes here), else one period of its own after its release. */
+    int follows = t->started && ps->timer_key == e->key;
+    activation_close(s, ps, now, follows ? t->last + period : own_next(ps));
+    if (!follows) {
         if (!t->started || e->res < 0) t->origin = e->res >= 0 ? g->start_ns : now;
         t->started = 1;
         next = t->origin + ((now - t->origin) / period + 1) * period;
@@ -813,7 +825,6 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     if (!ps->chain_open) ps->origin = next;
 }
 
-/* Lock mutex r for event i; `slot` is where the open activation keeps its waits for it (-1: none). */
 static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, int slot) {
     struct resource *m = res_at(s, r);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
@@ -821,7 +832,9 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, in
     int32_t holder = -1;
     int busy = rc == EBUSY;
     if (busy) {
+        /* The holder writes its gid just after it takes the mutex: a moment's look lets it (or says none). */
         holder = m->owner;
+        for (int k = 0; holder == -1 && k < 64; k++) holder = __atomic_load_n(&m->owner, __ATOMIC_RELAXED);
         s->hdr->blocked_since_ns = t0;
         for (;;) {
             struct timespec ts = slice_realtime();
@@ -949,7 +962,7 @@ static void ev_resume(struct slot *s, struct program_state *ps, int i, const str
 static void ev_suspend(struct slot *s, struct program_state *ps, int i, const struct event *e) {
     struct resource *q = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
-    if (s->prog->released) activation_close(s, ps, t0);
+    if (s->prog->released) activation_close(s, ps, t0, 0);
     chain_close(s, ps, t0);
     s->hdr->blocked_since_ns = t0;
     pthread_mutex_lock(&q->m);
@@ -1138,7 +1151,7 @@ static void run_program(struct slot *s, struct program_state *ps) {
     }
     phase_account(s, ps);
     int64_t end = now_ns(CLOCK_MONOTONIC);
-    activation_close(s, ps, end);
+    activation_close(s, ps, end, own_next(ps));
     chain_close(s, ps, end);
     while (ps->nheld > 0) unlock_mutex(s, ps, ps->held[ps->nheld - 1]);
 }

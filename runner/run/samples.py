@@ -2,7 +2,7 @@
 
 Layout (see _probe.c, version 6): a 64-byte file header, then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
-negative slack, callback wall time; see runner/histogram.py), a ring of 104-byte
+negative slack, callback wall time; see runner/histogram.py), a ring of 112-byte
 samples (each followed by a 16-byte wait per lock slot, in a worker whose programs lock
 mutexes), and for programs (`kind: phases`) the figures of each event (with its
 histogram; one more for the chain latency) and of each phase.  The runner creates the buffer as a memfd (RAM that no writeback ever
@@ -18,7 +18,7 @@ import mmap
 import os
 import struct
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Optional
 
@@ -29,7 +29,7 @@ from runner.run import _probe
 FILE_HEADER = 64
 SLOT_HEADER = 512
 HIST_SETS = 4
-SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqq")
+SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
 LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiq")
 _COUNT_AT, _LOOPS_AT = 8, 96
@@ -39,7 +39,7 @@ PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
 assert (
-    SAMPLE.size == _probe.SAMPLE_SIZE == 104
+    SAMPLE.size == _probe.SAMPLE_SIZE == 112
     and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
     and _SLOT.size == 456
     and _EVENT.size == 152
@@ -77,7 +77,8 @@ class Sample:
     cond_wait_ns: int = 0  # programs: blocked in wait on a condition variable
     barrier_wait_ns: int = 0  # programs: blocked at barriers
     origin_ns: int = 0  # programs: the timer release that started this activation's chain; 0: none
-    period_ns: int = 0  # the period of the timer that released it (a program's timers may differ); 0: released by a resume
+    period_ns: int = 0  # the grid's step to its release: the period of the timer event that released it; 0: released by a resume
+    next_ns: int = 0  # the release after it on its grid (a program's next timer event may step by another period); 0: none
     locks: tuple[LockWait, ...] = ()  # programs: its wait for each mutex the thread locks, by lock slot
 
     def chain_ns(self) -> Optional[int]:
@@ -89,8 +90,8 @@ class Sample:
         return self.wake_ns - self.scheduled_ns + self.missed * self.period_ns
 
     def slack(self) -> Optional[int]:
-        """From the end of the callback to its next release; negative when it overran; None without a period (released by a resume)."""
-        return self.scheduled_ns + self.period_ns - self.end_ns if self.period_ns > 0 else None
+        """From the end of the callback to its next release; negative when it overran; None without one (released by a resume)."""
+        return self.next_ns - self.end_ns if self.next_ns > 0 else None
 
 
 @dataclass(frozen=True)
@@ -468,7 +469,7 @@ class Buffer:
             return Sample(*SAMPLE.unpack_from(self.map, at))
         at_lock = at + SAMPLE.size
         locks = tuple(LockWait(*LOCK_WAIT.unpack_from(self.map, at_lock + k * LOCK_WAIT.size)) for k in range(self.layout.locks))
-        return replace(Sample(*SAMPLE.unpack_from(self.map, at)), locks=locks)
+        return Sample(*(SAMPLE.unpack_from(self.map, at) + (locks,)))
 
     def drain(self, index: int, stopped: bool = False) -> list[Sample]:
         """The samples written since the last call, in order; those the writer overwrote meanwhile are counted in `lost`.
