@@ -124,15 +124,15 @@ struct sample {
     int64_t next_ns;       /* the release after it on its grid (slack = next_ns - end_ns); 0: none (a resume released it) */
 };
 
-_Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
 /* One activation's wait for one of the mutexes its thread locks. */
 struct lock_wait {
     int64_t wait_ns;       /* acquiring it, summed over this activation's locks of it */
-    int32_t holder;        /* the thread (gid) that held it during the longest of those waits; -1 if never contended */
+    int32_t holder;        /* the thread (gid) that held it when the longest of those waits began; -1: none seen */
     uint16_t taken;        /* times this activation locked it */
     uint16_t contended;    /* of those, times it had to wait */
 };
 
+_Static_assert(sizeof(struct slot_header) == SLOT_HEADER, "slot header size");
 _Static_assert(sizeof(struct sample) == SAMPLE_BYTES, "sample size");
 _Static_assert(sizeof(struct lock_wait) == 16, "lock wait size");
 
@@ -790,8 +790,9 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
      * a timer first, or after another timer released it, joins it at its next release (a named timer's
      * next tick on its grid; a private one's one period from now, as at its first use): the releases that
      * passed meanwhile were never due to it, so none is missed.  The open activation's next release is
-     * this timer's next on the grid when the thread follows it (its own period's when the private timer's
-     * period changes here), else one period of its own after its release. */
+     * this timer's next on the grid when the thread follows it (a step of this event's period, which for
+     * the private timer may differ from the step that released it), else one period of its own after its
+     * release. */
     int follows = t->started && ps->timer_key == e->key;
     activation_close(s, ps, now, follows ? t->last + period : own_next(ps));
     if (!follows) {

@@ -49,10 +49,10 @@ assert (
 
 @dataclass(frozen=True)
 class LockWait:
-    """One activation's wait for one mutex: summed over its locks of it, with who held it during the longest."""
+    """One activation's wait for one mutex: summed over its locks of it, with who held it when the longest began."""
 
     wait_ns: int
-    holder: int  # the holder's gid (the cell's thread number) during the longest contended wait; -1: never contended
+    holder: int  # the holder's gid (the cell's thread number) when the longest contended wait began; -1: none seen
     taken: int
     contended: int
 
@@ -508,8 +508,8 @@ NO_HOLDERS: Mapping[int, str] = MappingProxyType({})  # no thread names: a cell 
 
 def lock_waits(sample: Sample, mutexes: Sequence[str], holders: Mapping[int, str]) -> Optional[str]:
     """An activation's waits by mutex as the samples file's `lock_waits` cell: JSON, `{"data": {"wait_ns": 6570000,
-    "taken": 1, "contended": 1, "held_by": "pi[0]/low #1"}}` (`held_by`: the holder's key during the longest
-    contended wait; null when never contended); None when the activation locked none of them."""
+    "taken": 1, "contended": 1, "held_by": "pi[0]/low #1"}}` (`held_by`: the holder's key when the longest
+    contended wait began; null when none was seen); None when the activation locked none of them."""
     out = {
         name: {"wait_ns": w.wait_ns, "taken": w.taken, "contended": w.contended, "held_by": holders.get(w.holder)}
         for name, w in zip(mutexes, sample.locks)
