@@ -430,6 +430,7 @@ struct timer_state {
 struct program_state {
     struct timer_state timers[MAX_EVENTS];
     int timer_key;               /* the timer of the thread's last timer event (its key), -1 before one */
+    int64_t t_start;             /* its start: the common start plus its delay (a spawned thread: its creation) */
     int act_open;
     int64_t act_release, act_wake, act_period;
     int32_t act_missed;
@@ -787,8 +788,9 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     int64_t period = e->arg, next, rebased = 0;
     int32_t missed = 0;
     /* Whether the thread follows this timer: its last timer event was this timer's.  A thread that comes to
-     * a timer first, or after another timer released it, joins it at its next release (a named timer's
-     * next tick on its grid; a private one's one period from now, as at its first use): the releases that
+     * a timer first, or after another timer released it, joins it at its next release (a named timer's next
+     * tick on its grid from the common start; the private one's on its grid from the thread's start, or
+     * one period from now when it comes back to it from another timer): the releases that
      * passed meanwhile were never due to it, so none is missed.  The open activation's next release is
      * this timer's next on the grid when the thread follows it (a step of this event's period, which for
      * the private timer may differ from the step that released it), else one period of its own after its
@@ -796,7 +798,10 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     int follows = t->started && ps->timer_key == e->key;
     activation_close(s, ps, now, follows ? t->last + period : own_next(ps));
     if (!follows) {
-        if (!t->started || e->res < 0) t->origin = e->res >= 0 ? g->start_ns : now;
+        if (e->res >= 0)
+            t->origin = g->start_ns;
+        else
+            t->origin = t->started ? now : ps->t_start;
         t->started = 1;
         next = t->origin + ((now - t->origin) / period + 1) * period;
     } else {
@@ -1119,10 +1124,11 @@ static void phase_account(struct slot *s, struct program_state *ps) {
 static void run_program(struct slot *s, struct program_state *ps) {
     struct group *g = s->group;
     const struct program *p = s->prog;
-    if (p->delay_ns > 0) {
-        int64_t until = g->start_ns + p->delay_ns;
-        sleep_until(until < g->end_ns ? until : g->end_ns);
-    }
+    int64_t begin = g->start_ns + p->delay_ns;
+    /* A spawned thread starts when it is created; the others at their place on the scenario's clock, whatever
+     * the jitter of their release, so that their grids keep the offsets the scenario gives them. */
+    ps->t_start = s->deferred ? now_ns(CLOCK_MONOTONIC) : begin;
+    if (p->delay_ns > 0) sleep_until(begin < g->end_ns ? begin : g->end_ns);
     for (int64_t pass = 0; (p->loop == 0 || pass < p->loop) && live(g); pass++) {
         for (int k = 0; k < p->nphases && live(g); k++) {
             const struct phase *ph = &p->phases[k];
