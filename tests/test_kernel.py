@@ -60,21 +60,26 @@ SEED = {
 
 @pytest.fixture(scope="module")
 def seed_runs(tmp_path_factory):
-    """Run every seed scenario once (3s each); while it runs, capture the runner's and ps's tables."""
+    """Run every seed scenario once (4s each); while it runs, capture the runner's and ps's tables.
+
+    4 s: the reads below take about 2.5 s from the threads' appearance on a slow VM beside the seeds'
+    busy loops (the two `runner ps` are Python starts); with 3 s runs the process was gone before
+    the last read in some runs."""
     runs = {}
     for name, (comm, rows, _) in SEED.items():
         out = str(tmp_path_factory.mktemp(name))
-        proc = start_runner(os.path.join(SCENARIOS, f"{name}.yaml"), "--duration", "3s", "--out", out, "--quiet", cwd=out)
+        proc = start_runner(os.path.join(SCENARIOS, f"{name}.yaml"), "--duration", "4s", "--out", out, "--quiet", cwd=out)
         try:
             pid = wait_for_threads(comm, len(rows))
             time.sleep(1.0)  # well inside the run: every setting applied, callbacks running
+            # The two `runner ps` start side by side: each is a Python start (0.3 s, several times that
+            # beside the scenario's busy loops on a slow VM).
+            cli = [_runner_ps(str(pid)), _runner_ps(comm)]
             live = {
                 "pid": pid,
                 "rows": thread_rows(pid),
                 "ps": ps_table(pid),
                 "ours": render_ps(thread_rows(pid), pid_width=pid_width()),
-                "cli_pid": _runner_ps(str(pid)),
-                "cli_name": _runner_ps(comm),
                 # procps 3 (the seed's) `ps -C NAME -L` listed every thread of the processes named NAME; procps 4
                 # selects threads by their own name, so select the processes by PID, as runner ps NAME does
                 "ps_name": subprocess.run(
@@ -84,6 +89,7 @@ def seed_runs(tmp_path_factory):
                     check=True,
                 ).stdout,
             }
+            live["cli_pid"], live["cli_name"] = (_output(c) for c in cli)
         except BaseException:
             proc.kill()
             raise
@@ -96,9 +102,16 @@ def strip(text: str) -> list[str]:
     return [line[:-4] for line in text.splitlines()]
 
 
-def _runner_ps(target: str) -> str:
-    done = subprocess.run([sys.executable, "-m", "runner", "ps", target], capture_output=True, text=True, env=env(), check=True)
-    return done.stdout
+def _runner_ps(target: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "runner", "ps", target], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env()
+    )
+
+
+def _output(proc: subprocess.Popen[str]) -> str:
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, (proc.args, err)
+    return out
 
 
 @pytest.mark.parametrize("name", ["fifo80", "rr80", "other", "middleware_threads", "real_time_executor", "cpu_affinity_mask"])
@@ -122,7 +135,7 @@ def test_seed_thread_table_pattern_from_the_kernel(seed_runs, name):
         assert all(len(r.cpus) == os.cpu_count() for r in rows[1:]), "threads created before the pinning keep every CPU"
     elif cpus:
         assert all(r.cpus == cpus and r.psr in cpus for r in rows)
-    # 0, or 1 when the scenario's own expectation (~0 switches per callback) met a noisy 3 s on the VM:
+    # 0, or 1 when the scenario's own expectation (~0 switches per callback) met a noisy 4 s on the VM:
     # the code must be the one the cells call for, and only that expectation may have failed
     assert done.code == documented_exit(done.results) and done.code in (0, 1), done.err
     assert failed_metrics(done.results) <= {"involuntary.per_callback_mean"}, done.results["cells"][0]["expectations"]
