@@ -766,7 +766,7 @@ static void activation_open(struct slot *s, struct program_state *ps, int64_t re
     ps->act_period = period;
     ps->act_missed = missed;
     ps->act_lock_wait = ps->act_cond_wait = ps->act_barrier_wait = 0;
-    for (int k = 0; k < MAX_LOCK_SLOTS; k++) {
+    for (uint32_t k = 0; k < s->group->lock_slots; k++) { /* the only ones a sample carries */
         ps->act_locks[k] = (struct lock_wait){.holder = -1};
         ps->act_lock_longest[k] = 0;
     }

@@ -850,7 +850,8 @@ class PhasesWork(Strict):
     def timer_periods(self, resources: dict[str, Resource]) -> tuple[int, ...]:
         """The periods of the thread's timers (private or named), shortest first; empty when it has none.
 
-        Each activation is measured against the period of the timer event that released it."""
+        Each activation's skipped releases are steps of the timer event that released it, and its
+        slack runs to the next release on its grid (see the native core's ev_timer)."""
         periods = set()
         for _, e in self.events():
             if e.event is EventKind.TIMER:
