@@ -1,6 +1,6 @@
 """What the scheduler trace costs at a high event rate: events per second, the reader's CPU share, losses, memory.
 
-    python bench/trace.py [--seconds 5] [--buffer-kb 4096] [--quick]
+    python bench/trace.py [--seconds 5] [--buffer-kb 4096] [--rounds 8] [--quick]
 
 Two processes ping-pong a byte through two pipes, one pinned to each of the first two
 CPUs (SCHED_OTHER), so every round trip is two wake-ups and four switches: the
@@ -15,6 +15,13 @@ between them), timed untraced and traced, alternating; the difference per round 
 the events the trace recorded per round trip is the kernel's cost of writing one event.  It
 is paid on the wake-up path of a traced thread (sched_waking, then the sched_switch onto its
 CPU), which is what moves the wake-up latency of a traced probe (README, Fidelity).
+Last, where a traced probe's wake-up latency goes, with no runner involved: the runner's
+native periodic loop alone (FIFO 80, 1 ms, memory locked: `bench/fidelity.py --native-loop`)
+under one busy loop per CPU, in rounds that turn between untraced, a tracefs instance of
+its own with only sched_switch (pid-filtered to the loop, as the runner's is), and with
+sched_switch and sched_waking (the events the runner's trace puts on a wake-up's path).
+Prints each one's wake-up latency (p50 and p99 of all rounds pooled, and the median of the
+rounds' own) and the shift over untraced.
 Needs root (tracefs).  `--quick` (0.5 s, for CI) checks that it runs and prints its figures.
 """
 
@@ -113,10 +120,80 @@ def event_cost(rounds: int, n: int, buffer_kb: int) -> None:
     print(f"{(b - a) / e:.0f} ns per event written" if e else "no events recorded")
 
 
+WAKE_PATH = ("untraced", "sched_switch", "sched_switch + sched_waking")
+BENCH_INSTANCE = "runner-bench-wake-path"
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
+    """The native loop's latencies (us) while a private instance traces `events` of it (none: untraced)."""
+    root = tracing.find_tracefs()
+    if isinstance(root, tracing.TraceUnavailable):
+        raise SystemExit(f"trace unavailable: {root.reason}")
+    path = os.path.join(root.path, "instances", BENCH_INSTANCE)
+    if os.path.isdir(path):  # left by a bench that was killed
+        os.rmdir(path)
+    argv = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "fidelity.py"), "--native-loop", str(seconds)]
+    if events:
+        os.mkdir(path)
+    try:
+        if events:
+            for name, value in (("trace_clock", "mono"), ("options/event-fork", "1"), ("set_event_pid", str(os.getpid()))):
+                with open(os.path.join(path, name), "w") as handle:
+                    handle.write(value)
+            for event in events:
+                with open(os.path.join(path, "events", "sched", event, "enable"), "w") as handle:
+                    handle.write("1")
+        done = subprocess.run(argv, capture_output=True, text=True, check=False)  # a child of this process: in the pid filter
+    finally:
+        if events:
+            with open(os.path.join(path, "tracing_on"), "w") as handle:
+                handle.write("0")
+            os.rmdir(path)
+    if done.returncode:
+        raise SystemExit(f"the native loop failed with exit {done.returncode}: {done.stderr.strip()[-2000:]}")
+    return [int(line) / 1000 for line in done.stdout.split()]
+
+
+def wake_path(rounds: int, seconds: float) -> None:
+    """Print the native loop's latency untraced and under each set of events, the rounds turning between them."""
+    configs = {name: events for name, events in zip(WAKE_PATH, ((), ("sched_switch",), ("sched_switch", "sched_waking")))}
+    got: dict[str, list[list[float]]] = {name: [] for name in configs}
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
+    try:
+        time.sleep(0.3)
+        for i in range(rounds):
+            for k in range(len(WAKE_PATH)):
+                name = WAKE_PATH[(i + k) % len(WAKE_PATH)]
+                got[name].append(loop_under(configs[name], seconds))
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    print(f"the native loop's wake-up latency under {os.cpu_count()} busy loops, {rounds} x {seconds:g} s, in turn (us):")
+    base: dict[str, float] = {}
+    for name, per_round in got.items():
+        pooled = [v for r in per_round for v in r]
+        figs = {
+            "p50": percentile(pooled, 0.5),
+            "p99": percentile(pooled, 0.99),
+            "rounds' p50": statistics.median(percentile(r, 0.5) for r in per_round),
+            "rounds' p99": statistics.median(percentile(r, 0.99) for r in per_round),
+        }
+        base = base or figs
+        shown = ", ".join(f"{k} {v:.1f} ({v - base[k]:+.1f})" for k, v in figs.items())
+        print(f"  {name:<28} {shown}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--buffer-kb", type=int, default=4096)
+    parser.add_argument("--rounds", type=int, default=8, help="rounds of the wake-path measurement (2 s each per configuration)")
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args()
     seconds = 0.5 if args.quick else args.seconds
@@ -143,6 +220,7 @@ def main() -> int:
     print(f"lost {data.lost:,}, out of order {data.out_of_order}, unseen switch-ins {data.unseen_switch_ins:,}")
     print(f"peak RSS {rss_before / 1024:.1f} MiB before, {rss_after / 1024:.1f} MiB after")
     event_cost(1 if args.quick else 5, 2_000 if args.quick else 100_000, args.buffer_kb)
+    wake_path(1 if args.quick else args.rounds, seconds if args.quick else 2.0)
     return 0
 
 
