@@ -10,13 +10,15 @@ cell in flight.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import fnmatch
+import gc
 import os
 import random
 import signal
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, Optional
@@ -403,14 +405,15 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
             )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            result, loop.write_error, window_end = _one_cell(cell, cell_folder, run.start, cell_options, backend)
-            progress.finish(time.monotonic() - began)
-            loop.statuses.append(result.status)
-            try:
-                _record(doc, result, unit, store, window_end)
-            except OSError as exc:
-                doc.cells.remove(result)
-                loop.write_error = loop.write_error or exc
+            with _collector_paused():
+                result, loop.write_error, window_end = _one_cell(cell, cell_folder, run.start, cell_options, backend)
+                progress.finish(time.monotonic() - began)
+                loop.statuses.append(result.status)
+                try:
+                    _record(doc, result, unit, store, window_end)
+                except OSError as exc:
+                    doc.cells.remove(result)
+                    loop.write_error = loop.write_error or exc
             say(render_cell(result, backend.pid_width()))
             if loop.write_error is not None or stop.requested():
                 return loop
@@ -461,6 +464,24 @@ class _SamplesFile:
         self, key: str, tid: int, samples: list[Sample], mutexes: Sequence[str] = (), holders: Mapping[int, str] = NO_HOLDERS
     ) -> None:
         self.writer.writerows(sample_rows(key, tid, samples, mutexes, holders))
+
+
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off while a cell runs and is saved, on again after.
+
+    What a cell allocates is freed by reference counting: no reference cycles (a 5 s cell
+    of 1,024 threads, traced, left none for the collector to find).  But from the end of its
+    window to its results saved, a large cell builds its records and results, and the
+    collector kept traversing them: 60 ms of 1,024 threads' 420 ms, in 140 collections.
+    """
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _settle(settle_ns: int, stop: StopSignals) -> None:
