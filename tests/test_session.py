@@ -7,6 +7,7 @@ Exit codes are written as the numbers README documents, not taken from the code.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 
@@ -206,3 +207,24 @@ def test_resume_refuses_a_recorded_plan_out_of_range(tmp_path, key, value):
     assert backend.ran == []
     done = run_cli(FIFO80, "--resume", str(out), "--quiet")  # as a user sees it: one line, exit 2
     assert done.code == 2 and f"plan.{key}" in done.err and "Traceback" not in done.err, done.err
+
+
+class _CollectorWatch(FakeBackend):
+    """Notes whether Python's cyclic collector was on while each cell ran."""
+
+    def __init__(self, acts: dict[str, Act]):
+        super().__init__(acts)
+        self.collector_on: list[bool] = []
+
+    def run_cell(self, cell, folder, start, options):
+        self.collector_on.append(gc.isenabled())
+        return super().run_cell(cell, folder, start, options)
+
+
+@pytest.mark.parametrize("act", [Act(), Act(oserror=28)], ids=["cells run", "a cell's files cannot be made"])
+def test_the_cyclic_collector_is_off_while_cells_run_and_on_again_after(tmp_path, act):
+    assert gc.isenabled()
+    backend = _CollectorWatch({FIFO_CELLS[1]: act})
+    run(MATRIX, tmp_path / "r", backend)
+    assert backend.collector_on and not any(backend.collector_on)
+    assert gc.isenabled(), "the run left Python's collector off"
