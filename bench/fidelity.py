@@ -107,6 +107,7 @@ def native_loop(seconds: float) -> int:
 
     from runner.run import _probe, dmalatency, kernel, samples
 
+    _probe.set_name("native-loop")  # the loop runs on the main thread: its comm, as a worker's is its process's name
     releases = int(seconds * 1000)
     layout = samples.Layout(1, releases + 16)
     fd = samples.create("native-loop", layout)
