@@ -4,8 +4,8 @@
 
 One FIFO-80 thread, 1 ms period, no burn, memory locked, against
 `cyclictest -m -p80 -i1000`, under the same background load (one SCHED_OTHER busy loop
-per CPU, started once for the whole run).  Each round runs, one after the other (the
-order turns every round, so no tool always follows the same one):
+per CPU, started once for the whole run).  Each round runs, one after the other (in an
+order shuffled every round, seeded by its number, so no tool keeps the same neighbour):
 
   * cyclictest, twice: how far two runs of the same tool land apart is this machine's
     noise, the floor under every other ratio;
@@ -34,6 +34,7 @@ import csv
 import gzip
 import json
 import os
+import random
 import shutil
 import statistics
 import subprocess
@@ -64,6 +65,7 @@ processes:
 
 
 def percentile(values: list[float], q: float) -> float:
+    """Nearest rank (bench/trace.py uses it too, so the two benches' figures compare)."""
     ordered = sorted(values)
     return ordered[max(0, min(len(ordered) - 1, int(-(-q * len(ordered) // 1)) - 1))]
 
@@ -97,6 +99,8 @@ def run_cyclictest(seconds: int) -> list[float]:
         parts = line.replace(":", " ").split()
         if len(parts) == 3 and all(p.isdigit() for p in parts):
             values.append(float(parts[2]))
+    if proc.returncode or len(values) < 2:
+        raise SystemExit(f"cyclictest failed with exit {proc.returncode} and {len(values)} samples: {proc.stderr.strip()[-2000:]}")
     return values[1:]  # cyclictest's first sample has no previous deadline
 
 
@@ -133,6 +137,14 @@ def run_native_loop(seconds: int) -> list[float]:
     if done.returncode:
         raise SystemExit(f"the native loop failed with exit {done.returncode}: {done.stderr.strip()[-2000:]}")
     return [int(line) / 1000 for line in done.stdout.split()]
+
+
+def in_turn(names: tuple[str, ...], round_no: int) -> list[str]:
+    """The order of one round: shuffled, seeded by the round, so no measurement keeps the same neighbour
+    (the host's slow phases last seconds: two always adjacent would share them, and look closer than they are)."""
+    order = list(names)
+    random.Random(round_no).shuffle(order)
+    return order
 
 
 TOOLS = ("cyclictest", "cyclictest again", "native loop alone", "runner --no-trace", "runner (traced)")
@@ -188,8 +200,7 @@ def main() -> int:
     try:
         time.sleep(0.5)
         for i in range(args.rounds):
-            for k in range(len(TOOLS)):
-                tool = TOOLS[(i + k) % len(TOOLS)]
+            for k, tool in enumerate(in_turn(TOOLS, i)):
                 out = os.path.join(work, f"r{i}-{k}")
                 rounds[tool].append(measure(tool, args.seconds, probe, out, walls))
     finally:

@@ -17,7 +17,7 @@ is paid on the wake-up path of a traced thread (sched_waking, then the sched_swi
 CPU), which is what moves the wake-up latency of a traced probe (README, Fidelity).
 Last, where a traced probe's wake-up latency goes, with no runner involved: the runner's
 native periodic loop alone (FIFO 80, 1 ms, memory locked: `bench/fidelity.py --native-loop`)
-under one busy loop per CPU, in rounds that turn between untraced, a tracefs instance of
+under one busy loop per CPU, in rounds (each in a shuffled order) of untraced, a tracefs instance of
 its own with only sched_switch (pid-filtered to the loop, as the runner's is), and with
 sched_switch and sched_waking (the events the runner's trace puts on a wake-up's path).
 Prints each one's wake-up latency (p50 and p99 of all rounds pooled, and the median of the
@@ -36,7 +36,10 @@ import subprocess
 import sys
 import time
 
+from fidelity import in_turn, percentile  # this folder: python bench/trace.py puts it first on sys.path
+
 from runner.run import tracing
+from runner.run.guard import remove_instance
 
 PING_PONG = r"""
 import os
@@ -124,11 +127,6 @@ WAKE_PATH = ("untraced", "sched_switch", "sched_switch + sched_waking")
 BENCH_INSTANCE = "runner-bench-wake-path"
 
 
-def percentile(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
-
-
 def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
     """The native loop's latencies (us) while a private instance traces `events` of it (none: untraced)."""
     root = tracing.find_tracefs()
@@ -136,7 +134,7 @@ def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
         raise SystemExit(f"trace unavailable: {root.reason}")
     path = os.path.join(root.path, "instances", BENCH_INSTANCE)
     if os.path.isdir(path):  # left by a bench that was killed
-        os.rmdir(path)
+        remove_instance(path)
     argv = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "fidelity.py"), "--native-loop", str(seconds)]
     if events:
         os.mkdir(path)
@@ -151,9 +149,7 @@ def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
         done = subprocess.run(argv, capture_output=True, text=True, check=False)  # a child of this process: in the pid filter
     finally:
         if events:
-            with open(os.path.join(path, "tracing_on"), "w") as handle:
-                handle.write("0")
-            os.rmdir(path)
+            remove_instance(path)
     if done.returncode:
         raise SystemExit(f"the native loop failed with exit {done.returncode}: {done.stderr.strip()[-2000:]}")
     return [int(line) / 1000 for line in done.stdout.split()]
@@ -167,8 +163,7 @@ def wake_path(rounds: int, seconds: float) -> None:
     try:
         time.sleep(0.3)
         for i in range(rounds):
-            for k in range(len(WAKE_PATH)):
-                name = WAKE_PATH[(i + k) % len(WAKE_PATH)]
+            for name in in_turn(WAKE_PATH, i):
                 got[name].append(loop_under(configs[name], seconds))
     finally:
         for hog in hogs:

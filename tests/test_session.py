@@ -13,7 +13,7 @@ import os
 
 import pytest
 from conftest import SCENARIOS, run_cli
-from fakebackend import Act, FakeBackend
+from fakebackend import Act, Died, FakeBackend
 
 from runner.cli import _run_parser
 from runner.errors import ScenarioError
@@ -221,10 +221,16 @@ class _CollectorWatch(FakeBackend):
         return super().run_cell(cell, folder, start, options)
 
 
-@pytest.mark.parametrize("act", [Act(), Act(oserror=28)], ids=["cells run", "a cell's files cannot be made"])
+@pytest.mark.parametrize(
+    "act", [Act(), Act(oserror=28), Act(dies=True)], ids=["cells run", "a cell's files cannot be made", "a cell raises"]
+)
 def test_the_cyclic_collector_is_off_while_cells_run_and_on_again_after(tmp_path, act):
     assert gc.isenabled()
     backend = _CollectorWatch({FIFO_CELLS[1]: act})
-    run(MATRIX, tmp_path / "r", backend)
+    if act.dies:  # an exception out of the cell (here a BaseException, as KeyboardInterrupt is) passes through the pause
+        with pytest.raises(Died):
+            run(MATRIX, tmp_path / "r", backend)
+    else:
+        run(MATRIX, tmp_path / "r", backend)
     assert backend.collector_on and not any(backend.collector_on)
     assert gc.isenabled(), "the run left Python's collector off"
