@@ -62,19 +62,21 @@ SEED = {
 def seed_runs(tmp_path_factory):
     """Run every seed scenario once (4s each); while it runs, capture the runner's and ps's tables.
 
-    4 s: the reads below take about 2.5 s from the threads' appearance on a slow VM beside the seeds'
-    busy loops (the two `runner ps` are Python starts); with 3 s runs the process was gone before
-    the last read in some runs."""
+    The two `runner ps` are started, and have imported the runner, before the scenario starts:
+    a Python start beside the seeds' busy loops took over 3 s on a slow VM, and the process it was
+    to read was gone.  Once told their target they do what the `runner` console script does."""
     runs = {}
     for name, (comm, rows, _) in SEED.items():
         out = str(tmp_path_factory.mktemp(name))
+        cli = [_runner_ps(), _runner_ps()]
         proc = start_runner(os.path.join(SCENARIOS, f"{name}.yaml"), "--duration", "4s", "--out", out, "--quiet", cwd=out)
         try:
             pid = wait_for_threads(comm, len(rows))
             time.sleep(1.0)  # well inside the run: every setting applied, callbacks running
-            # The two `runner ps` start side by side: each is a Python start (0.3 s, several times that
-            # beside the scenario's busy loops on a slow VM).
-            cli = [_runner_ps(str(pid)), _runner_ps(comm)]
+            for ps_cmd, target in zip(cli, (str(pid), comm)):
+                assert ps_cmd.stdin is not None
+                ps_cmd.stdin.write(target + "\n")
+                ps_cmd.stdin.flush()
             live = {
                 "pid": pid,
                 "rows": thread_rows(pid),
@@ -92,6 +94,8 @@ def seed_runs(tmp_path_factory):
             live["cli_pid"], live["cli_name"] = (_output(c) for c in cli)
         except BaseException:
             proc.kill()
+            for ps_cmd in cli:
+                ps_cmd.kill()
             raise
         runs[name] = (live, finish(proc, out))
     return runs
@@ -102,9 +106,23 @@ def strip(text: str) -> list[str]:
     return [line[:-4] for line in text.splitlines()]
 
 
-def _runner_ps(target: str) -> subprocess.Popen[str]:
+_RUNNER_PS = """\
+import sys
+from runner import cli
+import runner.results.pstable, runner.run.kernel  # what `runner ps` imports, before the target exists
+sys.exit(cli.main(["ps", sys.stdin.readline().strip()]))
+"""
+
+
+def _runner_ps() -> subprocess.Popen[str]:
+    """`runner ps TARGET` in an interpreter that has imported the runner already; TARGET comes on stdin."""
     return subprocess.Popen(
-        [sys.executable, "-m", "runner", "ps", target], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env()
+        [sys.executable, "-c", _RUNNER_PS],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env(),
     )
 
 
