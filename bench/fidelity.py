@@ -30,6 +30,7 @@ prints its figures; the figures of a quick run are not the ones to quote.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import gzip
 import json
@@ -41,6 +42,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -132,7 +134,20 @@ def native_loop(seconds: float) -> int:
     return 0
 
 
-def run_native_loop(seconds: int) -> list[float]:
+@contextlib.contextmanager
+def busy_loops() -> Iterator[None]:
+    """The background load of every round: one SCHED_OTHER busy loop per CPU, for the whole block."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
+    try:
+        time.sleep(0.5)  # spread over the CPUs before the first measurement
+        yield
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+
+
+def run_native_loop(seconds: float) -> list[float]:
     done = subprocess.run([sys.executable, __file__, "--native-loop", str(seconds)], capture_output=True, text=True, check=False)
     if done.returncode:
         raise SystemExit(f"the native loop failed with exit {done.returncode}: {done.stderr.strip()[-2000:]}")
@@ -194,19 +209,13 @@ def main() -> int:
     probe = os.path.join(work, "fidelity.yaml")
     with open(probe, "w") as handle:
         handle.write(PROBE.format(seconds=args.seconds))
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
     rounds: dict[str, list[list[float]]] = {tool: [] for tool in TOOLS}
     walls: list[float] = []
-    try:
-        time.sleep(0.5)
+    with busy_loops():
         for i in range(args.rounds):
             for k, tool in enumerate(in_turn(TOOLS, i)):
                 out = os.path.join(work, f"r{i}-{k}")
                 rounds[tool].append(measure(tool, args.seconds, probe, out, walls))
-    finally:
-        for hog in hogs:
-            hog.kill()
-            hog.wait()
 
     print(
         f"wake-up latency, FIFO 80, 1 ms period, memory locked, {os.cpu_count()} busy loops, "

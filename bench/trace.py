@@ -36,7 +36,7 @@ import subprocess
 import sys
 import time
 
-from fidelity import in_turn, percentile  # this folder: python bench/trace.py puts it first on sys.path
+from fidelity import busy_loops, in_turn, percentile, run_native_loop  # this folder: python bench/trace.py puts it first on sys.path
 
 from runner.run import tracing
 from runner.run.guard import remove_instance
@@ -123,7 +123,7 @@ def event_cost(rounds: int, n: int, buffer_kb: int) -> None:
     print(f"{(b - a) / e:.0f} ns per event written" if e else "no events recorded")
 
 
-WAKE_PATH = ("untraced", "sched_switch", "sched_switch + sched_waking")
+WAKE_PATH = {"untraced": (), "sched_switch": ("sched_switch",), "sched_switch + sched_waking": ("sched_switch", "sched_waking")}
 BENCH_INSTANCE = "runner-bench-wake-path"
 
 
@@ -135,7 +135,6 @@ def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
     path = os.path.join(root.path, "instances", BENCH_INSTANCE)
     if os.path.isdir(path):  # left by a bench that was killed
         remove_instance(path)
-    argv = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "fidelity.py"), "--native-loop", str(seconds)]
     if events:
         os.mkdir(path)
     try:
@@ -146,29 +145,19 @@ def loop_under(events: tuple[str, ...], seconds: float) -> list[float]:
             for event in events:
                 with open(os.path.join(path, "events", "sched", event, "enable"), "w") as handle:
                     handle.write("1")
-        done = subprocess.run(argv, capture_output=True, text=True, check=False)  # a child of this process: in the pid filter
+        return run_native_loop(seconds)  # a child of this process: in the pid filter
     finally:
         if events:
             remove_instance(path)
-    if done.returncode:
-        raise SystemExit(f"the native loop failed with exit {done.returncode}: {done.stderr.strip()[-2000:]}")
-    return [int(line) / 1000 for line in done.stdout.split()]
 
 
 def wake_path(rounds: int, seconds: float) -> None:
     """Print the native loop's latency untraced and under each set of events, the rounds turning between them."""
-    configs = {name: events for name, events in zip(WAKE_PATH, ((), ("sched_switch",), ("sched_switch", "sched_waking")))}
-    got: dict[str, list[list[float]]] = {name: [] for name in configs}
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
-    try:
-        time.sleep(0.3)
+    got: dict[str, list[list[float]]] = {name: [] for name in WAKE_PATH}
+    with busy_loops():
         for i in range(rounds):
-            for name in in_turn(WAKE_PATH, i):
-                got[name].append(loop_under(configs[name], seconds))
-    finally:
-        for hog in hogs:
-            hog.kill()
-            hog.wait()
+            for name in in_turn(tuple(WAKE_PATH), i):
+                got[name].append(loop_under(WAKE_PATH[name], seconds))
     print(f"the native loop's wake-up latency under {os.cpu_count()} busy loops, {rounds} x {seconds:g} s, in turn (us):")
     base: dict[str, float] = {}
     for name, per_round in got.items():
