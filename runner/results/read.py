@@ -49,11 +49,12 @@ def load(path: str) -> RunDocument:
         except ValidationError as exc:
             raise ScenarioError(validation_problems(path, exc)) from None
         data = upgrade_v1(data)
-    problems = range_problems(path, data)
+    text = json.dumps(data)
+    problems = range_problems(path, data, text)
     if problems:
         raise ScenarioError(problems)
     try:
-        doc = RunDocument.model_validate_json(json.dumps(data), strict=True)
+        doc = RunDocument.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
@@ -94,10 +95,11 @@ def _journal_line(path: str, number: int, line: bytes, cells: list[CellResult]) 
         data = parse_json(path, line)
     except ScenarioError as exc:
         return [dataclasses.replace(p, line=number) for p in exc.problems]
-    problems = range_problems(path, data)
+    text = json.dumps(data)
+    problems = range_problems(path, data, text)
     if not problems:
         try:
-            cells.append(CellResult.model_validate_json(json.dumps(data), strict=True))
+            cells.append(CellResult.model_validate_json(text, strict=True))
         except ValidationError as exc:
             problems = validation_problems(path, exc)
     return [dataclasses.replace(p, line=number) for p in problems]  # the line is the cell; key paths are within it
@@ -159,19 +161,31 @@ def _finite_float(text: str) -> float:
 
 
 def _depth(data: Any) -> int:
-    """How deeply `data` nests (iteratively: a hostile file must not exhaust the stack)."""
-    deepest, stack = 0, [(data, 1)]
-    while stack:
-        item, level = stack.pop()
-        if isinstance(item, (dict, list)):
-            deepest = max(deepest, level)
-            if level <= MAX_DEPTH:
-                stack.extend((v, level + 1) for v in (item.values() if isinstance(item, dict) else item))
-    return deepest
+    """How deeply `data` nests, counted a level at a time (a hostile file must not exhaust the stack).
+
+    Stops counting past MAX_DEPTH: anything deeper is refused whatever its depth.
+    """
+    depth, level = 0, [data] if isinstance(data, (dict, list)) else []
+    while level and depth <= MAX_DEPTH:
+        depth += 1
+        below: list[Any] = []
+        for item in level:
+            below.extend([v for v in (item.values() if isinstance(item, dict) else item) if isinstance(v, (dict, list))])
+        level = below
+    return depth
 
 
-def range_problems(path: str, data: Any) -> list[Problem]:
-    """Integers a 64-bit field cannot hold, wherever they are: runner never writes one, and no reader should meet one."""
+_LONG_DIGITS = re.compile(r"[0-9]{19}")  # the shortest integer beyond 64 bits has 19 digits; a float's repr never has 19 in a row
+
+
+def range_problems(path: str, data: Any, text: str | None = None) -> list[Problem]:
+    """Integers a 64-bit field cannot hold, wherever they are: runner never writes one, and no reader should meet one.
+
+    `text`, when given, is `data` as JSON: a document with no run of 19 digits in it holds no
+    such integer, which spares the walk below (a string with such a run only costs the walk).
+    """
+    if text is not None and not _LONG_DIGITS.search(text):
+        return []
     out: list[Problem] = []
     stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
     while stack and len(out) < MAX_PROBLEMS:
