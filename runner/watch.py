@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 from pydantic import ValidationError
 
 from runner.errors import UsageError
-from runner.results.document import CellResult, PermissionsInfo, RunDocument, ScenarioInfo, Status, worst
+from runner.results.document import CellResult, PermissionsInfo, RunDocument, ScenarioInfo, Status, ps_rows, worst
 from runner.results.pstable import ThreadRow
 from runner.run import kernel
 from runner.run.evaluate import degradation
@@ -111,7 +111,7 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
         cell.threads.extend(t for _, t in out.threads)
         failures += out.failures
         cell.warnings += out.warnings
-    cell.thread_table = table
+    cell.thread_table = ps_rows(table)
     statuses = [Status.INTERRUPTED] if interrupted else [Status.ERROR] if failures else [Status.PASSED]
     if any(t.degraded for t in cell.threads):
         statuses.append(Status.ERROR)

@@ -53,3 +53,18 @@ def test_the_earlier_spellings_are_still_read_but_not_offered():
     with pytest.raises(UsageError) as caught:
         parse_columns("nvcw")
     assert "did you mean 'nvcsw'" in str(caught.value) and "ivcsw," not in str(caught.value).replace("nivcsw", "")
+
+
+def test_runner_ps_imports_no_validation_library_and_no_scenario_model():
+    """`runner ps` reads /proc and prints: pydantic and the scenario model (about 0.2 s of imports) stay out of it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys; from runner import cli; code = cli.main(['ps', str(os.getpid())]); "
+        "print(code, sorted(m for m in sys.modules if m.split('.')[0] == 'pydantic' or m.startswith('runner.scenario')))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    lines = done.stdout.splitlines()
+    assert lines[0].split() == ["TID", "COMMAND", "RTPRIO", "CLS", "PSR"], done.stdout
+    assert lines[-1] == "0 []", done.stdout

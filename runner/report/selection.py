@@ -12,10 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 from runner import figures as fg
 from runner.results.document import CellResult, ThreadResult, Verdict
-from runner.results.pstable import ThreadRow
+from runner.results.pstable import TableRow
+
+Row = TypeVar("Row", bound=TableRow)
 
 TERMINAL_ROWS = 24  # threads in the terminal's tables, and verdict or warning lines, before the rest are counted instead
 REPORT_ROWS = 64  # the same in a report's cell section, which is read at leisure
@@ -65,7 +68,7 @@ def threads_shown(cell: CellResult, most: int) -> Shown:
     return Shown([t for t in threads if id(t) in chosen], len(threads) - len(chosen))
 
 
-def ps_rows_shown(rows: Sequence[ThreadRow], shown: Shown) -> tuple[list[ThreadRow], int]:
+def ps_rows_shown(rows: Sequence[Row], shown: Shown) -> tuple[list[Row], int]:
     """The ps rows of the threads shown (all rows when every thread is), and how many rows are left out."""
     if not shown.hidden:
         return list(rows), 0

@@ -52,6 +52,7 @@ from pydantic import (
     ConfigDict,
     Field,
     NonNegativeInt,
+    PlainSerializer,
     SerializerFunctionWrapHandler,
     StrictStr,
     WithJsonSchema,
@@ -60,13 +61,13 @@ from pydantic import (
 )
 from pydantic.json_schema import SkipJsonSchema
 
-from runner import __version__
+from runner import __version__, units
 from runner import figures as fg
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.figures import ThreadFigures
 from runner.histogram import Histogram
 from runner.results.files import samples_path_problem, write_atomic
-from runner.results.pstable import ThreadRow
+from runner.results.pstable import CLS, TableRow
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
 
@@ -181,6 +182,47 @@ FigureName = Annotated[
     ),
 ]
 Measured = Optional[Union[int, float]]  # int for counts and durations (ns), float for means
+
+
+CpuList = Annotated[
+    tuple[int, ...],
+    BeforeValidator(units.parse_cpu_list),
+    PlainSerializer(units.format_cpus, return_type=str),
+    WithJsonSchema(
+        {"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known", "examples": ["0-1,3"]}
+    ),
+]
+
+
+class PsRow(_Record):
+    """One thread as the kernel reported it (policy numbers as in sched(7)): a row of the cell's ps table.
+
+    Built from a `pstable.ThreadRow` (or anything with its attributes); `cpus` stored as a CPU list string.
+    """
+
+    model_config = ConfigDict(frozen=True, from_attributes=True)
+
+    pid: int
+    tid: int
+    comm: str
+    policy: int = Field(description="sched(7) number; `cls` names it as ps does")
+    rtprio: int
+    nice: int
+    psr: int
+    prio: Optional[int] = Field(description="/proc stat field 18 (kernel prio, shifted); null where not recorded (results/1 files)")
+    cpus: CpuList = ()
+    voluntary: Optional[int] = None
+    involuntary: Optional[int] = None
+
+    @computed_field(description="the policy as ps names it (TS, FF, RR, B, IDL, DLN)")  # type: ignore[prop-decorator]
+    @property
+    def cls(self) -> str:
+        return CLS.get(self.policy, "?")
+
+
+def ps_rows(rows: typing.Iterable[TableRow]) -> list[PsRow]:
+    """Rows read from /proc as results store them."""
+    return [PsRow.model_validate(r) for r in rows]
 
 
 class Verdict(_Record):
@@ -573,7 +615,7 @@ class CellResult(_Record):
     started_at: str = ""
     duration_ns: NonNegativeInt = 0
     machine: Optional[MachineInfo] = None
-    thread_table: list[ThreadRow] = Field(default_factory=list, description="the threads as the kernel held them mid-run")
+    thread_table: list[PsRow] = Field(default_factory=list, description="the threads as the kernel held them mid-run")
     programs: list[ProgramResult] = Field(default_factory=list, description="the user's programs (command:)")
     trace: Optional[TraceInfo] = Field(None, description="the scheduler trace; null: a run from before tracing existed")
     threads: list[ThreadResult] = Field(default_factory=list)

@@ -9,11 +9,9 @@ other column right-aligned, one space apart.  Columns are named as procps names 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Optional
-
-from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema, computed_field
+from typing import Optional, Protocol
 
 from runner import units
 from runner.errors import UsageError, did_you_mean
@@ -21,22 +19,41 @@ from runner.errors import UsageError, did_you_mean
 CLS = {0: "TS", 1: "FF", 2: "RR", 3: "B", 5: "IDL", 6: "DLN"}
 
 
-CpuList = Annotated[
-    tuple[int, ...],
-    BeforeValidator(units.parse_cpu_list),
-    PlainSerializer(units.format_cpus, return_type=str),
-    WithJsonSchema(
-        {"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`); empty: not known", "examples": ["0-1,3"]}
-    ),
-]
+class TableRow(Protocol):
+    """What a table reads of a thread: a row read from /proc now (ThreadRow), or one stored in results (document.PsRow)."""
+
+    @property
+    def pid(self) -> int: ...
+    @property
+    def tid(self) -> int: ...
+    @property
+    def comm(self) -> str: ...
+    @property
+    def policy(self) -> int: ...
+    @property
+    def rtprio(self) -> int: ...
+    @property
+    def nice(self) -> int: ...
+    @property
+    def psr(self) -> int: ...
+    @property
+    def prio(self) -> Optional[int]: ...
+    @property
+    def cpus(self) -> tuple[int, ...]: ...
+    @property
+    def voluntary(self) -> Optional[int]: ...
+    @property
+    def involuntary(self) -> Optional[int]: ...
+    @property
+    def cls(self) -> str: ...
 
 
 @dataclass(frozen=True)
 class ThreadRow:
     """One thread as the kernel reports it (policy numbers as in sched(7)).
 
-    Stored in results by its fields (the results models validate and serialise it);
-    `cpus` as a CPU list string.
+    Plain data, so that `runner ps` imports no validation library; results store it as
+    `document.PsRow`, which has the same fields.
     """
 
     pid: int
@@ -47,13 +64,13 @@ class ThreadRow:
     nice: int
     psr: int
     prio: Optional[int]  # /proc stat field 18 (kernel prio, shifted); None where not recorded (results/1 files)
-    cpus: CpuList = ()
+    cpus: tuple[int, ...] = ()
     voluntary: Optional[int] = None
     involuntary: Optional[int] = None
 
-    @computed_field(description="the policy as ps names it (TS, FF, RR, B, IDL, DLN)")  # type: ignore[prop-decorator]
     @property
     def cls(self) -> str:
+        """The policy as ps names it (TS, FF, RR, B, IDL, DLN)."""
         return CLS.get(self.policy, "?")
 
 
@@ -62,14 +79,14 @@ class Column:
     header: str
     width: int
     left: bool
-    value: Callable[[ThreadRow], str]
+    value: Callable[[TableRow], str]
 
 
-def _rtprio(row: ThreadRow) -> str:
+def _rtprio(row: TableRow) -> str:
     return "-" if row.policy == 0 else str(row.rtprio)
 
 
-def _nice(row: ThreadRow) -> str:
+def _nice(row: TableRow) -> str:
     return str(row.nice) if row.policy in (0, 3) else "-"
 
 
@@ -111,7 +128,7 @@ def parse_columns(spec: str) -> list[str]:
     return names
 
 
-def render_ps(rows: list[ThreadRow], columns: Optional[list[str]] = None, pid_width: int = 5) -> str:
+def render_ps(rows: Sequence[TableRow], columns: Optional[list[str]] = None, pid_width: int = 5) -> str:
     """The table as procps prints it, header included, one line per row, newline-terminated."""
     known = columns_for(pid_width)
     cols = [known[name] for name in (columns or DEFAULT_COLUMNS)]

@@ -25,6 +25,7 @@ from runner.results.document import (
     ThreadHistograms,
     ThreadResult,
     Verdict,
+    ps_rows,
     thread_label,
     worst,
 )
@@ -306,7 +307,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 result.expectations.append(verdict)
     implicit = keeps_up(measured, [scenario.expect[i] for i in expectations_for(scenario, cell)], raw)
     result.expectations += implicit
-    result.thread_table = list(raw.table)
+    result.thread_table = ps_rows(raw.table)
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)
         if b.kind == "hog"

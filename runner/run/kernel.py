@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from runner.results.pstable import CLS, ThreadRow
-from runner.scenario.model import Policy
-from runner.scenario.plan import Settings
+
+if TYPE_CHECKING:
+    from runner.scenario.plan import Settings
 
 RESET_ON_FORK = 0x40000000
 
@@ -46,6 +47,9 @@ def pid_width() -> int:
 
 def thread_settings(tid: int, all_cpus: Optional[tuple[int, ...]] = None) -> Settings:
     """A thread's settings as the kernel holds them; cpus None when it may use every CPU in `all_cpus`."""
+    from runner.scenario.model import Policy  # here: `runner ps` reads /proc without the scenario model's import
+    from runner.scenario.plan import Settings
+
     policy = os.sched_getscheduler(tid) & ~RESET_ON_FORK
     priority = os.sched_getparam(tid).sched_priority
     nice = os.getpriority(os.PRIO_PROCESS, tid)
