@@ -67,6 +67,9 @@ LONE_SURROGATE = (
     "text, message",
     [
         ("name: x\x01\n", r"f:1:8: invalid YAML: character '\\x01' is not allowed"),
+        ("name: é\x01\n", r"f:1:8: invalid YAML: character '\\x01' is not allowed"),  # libyaml counts bytes: 1:9 unless converted
+        ("a: 1\nname: ééé\x01\n", r"f:2:10: invalid YAML: character '\\x01' is not allowed"),
+        ("a: 1\nb: x\ud800\n", r"f:2:5: invalid YAML: '\\ud800' is not a character \(a lone UTF-16 surrogate\)"),
         ("r: &r\n  <<: *r\n", r"f:1:4: r: an alias refers to a node that contains it"),
         ("r: &r\n  <<: [*r]\n", r"f:1:4: r: an alias refers to a node that contains it"),
         ("a: &a [1, *a]\n", r"f:1:4: a\[1\]: an alias refers to a node that contains it"),
@@ -96,3 +99,26 @@ def test_own_keys_win_over_merged_ones_wherever_the_merge_is():
     doc = load_text("base: &b {x: 1, y: 2}\nthing:\n  y: 3\n  <<: *b\n", "f")
     assert doc.data["thing"] == {"x": 1, "y": 3}
     assert doc.mark(("thing", "y")).line == 3
+
+
+def test_libyaml_is_used_only_where_it_refuses_deep_nesting_itself(monkeypatch):
+    """libyaml builds nodes by recursion in compiled code: one without its own nesting limit (before 0.2.6) is not used."""
+    from runner.scenario import yamlsource
+
+    class Unlimited(yaml.SafeLoader):  # composes anything, as an older libyaml would, without recursing here
+        def get_single_node(self):
+            return None
+
+    try:
+        yamlsource._loader_class.cache_clear()
+        assert yamlsource._loader_class() is (yaml.CSafeLoader if yaml.__with_libyaml__ else yaml.SafeLoader)
+        yamlsource._loader_class.cache_clear()
+        monkeypatch.setattr(yaml, "CSafeLoader", Unlimited)
+        assert yamlsource._loader_class() is yaml.SafeLoader
+        yamlsource._loader_class.cache_clear()
+        monkeypatch.delattr(yaml, "CSafeLoader")
+        assert yamlsource._loader_class() is yaml.SafeLoader
+        assert load_text("a: [1, {b: 2}]\n", "f").data == {"a": [1, {"b": 2}]}
+    finally:
+        monkeypatch.undo()
+        yamlsource._loader_class.cache_clear()

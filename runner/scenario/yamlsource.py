@@ -16,6 +16,7 @@ built here from the composed node tree so that
 
 from __future__ import annotations
 
+import functools
 import unicodedata
 from dataclasses import dataclass, field
 from typing import Any, Union
@@ -107,12 +108,27 @@ def dotted(path: Path) -> str:
     return out
 
 
-class _Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
-    """The safe loader, used only to compose nodes and to construct scalars.
+_Loader = Union[yaml.SafeLoader, yaml.CSafeLoader]
 
-    libyaml's parser when PyYAML has it (PyPI's wheels do): it composes a scenario 15 times
-    faster than PyYAML's Python parser and refuses nesting beyond 1,000 levels itself.
+
+@functools.cache
+def _loader_class() -> type[_Loader]:
+    """The safe loader, used only to compose nodes and to construct scalars: libyaml's where it is safe.
+
+    libyaml's parser (PyPI's PyYAML has it) composes a scenario 15 times faster than
+    PyYAML's Python one, but it builds nodes by recursion in compiled code: only a libyaml
+    that refuses nesting past 1,000 levels itself (0.2.6 on) cannot be made to overflow the
+    stack by a file of `[`s.  An older one, or none, leaves PyYAML's parser, whose recursion
+    Python bounds.
     """
+    fast = getattr(yaml, "CSafeLoader", None)
+    if fast is None:
+        return yaml.SafeLoader
+    try:
+        yaml.compose("[" * 1001 + "]" * 1001, Loader=fast)
+    except yaml.YAMLError:
+        return fast
+    return yaml.SafeLoader
 
 
 def load_text(text: str, file: str) -> Document:
@@ -120,10 +136,20 @@ def load_text(text: str, file: str) -> Document:
     if len(text.encode("utf-8", "surrogatepass")) > MAX_BYTES:
         raise ScenarioError([Problem(file, 1, 1, "", f"file is larger than {MAX_BYTES} bytes; is it really a scenario?")])
     try:
-        loader = _Loader(text)
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:  # a lone surrogate: no parser reads one, libyaml's cannot even be handed the text
+        line, col = _position(text, exc.start)
+        message = f"{text[exc.start]!r} is not a character (a lone UTF-16 surrogate); write the character itself"
+        raise ScenarioError([Problem(file, line, col, "", f"invalid YAML: {message}")]) from None
+    loader_class = _loader_class()
+    try:
+        loader = loader_class(text)
         node = loader.get_single_node()
     except yaml.reader.ReaderError as exc:
-        line, col = _position(text, exc.position)
+        at = exc.position
+        if loader_class is not yaml.SafeLoader:  # libyaml counts bytes of the UTF-8 text, PyYAML characters
+            at = len(text.encode("utf-8")[:at].decode("utf-8", "ignore"))
+        line, col = _position(text, at)
         raise ScenarioError(
             [
                 Problem(
