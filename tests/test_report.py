@@ -435,6 +435,15 @@ def _thread(data):
             _json_edit(lambda d: d["cells"][0]["background"].append({"kind": "command", "argv": [1]})),
             "cells[0].background[2].argv[0]: input should be a valid string; got 1",
         ),
+        (
+            # 4,305 digits in ns: past Python's limit for an integer as text
+            _json_edit(lambda d: d.update(plan={**d.get("plan", {}), "settle_s": 10**4295})),
+            "plan.settle_ns: an integer of about 4,305 digits is out of range; expected a 64-bit integer",
+        ),
+        (
+            _json_edit(lambda d: d["cells"][0].update(overhead_s={"start_to_first_callback": 10**400})),  # past a float's range
+            "cells[0].overhead_s.start_to_first_callback: input should be a valid number; got an integer of about 401 digits",
+        ),
         (lambda t: "[" * 100 + "]" * 100, "nested more than 64 levels"),
         (lambda t: "[]", "expected a runner.results/2 (or runner.results/1) results file, got None"),
         (lambda t: '{"schema": "runner.results/1", "x": ' + "[" * 100 + "]" * 100 + "}", "nested more than 64 levels"),

@@ -118,5 +118,7 @@ def samples_path_problem(relative: str | None, folder: str) -> str:
 
 def show_value(value: Any) -> str:
     """A value as a message quotes it: repr, or `dict of 3`, cut to 60 characters."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value).bit_length() > 64 * 8:
+        return f"an integer of about {int(abs(value).bit_length() * 0.30103) + 1:,} digits"  # repr refuses past 4,300 digits
     text = repr(value) if not isinstance(value, (dict, list)) else f"{type(value).__name__} of {len(value)}"
     return text if len(text) <= 60 else text[:57] + "..."

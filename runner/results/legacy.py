@@ -193,7 +193,11 @@ def _scaled(value: Any, factor: int) -> Any:
     Exact for what runner/1 wrote (decimal fractions of a few digits): 58.366 us is 58366 ns.
     A value that is not a number is left for the /2 check to name.
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return value
+    if isinstance(value, int):
+        return value * factor  # exact, however large: one past 64 bits is refused by the /2 check, in words
+    if not math.isfinite(value):
         return value
     return int((Decimal(repr(value)) * factor).to_integral_value())
 

@@ -49,9 +49,9 @@ def load(path: str) -> RunDocument:
         except ValidationError as exc:
             raise ScenarioError(validation_problems(path, exc)) from None
         data = upgrade_v1(data)
-    text = json.dumps(data)
+    text = _dumps(data)
     problems = range_problems(path, data, text)
-    if problems:
+    if problems or text is None:
         raise ScenarioError(problems)
     try:
         doc = RunDocument.model_validate_json(text, strict=True)
@@ -95,9 +95,9 @@ def _journal_line(path: str, number: int, line: bytes, cells: list[CellResult]) 
         data = parse_json(path, line)
     except ScenarioError as exc:
         return [dataclasses.replace(p, line=number) for p in exc.problems]
-    text = json.dumps(data)
+    text = _dumps(data)
     problems = range_problems(path, data, text)
-    if not problems:
+    if not problems and text is not None:
         try:
             cells.append(CellResult.model_validate_json(text, strict=True))
         except ValidationError as exc:
@@ -175,7 +175,19 @@ def _depth(data: Any) -> int:
     return depth
 
 
-_LONG_DIGITS = re.compile(r"[0-9]{19}")  # the shortest integer beyond 64 bits has 19 digits; a float's repr never has 19 in a row
+# the shortest integer beyond 64 bits has 19 digits (a float or a string with such a run only costs the walk)
+_LONG_DIGITS = re.compile(r"[0-9]{19}")
+
+
+def _dumps(data: Any) -> str | None:
+    """`data` as JSON text; None when it holds an integer past Python's digit limit for text (a v1 figure scaled to ns).
+
+    Such an integer is out of any 64-bit range, so `range_problems` without the text reports it.
+    """
+    try:
+        return json.dumps(data)
+    except ValueError:
+        return None
 
 
 def range_problems(path: str, data: Any, text: str | None = None) -> list[Problem]:
