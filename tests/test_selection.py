@@ -9,7 +9,7 @@ from test_report import tables
 
 from runner.report import selection
 from runner.report.publish import write_report
-from runner.results.document import Verdict
+from runner.results.document import Verdict, ps_rows
 from runner.results.pstable import ThreadRow
 from runner.terminal import render_cell
 
@@ -48,7 +48,7 @@ def test_a_large_cell_shows_the_threads_that_matter_before_the_worst_latency(tmp
 
 def test_the_terminal_summary_of_a_large_cell_stays_short(tmp_path):
     _, cell = big_cell(tmp_path, threads=400)
-    cell.thread_table = [ThreadRow(4000, 4000 + n, "cb", 0, 0, 0, n % 2, "0-1") for n in range(401)]
+    cell.thread_table = ps_rows(ThreadRow(4000, 4000 + n, "cb", 0, 0, 0, n % 2, 120, (0, 1)) for n in range(401))
     for n, t in enumerate(cell.threads):
         t.tid = 4000 + n
     cell.expectations = [
