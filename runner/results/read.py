@@ -52,7 +52,7 @@ def load(path: str) -> RunDocument:
     text = _dumps(data)
     problems = range_problems(path, data, text)
     if problems or text is None:
-        raise ScenarioError(problems)
+        raise ScenarioError(problems or [Problem(path, 1, 1, "", "holds a number too large to read; not a results file")])
     try:
         doc = RunDocument.model_validate_json(text, strict=True)
     except ValidationError as exc:

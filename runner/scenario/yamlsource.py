@@ -133,14 +133,14 @@ def _loader_class() -> type[_Loader]:
 
 def load_text(text: str, file: str) -> Document:
     """Load one YAML document from `text`; raise ScenarioError with every problem found."""
-    if len(text.encode("utf-8", "surrogatepass")) > MAX_BYTES:
-        raise ScenarioError([Problem(file, 1, 1, "", f"file is larger than {MAX_BYTES} bytes; is it really a scenario?")])
     try:
-        text.encode("utf-8")
+        size = len(text.encode("utf-8"))
     except UnicodeEncodeError as exc:  # a lone surrogate: no parser reads one, libyaml's cannot even be handed the text
         line, col = _position(text, exc.start)
         message = f"{text[exc.start]!r} is not a character (a lone UTF-16 surrogate); write the character itself"
         raise ScenarioError([Problem(file, line, col, "", f"invalid YAML: {message}")]) from None
+    if size > MAX_BYTES:
+        raise ScenarioError([Problem(file, 1, 1, "", f"file is larger than {MAX_BYTES} bytes; is it really a scenario?")])
     loader_class = _loader_class()
     try:
         loader = loader_class(text)
