@@ -49,10 +49,7 @@ def load(path: str) -> RunDocument:
         except ValidationError as exc:
             raise ScenarioError(validation_problems(path, exc)) from None
         data = upgrade_v1(data)
-    text = _dumps(data)
-    problems = range_problems(path, data, text)
-    if problems or text is None:
-        raise ScenarioError(problems or [Problem(path, 1, 1, "", "holds a number too large to read; not a results file")])
+    text = _checked_text(path, data)
     try:
         doc = RunDocument.model_validate_json(text, strict=True)
     except ValidationError as exc:
@@ -95,13 +92,13 @@ def _journal_line(path: str, number: int, line: bytes, cells: list[CellResult]) 
         data = parse_json(path, line)
     except ScenarioError as exc:
         return [dataclasses.replace(p, line=number) for p in exc.problems]
-    text = _dumps(data)
-    problems = range_problems(path, data, text)
-    if not problems and text is not None:
-        try:
-            cells.append(CellResult.model_validate_json(text, strict=True))
-        except ValidationError as exc:
-            problems = validation_problems(path, exc)
+    try:
+        cells.append(CellResult.model_validate_json(_checked_text(path, data), strict=True))
+        problems: list[Problem] = []
+    except ScenarioError as exc:
+        problems = exc.problems
+    except ValidationError as exc:
+        problems = validation_problems(path, exc)
     return [dataclasses.replace(p, line=number) for p in problems]  # the line is the cell; key paths are within it
 
 
@@ -179,15 +176,20 @@ def _depth(data: Any) -> int:
 _LONG_DIGITS = re.compile(r"[0-9]{19}")
 
 
-def _dumps(data: Any) -> str | None:
-    """`data` as JSON text; None when it holds an integer past Python's digit limit for text (a v1 figure scaled to ns).
+def _checked_text(path: str, data: Any) -> str:
+    """`data` as JSON text for strict validation; a ScenarioError if an integer in it is out of 64-bit range.
 
-    Such an integer is out of any 64-bit range, so `range_problems` without the text reports it.
+    An integer past Python's digit limit for text (a v1 figure scaled to ns) cannot become
+    text at all; it is out of range too, and `range_problems` walks `data` to name it.
     """
     try:
-        return json.dumps(data)
+        text: str | None = json.dumps(data)
     except ValueError:
-        return None
+        text = None
+    problems = range_problems(path, data, text)
+    if problems or text is None:
+        raise ScenarioError(problems or [Problem(path, 1, 1, "", "holds a number too large to read; not a results file")])
+    return text
 
 
 def range_problems(path: str, data: Any, text: str | None = None) -> list[Problem]:
