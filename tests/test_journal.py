@@ -16,7 +16,7 @@ from test_session import FIFO_CELLS, MATRIX, OTHER, preempted_other, run
 
 from runner.cli import _run_parser
 from runner.errors import ScenarioError
-from runner.results import journal
+from runner.results import document, journal
 from runner.results.document import CellResult, RunDocument
 from runner.results.journal import JOURNAL, REWRITE_BELOW, ResultsStore, rewrite_due
 from runner.results.read import load
@@ -64,6 +64,22 @@ def _doc_with(store: ResultsStore, cells: int) -> RunDocument:
         doc.cells.append(_cell(n))
         store.add(doc, doc.cells[-1])
     return doc
+
+
+def test_results_json_is_indented_while_small_and_one_line_beyond(tmp_path, monkeypatch):
+    doc = RunDocument(cells=[_cell(n) for n in range(40)])
+    path = str(tmp_path / "results.json")
+    small = doc.save(path)
+    with open(path) as handle:
+        assert handle.read().count("\n") > 40  # indented: one line per key at least
+    assert load(path).cells == doc.cells
+    monkeypatch.setattr(document, "INDENT_BELOW", small // 2)
+    large = doc.save(path)
+    with open(path) as handle:
+        text = handle.read()
+    assert text.count("\n") == 1 and text.endswith("}\n")
+    assert large < small
+    assert load(path).cells == doc.cells
 
 
 def test_a_reader_sees_journaled_cells_that_results_json_does_not_hold_yet(tmp_path, monkeypatch):

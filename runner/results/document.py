@@ -637,6 +637,10 @@ class CellResult(_Record):
         return self.duration_ns / 1e9
 
 
+INDENT_BELOW = 1 << 20
+"""results.json is written indented while its compact form is smaller than this (characters)."""
+
+
 class RunDocument(_Record):
     """A whole results file: the run's facts and its cells, in the order they finished."""
 
@@ -670,9 +674,15 @@ class RunDocument(_Record):
     def save(self, path: str) -> int:
         """Write the document to `path` atomically; a figure that is not a number is stored as null.
 
+        Indented while it is under INDENT_BELOW, to be read by eye; a larger one is one line
+        (`jq .` shows it indented): indenting a 1,024-thread cell makes it 2.9 times as large
+        (7.1 MB against 2.5 MB) and its serialisation and write twice as slow.
         Returns the size written, in bytes.
         """
-        blob = (self.model_dump_json(indent=2, by_alias=True) + "\n").encode("utf-8")
+        text = self.model_dump_json(by_alias=True)
+        if len(text) < INDENT_BELOW:
+            text = self.model_dump_json(indent=2, by_alias=True)
+        blob = (text + "\n").encode("utf-8")
         write_atomic(path, blob)
         return len(blob)
 
