@@ -81,15 +81,16 @@ class Histogram(BaseModel):
 
     def quantiles(self, qs: Sequence[float], low: bool = False) -> list[int]:
         """`quantile` of each of `qs`, from one pass of running counts (a bisection per quantile)."""
-        seen = list(itertools.accumulate(map(_COUNT, self.buckets)))  # values up to each bucket (C loops: large cells have thousands)
+        buckets = self.buckets
+        seen = list(itertools.accumulate(map(_COUNT, buckets)))  # values up to each bucket (C loops: large cells have thousands)
         total = seen[-1] if seen else 0
         if not total:
             raise ValueError("an empty histogram has no quantiles")
+        last, end, least, most = len(seen) - 1, 0 if low else 1, self.min, self.max
         out: list[int] = []
         for q in qs:
-            i = bisect.bisect_left(seen, max(1, math.ceil(q * total)))
-            lo, hi, _ = self.buckets[min(i, len(seen) - 1)]
-            out.append(max(self.min, min(lo if low else hi, self.max)))
+            bound = buckets[min(bisect.bisect_left(seen, max(1, math.ceil(q * total))), last)][end]
+            out.append(least if bound < least else most if bound > most else bound)
         return out
 
     def above(self, bound: int) -> int:
@@ -118,9 +119,14 @@ def from_rows(
     for i, n in rows:
         lo, hi = bounds(i)
         out.append((lo, hi, n))
-    if not out:
+    return of_buckets(out, low, high)
+
+
+def of_buckets(buckets: list[tuple[int, int, int]], low: int, high: int) -> Optional[Histogram]:
+    """A histogram from its `[low, high, count]` rows, ascending, as the native core reads them in place; None when empty."""
+    if not buckets:
         return None
-    return Histogram.model_construct(buckets=out, min=low, max=high)  # built here from bucket numbers: nothing to validate
+    return Histogram.model_construct(buckets=buckets, min=low, max=high)  # built from bucket numbers: nothing to validate
 
 
 def merge(histograms: Iterable[Optional[Histogram]]) -> Optional[Histogram]:

@@ -16,6 +16,8 @@ from runner.results.document import Verdict
 from runner.run.samples import CallbackStats, SlotData
 from runner.scenario.model import Expectation
 
+_QUANTILES = (QUANTILES["p50"], QUANTILES["p90"], QUANTILES["p99"], QUANTILES["p999"])
+
 
 def _round(value: Optional[float]) -> Optional[float]:
     return None if value is None else round(value, 4)
@@ -66,17 +68,26 @@ def thread_figures(
 
 
 def spread(
-    hist: Optional[Histogram], mean: Optional[float] = None, m2: float = 0.0, n: int = 0, above: Optional[int] = None
+    hist: Optional[Histogram], mean: Optional[float] = None, m2: Optional[float] = None, n: int = 0, above: Optional[int] = None
 ) -> Optional[fg.Spread]:
-    """Order statistics of a histogram (ns): min and max exact, percentiles to the bucket, mean and std dev when known."""
-    if hist is None or not hist.count:
+    """Order statistics of a histogram (ns): min and max exact, percentiles to the bucket.
+
+    The mean when `mean` of `n` values is known; the standard deviation when their sum of
+    squared deviations `m2` is known too (the trace's reader keeps no squares).
+    """
+    if hist is None or not hist.buckets:
         return None
+    p50, p90, p99, p999 = hist.quantiles(_QUANTILES)
+    mean_ns = round(mean) if mean is not None and n > 0 else None
     return fg.Spread(
         min=hist.min,
-        **dict(zip(QUANTILES, hist.quantiles(list(QUANTILES.values())))),
+        p50=p50,
+        p90=p90,
+        p99=p99,
+        p999=p999,
         max=hist.max,
-        mean=round(mean) if mean is not None and n else None,
-        stddev=round(math.sqrt(max(0.0, m2) / n)) if mean is not None and n else None,
+        mean=mean_ns,
+        stddev=round(math.sqrt(max(0.0, m2) / n)) if mean_ns is not None and m2 is not None else None,
         above_bound=above,
     )
 

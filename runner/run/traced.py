@@ -74,9 +74,7 @@ def _run(r: PreemptedRun, window_start: int, tasks: dict[int, Task]) -> StoredRu
 def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task], window_start: int = 0) -> ThreadResult:
     """A thread's result with the trace's figures and attributions added."""
     hist = from_rows(t.latency, t.latency_min, t.latency_max)
-    wakeup = spread(hist)
-    if wakeup is not None and t.wakeups:
-        wakeup = wakeup.model_copy(update={"mean": round(t.latency_sum / t.wakeups)})  # the reader sums, it keeps no squares
+    wakeup = spread(hist, t.latency_sum / t.wakeups if t.wakeups else None, None, t.wakeups)  # the reader sums, it keeps no squares
     figures = thread.figures.model_copy(
         update={
             "wakeup_ns": wakeup,
