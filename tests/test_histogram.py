@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from array import array
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -81,6 +82,25 @@ def test_nonzero_finds_every_counter_that_is_not_zero_and_only_those(filled, kin
         counts[i] = n
     given_counts = counts if kind == "list" else array("Q", counts)
     assert hg.nonzero(given_counts) == sorted(filled.items())
+
+
+@settings(max_examples=300)
+@given(st.dictionaries(st.integers(0, hg.BUCKETS - 1), st.integers(1, 2**64 - 1), max_size=40), st.booleans(), st.integers(0, 3))
+def test_the_native_core_reads_a_histogram_in_place_as_python_builds_it(filled, negated, pad):
+    counts = [0] * hg.BUCKETS
+    for i, n in filled.items():
+        counts[i] = n
+    buffer = bytes(8 * pad) + array("Q", counts).tobytes()
+    expected = hg.from_rows([], 0, 0, hg.nonzero(counts)) if negated else hg.from_rows(hg.nonzero(counts), 0, 0)
+    assert _probe.buckets(buffer, 8 * pad, negated) == (expected.buckets if expected else [])
+
+
+def test_the_native_core_refuses_a_histogram_beyond_its_buffer():
+    buffer = bytes(hg.BUCKETS * 8)
+    assert _probe.buckets(buffer, 0) == []
+    for offset in (-8, 1, 8):
+        with pytest.raises(ValueError, match="does not fit"):
+            _probe.buckets(buffer, offset)
 
 
 def test_nonzero_sees_the_first_and_the_last_counter():

@@ -1715,29 +1715,39 @@ static PyObject *probe_apply(PyObject *mod, PyObject *args) {
     return Py_BuildValue("(iii)", errs[0], errs[1], errs[2]);
 }
 
-PyDoc_STRVAR(nonzero_doc,
-"nonzero(buffer, offset, count) -> [(index, value), ...]\n\n"
-"The counters that are not zero among `count` native uint64 at `offset` of `buffer`, ascending:\n"
-"a histogram's rows read in place (a cell of 1,024 threads holds 4,096 histograms of 4,352 counters).");
+PyDoc_STRVAR(buckets_doc,
+"buckets(buffer, offset, negated=False) -> [(low, high, count), ...]\n\n"
+"The rows of the histogram of HIST_BUCKETS native uint64 counters at `offset` of `buffer`: the buckets\n"
+"that are not zero with the values each holds, ascending (histogram.from_rows, read in place: a cell of\n"
+"1,024 threads holds 4,096 histograms of 4,352 counters).  `negated`: the counters are of the negation\n"
+"of the values, so the rows are (-high, -low, count), still ascending.");
 
-static PyObject *probe_nonzero(PyObject *mod, PyObject *args) {
+static PyObject *bucket_row(int i, int negated, uint64_t count) {
+    int64_t low, high;
+    hist_bounds(i, &low, &high);
+    return Py_BuildValue("(LLK)", (long long)(negated ? -high : low), (long long)(negated ? -low : high), (unsigned long long)count);
+}
+
+static PyObject *probe_buckets(PyObject *mod, PyObject *args) {
     PyObject *buffer;
-    Py_ssize_t offset, count;
-    if (!PyArg_ParseTuple(args, "Onn", &buffer, &offset, &count)) return NULL;
+    Py_ssize_t offset;
+    int negated = 0;
+    if (!PyArg_ParseTuple(args, "On|p", &buffer, &offset, &negated)) return NULL;
     Py_buffer view;
     if (PyObject_GetBuffer(buffer, &view, PyBUF_SIMPLE) != 0) return NULL;
     PyObject *out = NULL;
-    if (offset < 0 || count < 0 || count > (PY_SSIZE_T_MAX - offset) / 8 || offset + count * 8 > view.len) {
-        PyErr_Format(PyExc_ValueError, "%zd counters at %zd do not fit a buffer of %zd bytes", count, offset, view.len);
+    if (offset < 0 || offset > view.len - (Py_ssize_t)HIST_BUCKETS * 8) {
+        PyErr_Format(PyExc_ValueError, "a histogram at %zd does not fit a buffer of %zd bytes", offset, view.len);
         goto done;
     }
     if (!(out = PyList_New(0))) goto done;
     const char *at = (const char *)view.buf + offset;
-    for (Py_ssize_t i = 0; i < count; i++) {
+    for (int k = 0; k < HIST_BUCKETS; k++) {
+        int i = negated ? HIST_BUCKETS - 1 - k : k;
         uint64_t v;
-        memcpy(&v, at + i * 8, 8);
+        memcpy(&v, at + (Py_ssize_t)i * 8, 8);
         if (!v) continue;
-        PyObject *row = Py_BuildValue("(nK)", i, (unsigned long long)v);
+        PyObject *row = bucket_row(i, negated, v);
         if (!row || PyList_Append(out, row) < 0) {
             Py_XDECREF(row);
             Py_CLEAR(out);
@@ -2231,7 +2241,7 @@ static PyTypeObject WatchdogType = {
 static PyMethodDef module_methods[] = {
     {"apply", probe_apply, METH_VARARGS, "apply(policy, priority, nice, cpus[, extra]) -> (err_sched, err_nice, err_cpus) for the calling thread"},
     {"init_resources", probe_init_resources, METH_VARARGS, init_resources_doc},
-    {"nonzero", probe_nonzero, METH_VARARGS, nonzero_doc},
+    {"buckets", probe_buckets, METH_VARARGS, buckets_doc},
     {"sched_getattr", probe_sched_getattr, METH_VARARGS, getattr_doc},
     {"set_name", probe_set_name, METH_VARARGS, "set_name(name): prctl(PR_SET_NAME) on the calling thread"},
     {"lock_memory", probe_lock_memory, METH_NOARGS, "mlockall(MCL_CURRENT|MCL_FUTURE), no heap trimming, no mmap'd blocks"},

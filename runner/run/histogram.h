@@ -23,4 +23,15 @@ static inline int hist_index(int64_t v) {
     return (shift + 1) * HIST_SUB + (int)(v >> shift) - HIST_SUB;
 }
 
+/* The values bucket i holds, both ends included: histogram.bounds() of runner/histogram.py. */
+static inline void hist_bounds(int i, int64_t *low, int64_t *high) {
+    if (i < 2 * HIST_SUB) {
+        *low = *high = i;
+        return;
+    }
+    int shift = i / HIST_SUB - 1;
+    *low = (int64_t)(i % HIST_SUB + HIST_SUB) << shift;
+    *high = *low + ((int64_t)1 << shift) - 1;
+}
+
 #endif

@@ -341,9 +341,9 @@ def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
     return tuple(out)
 
 
-def _hist(buf: bytes | mmap.mmap, at: int, which: int) -> list[tuple[int, int]]:
-    """The counters of a slot's histogram `which` that are not zero, read in place by the native core."""
-    return _probe.nonzero(buf, at + SLOT_HEADER + which * hg.BUCKETS * 8, hg.BUCKETS)
+def _hist(buf: bytes | mmap.mmap, at: int, which: int, negated: bool = False) -> list[tuple[int, int, int]]:
+    """The rows of a slot's histogram `which`, read in place by the native core (`negated`: it counts negations)."""
+    return _probe.buckets(buf, at + SLOT_HEADER + which * hg.BUCKETS * 8, negated)
 
 
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
@@ -352,7 +352,7 @@ def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
     gids, counts, waits, other, dropped = f[7:11], f[11:15], f[15:19], f[19], f[20]
     histogram = None
     if count:
-        histogram = hg.from_rows(_probe.nonzero(buf, at + EV_HDR, hg.BUCKETS), low, high)
+        histogram = hg.of_buckets(_probe.buckets(buf, at + EV_HDR), low, high)
     return EventStats(
         count=count,
         total=total,
@@ -395,9 +395,9 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
     loops = f[15]
     latency = slack = wall = None
     if layout.histograms and loops:
-        latency = hg.from_rows(_hist(buf, at, 0), lat_min, lat_max)
-        slack = hg.from_rows(_hist(buf, at, 1), slack_min, slack_max, _hist(buf, at, 2))
-        wall = hg.from_rows(_hist(buf, at, 3), wall_min, wall_max)
+        latency = hg.of_buckets(_hist(buf, at, 0), lat_min, lat_max)
+        slack = hg.of_buckets(_hist(buf, at, 2, negated=True) + _hist(buf, at, 1), slack_min, slack_max)
+        wall = hg.of_buckets(_hist(buf, at, 3), wall_min, wall_max)
     stats = CallbackStats(
         releases=releases,
         overruns=overruns,
