@@ -501,4 +501,6 @@ def _record(doc: RunDocument, result: CellResult, unit: Unit, store: ResultsStor
     doc.cells.append(result)
     if window_end is not None:
         result.overhead_ns.end_to_saved = time.monotonic_ns() - window_end
+    began = time.monotonic_ns()
     store.add(doc, result)
+    result.overhead_ns.save = time.monotonic_ns() - began  # in the file from the run's next write on (its last one at least)

@@ -47,6 +47,12 @@ def test_a_matrix_that_meets_its_expectations_exits_0(tmp_path):
     assert os.path.exists(tmp_path / "r" / "report.md")
 
 
+def test_each_cells_own_write_is_timed_and_in_the_runs_last_write(tmp_path):
+    _, results = run(MATRIX, tmp_path / "r", FakeBackend(preempted_other()))
+    saves = [c["overhead_ns"]["save"] for c in results["cells"]]
+    assert len(saves) == 5 and all(isinstance(ns, int) and ns > 0 for ns in saves)
+
+
 def test_a_failed_expectation_exits_1(tmp_path):
     code, results = run(MATRIX, tmp_path / "r", FakeBackend({OTHER: Act(nivcsw=0)}))
     assert code == 1

@@ -451,6 +451,10 @@ class Overhead(_Record):
     end_to_saved: Optional[int] = Field(
         None, description="from the end of the measured window to the results file's write (that write's own time excluded)"
     )
+    save: Optional[int] = Field(
+        None,
+        description="that write's own time (results.json or its journal line); stored by the run's next write, so null when none came",
+    )
 
 
 class BackgroundKind(str, enum.Enum):
