@@ -135,6 +135,15 @@ def test_a_wake_up_is_measured_from_waking_to_the_switch_in_across_cpus():
     assert data.events == 2 and data.lost == 0 and data.out_of_order == 0
 
 
+def test_a_name_the_kernel_cut_inside_a_character_reads_with_a_replacement_character():
+    cut = "trt-" + "\u00e4" * 6  # 16 bytes of UTF-8: the kernel keeps 15, half of the last character
+    woken, delayer = (100, cut, 120), (500, "x" + cut, 120)
+    data = traced({0: [(1_000, tp.waking(woken, 0)), (1_500, tp.switch(delayer, woken, R))]})
+    a = data.threads[100]
+    assert a.comm == "trt-" + "\u00e4" * 5 + "\ufffd"
+    assert a.worst == (tracing.LateWakeup(500, 1_500, 0, 500, "xtrt-" + "\u00e4" * 5, 120),)
+
+
 def test_preempted_is_a_switch_out_while_runnable_and_voluntary_any_other():
     events = [
         (1_000, tp.switch(IDLE0, A, R)),
@@ -168,9 +177,9 @@ def test_preemptors_most_frequent_first_and_at_most_32_then_other():
     a = traced({0: events}).threads[100]
     assert a.preemptions == 43
     assert len(a.preemptors) == 32 and a.other_preemptors == 8
-    assert [p.tid for p in a.preemptors[:3]] == [1002, 1001, 1000] and [p.count for p in a.preemptors[:3]] == [3, 2, 1]
+    assert [p.tid for p in a.preemptors[:3]] == [1002, 1001, 1000] and [p.times for p in a.preemptors[:3]] == [3, 2, 1]
     assert [p.tid for p in a.preemptors[3:]] == list(range(1003, 1032)), "ties in tid order"
-    assert sum(p.count for p in a.preemptors) + a.other_preemptors == a.preemptions
+    assert sum(p.times for p in a.preemptors) + a.other_preemptors == a.preemptions
 
 
 def test_worst_keeps_the_64_largest_largest_first_and_the_histogram_all():

@@ -1066,6 +1066,11 @@ static int late_order(const void *a, const void *b) {
     return (x->at > y->at) - (x->at < y->at);
 }
 
+/* A task's name as str: the kernel's bytes as UTF-8, a character the 15-byte cut split replaced by U+FFFD. */
+static PyObject *comm_text(const char *comm) {
+    return PyUnicode_DecodeUTF8(comm, (Py_ssize_t)strnlen(comm, COMM_LEN), "replace");
+}
+
 static PyObject *thread_dict(Reader *r, struct thread *t) {
     /* a thread still on a CPU ran until the window's end or the last event, whichever is first */
     int64_t run = t->run_ns;
@@ -1096,7 +1101,7 @@ static PyObject *thread_dict(Reader *r, struct thread *t) {
     PyObject *pres = PyTuple_New(t->npre);
     if (!pres) goto fail_lat;
     for (int i = 0; i < t->npre; i++) {
-        PyObject *p = Py_BuildValue("(iyiK)", pre[i].tid, pre[i].comm, pre[i].prio, (unsigned long long)pre[i].count);
+        PyObject *p = Py_BuildValue("(iNiK)", pre[i].tid, comm_text(pre[i].comm), pre[i].prio, (unsigned long long)pre[i].count);
         if (!p) goto fail_pres;
         PyTuple_SET_ITEM(pres, i, p);
     }
@@ -1106,8 +1111,8 @@ static PyObject *thread_dict(Reader *r, struct thread *t) {
     PyObject *worsts = PyTuple_New(t->nworst);
     if (!worsts) goto fail_pres;
     for (int i = 0; i < t->nworst; i++) {
-        PyObject *w = Py_BuildValue("(LLiiyi)", (long long)worst[i].latency, (long long)worst[i].at, worst[i].cpu, worst[i].tid,
-                                    worst[i].comm, worst[i].prio);
+        PyObject *w = Py_BuildValue("(LLiiNi)", (long long)worst[i].latency, (long long)worst[i].at, worst[i].cpu, worst[i].tid,
+                                    comm_text(worst[i].comm), worst[i].prio);
         if (!w) goto fail_worst;
         PyTuple_SET_ITEM(worsts, i, w);
     }
@@ -1118,8 +1123,8 @@ static PyObject *thread_dict(Reader *r, struct thread *t) {
     if (!runt) goto fail_worst;
     for (int i = 0; i < t->nruns; i++) {
         const struct taker *k = &runs[i].top;
-        PyObject *w = Py_BuildValue("(LLLIiyiIL)", (long long)runs[i].start, (long long)runs[i].end, (long long)runs[i].preempted_ns,
-                                    runs[i].preemptions, k->tid, k->comm, k->prio, k->count, (long long)k->ns);
+        PyObject *w = Py_BuildValue("(LLLIiNiIL)", (long long)runs[i].start, (long long)runs[i].end, (long long)runs[i].preempted_ns,
+                                    runs[i].preemptions, k->tid, comm_text(k->comm), k->prio, k->count, (long long)k->ns);
         if (!w) goto fail_runs;
         PyTuple_SET_ITEM(runt, i, w);
     }
@@ -1130,7 +1135,7 @@ static PyObject *thread_dict(Reader *r, struct thread *t) {
     for (int c = 0, k = 0; c < CPU_WORDS * 64; c++)
         if (t->cpus[c / 64] & (1ULL << (c % 64))) PyTuple_SET_ITEM(cpus, k++, PyLong_FromLong(c));
     PyObject *d = Py_BuildValue(
-        "{s:i,s:y,s:K,s:N,s:L,s:L,s:L,s:K,s:K,s:N,s:K,s:K,s:K,s:K,s:N,s:L,s:N,s:N,s:O}", "tid", t->tid, "comm", t->comm, "wakeups",
+        "{s:i,s:N,s:K,s:N,s:L,s:L,s:L,s:K,s:K,s:N,s:K,s:K,s:K,s:K,s:N,s:L,s:N,s:N,s:O}", "tid", t->tid, "comm", comm_text(t->comm), "wakeups",
         (unsigned long long)t->wakeups, "latency", lat, "latency_min", (long long)(t->wakeups ? t->lat_min : 0), "latency_max",
         (long long)(t->wakeups ? t->lat_max : 0), "latency_sum", (long long)t->lat_sum, "preemptions", (unsigned long long)t->preemptions,
         "voluntary", (unsigned long long)t->voluntary, "preemptors", pres, "other_preemptors", (unsigned long long)t->other_preemptors,

@@ -83,7 +83,7 @@ def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task], wi
             "cpus_seen": thread.figures.cpus_seen or t.cpus,
         }
     )
-    preempted_by = [_stored(p.tid, p.comm, p.prio, p.count, tasks) for p in t.preemptors]
+    preempted_by = [_stored(p.tid, p.comm, p.prio, p.times, tasks) for p in t.preemptors]
     late = _late(t, wakeup.p99, tasks) if wakeup is not None else []
     return thread.model_copy(
         update={

@@ -52,7 +52,7 @@ import time
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, NamedTuple, Optional
 
 from runner.run import traceformat
 from runner.run.guard import Guard, remove_instance
@@ -72,18 +72,16 @@ _STALE = re.compile(r"runner-(\d+)-\d+(-migrate)?$")
 _serial = itertools.count()
 
 
-@dataclass(frozen=True)
-class Preemptor:
+class Preemptor(NamedTuple):
     """A task that took the CPU from a thread while it was runnable."""
 
     tid: int
     comm: str
     prio: int  # as sched_switch reports it: -1 deadline, 0..98 RT (99 - rtprio), 100..139 normal (120 + nice)
-    count: int
+    times: int  # its preemptions of the thread (not `count`: a tuple's method)
 
 
-@dataclass(frozen=True)
-class LateWakeup:
+class LateWakeup(NamedTuple):
     """One of a thread's worst wake-ups."""
 
     latency_ns: int  # from its sched_waking (sched_wakeup when waking is absent) to the sched_switch onto a CPU
@@ -94,8 +92,7 @@ class LateWakeup:
     delayer_prio: int
 
 
-@dataclass(frozen=True)
-class PreemptedRun:
+class PreemptedRun(NamedTuple):
     """One of a thread's most preempted runs: from the switch-in that ended a wake-up to its next
     voluntary switch-out (a callback, for a periodic thread of the runner's)."""
 
@@ -591,27 +588,24 @@ def _trace_data(result: dict[str, Any], stats_lost: int, duration_ns: int, notes
     for t in result["threads"]:
         threads[t["tid"]] = TracedThread(
             tid=t["tid"],
-            comm=_text(t["comm"]),
+            comm=t["comm"],
             wakeups=t["wakeups"],
             latency=t["latency"],
             latency_min=t["latency_min"],
             latency_max=t["latency_max"],
             preemptions=t["preemptions"],
             voluntary=t["voluntary"],
-            preemptors=tuple(Preemptor(tid, _text(comm), prio, count) for tid, comm, prio, count in t["preemptors"]),
+            preemptors=tuple(map(Preemptor._make, t["preemptors"])),
             other_preemptors=t["other_preemptors"],
             migrations=t["migrations"],
             cpus=t["cpus"],
             run_ns=t["run_ns"],
-            worst=tuple(LateWakeup(lat, at, cpu, tid, _text(comm), prio) for lat, at, cpu, tid, comm, prio in t["worst"]),
+            worst=tuple(map(LateWakeup._make, t["worst"])),
             cpu_changes=t["cpu_changes"],
             latency_sum=t["latency_sum"],
             exited=t["exited"],
             unseen_switch_ins=t["unseen_switch_ins"],
-            runs=tuple(
-                PreemptedRun(start, end, off, n, tid, _text(comm), prio, count, held)
-                for start, end, off, n, tid, comm, prio, count, held in t["runs"]
-            ),
+            runs=tuple(map(PreemptedRun._make, t["runs"])),
         )
     if result["malformed"]:
         notes.append(f"{result['malformed']} trace records could not be decoded")
@@ -643,10 +637,6 @@ def native_result(result: dict[str, Any], stats_lost: int = 0) -> TraceData:
 
 
 # ---- files ----
-
-
-def _text(raw: bytes) -> str:
-    return raw.decode("utf-8", "replace")
 
 
 def _read(path: str) -> str:
