@@ -86,10 +86,10 @@ class Histogram(BaseModel):
         total = seen[-1] if seen else 0
         if not total:
             raise ValueError("an empty histogram has no quantiles")
-        last, end, least, most = len(seen) - 1, 0 if low else 1, self.min, self.max
+        last, side, least, most = len(seen) - 1, 0 if low else 1, self.min, self.max  # side: the bucket's low or high bound
         out: list[int] = []
         for q in qs:
-            bound = buckets[min(bisect.bisect_left(seen, max(1, math.ceil(q * total))), last)][end]
+            bound = buckets[min(bisect.bisect_left(seen, max(1, math.ceil(q * total))), last)][side]
             out.append(least if bound < least else most if bound > most else bound)
         return out
 

@@ -678,7 +678,7 @@ class RunDocument(_Record):
     def save(self, path: str) -> int:
         """Write the document to `path` atomically; a figure that is not a number is stored as null.
 
-        Indented while it is under INDENT_BELOW, to be read by eye; a larger one is one line
+        Indented while its compact form is under INDENT_BELOW, to be read by eye; a larger one is one line
         (`jq .` shows it indented): indenting a 1,024-thread cell makes it 2.9 times as large
         (7.1 MB against 2.5 MB) and its serialisation and write twice as slow.
         Returns the size written, in bytes.
