@@ -121,18 +121,20 @@ class _Record(BaseModel):
     model_config = ConfigDict(extra="ignore", validate_assignment=True, populate_by_name=True)
 
     def __init__(self, **data: Any) -> None:
-        unknown = sorted(set(data) - self._keywords())
-        if unknown:
+        keywords = self._keywords()
+        if not keywords.issuperset(data):
+            unknown = sorted(set(data) - keywords)
             raise TypeError(
                 f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; fields: {', '.join(type(self).model_fields)}"
             )
         nested = _nested_records(type(self))
-        for name, value in data.items():  # records given as dicts are built as records, so their keys are checked too
-            found = nested.get(name)
-            if found and found[0] and isinstance(value, list):
-                data[name] = [found[1](**v) if isinstance(v, dict) else v for v in value]
-            elif found and not found[0] and isinstance(value, dict):
-                data[name] = found[1](**value)
+        for name in nested.keys() & data.keys():  # records given as dicts are built as records, so their keys are checked too
+            many, record = nested[name]
+            value = data[name]
+            if many and isinstance(value, list):
+                data[name] = [record(**v) if isinstance(v, dict) else v for v in value]
+            elif not many and isinstance(value, dict):
+                data[name] = record(**value)
         super().__init__(**data)
 
     # Validation (of a file, or of nested dicts) must not run the check above: pydantic calls a model's own
