@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -141,7 +142,9 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
     """Run one command; turn anything it raises into one line on stderr and the documented exit code.
 
     This is the single boundary between the runner and the shell: no traceback passes it.
+    SIGTERM stops a command as Ctrl-C does (a run turns both into a stop at its next safe point).
     """
+    previous = signal.signal(signal.SIGTERM, _terminated)
     try:
         return handler(argv)
     except RunnerError as exc:
@@ -163,6 +166,12 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         raise  # argparse's own exit (2 for a usage mistake, 0 for --help)
     except Exception as exc:
         return _internal_error(exc)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _terminated(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
 
 
 def _say(text: str) -> None:

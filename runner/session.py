@@ -171,6 +171,7 @@ class StopSignals:
         self.received: Optional[int] = None
         self.told = False
         self.previous: dict[int, Any] = {}
+        self.late_words = ""  # said at the first signal once no cell is left to stop (the cell loop says its own)
 
     def __enter__(self) -> StopSignals:
         for sig in self.SIGNALS:
@@ -182,12 +183,14 @@ class StopSignals:
             signal.signal(sig, handler)
 
     def _handle(self, signum: int, frame: Any) -> None:
-        if self.received is None:
+        first = self.received is None
+        if first:
             self.received = signum
-        elif not self.told:
+        if (first and self.late_words) or (not first and not self.told):
             self.told = True
+            words = self.late_words if first else "runner: already stopping; writing the results and the report"
             try:
-                os.write(2, b"runner: already stopping; writing the results and the report\n")
+                os.write(2, words.encode() + b"\n")
             except OSError:
                 pass
 
@@ -266,17 +269,28 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions, backend: Optional[
 
     `backend` is the machine (the real kernel unless a test passes a fake one).
     """
-    if backend is None:
-        from runner.run.spawn import KernelBackend
+    with StopSignals() as stop:  # from the first process started to the last one gone: a stop is never a kill
+        if backend is None:
+            from runner.run.spawn import KernelBackend
 
-        backend = KernelBackend()
-    try:
-        return _run(loaded, options, backend)
-    finally:
-        backend.close()
+            backend = KernelBackend()
+        try:
+            code = _run(loaded, options, backend, stop)
+        finally:
+            backend.close()
+    return stopped_late(code) if stop.requested() else code
 
 
-def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
+def stopped_late(code: int) -> int:
+    """The exit code of a run a stop reached after its cells, while it wrote the report or cleaned up.
+
+    Nothing measured was cut short, and the results say so; the code still says the run was
+    asked to stop (130), as for a stop at any other moment, unless it already says an error.
+    """
+    return int(exit_code([Status.INTERRUPTED] + ([Status.ERROR] if code == ExitCode.RUN_ERROR else [])))
+
+
+def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: StopSignals) -> int:
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
     by_id = {c.id: c for c in cells}
@@ -294,8 +308,7 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend) -> int:
         folder = options.resume or ""
         held = outdir.claim(folder, resume=True)
     try:
-        with StopSignals() as stop:
-            return _run_units(loaded, _Claimed(options, doc, by_id, folder, start, stop, backend))
+        return _run_units(loaded, _Claimed(options, doc, by_id, folder, start, stop, backend))
     finally:
         held.release()
 
@@ -350,6 +363,7 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
             warn(f"{dma.note}; CPUs may enter deep idle states during the run (--no-dma-latency to not try)")
         loop = _cell_loop(units_left, run, store)
     statuses = loop.final(stop.requested())
+    stop.late_words = "runner: asked to stop; the cells are done, finishing the results and the report"
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     doc.status = worst(statuses).value
     try:

@@ -57,6 +57,8 @@ class FakeBackend:
     dma_refused: str = ""  # why the fake /dev/cpu_dma_latency cannot be held; "" holds it
     dma_requests: list[Optional[int]] = field(default_factory=list)
     dma_held_during: list[str] = field(default_factory=list)  # the cells that ran while the fake device was held
+    signal_on_prepare: Optional[int] = None  # a signal the runner receives while it prepares (zygote, trace instances)
+    signal_on_close: Optional[int] = None  # a signal the runner receives while it cleans up, its report written
     dma_holding: bool = False
 
     def start_settings(self) -> Settings:
@@ -86,6 +88,8 @@ class FakeBackend:
 
     def prepare(self, trace: bool) -> None:
         self.prepared = trace
+        if self.signal_on_prepare is not None:
+            os.kill(os.getpid(), self.signal_on_prepare)
 
     def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
         act = self.acts.get(cell.id, Act())
@@ -162,3 +166,5 @@ class FakeBackend:
 
     def close(self) -> None:
         self.closed = True
+        if self.signal_on_close is not None:
+            os.kill(os.getpid(), self.signal_on_close)

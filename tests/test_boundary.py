@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -38,6 +39,20 @@ def test_a_bug_prints_one_line_saves_the_traceback_and_exits_70(tmp_path, monkey
     saved = list(tmp_path.glob("runner-bug-*.txt"))
     assert len(saved) == 1 and str(saved[0]) in err
     assert "Traceback (most recent call last)" in saved[0].read_text() and "def broken" not in err
+
+
+def test_sigterm_stops_any_command_as_ctrl_c_does(capsys):
+    def slow(argv: list[str]) -> int:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the signal's handler ends this at once
+        return 0
+
+    before = signal.getsignal(signal.SIGTERM)
+    began = time.monotonic()
+    code = cli._guarded(slow, [])
+    assert code == 130 and time.monotonic() - began < 4
+    assert capsys.readouterr().err.strip() == "runner: interrupted"
+    assert signal.getsignal(signal.SIGTERM) is before, "the handler is the command's only"
 
 
 def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):

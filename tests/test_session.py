@@ -10,6 +10,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import signal
 
 import pytest
 from conftest import SCENARIOS, run_cli
@@ -119,6 +120,42 @@ def test_an_interrupt_stops_after_the_cell_and_exits_130_with_results_and_report
     assert results["status"] == "interrupted"
     assert [c["status"] for c in results["cells"]] == ["passed", "interrupted"]
     assert os.path.exists(tmp_path / "r" / "report.md")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_while_the_runner_prepares_runs_no_cell_and_exits_130_with_results(tmp_path, sig):
+    backend = FakeBackend(signal_on_prepare=sig)
+    code, results = run(MATRIX, tmp_path / "r", backend)
+    assert code == 130, "a stop before the first cell is an interrupted run, not a killed runner"
+    assert backend.ran == [] and backend.closed
+    assert results["status"] == "interrupted" and results["cells"] == []
+    assert os.path.exists(tmp_path / "r" / "report.md")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_after_the_last_cell_leaves_the_results_whole_and_exits_130(tmp_path, sig, capfd):
+    code, results = run(FIFO80, tmp_path / "r", FakeBackend(signal_on_close=sig), "--duration", "1s")
+    assert code == 130
+    assert results["status"] == "passed" and [c["status"] for c in results["cells"]] == ["passed"]
+    died = FakeBackend({"default": Act(failures=("a worker died",))}, signal_on_close=sig)
+    code, _ = run(FIFO80, tmp_path / "s", died, "--duration", "1s")
+    assert code == 4, "a run error stays the error it was"
+
+
+def test_a_stop_during_the_report_is_said_and_the_report_still_written(tmp_path, capfd, monkeypatch):
+    import runner.report.publish as publish
+
+    finish = publish.finish
+
+    def interrupted_finish(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return finish(*args, **kwargs)
+
+    monkeypatch.setattr(publish, "finish", interrupted_finish)
+    code, results = run(FIFO80, tmp_path / "r", FakeBackend(), "--duration", "1s")
+    assert code == 130 and results["status"] == "passed"
+    assert os.path.exists(tmp_path / "r" / "report.md")
+    assert "asked to stop; the cells are done, finishing the results and the report" in capfd.readouterr().err
 
 
 def test_resume_runs_only_what_did_not_finish(tmp_path):
