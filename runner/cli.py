@@ -66,7 +66,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="no progress display")
     m = p.add_argument_group("matrix runs")
-    m.add_argument("--repeat", type=int, default=1, metavar="N", help="run every cell N times; the report gives the spread")
+    m.add_argument("--repeat", type=int, metavar="N", help="run every cell N times; the report gives the spread")
     m.add_argument("--shuffle", nargs="?", const="random", metavar="SEED", help="run cells in a random order (a SEED repeats an order)")
     m.add_argument("--settle", metavar="D", help="pause between cells (default 500ms, at most 1h)")
     m.add_argument("--shard", metavar="K/N", help="run the K-th of N disjoint parts of the matrix (for CI matrix jobs)")

@@ -38,7 +38,7 @@ from runner.run.preflight import Permissions
 from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
-from runner.scenario.loader import LoadedScenario, ResolvedCell
+from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.terminal import Progress, note, render_cell, say, warn
@@ -74,8 +74,9 @@ class RunOptions:
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
         duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
         settle = parse_duration(ns.settle, "--settle", 0, MAX_SETTLE) if ns.settle is not None else DEFAULT_SETTLE_NS
-        if not 1 <= ns.repeat <= MAX_REPEAT:
-            raise UsageError(f"runner: --repeat {ns.repeat} is out of range; expected 1 to {MAX_REPEAT:,}")
+        repeat = 1 if ns.repeat is None else ns.repeat
+        if not 1 <= repeat <= MAX_REPEAT:
+            raise UsageError(f"runner: --repeat {repeat} is out of range; expected 1 to {MAX_REPEAT:,}")
         seed = None
         if ns.shuffle is not None:
             try:
@@ -84,6 +85,8 @@ class RunOptions:
                 raise UsageError(f"runner: --shuffle {ns.shuffle!r}: expected a seed (an integer) or 'random'") from None
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
+        if ns.resume and (shaping := _run_shaping(ns)):
+            raise UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(shaping)}")
         in_ci = env.get("CI", "") not in ("", "0", "false")
         dma_latency = None if ns.no_dma_latency else _dma_latency(ns.dma_latency)
         return cls(
@@ -95,7 +98,7 @@ class RunOptions:
             ns.allow_priority_99,
             ns.quiet,
             ["runner"] + sys.argv[1:],
-            repeat=ns.repeat,
+            repeat=repeat,
             shuffle_seed=seed,
             settle_ns=settle,
             shard=Shard.parse(ns.shard) if ns.shard else None,
@@ -109,6 +112,22 @@ class RunOptions:
             junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
             trace=not ns.no_trace,
         )
+
+
+def _run_shaping(ns: argparse.Namespace) -> list[str]:
+    """The options given that decide how cells run, which a resumed run takes from its folder instead."""
+    given = {
+        "--duration": ns.duration,
+        "--cell": ns.cell,
+        "--repeat": ns.repeat,
+        "--shuffle": ns.shuffle,
+        "--settle": ns.settle,
+        "--shard": ns.shard,
+        "--dma-latency": ns.dma_latency,
+        "--no-dma-latency": ns.no_dma_latency,
+        "--no-trace": ns.no_trace,
+    }
+    return [option for option, value in given.items() if value not in (None, [], False)]
 
 
 def parse_duration(text: str, option: str, minimum: int, maximum: int) -> int:
@@ -227,6 +246,9 @@ def _new_document(
             settle_ns=options.settle_ns,
             cells=list(options.cells),
             duration_ns=options.duration_ns,
+            trace=options.trace,
+            dma_latency_us=options.dma_latency_us,
+            expect_hash=expect_hash(loaded.cells),
         ),
         shard=str(options.shard) if options.shard else None,
     )
@@ -249,16 +271,21 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
             problems.append(
                 Problem(path, 1, 1, f"cells.{cell.id}", f"{loaded.path} changed since this cell ran; start a new run instead of resuming")
             )
+    plan = doc.plan
+    if plan.expect_hash is not None and plan.expect_hash != expect_hash(loaded.cells):
+        why = f"{loaded.path} changed its expectations since this run started, which judged its finished cells by the old ones"
+        problems.append(Problem(path, 1, 1, "expect", f"{why}; start a new run instead of resuming"))
     if problems:
         raise ScenarioError(problems)
-    doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED]  # redo what was cut short
-    plan = doc.plan
+    doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED and not c.unwritten]  # redo what was cut short
     options.repeat = plan.repeat
     options.shuffle_seed = plan.shuffle_seed
     options.settle_ns = options.settle_ns if plan.settle_ns is None else plan.settle_ns
     options.cells = list(plan.cells)
-    options.duration_ns = options.duration_ns or plan.duration_ns
+    options.duration_ns = plan.duration_ns
     options.shard = Shard.parse(doc.shard) if doc.shard else None
+    if plan.trace is not None:  # recorded since this runner: the rest of the run traces, and holds the latency, as its start did
+        options.trace, options.dma_latency_us = plan.trace, plan.dma_latency_us
     doc.status, doc.finished_at = "running", None
     doc.command = options.command
     return doc

@@ -172,6 +172,65 @@ def test_resume_runs_only_what_did_not_finish(tmp_path):
     assert results["status"] == "passed"
 
 
+def resume(scenario: str, out, backend: FakeBackend, *args: str) -> tuple[int, dict]:
+    ns = _run_parser().parse_args([scenario, "--resume", str(out), "--quiet", "--no-plots", *args])
+    code = run_scenario(load_scenario(scenario), RunOptions.from_namespace(ns, env={}), backend)
+    with open(os.path.join(out, "results.json")) as handle:
+        return code, json.load(handle)
+
+
+@pytest.mark.parametrize(
+    "given",
+    [["--duration", "1s"], ["--cell", "*"], ["--repeat", "1"], ["--shuffle"], ["--settle", "0"], ["--shard", "1/2"], ["--no-trace"]]
+    + [["--dma-latency", "5"], ["--no-dma-latency"]],
+)
+def test_resume_refuses_options_that_would_run_the_rest_differently(tmp_path, given):
+    out = tmp_path / "r"
+    run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)}))
+    done = run_cli(MATRIX, "--resume", str(out), "--quiet", *given)
+    assert done.code == 2 and "Traceback" not in done.err, done.err
+    assert f"finishes DIR's run with the options it recorded; leave out {given[0]}" in done.err
+
+
+def test_resume_runs_the_rest_traced_and_held_as_the_run_began(tmp_path):
+    out = tmp_path / "r"
+    first = FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)})
+    run(MATRIX, out, first, "--no-trace", "--dma-latency", "100", "--duration", "300ms")
+    assert first.prepared is False and first.dma_requests == [100]
+    backend = FakeBackend(preempted_other())
+    code, results = resume(MATRIX, out, backend)
+    assert code == 0 and backend.ran == FIFO_CELLS[1:] + [OTHER]
+    assert backend.prepared is False, "the run began untraced: its rest is untraced too"
+    assert backend.dma_requests == [100]
+    mains = [t for c in results["cells"] for t in c["threads"] if t["index"] == 0]
+    assert len(mains) == 5 and {t["figures"]["callbacks"] for t in mains} == {3}, "every cell ran the 300 ms the run began with"
+
+
+def test_resume_refuses_a_scenario_whose_expectations_changed(tmp_path):
+    out = tmp_path / "r"
+    run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)}))
+    edited = tmp_path / "policy_matrix.yaml"
+    text = open(MATRIX).read()
+    assert "metric: latency.p99, max: 2ms" in text
+    edited.write_text(text.replace("metric: latency.p99, max: 2ms", "metric: latency.p99, max: 1us"))
+    backend = FakeBackend(preempted_other())
+    with pytest.raises(ScenarioError, match="changed its expectations since this run started"):
+        resume(str(edited), out, backend)
+    assert backend.ran == []
+    code, _ = resume(MATRIX, out, FakeBackend(preempted_other()))  # the file as it was: resumed
+    assert code == 0
+
+
+def test_resume_runs_again_a_cell_the_disk_spoiled(tmp_path):
+    out = tmp_path / "r"
+    code, results = run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(oserror=28)}))
+    assert code == 4 and [c["status"] for c in results["cells"]] == ["passed", "error"] and results["cells"][1]["unwritten"]
+    backend = FakeBackend(preempted_other())
+    code, results = resume(MATRIX, out, backend)
+    assert code == 0 and backend.ran == FIFO_CELLS[1:] + [OTHER], "space freed, the spoiled cell runs again"
+    assert [c["status"] for c in results["cells"]] == ["passed"] * 5 and not any(c["unwritten"] for c in results["cells"])
+
+
 def test_repeats_and_a_shuffle_seed_give_one_folder_per_repeat_and_a_recorded_order(tmp_path):
     backend = FakeBackend(preempted_other())
     code, results = run(MATRIX, tmp_path / "r", backend, "--repeat", "2", "--shuffle", "7")

@@ -575,6 +575,9 @@ class Plan(_Record):
     settle_ns: Optional[Annotated[int, Field(ge=0, le=MAX_SETTLE)]] = Field(None, description="pause between cells; null: the default")
     cells: list[str] = Field(default_factory=list, description="the --cell globs")
     duration_ns: Optional[Annotated[int, Field(ge=MIN_RUN, le=MAX_RUN)]] = Field(None, description="--duration; null: the scenario's")
+    trace: Optional[bool] = Field(None, description="scheduler traced (false: --no-trace); null: not recorded, nor dma_latency_us")
+    dma_latency_us: Optional[NonNegativeInt] = Field(None, description="/dev/cpu_dma_latency asked for (--dma-latency); null: left alone")
+    expect_hash: Optional[str] = Field(None, description="the expectations, hashed: --resume refuses a change; null: not recorded")
 
 
 class ScenarioInfo(_Record):
@@ -617,6 +620,7 @@ class CellResult(_Record):
     repeat: Annotated[int, Field(ge=0, le=MAX_REPEAT)] = 0
     status: Status
     reason: str = ""
+    unwritten: bool = Field(False, description="the disk refused the cell's files (full, read-only): --resume runs it again")
     warnings: list[str] = Field(default_factory=list, description="what the figures show went wrong without failing an expectation")
     started_at: str = ""
     duration_ns: NonNegativeInt = 0

@@ -379,6 +379,7 @@ def with_write_error(result: CellResult, path: str, error: OSError) -> CellResul
     result.status = worst([result.status, Status.ERROR])
     result.reason = f"{result.reason}; {note}" if result.reason else note
     result.samples_file = None
+    result.unwritten = True
     return result
 
 
@@ -391,5 +392,6 @@ def unrun(cell: ResolvedCell, reason: str, started_at: str) -> CellResult:
         status=Status.ERROR,
         spec=spec_json(cell.scenario),
         reason=reason,
+        unwritten=True,
         started_at=started_at,
     )

@@ -83,6 +83,12 @@ def spec_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def expect_hash(cells: list[ResolvedCell]) -> str:
+    """A short content hash of the expectations that judge each cell, to refuse resuming a run under changed ones."""
+    judged = [(c.id, [c.scenario.expect[i].model_dump(mode="json") for i in expectations_for(c.scenario, c)]) for c in cells]
+    return hashlib.sha256(json.dumps(judged, sort_keys=True).encode()).hexdigest()[:16]
+
+
 _PROCESSES = TypeAdapter(list[AnyProcess])
 _RESOURCES = TypeAdapter(dict[str, Resource])
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
