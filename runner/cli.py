@@ -284,7 +284,7 @@ def _cmd_ps(argv: list[str]) -> int:
     from runner.run.kernel import find_pids, pid_width, thread_rows
 
     columns = parse_columns(ns.columns)
-    pids = [int(ns.target)] if ns.target.isdigit() else find_pids(ns.target)
+    pids = [int(ns.target)] if ns.target.isdecimal() else find_pids(ns.target)
     rows = [row for pid in pids for row in thread_rows(pid)]
     if not rows:
         raise UsageError(f"runner ps: no live process matches {ns.target!r}")

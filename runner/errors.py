@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import difflib
 import enum
+import os
+import stat
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -102,6 +104,20 @@ def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | 
     }.get(exc.errno or 0, "")
     error = UsageError(f"runner: {what} {path}: {reason}{hint}") if before_run else OutputError(f"runner: {what} {path}: {reason}{hint}")
     return error
+
+
+def special_file(path: str) -> str:
+    """What `path` is when it exists and is neither a file nor a folder ("a FIFO", "a character device"), else "".
+
+    Reading one is never what a user meant: a FIFO blocks until something writes to it, a
+    device like /dev/zero never ends.  Readers of scenario and results files refuse these first.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return ""  # absent or unreadable: opening it says why
+    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    return next((words for test, words in kinds if test(mode)), "")
 
 
 def did_you_mean(word: str, choices: Iterable[str]) -> str:

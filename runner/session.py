@@ -148,7 +148,7 @@ def _dma_latency(text: Optional[str]) -> int:
     if text is None:
         return 0
     digits = text.strip().removesuffix("us")
-    if not digits.isdigit() or int(digits) > MAX_DMA_LATENCY_US:
+    if not digits.isdecimal() or int(digits) > MAX_DMA_LATENCY_US:
         raise UsageError(
             f"runner: --dma-latency {text}: expected whole microseconds from 0 to {MAX_DMA_LATENCY_US:,}, e.g. 0 or 10us; "
             "--no-dma-latency leaves /dev/cpu_dma_latency alone"

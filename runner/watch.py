@@ -51,7 +51,7 @@ def resolve_targets(targets: list[str]) -> list[int]:
     """PIDs of the targets: a number is a PID that must be alive, a name every live process whose COMMAND it is."""
     pids: list[int] = []
     for target in targets:
-        if target.isdigit():
+        if target.isdecimal():
             if kernel.process_state(int(target)) in (None, "Z", "X"):
                 raise UsageError(f"runner watch: no live process has PID {target}")
             found = [int(target)]

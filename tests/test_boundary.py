@@ -8,11 +8,13 @@ them, not taken from the code under test.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -53,6 +55,41 @@ def test_sigterm_stops_any_command_as_ctrl_c_does(capsys):
     assert code == 130 and time.monotonic() - began < 4
     assert capsys.readouterr().err.strip() == "runner: interrupted"
     assert signal.getsignal(signal.SIGTERM) is before, "the handler is the command's only"
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["validate", "{fifo}.yaml"], ["{fifo}.yaml", "--list"], ["validate", "{fifo}.json"], ["report", "{fifo}.json", "-o", "-"]]
+    + [["report", "/dev/zero", "-o", "-"], ["compare", "/dev/zero", "/dev/zero"], ["import-rtapp", "{fifo}.json"]],
+)
+def test_a_fifo_or_device_as_an_input_file_is_refused_at_once(tmp_path, command):
+    """A FIFO would block the runner until something wrote to it; /dev/zero would be read until memory ran out."""
+    fifo = str(tmp_path / "input")
+    for ext in (".yaml", ".json"):
+        os.mkfifo(fifo + ext)
+    done_event = threading.Event()
+
+    def unblock() -> None:  # should a reader block on a FIFO, open its other end after 10 s: the test fails, never hangs
+        if not done_event.wait(10):
+            for ext in (".yaml", ".json"):
+                with contextlib.suppress(OSError):
+                    os.close(os.open(fifo + ext, os.O_WRONLY | os.O_NONBLOCK))
+
+    threading.Thread(target=unblock, daemon=True).start()
+    began = time.monotonic()
+    done = run_cli(*[word.format(fifo=fifo) for word in command])
+    done_event.set()
+    assert time.monotonic() - began < 5, "a reader blocked on the FIFO"
+    assert done.code == 2 and "Traceback" not in done.err, done.err
+    assert "is a FIFO, not a file" in done.err or "is a character device, not a file" in done.err, done.err
+
+
+@pytest.mark.parametrize("argv", [["ps", "²"], ["watch", "²"], ["{fifo80}", "--dma-latency", "²", "--out", "{out}"]])
+def test_digits_python_calls_digits_but_int_refuses_are_a_usage_error(argv, tmp_path):
+    """`"²".isdigit()` is true and `int("²")` raises: such a check once let a superscript through to a crash (exit 70)."""
+    done = run_cli(*[a.format(fifo80=os.path.join(SCENARIOS, "fifo80.yaml"), out=tmp_path / "r") for a in argv])
+    assert done.code == 2 and "Traceback" not in done.err and "internal error" not in done.err, done.err
+    assert not os.path.exists(tmp_path / "r"), "refused before anything ran"
 
 
 def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):

@@ -335,6 +335,33 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path
     assert os.listdir(tmp_path) == ["results.json"]
 
 
+def test_a_device_fifo_or_link_given_as_the_output_is_written_through_never_replaced(tmp_path):
+    import stat
+    import threading
+
+    from runner.results.files import write_atomic
+
+    null = tmp_path / "null"
+    os.mknod(null, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # a /dev/null of our own: the real one is not ours to risk
+    write_atomic(str(null), "{}")
+    assert stat.S_ISCHR(null.stat().st_mode), "the device was replaced by a regular file"
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    write_atomic(str(fifo), "through the pipe")
+    reader.join(5)
+    assert got == [b"through the pipe"] and stat.S_ISFIFO(fifo.stat().st_mode)
+    real = tmp_path / "real.json"
+    real.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(real)
+    write_atomic(str(link), "new")
+    assert link.is_symlink() and real.read_text() == "new", "the link stays a link; the file it names is written"
+    assert sorted(os.listdir(tmp_path)) == ["link.json", "null", "pipe", "real.json"]
+
+
 def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_path):
     from runner.results.files import write_atomic
 

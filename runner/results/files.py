@@ -6,6 +6,7 @@ import contextlib
 import hashlib
 import os
 import re
+import stat
 import tempfile
 from typing import Any
 
@@ -66,9 +67,20 @@ def write_atomic(path: str, data: str | bytes) -> None:
     The new file gets the mode any new file would get (0666 less the umask), not mkstemp's 0600.
     On failure (a full disk, a read-only or forbidden folder) the old file is untouched, no
     temporary file is left behind, and the OSError raised names `path`, for the caller to word.
+    A symbolic link stays a link: the file it points to is written.  A device, FIFO or socket
+    (`/dev/null`, `/dev/stdout`, a named pipe) is written into as it is, never replaced by a
+    regular file: renaming over `/dev/null` as root would replace the machine's own.
     """
-    folder = os.path.dirname(os.path.abspath(path))
     blob = data.encode("utf-8") if isinstance(data, str) else data
+    target = os.path.realpath(path)
+    if _special(target):
+        try:
+            with open(target, "wb") as handle:
+                handle.write(blob)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
+        return
+    folder = os.path.dirname(target)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
@@ -77,7 +89,7 @@ def write_atomic(path: str, data: str | bytes) -> None:
             handle.write(blob)
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, target)
         tmp = None
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
@@ -86,6 +98,15 @@ def write_atomic(path: str, data: str | bytes) -> None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
     _sync_folder(folder)
+
+
+def _special(path: str) -> bool:
+    """Whether `path` is a device, FIFO or socket: something to write into, never to replace."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False  # absent (to be made), or the write names the problem
+    return stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
 
 
 def _sync_folder(folder: str) -> None:

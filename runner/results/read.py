@@ -14,7 +14,7 @@ from pydantic import (
 )
 
 from runner import __version__
-from runner.errors import Problem, ScenarioError
+from runner.errors import Problem, ScenarioError, special_file
 from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
 from runner.results.journal import journal_path, merge_journal
@@ -37,6 +37,8 @@ def load(path: str) -> RunDocument:
     that leave the results folder.  What loads can be trusted by the report, comparison and merge.
     """
     path = results_file(path)
+    if kind := special_file(path):
+        raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected a results file (results.json) or its folder")])
     try:
         with open(path, "rb") as handle:
             raw = handle.read()

@@ -294,7 +294,7 @@ def _sched_text(value: str) -> dict[str, Any]:
         if rtla:  # rtla's d:RUNTIME:PERIOD, a bare number in ns; the deadline is the period
             if len(parts) != 2:
                 raise ValueError(f"{value!r}: write d:RUNTIME:PERIOD as rtla does, e.g. 'd:2ms:10ms'")
-            runtime, period = (p + "ns" if p.strip().isdigit() else p for p in parts)
+            runtime, period = (p + "ns" if p.strip().isdecimal() else p for p in parts)
             return {**out, "runtime": runtime, "deadline": period, "period": period}
         if len(parts) > 3:
             raise ValueError(f"{value!r}: write deadline:RUNTIME/DEADLINE/PERIOD, e.g. 'deadline:2ms/8ms/10ms'")

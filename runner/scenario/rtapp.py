@@ -74,7 +74,7 @@ from typing import Any, Optional, Union
 import yaml
 
 from runner import units
-from runner.errors import Problem, ScenarioError
+from runner.errors import Problem, ScenarioError, special_file
 from runner.scenario.model import COMM_MAX, control_character
 from runner.scenario.yamlsource import dotted, printable
 
@@ -496,6 +496,8 @@ def _cut(text: str, limit: int) -> str:
 
 def read(path: str) -> str:
     """The text of an rt-app file, at most MAX_BYTES (and one more, so `convert` can say it is too large); problems as ScenarioError."""
+    if kind := special_file(path):
+        raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected an rt-app workload (JSON)")])
     try:
         with open(path, encoding="utf-8") as handle:
             return handle.read(MAX_BYTES + 1)

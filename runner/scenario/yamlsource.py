@@ -24,7 +24,7 @@ from typing import Any, Union
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from runner.errors import Problem, ScenarioError
+from runner.errors import Problem, ScenarioError, special_file
 
 Path = tuple[Union[str, int], ...]
 
@@ -198,6 +198,8 @@ def _position(text: str, offset: int) -> tuple[int, int]:
 
 def load_file(path: str) -> Document:
     """Read and load a YAML file; unreadable files are reported like any other problem."""
+    if kind := special_file(path):
+        raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected a scenario file (YAML)")])
     try:
         with open(path, encoding="utf-8") as handle:
             text = handle.read(MAX_BYTES + 1)
