@@ -6,6 +6,7 @@ No logic lives here beyond that: every command is a call into the module that ow
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import signal
@@ -18,7 +19,7 @@ from typing import Any
 
 from runner import __version__
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
-from runner.terminal import note, say, warn
+from runner.terminal import note, put, say, stdout_lost, warn
 
 COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "import-rtapp", "completion")
 _TOP_HELP = """\
@@ -146,7 +147,7 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
     """
     previous = signal.signal(signal.SIGTERM, _terminated)
     try:
-        return handler(argv)
+        return _output_kept(handler(argv))
     except RunnerError as exc:
         _say(str(exc))
         _annotate(getattr(exc, "problems", []))
@@ -168,6 +169,20 @@ def _guarded(handler: Callable[[list[str]], int], argv: list[str]) -> int:
         return _internal_error(exc)
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def _output_kept(code: int) -> int:
+    """A command's exit code, once its output is known to have reached stdout, or why it did not.
+
+    A reader that closed the pipe early (`| head`) took what it wanted: the code stays the
+    command's.  Output lost otherwise (a full disk, stdout closed) is said, and a command that
+    would have exited 0 exits 4: its user did not get what it printed.
+    """
+    lost = stdout_lost()
+    if lost is None or lost.errno == errno.EPIPE:
+        return code
+    _say(f"runner: cannot write to standard output: {lost.strerror or lost}")
+    return int(ExitCode.RUN_ERROR) if code == ExitCode.OK else code
 
 
 def _terminated(signum: int, frame: Any) -> None:
@@ -416,7 +431,7 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
         if not target:
             continue
         if target == "-":
-            sys.stdout.write(text())
+            put(text())
             continue
         try:
             write_atomic(target, text().encode("utf-8"))
@@ -521,7 +536,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     for text_note in conversion.notes:
         warn(f"{ns.file}: {text_note}")
     if not ns.output:
-        sys.stdout.write(conversion.yaml())
+        put(conversion.yaml())
         return ExitCode.OK
     try:
         write_atomic(ns.output, conversion.yaml())
@@ -562,5 +577,5 @@ def _cmd_completion(argv: list[str]) -> int:
     ns = _completion_parser().parse_args(argv)
     from runner.completion import script
 
-    sys.stdout.write(script(_PARSERS, ns.shell, "Run Linux scheduling scenarios and report what the kernel did."))
+    put(script(_PARSERS, ns.shell, "Run Linux scheduling scenarios and report what the kernel did."))
     return ExitCode.OK

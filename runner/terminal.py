@@ -11,8 +11,10 @@ imports (tabulate, the results records and with them pydantic) wait until a cell
 
 from __future__ import annotations
 
+import errno
+import os
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 if TYPE_CHECKING:
     from runner import figures as fg
@@ -22,16 +24,61 @@ if TYPE_CHECKING:
 _MARK = {"passed": "passed", "degraded": "DEGRADED", "failed": "FAILED", "error": "ERROR", "interrupted": "INTERRUPTED"}  # by Status value
 
 
+_LOST: list[OSError] = []  # why stdout stopped taking output, once it did: a closed pipe, a full disk, no stdout at all
+
+
 def say(text: str) -> None:
     """Output the user asked for (tables, reports, paths), on stdout, whole lines."""
-    sys.stdout.write(text if text.endswith("\n") else text + "\n")
-    sys.stdout.flush()
+    put(text if text.endswith("\n") else text + "\n")
+
+
+def put(text: str) -> None:
+    """Text as it is on stdout (a report to `-o -`, a converted file).
+
+    Output that cannot be written never stops a command: a run whose stdout is a closed pipe
+    (`runner s.yaml | head -1`) or a full disk still finishes its cells, its results and its
+    report, and exits with its outcome.  Later output goes nowhere; `stdout_lost` says why.
+    """
+    if _LOST:
+        return
+    stream = sys.stdout
+    try:
+        if stream is None:  # started with standard output closed
+            raise OSError(errno.EBADF, os.strerror(errno.EBADF))
+        stream.write(text)
+        stream.flush()
+    except OSError as exc:
+        _LOST.append(exc)
+        _discard(stream)
+
+
+def _discard(stream: object) -> None:
+    """Point the stream's descriptor at /dev/null, so what it still buffers is flushed there at exit, not reported."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(fd, stream.fileno())  # type: ignore[attr-defined]
+        finally:
+            os.close(fd)
+    except (OSError, AttributeError, ValueError):
+        pass
+
+
+def stdout_lost() -> Optional[OSError]:
+    """Why output to stdout stopped (the first error), or None while it is written."""
+    return _LOST[0] if _LOST else None
 
 
 def note(text: str) -> None:
     """Progress, warnings and problems, on stderr, so stdout stays clean to pipe."""
-    sys.stderr.write(text if text.endswith("\n") else text + "\n")
-    sys.stderr.flush()
+    stream = sys.stderr
+    if stream is None:
+        return
+    try:
+        stream.write(text if text.endswith("\n") else text + "\n")
+        stream.flush()
+    except OSError:
+        pass  # nowhere left to say it; the exit code still does
 
 
 def warn(text: str) -> None:

@@ -92,6 +92,48 @@ def test_digits_python_calls_digits_but_int_refuses_are_a_usage_error(argv, tmp_
     assert not os.path.exists(tmp_path / "r"), "refused before anything ran"
 
 
+class _FailingStdout(io.StringIO):
+    def __init__(self, error: int):
+        super().__init__()
+        self.error = error
+
+    def write(self, text: str) -> int:
+        raise OSError(self.error, os.strerror(self.error))
+
+
+@pytest.mark.parametrize(
+    ("error", "outcome", "code", "said"),
+    [(32, 1, 1, False), (32, 0, 0, False), (28, 0, 4, True), (28, 1, 1, True), (9, 0, 4, True)],
+    ids=["closed pipe, failed", "closed pipe, passed", "full disk, passed", "full disk, failed", "no stdout, passed"],
+)
+def test_output_that_cannot_be_written_never_hides_the_outcome(monkeypatch, capsys, error, outcome, code, said):
+    """`runner s.yaml | head -1` once exited 0 on a failed run, with no report; `compare > /dev/full` exited 70."""
+    from runner import terminal
+
+    monkeypatch.setattr(terminal, "_LOST", [])
+    went_on = []
+
+    def command(argv: list[str]) -> int:
+        terminal.say("a table")
+        terminal.say("a second line")
+        went_on.append(True)  # the command carries on to its report and its outcome
+        return outcome
+
+    monkeypatch.setattr(sys, "stdout", _FailingStdout(error))
+    assert cli._guarded(command, []) == code and went_on
+    err = capsys.readouterr().err
+    assert ("cannot write to standard output" in err) is said and "Traceback" not in err
+
+
+def test_a_full_disk_under_stdout_is_exit_4_with_one_line():
+    argv = [sys.executable, "-m", "runner", "compare", POLICY, POLICY]
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(argv, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert done.returncode == 4, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "runner: cannot write to standard output: No space left on device"
+    assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr
+
+
 def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):
     def unwritable(argv: list[str]) -> int:
         raise PermissionError(13, "Permission denied", "/somewhere/results.json")

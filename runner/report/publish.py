@@ -7,7 +7,6 @@ atomically, so a reader never sees half a report.
 from __future__ import annotations
 
 import os
-import sys
 from typing import Optional
 
 from runner.errors import from_os_error
@@ -18,7 +17,7 @@ from runner.report.junit import junit_xml
 from runner.results.document import RunDocument
 from runner.results.files import write_atomic
 from runner.results.read import load
-from runner.terminal import warn
+from runner.terminal import say, warn
 
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
@@ -59,7 +58,7 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
         with open(path, "a", encoding="utf-8") as handle:
             handle.write(text.rstrip("\n") + "\n\n")
     except OSError as exc:  # the summary is a copy: the run's own files are written, so warn, do not fail
-        print(f"runner: warning: cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}", file=sys.stderr)
+        warn(f"cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}")
         return None
     return path
 
@@ -88,11 +87,11 @@ def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Option
             write_atomic(junit, junit_xml(doc, comparison, run))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the JUnit file", path=junit, before_run=False) from None
-        print(f"junit: {junit}", flush=True)
+        say(f"junit: {junit}")
     if github.enabled(env):
         place = github.workspace_path(doc.scenario.path, os.getcwd(), env.get("GITHUB_WORKSPACE"))
         for item in github.for_run(doc, comparison, place, run):
-            print(item.command(), flush=True)
+            say(item.command())
 
 
 def finish(
@@ -117,7 +116,7 @@ def finish(
         write_atomic(os.path.join(folder, "comparison.md"), section)
     if write:
         path = write_report(doc, folder, section, plots)
-        print(f"report: {path}", flush=True)
+        say(f"report: {path}")
         with open(path, encoding="utf-8") as handle:
             append_step_summary(handle.read(), env)
     elif section:
