@@ -318,6 +318,8 @@ def stopped_late(code: int) -> int:
 
 
 def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: StopSignals) -> int:
+    if options.baseline:
+        load(options.baseline)  # read now: a baseline that cannot be compared is found before the cells run, not after
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
     by_id = {c.id: c for c in cells}

@@ -158,6 +158,22 @@ def test_a_stop_during_the_report_is_said_and_the_report_still_written(tmp_path,
     assert "asked to stop; the cells are done, finishing the results and the report" in capfd.readouterr().err
 
 
+def test_a_baseline_that_cannot_be_read_is_refused_before_any_cell_runs(tmp_path):
+    backend = FakeBackend()
+    with pytest.raises(ScenarioError, match="cannot read results"):
+        run(FIFO80, tmp_path / "r", backend, "--duration", "1s", "--baseline", str(tmp_path / "nosuch.json"))
+    assert backend.ran == [] and not os.path.exists(tmp_path / "r" / "results.json")
+
+
+def test_a_baseline_the_run_cannot_be_compared_with_still_leaves_its_report_and_junit(tmp_path):
+    run(MATRIX, tmp_path / "other", FakeBackend(preempted_other()))
+    junit = tmp_path / "junit.xml"
+    with pytest.raises(ScenarioError):
+        run(FIFO80, tmp_path / "r", FakeBackend(), "--duration", "1s", "--baseline", str(tmp_path / "other"), "--junit", str(junit))
+    assert os.path.exists(tmp_path / "r" / "report.md") and junit.exists()
+    assert json.load(open(tmp_path / "r" / "results.json"))["status"] == "passed"
+
+
 def test_resume_runs_only_what_did_not_finish(tmp_path):
     out = tmp_path / "r"
     acts = preempted_other()

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from runner.errors import from_os_error
+from runner.errors import RunnerError, from_os_error
 from runner.report import github
 from runner.report import markdown as report
 from runner.report.compare import Comparison, Threshold, compare
@@ -107,13 +107,20 @@ def finish(
     """After a run or a merge: compare with the baseline, write report.md, append the job summary,
     write the JUnit file and print the GitHub annotations (`ci_outputs`).
 
-    Returns the number of regressions against the baseline (0 without one).
+    Returns the number of regressions against the baseline (0 without one).  A baseline that
+    cannot be read or compared (another scenario's) raises its error once the run's own report
+    and JUnit file are written: a refused comparison never costs the run its report.
     """
     results_path = os.path.join(folder, "results.json")
     section, cmp = None, None
+    refused: Optional[RunnerError] = None
     if baseline:
-        section, cmp = compare_files(baseline, doc, results_path, thresholds)
-        write_atomic(os.path.join(folder, "comparison.md"), section)
+        try:
+            section, cmp = compare_files(baseline, doc, results_path, thresholds)
+        except RunnerError as exc:
+            refused = exc
+        else:
+            write_atomic(os.path.join(folder, "comparison.md"), section)
     if write:
         path = write_report(doc, folder, section, plots)
         say(f"report: {path}")
@@ -122,4 +129,6 @@ def finish(
     elif section:
         append_step_summary(section, env)
     ci_outputs(doc, cmp, junit, env)
+    if refused is not None:
+        raise refused
     return cmp.regressions if cmp else 0
