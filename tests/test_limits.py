@@ -77,9 +77,9 @@ def test_unlimited_memlock_leaves_ram_as_the_bound():
     found = problems(LOCKED, lim.MachineLimits(memlock=None, cap_ipc_lock=True, mem_available=16 << 30))
     assert found == [
         (
-            "s.yaml:3:3: processes: the cell keeps 100.0GiB resident (prealloc, locked stacks and per-callback "
-            "alloc, times instances and counts), but on this machine MemAvailable is 16GiB; lower prealloc, "
-            "alloc, count or instances"
+            "s.yaml:3:3: processes: the cell keeps 100.0GiB resident (prealloc, locked stacks, per-callback alloc, "
+            "and programs' mem buffers and allocs, times instances and counts), but on this machine MemAvailable is "
+            "16GiB; lower prealloc, alloc, mem, count or instances"
         )
     ]
     assert problems(LOCKED, lim.MachineLimits(mem_available=200 << 30)) == []
@@ -92,6 +92,24 @@ def test_per_callback_alloc_counts_against_ram_with_instances_and_counts():
     )
     assert "keeps 32GiB resident" in problems(text, lim.MachineLimits(mem_available=31 << 30))[0]
     assert problems(text, lim.MachineLimits(mem_available=33 << 30)) == []
+
+
+@pytest.mark.parametrize(
+    ("events", "per_thread"),
+    [
+        ("[{mem: 1GiB}, {sleep: 1ms}]", 1 << 30),  # the buffer mem writes stays resident
+        ("[{alloc: 2GiB}, {sleep: 1ms}]", 2 << 30),  # touched whole, then freed: its peak counts
+        ("[{mem: 1GiB}, {mem: 512MiB}, {alloc: 1GiB}, {alloc: 256MiB}]", 2 << 30),  # one buffer, the largest of each
+        ("[{iorun: 512MiB}, {sleep: 1ms}]", 1 << 20),  # iorun writes from the buffer in 1 MiB chunks
+    ],
+)
+def test_programs_mem_and_alloc_events_count_against_ram_with_instances_and_counts(events, per_thread):
+    """A phases program's `alloc: 100GiB` once validated on a 21 GiB machine: a run would have met the OOM killer."""
+    thread = f"{{name: t, count: 4, work: {{kind: phases, events: {events}}}}}"
+    text = f"name: x\nprocesses:\n  - name: app\n    instances: 2\n    threads:\n      - {thread}\n"
+    total = 8 * per_thread
+    assert "resident" in problems(text, lim.MachineLimits(mem_available=total - 1))[0]
+    assert problems(text, lim.MachineLimits(mem_available=total + 1)) == []
 
 
 def test_cpus_outside_this_machine_are_refused():

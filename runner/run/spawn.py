@@ -157,7 +157,6 @@ _EVENT_TYPES = {
     EventKind.SPAWN: _probe.EV_SPAWN,
     EventKind.IORUN: _probe.EV_IORUN,
 }
-IO_CHUNK = 1 << 20  # iorun writes from the thread's buffer in chunks of at most this
 _RESOURCE_KINDS = {
     ResourceKind.MUTEX: _probe.RES_MUTEX,
     ResourceKind.COND: _probe.RES_COND,
@@ -213,9 +212,7 @@ def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Opt
             policy, priority, nice, extra = sched if sched else (None, None, None, None)
             settings = (policy, priority, nice, list(phase.cpus) if phase.cpus else None, extra)
         phases.append((phase.loop, first, len(events) - first, settings))
-    mem = max((e.size or 0 for _, e in work.events() if e.event is EventKind.MEM), default=0)
-    mem = max([mem] + [min(e.size or 0, IO_CHUNK) for _, e in work.events() if e.event is EventKind.IORUN])
-    return (gid, work.delay, work.loop, mem, tuple(phases), tuple(events))
+    return (gid, work.delay, work.loop, work.buffer_bytes(), tuple(phases), tuple(events))
 
 
 def work_tuple(

@@ -20,7 +20,7 @@ import resource
 from dataclasses import dataclass, field
 
 from runner import units
-from runner.scenario.model import HogKind, PeriodicWork, ProcessSpec, ProgramSpec, Scenario
+from runner.scenario.model import HogKind, PeriodicWork, PhasesWork, ProcessSpec, ProgramSpec, Scenario
 
 Path = tuple[str | int, ...]
 
@@ -113,10 +113,17 @@ def locked_bytes(proc: ProcessSpec, default_stack: int) -> int:
 
 
 def resident_bytes(proc: ProcessSpec, default_stack: int) -> int:
-    """Memory one instance keeps resident at its peak: locked memory, or prealloc, plus every callback's alloc."""
+    """Memory one instance keeps resident at its peak: locked memory, or prealloc, plus every callback's alloc
+    and every program's buffer and largest alloc (threads a spawn event creates counted at their full count)."""
     held = locked_bytes(proc, default_stack) if proc.memory.lock else proc.memory.prealloc
     works = [(proc.main.work, 1)] + [(t.work, t.count) for t in proc.threads]
-    return held + sum(work.alloc * n for work, n in works if isinstance(work, PeriodicWork))
+    return held + sum(_work_bytes(work) * n for work, n in works)
+
+
+def _work_bytes(work: object) -> int:
+    if isinstance(work, PeriodicWork):
+        return work.alloc
+    return work.resident_bytes() if isinstance(work, PhasesWork) else 0
 
 
 def static_check(scenario: Scenario) -> list[Finding]:
@@ -195,9 +202,9 @@ def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
                 Finding(
                     ("processes",),
                     (
-                        f"the cell keeps {approx_size(total)} resident (prealloc, locked stacks and per-callback alloc, "
-                        f"times instances and counts), but on this machine MemAvailable is "
-                        f"{approx_size(limits.mem_available)}; lower prealloc, alloc, count or instances"
+                        f"the cell keeps {approx_size(total)} resident (prealloc, locked stacks, per-callback alloc, and "
+                        "programs' mem buffers and allocs, times instances and counts), but on this machine MemAvailable is "
+                        f"{approx_size(limits.mem_available)}; lower prealloc, alloc, mem, count or instances"
                     ),
                 )
             )

@@ -56,6 +56,7 @@ MAX_LAST_SAMPLES = 1 << 22  # `samples: last N`: a ring of N samples (64 bytes e
 MIN_DL_RUNTIME = 1024  # the kernel refuses SCHED_DEADLINE runtimes below 1.024 us
 MAX_PHASES, MAX_EVENTS = 32, 128  # per thread, as the native core sizes its figures
 MAX_MEM_EVENT = 1 << 30  # a mem event writes at most this much of its buffer
+IO_CHUNK = 1 << 20  # iorun writes from the thread's buffer in chunks of at most this
 
 
 CPUS_CONTEXT = "cpus"
@@ -715,7 +716,7 @@ class Event(Strict):
                 f"{kind.value} {units.format_duration(self.duration)} is too long; at most {units.format_duration(MAX_PERIOD)}"
             )
         if kind in (EventKind.MEM, EventKind.IORUN) and self.size is not None and self.size > MAX_MEM_EVENT:
-            raise ValueError(f"mem {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
+            raise ValueError(f"{kind.value} {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
         return self
 
     @model_serializer(mode="plain")
@@ -841,6 +842,16 @@ class PhasesWork(Strict):
     def events(self) -> list[tuple[int, Event]]:
         """Every event with the index of its phase, in program order."""
         return [(k, e) for k, p in enumerate(self.phases) for e in p.events]
+
+    def buffer_bytes(self) -> int:
+        """The buffer the native core gives the thread for its mem and iorun events, resident all run long."""
+        sizes = [(e.event, e.size or 0) for _, e in self.events()]
+        written = [n for kind, n in sizes if kind is EventKind.MEM] + [min(n, IO_CHUNK) for kind, n in sizes if kind is EventKind.IORUN]
+        return max(written, default=0)
+
+    def resident_bytes(self) -> int:
+        """What the thread holds at its peak beyond its stack: its buffer, and its largest alloc while it is touched."""
+        return self.buffer_bytes() + max((e.size or 0 for _, e in self.events() if e.event is EventKind.ALLOC), default=0)
 
     def locked_mutexes(self) -> tuple[str, ...]:
         """The mutexes its lock events name, in the order the program first locks them: where each
