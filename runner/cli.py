@@ -390,12 +390,16 @@ def _report_parser() -> argparse.ArgumentParser:
 
 def _cmd_report(argv: list[str]) -> int:
     ns = _report_parser().parse_args(argv)
+    from runner.outdir import writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.markdown import render_run
     from runner.report.publish import comparison_text, write_report
     from runner.results.read import load
     from runner.session import exit_code
 
+    for option, target in (("-o", ns.output), ("--json", ns.json), ("--histogram", ns.histogram)):
+        if target and target != "-":
+            writable_file(target, option)
     doc = load(ns.results)
     if ns.histogram or ns.json:
         _export(doc, ns)
@@ -460,6 +464,8 @@ def _cmd_compare(argv: list[str]) -> int:
     from runner.session import exit_code
 
     junit = writable_file(ns.junit, "--junit") if ns.junit else None
+    if ns.output:
+        writable_file(ns.output, "-o")
     new = load(ns.new)
     section, cmp = compare_files(ns.base, new, ns.new, thresholds_with(parse_threshold(t) for t in ns.threshold))
     regressions = cmp.regressions

@@ -68,12 +68,29 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
     return Claim(folder, fd)
 
 
+def is_results_file(path: str) -> bool:
+    """Whether `path` is (or, by its name, would be) a results file or journal: results.json, cells.jsonl, or a file
+    that starts as one does.  Links are followed: the file a link names is what a write would replace."""
+    real = os.path.realpath(path)
+    if os.path.basename(real) in ("results.json", "cells.jsonl"):
+        return True
+    try:
+        with open(real, "rb") as handle:
+            head = handle.read(256) if os.path.isfile(real) else b""
+    except OSError:
+        return False
+    return b'"runner.results/' in head
+
+
 def writable_file(path: str, option: str) -> str:
     """An output file an option names (`--junit FILE`), checked before anything runs: not a folder, and its folder
     either exists and may be written or can be created (as `--out` is) under one that may; else a UsageError (exit 2).
 
     Checked up front so a file that cannot be written is said at once, not after an hour of cells.
+    A results file is never an output: `--junit DIR/results.json` would replace a run's only copy.
     """
+    if is_results_file(path):
+        raise UsageError(f"runner: {option} {path}: that is a results file, which only a run writes; choose another file")
     if os.path.isdir(path):
         raise UsageError(f"runner: {option} {path}: a folder stands where a file is expected")
     folder = os.path.dirname(os.path.abspath(path))

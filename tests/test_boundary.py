@@ -134,6 +134,34 @@ def test_a_full_disk_under_stdout_is_exit_4_with_one_line():
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["{fifo80}", "--out", "{copy}", "--junit", "{copy}/results.json"],
+        ["report", "{copy}", "-o", "{copy}/results.json"],
+        ["report", "{copy}", "--json", "{renamed}"],
+        ["compare", "{copy}", "{copy}", "-o", "{link}"],
+        ["compare", "{copy}", "{copy}", "--junit", "{copy}/cells.jsonl"],
+        ["merge", "{copy}", "--out", "{tmp}/merged", "--junit", "{renamed}"],
+    ],
+)
+def test_no_output_option_overwrites_a_results_file(tmp_path, argv):
+    """`--junit DIR/results.json` once replaced a run's only copy of its results with XML."""
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(POLICY, copy)
+    before = (copy / "results.json").read_bytes()
+    renamed = tmp_path / "baseline-of-monday.json"
+    renamed.write_bytes(before)
+    link = tmp_path / "link.md"
+    link.symlink_to(copy / "results.json")
+    words = {"fifo80": os.path.join(SCENARIOS, "fifo80.yaml"), "copy": copy, "renamed": renamed, "link": link, "tmp": tmp_path}
+    done = run_cli(*[a.format(**words) for a in argv])
+    assert done.code == 2 and "that is a results file, which only a run writes" in done.err, done.err
+    assert (copy / "results.json").read_bytes() == before and renamed.read_bytes() == before
+
+
 def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):
     def unwritable(argv: list[str]) -> int:
         raise PermissionError(13, "Permission denied", "/somewhere/results.json")
