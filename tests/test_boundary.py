@@ -244,6 +244,12 @@ def test_guard_keeps_the_groups_not_forgotten():
     assert guard.serve(lines) == {200, 300}
 
 
+def test_guard_follows_cgroups_beside_process_groups():
+    lines = io.StringIO("+100\ncg+/cg/runner-1-prog\ncg+/cg/runner-1-command0\ncg-/cg/runner-1-prog\ncg+\ntrace+/t/instances/runner-1-0\n")
+    left = guard.follow(lines)
+    assert left.groups == {100} and left.cgroups == {"/cg/runner-1-command0"} and left.instances == {"/t/instances/runner-1-0"}
+
+
 def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path):
     """The owner (a shell standing in for the runner) dies by SIGKILL; the group it started dies with it."""
     script = (

@@ -190,6 +190,12 @@ class _NoGuard:
     def forget(self, pid: int) -> None:
         pass
 
+    def watch_cgroup(self, path: str) -> None:
+        pass
+
+    def forget_cgroup(self, path: str) -> None:
+        pass
+
 
 @pytest.mark.parametrize("by_events", [True, False], ids=["events", "listing"])
 def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing_and_the_thread_sees_it(tmp_path, program, by_events):

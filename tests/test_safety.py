@@ -78,6 +78,31 @@ def test_background_commands_and_their_children_die_with_a_sigkilled_runner(tmp_
     assert not find_pids("cmdkill") and not any(_alive(p) for p in sleepers)
 
 
+@pytest.mark.parametrize("end", ["the cell ends", "the runner is SIGKILLed"])
+def test_what_a_program_or_command_starts_in_a_session_of_its_own_dies_with_the_cell(tmp_path, end):
+    """`setsid sleep &` left its group and outlived a finished run: the cgroup each is started in holds it anyway."""
+    marker = f"runner-escape-{os.getpid()}-{end[4:7]}"
+    escape = "import os, time; os.fork() or (os.setsid(), os.fork() or time.sleep(60)); time.sleep(60)"
+    extra = (
+        f"  - {{name: prog, command: [{sys.executable}, -c, '{escape}', {marker}]}}\n"
+        f"background:\n  commands:\n    - argv: [{sys.executable}, -c, '{escape}', {marker}]\n"
+    )
+    path = _scenario(tmp_path / "s.yaml", "escape", extra=extra, duration="2s" if end == "the cell ends" else "20s")
+    proc = start_runner(path, "--out", str(tmp_path / "r"), "--quiet", "--no-report", cwd=str(tmp_path))
+    wait_for_threads("escape", 1)
+    until = time.monotonic() + 5
+    while len(_pids_with_cmdline(marker)) < 6 and time.monotonic() < until:
+        time.sleep(0.05)
+    assert len(_pids_with_cmdline(marker)) == 6, "each: itself, a child in its group, and one in a session of its own"
+    if end == "the runner is SIGKILLed":
+        proc.kill()
+    proc.wait(timeout=30)
+    until = time.monotonic() + 5
+    while _pids_with_cmdline(marker) and time.monotonic() < until:
+        time.sleep(0.05)
+    assert not _pids_with_cmdline(marker), f"a process started by a program or command outlived the runner when {end}"
+
+
 def _pids_with_cmdline(marker: str) -> list[int]:
     out = []
     for entry in os.listdir("/proc"):

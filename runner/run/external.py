@@ -128,7 +128,7 @@ class ProgramRun:
         self.attached = False
         self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
         self.seen_note = ""  # why not (or not always) by events, in words
-        self.memory: Optional[memcg.MemoryCgroup] = None  # its memory cgroup while it runs (memory_max)
+        self.cgroup: Optional[memcg.MemoryCgroup] = None  # its cgroup while it runs: memory_max's, or one that only holds it
         self.memory_note = ""  # why memory_max could not be applied, in words
         self.memory_limit: Optional[int] = None  # the limit as read back from the cgroup
         self.memory_peak: Optional[int] = None
@@ -160,8 +160,7 @@ class ProgramRun:
         data = _read_exactly(self._report, 12)
         if len(data) == 12:
             self.start_errors = ApplyErrors(*struct.unpack("3i", data))
-        if self.spec.memory_max is not None:
-            self._limit_memory(self.spec.memory_max)
+        self._hold(guard, self.spec.memory_max)
 
     def release(self) -> None:
         """Let it exec; `failure` says why when the exec (or the chdir before it) failed."""
@@ -203,7 +202,7 @@ class ProgramRun:
     def stop(self, guard: Any) -> None:
         """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""
         if not self.pid or self.attached:
-            self._close_memory()
+            self._close_cgroup(guard)
             return
         if not self.poll():
             _killpg(self.pid, signal.SIGTERM)
@@ -218,31 +217,41 @@ class ProgramRun:
                 self.exited_ns = time.monotonic_ns()
         _killpg(self.pid, signal.SIGKILL)
         guard.forget(self.pid)
-        self._close_memory()
+        self._close_cgroup(guard)
 
-    def _limit_memory(self, limit: int) -> None:
-        """Put the program, still at its gate, in a memory cgroup of its own with `limit`; `memory_note` says why not."""
-        where, why = memcg.hierarchy()
+    def _hold(self, guard: Any, limit: Optional[int]) -> None:
+        """Put the program, still at its gate, in a cgroup of its own, which all it starts joins too.
+
+        With `limit` (memory_max) a memory cgroup that holds it to that; `memory_note` says why
+        not.  Without, one that only holds it, where the machine lets the runner make one: what
+        the program starts in a session of its own (setsid, a daemon) is stopped with it, even
+        should the runner die (its guard empties the cgroup).
+        """
+        where, why = memcg.hierarchy(limit=limit is not None)
         if where is None:
-            self.memory_note = why
+            self.memory_note = why if limit is not None else ""
             return
         try:
-            self.memory = memcg.MemoryCgroup.create(where, self.spec.name, limit)
-            self.memory.add(self.pid)
+            self.cgroup = memcg.MemoryCgroup.create(where, self.spec.name, limit)
+            guard.watch_cgroup(self.cgroup.folder)
+            self.cgroup.add(self.pid)
         except OSError as error:
-            self.memory_note = f"cgroup v{where.version}: {error.strerror}"
-            self._close_memory()
+            self.memory_note = f"cgroup v{where.version}: {error.strerror}" if limit is not None else ""
+            self._close_cgroup(guard)
             return
-        self.memory_limit = self.memory.limit()
+        if limit is not None:
+            self.memory_limit = self.cgroup.limit()
 
-    def _close_memory(self) -> None:
-        """Its cgroup's peak and OOM kills, then the cgroup itself (with anything the program left in it)."""
-        if self.memory is None:
+    def _close_cgroup(self, guard: Any) -> None:
+        """Its cgroup's peak and OOM kills (memory_max), then the cgroup itself, with anything the program left in it."""
+        if self.cgroup is None:
             return
-        self.memory_peak, self.oom_kills = self.memory.peak(), self.memory.oom_kills()
-        self.memory.kill_all()
-        self.memory.remove()
-        self.memory = None
+        if self.spec.memory_max is not None:
+            self.memory_peak, self.oom_kills = self.cgroup.peak(), self.cgroup.oom_kills()
+        self.cgroup.kill_all()
+        self.cgroup.remove()
+        guard.forget_cgroup(self.cgroup.folder)
+        self.cgroup = None
 
     def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
         code = sig = None

@@ -12,7 +12,9 @@ still on its list and exits.
 A tracefs instance the runner traces in (runner/run/tracing.py) is registered the
 same way (`trace+PATH`, `trace-PATH`): one still registered at end of file has its
 tracing turned off and is removed, so a killed runner does not leave the kernel
-tracing.
+tracing.  So is the cgroup that holds a program or a background command and all it
+starts (`cg+PATH`, `cg-PATH`, runner/run/memcg.py): a process that left its group
+with setsid() is still in its cgroup, where the guard kills it before removing it.
 
 Run as `python -m runner.run.guard`; it imports only the standard library (and
 runner.run.child, which starts it), ignores the terminal's signals (it has its own
@@ -30,6 +32,7 @@ import time
 from dataclasses import dataclass, field
 from typing import IO, Optional
 
+from runner.run import memcg
 from runner.run.child import child_env, python_module
 
 
@@ -39,10 +42,11 @@ class Watched:
 
     groups: set[int] = field(default_factory=set)
     instances: set[str] = field(default_factory=set)
+    cgroups: set[str] = field(default_factory=set)
 
 
 def follow(commands: IO[str]) -> Watched:
-    """Follow `+PGID` / `-PGID` and `trace+PATH` / `trace-PATH` lines until end of file; return what is left."""
+    """Follow `+PGID` / `-PGID`, `trace+PATH` / `trace-PATH` and `cg+PATH` / `cg-PATH` lines until end of file; return what is left."""
     left = Watched()
     for line in commands:
         line = line.strip()
@@ -51,7 +55,12 @@ def follow(commands: IO[str]) -> Watched:
                 left.instances.add(line[6:])
             else:
                 left.instances.discard(line[6:])
-        elif len(line) > 1 and line[1:].isdigit():
+        elif line.startswith(("cg+", "cg-")) and len(line) > 3:
+            if line[2] == "+":
+                left.cgroups.add(line[3:])
+            else:
+                left.cgroups.discard(line[3:])
+        elif len(line) > 1 and line[1:].isdecimal():
             pgid = int(line[1:])
             if line[0] == "+":
                 left.groups.add(pgid)
@@ -106,6 +115,10 @@ def main() -> int:
             os.killpg(pgid, signal.SIGKILL)
         except OSError:
             pass
+    for folder in sorted(left.cgroups):
+        if os.path.basename(folder).startswith("runner-"):  # only what a runner made
+            memcg.kill_all(folder)
+            memcg.remove(folder)
     return 0
 
 
@@ -153,6 +166,14 @@ class Guard:
     def forget_trace(self, path: str) -> None:
         """The instance `path` was removed."""
         self._send(f"trace-{path}")
+
+    def watch_cgroup(self, path: str) -> None:
+        """Kill every task in the cgroup `path` and remove it should the runner die first."""
+        self._send(f"cg+{path}")
+
+    def forget_cgroup(self, path: str) -> None:
+        """The cgroup `path` was emptied and removed."""
+        self._send(f"cg-{path}")
 
     def close(self) -> None:
         """Stop the guard (what it still watches is killed: nothing, after an orderly stop)."""

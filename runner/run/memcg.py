@@ -124,31 +124,41 @@ def _usable(h: Hierarchy) -> str:
     return ""
 
 
-def hierarchy() -> tuple[Optional[Hierarchy], str]:
-    """The hierarchy a program's memory limit goes in, or (None, why there is none) in words."""
+def hierarchy(limit: bool = True) -> tuple[Optional[Hierarchy], str]:
+    """The hierarchy a program's memory limit goes in, or (None, why there is none) in words.
+
+    Without `limit`, one that only has to hold the program's processes (a leash: no controller
+    needed, so cgroup v2 serves even where it cannot limit memory, as on hybrid machines).
+    """
     try:
         found = locate(_read("/proc/self/mountinfo"), _read("/proc/self/cgroup"))
     except OSError as error:
         return None, f"the runner's cgroups cannot be read ({error.strerror})"
     if not found:
-        return None, "this machine has no memory cgroup the runner is in (neither cgroup v2 nor a v1 memory hierarchy is mounted)"
+        return None, "this machine has no cgroup the runner is in (neither cgroup v2 nor a v1 memory hierarchy is mounted)"
     reasons = []
     for h in found:
-        why = _usable(h)
+        why = _usable(h) if limit else _holds(h)
         if not why:
             return h, ""
         reasons.append(f"cgroup v{h.version}: {why}")
     return None, "; ".join(reasons)
 
 
+def _holds(h: Hierarchy) -> str:
+    """'' when the runner may make a child of `h` to hold processes, else why not."""
+    if not os.path.isdir(h.folder):
+        return f"{h.folder} is not there"
+    return "" if os.access(h.folder, os.W_OK) else f"{h.folder} is not writable by this user"
+
+
 def _remove_stale(h: Hierarchy) -> None:
+    """Remove the cgroups of runners that died without removing theirs, killing what they still hold (and their guard missed)."""
     for name in os.listdir(h.folder):
         match = _STALE.match(name)
         if match and not os.path.exists(f"/proc/{match.group(1)}"):
-            try:
-                os.rmdir(os.path.join(h.folder, name))
-            except OSError:
-                pass
+            kill_all(os.path.join(h.folder, name))
+            remove(os.path.join(h.folder, name))
 
 
 @dataclass
@@ -159,14 +169,15 @@ class MemoryCgroup:
     folder: str
 
     @classmethod
-    def create(cls, h: Hierarchy, name: str, limit: int) -> MemoryCgroup:
-        """A new cgroup `runner-<pid>-<name>` with `limit` bytes; OSError when the kernel refuses."""
+    def create(cls, h: Hierarchy, name: str, limit: Optional[int]) -> MemoryCgroup:
+        """A new cgroup `runner-<pid>-<name>` with `limit` bytes (None: no limit, it only holds); OSError when the kernel refuses."""
         _remove_stale(h)
         folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}")
         os.mkdir(folder)
         group = cls(h, folder)
         try:
-            _write(os.path.join(folder, h.limit_file), str(limit))
+            if limit is not None:
+                _write(os.path.join(folder, h.limit_file), str(limit))
         except OSError:
             group.remove()
             raise
@@ -203,8 +214,19 @@ class MemoryCgroup:
 
     def kill_all(self) -> None:
         """SIGKILL every task still in the group: what the program started and left behind, even outside its process group."""
+        kill_all(self.folder)
+
+    def remove(self) -> None:
+        """rmdir, once its last task has left (a killed program's group empties within moments)."""
+        remove(self.folder)
+
+
+def kill_all(folder: str) -> None:
+    """SIGKILL every task in the cgroup at `folder`, again while new ones appear (a task forking as it is killed)."""
+    until = time.monotonic() + REMOVE_WAIT_S
+    while True:
         try:
-            pids = [int(p) for p in _read(os.path.join(self.folder, "cgroup.procs")).split()]
+            pids = [int(p) for p in _read(os.path.join(folder, "cgroup.procs")).split()]
         except (OSError, ValueError):
             return
         for pid in pids:
@@ -212,17 +234,21 @@ class MemoryCgroup:
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+        if not pids or time.monotonic() >= until:
+            return
+        time.sleep(0.005)
 
-    def remove(self) -> None:
-        """rmdir, once its last task has left (a killed program's group empties within moments)."""
-        until = time.monotonic() + REMOVE_WAIT_S
-        while True:
-            try:
-                os.rmdir(self.folder)
+
+def remove(folder: str) -> None:
+    """rmdir the cgroup at `folder` once its last task has left (killed tasks leave within moments)."""
+    until = time.monotonic() + REMOVE_WAIT_S
+    while True:
+        try:
+            os.rmdir(folder)
+            return
+        except FileNotFoundError:
+            return
+        except OSError:
+            if time.monotonic() >= until:
                 return
-            except FileNotFoundError:
-                return
-            except OSError:
-                if time.monotonic() >= until:
-                    return
-                time.sleep(0.01)
+            time.sleep(0.01)

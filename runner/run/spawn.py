@@ -10,11 +10,13 @@ what the kernel and the native core recorded, and `evaluate` makes results of it
 
 from __future__ import annotations
 
+import errno
 import json
 import mmap
 import os
 import select
 import selectors
+import shutil
 import signal
 import struct
 import subprocess
@@ -28,7 +30,7 @@ from typing import Any, Optional
 
 from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
-from runner.run import _probe, dmalatency, kernel, samples, tracing
+from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import child_env, python_module
 from runner.run.external import Monitor, ProgramRun, sched_json
@@ -628,6 +630,7 @@ class _CellRun:
         self.trace_tasks: dict[int, Task] = {}
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
+        self.command_groups: list[memcg.MemoryCgroup] = []  # the cgroups holding the background commands
         self.table: list[ThreadRow] = []
         self.applied: dict[int, Optional[Settings]] = {}
         self.reason = ""
@@ -666,8 +669,9 @@ class _CellRun:
         for cmd in self.scenario.background.commands:
             with open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w") as log:
                 try:
+                    argv = self._held(cmd.argv, len(self.commands))
                     self.commands.append(
-                        subprocess.Popen(cmd.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+                        subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
                     )
                     self.guard.watch(self.commands[-1].pid)
                 except OSError as exc:
@@ -683,6 +687,23 @@ class _CellRun:
                 self.trace = opened
             else:
                 self.tracer = opened
+
+    def _held(self, argv: list[str], n: int) -> list[str]:
+        """`argv`, started so that it joins a cgroup of its own before its exec, where the machine lets the runner make one.
+
+        Everything the command starts is in that cgroup, a child that left its process group
+        (setsid, a daemon) too, so the cell's end (or the guard, should the runner die) stops
+        it all.  The command's own shell joins, then execs it: nothing runs outside first.
+        """
+        where, _ = memcg.hierarchy(limit=False)
+        if where is None:
+            return list(argv)
+        if shutil.which(argv[0]) is None:  # as Popen would have said, before the shell would say it less clearly
+            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), argv[0])
+        group = memcg.MemoryCgroup.create(where, f"command{n}", None)
+        self.command_groups.append(group)
+        self.guard.watch_cgroup(group.folder)
+        return [*_HELD_SHIM, group.folder, *argv]
 
     def _create_resources(self) -> Optional[int]:
         """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
@@ -862,6 +883,11 @@ class _CellRun:
             except ProcessLookupError:
                 pass
             self.guard.forget(proc.pid)
+        for group in self.command_groups:  # and what a command started outside its group
+            group.kill_all()
+            group.remove()
+            self.guard.forget_cgroup(group.folder)
+        self.command_groups = []
         self.watchdog.disarm()
 
     def raw(self) -> RawCell:
@@ -977,8 +1003,12 @@ def _ready_report(w: Worker) -> Optional[ReadyReport]:
         return None
 
 
+# The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.
+_HELD_SHIM = ("/bin/sh", "-c", 'echo 0 > "$0/cgroup.procs" 2>/dev/null; exec "$@"')
+
+
 def _argv(command: subprocess.Popen[bytes]) -> list[str]:
-    """A background command's argv as text (it was started from a list of strings)."""
+    """A background command's argv as text, as the scenario wrote it (without the shell that put it in its cgroup)."""
     args: Any = command.args
-    items = list(args) if isinstance(args, (list, tuple)) else [args]
-    return [os.fsdecode(a) for a in items]
+    items = [os.fsdecode(a) for a in (list(args) if isinstance(args, (list, tuple)) else [args])]
+    return items[len(_HELD_SHIM) + 1 :] if tuple(items[: len(_HELD_SHIM)]) == _HELD_SHIM else items
