@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import os
 import struct
 from collections.abc import Sequence
 from typing import Optional, Union
@@ -507,6 +508,26 @@ def test_without_tracefs_mounted_or_mountable_the_reason_is_in_words(monkeypatch
 def test_stats_lost_sums_overrun_commit_overrun_and_dropped():
     text = "entries: 10\noverrun: 3\ncommit overrun: 1\nbytes: 100\noldest event ts: 1.0\nnow ts: 2.0\ndropped events: 5\nread events: 9\n"
     assert tracing.stats_lost(text) == 9
+
+
+def test_an_instance_is_told_to_the_guard_before_it_exists(tmp_path):
+    """A runner SIGKILLed between making an instance and telling its guard once left the instance tracing."""
+    (tmp_path / "instances").mkdir()
+
+    class Told:
+        def __init__(self) -> None:
+            self.watched: list[tuple[str, bool]] = []
+            self.forgotten: list[str] = []
+
+        def watch_trace(self, path: str) -> None:
+            self.watched.append((path, os.path.exists(path)))
+
+        def forget_trace(self, path: str) -> None:
+            self.forgotten.append(path)
+
+    told = Told()
+    path = tracing._new_instance(str(tmp_path), told)  # type: ignore[arg-type]
+    assert os.path.isdir(path) and told.watched == [(path, False)] and told.forgotten == []
 
 
 def test_guard_follows_trace_instances_beside_process_groups():

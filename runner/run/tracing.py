@@ -329,14 +329,12 @@ class TraceInstances:
             self._notes.append(f"removed the tracing instance {name} of a runner that died")
         paths: list[str] = []
         try:
-            paths.append(_new_instance(root.path))
-            if self.guard is not None:
-                self.guard.watch_trace(paths[0])
+            paths.append(_new_instance(root.path, self.guard))
             if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
+                if self.guard is not None:
+                    self.guard.watch_trace(paths[0] + "-migrate")  # before it exists, as _new_instance does
                 os.mkdir(paths[0] + "-migrate")
                 paths.append(paths[0] + "-migrate")
-                if self.guard is not None:
-                    self.guard.watch_trace(paths[1])
             self._layout = _configure(paths, self.buffer_kb)
         except (OSError, FormatError, ValueError) as error:
             _remove_all(paths, self.guard, [])
@@ -551,13 +549,18 @@ def _write_pids(path: str, tids: Sequence[int]) -> None:
         os.close(fd)
 
 
-def _new_instance(root: str) -> str:
+def _new_instance(root: str, guard: Optional[Guard] = None) -> str:
+    """A new instance `runner-<pid>-<n>`, told to the guard before it exists: a runner killed between the two leaves none."""
     while True:
         path = os.path.join(root, "instances", f"runner-{os.getpid()}-{next(_serial)}")
+        if guard is not None:
+            guard.watch_trace(path)
         try:
             os.mkdir(path)
             return path
         except FileExistsError:
+            if guard is not None:
+                guard.forget_trace(path)  # not ours: an instance of a runner that had this pid before
             continue
 
 
