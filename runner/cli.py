@@ -42,11 +42,17 @@ exit codes: 0 ok, 1 an expectation failed or a regression against the baseline, 
             (the traceback is saved to a file), 130 interrupted
 """
 
-_THRESHOLD_HELP = (
-    "regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%%,+10us or involuntary.per_callback_mean=+0.5 "
-    "or latency.p99=off (repeatable; defaults: latency.p99 +20%% and +10us, involuntary.per_callback_mean "
-    "+0.5, faults.minor_after_first +20%% and +0, faults.major +0)"
-)
+
+def _threshold_help() -> str:
+    """--threshold's help, its defaults as the figure registry declares them (built only with a parser that has it)."""
+    from runner.report.compare import DEFAULT_THRESHOLDS
+
+    defaults = ", ".join(f"{t.figure} {t.describe()}" for t in DEFAULT_THRESHOLDS)
+    return (
+        "regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%,+10us or involuntary.per_callback_mean=+0.5 "
+        f"or latency.p99=off (repeatable; defaults: {defaults})"
+    ).replace("%", "%%")
+
 
 _JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
 
@@ -86,7 +92,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     r = p.add_argument_group("report")
     r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
-    r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
     r.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
@@ -376,7 +382,7 @@ def _report_parser() -> argparse.ArgumentParser:
     p.add_argument("results", metavar="RESULTS", help="results.json or the folder holding it")
     p.add_argument("-o", "--output", metavar="FILE", help="report file (default: report.md beside the results); - for stdout")
     p.add_argument("--baseline", metavar="RESULTS", help="add a comparison with an earlier run")
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     x = p.add_argument_group("cyclictest formats (instead of the report, unless -o is given too)")
     x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
@@ -448,7 +454,7 @@ def _compare_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner compare", description="Compare a run with a baseline, cell by cell; exit 1 on a regression.")
     p.add_argument("base", metavar="BASE", help="the baseline: results.json or its folder")
     p.add_argument("new", metavar="NEW", help="the run to check: results.json or its folder")
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
     p.add_argument("--junit", metavar="FILE", help="also write the comparison as JUnit XML to FILE (a regression is a failed test case)")
     return p
@@ -485,7 +491,7 @@ def _merge_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
     p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_THRESHOLD_HELP)
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
     return p

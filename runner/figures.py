@@ -232,8 +232,8 @@ _LATENCY_THRESHOLD = {"p99": Threshold(relative=0.20, absolute=10_000)}
 _LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
 
 REGISTRY: tuple[Figure, ...] = (
-    Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks"),
-    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",), needs_period=True),
+    Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks", worse=Worse.LOWER),
+    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",), worse=Worse.LOWER, needs_period=True),
     Figure(
         "missed_releases",
         "releases missed (no callback ran for them)",

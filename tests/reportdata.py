@@ -28,7 +28,7 @@ def main_thread(cell: CellResult) -> ThreadResult:
 def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocument:
     """A copy of `doc` where the periodic thread of `cell_id` has some figures changed.
 
-    `latency_p99=` is in ns (the figure's unit), `invol_mean=` switches per callback.  The
+    `latency_p99=` is in ns (the figure's unit), `invol_mean=` switches per callback, `callbacks=` a count.  The
     copies are not validated, so a test may put a value there that no run would produce (NaN).
     """
     out = copy.deepcopy(doc)
@@ -41,6 +41,8 @@ def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocume
         f = f.model_copy(update={"latency_ns": f.latency_ns.model_copy(update={"p99": changes["latency_p99"]})})
     if "invol_mean" in changes:
         f = f.model_copy(update={"involuntary": f.involuntary.model_copy(update={"per_callback_mean": changes["invol_mean"]})})
+    if "callbacks" in changes:
+        f = f.model_copy(update={"callbacks": changes["callbacks"]})
     cell.threads[i] = t.model_copy(update={"figures": f})
     return out
 

@@ -130,6 +130,23 @@ def test_threshold_syntax(text, relative, absolute):
     assert (t.relative, t.absolute) == (relative, absolute)
 
 
+def test_fewer_callbacks_are_worse_more_are_not():
+    """`--threshold callbacks=+0` once flagged 3 -> 4 callbacks and let a drop pass as better."""
+    base = matrix()
+    cell = base.cells[0]
+    ran = main_thread(cell).figures.callbacks
+    threshold = [cmp.parse_threshold("callbacks=+0")]
+    assert cmp.compare(base, with_figures(base, cell.id, callbacks=ran - 1), threshold).regressions == 1
+    assert cmp.compare(base, with_figures(base, cell.id, callbacks=ran + 1), threshold).regressions == 0
+
+
+@pytest.mark.parametrize("text", ["involuntary.per_callback_mean=-1", "latency.p99=-5%", "missed_releases=+10%,-1"])
+def test_a_negative_threshold_is_refused_not_read_as_every_run_regressing(text):
+    with pytest.raises(UsageError, match="not less than 0"):
+        cmp.parse_threshold(text)
+    assert cmp.parse_threshold("slack.min=-10us").absolute == 10_000, "slack falls when it worsens: -10us and +10us say the same"
+
+
 @pytest.mark.parametrize(
     "text, message",
     [

@@ -87,6 +87,9 @@ def parse_threshold(text: str) -> Threshold:
             raise UsageError(
                 f"runner: --threshold {text!r}: {part!r} is not a limit; expected +N% or +N" + (" with a unit (+10us)" if duration else "")
             ) from None
+    if (relative is not None and relative < 0) or (absolute is not None and absolute < 0):
+        way = "fall" if fg.figure(name).worse is fg.Worse.LOWER else "grow"
+        raise UsageError(f"runner: --threshold {text!r}: a limit is how far {name} may {way} before it is a regression; not less than 0")
     return Threshold(name, relative, absolute)
 
 
