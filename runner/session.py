@@ -38,7 +38,7 @@ from runner.run.preflight import Permissions
 from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
-from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash
+from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, matrix_hash
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.terminal import Progress, note, render_cell, say, warn
@@ -249,6 +249,7 @@ def _new_document(
             trace=options.trace,
             dma_latency_us=options.dma_latency_us,
             expect_hash=expect_hash(loaded.cells),
+            matrix_hash=matrix_hash(loaded.cells),
         ),
         shard=str(options.shard) if options.shard else None,
     )

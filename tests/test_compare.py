@@ -104,6 +104,17 @@ def test_cells_whose_scenario_differs_are_refused_naming_the_setting(tmp_path):
     assert "Traceback" not in done.err
 
 
+def test_runs_of_another_length_are_refused_as_a_changed_duration_is(tmp_path):
+    """--duration is not in a cell's spec: a 500 ms run once compared with a 1 s baseline as 'No regression'."""
+    base = matrix()
+    shorter = copy.deepcopy(base)
+    shorter.plan.duration_ns = base.plan.duration_ns // 2 if base.plan.duration_ns else 500_000_000
+    with pytest.raises(ScenarioError, match="ran for 1s in the baseline, 500ms now"):
+        cmp.compare(base, shorter)
+    done = run_cli("compare", MATRIX, save(shorter, tmp_path / "short"))
+    assert done.code == 2 and "ran for" in done.err
+
+
 def test_spec_differences_lists_every_changed_leaf():
     base = {"a": {"b": 1, "c": [1, 2]}, "d": "x"}
     new = {"a": {"b": 2, "c": [1, 3]}, "e": True}

@@ -92,6 +92,36 @@ def test_mixed_specs_are_refused(tmp_path):
     assert done.code == 2 and "ran a different scenario spec than in" in done.err
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [
+        ("duration_ns", 300_000_000, "ran its cells for another --duration"),
+        ("matrix_hash", "ffffffffffffffff", "ran another version of the scenario"),
+        ("expect_hash", "ffffffffffffffff", "judged its cells by other expectations"),
+    ],
+)
+def test_shards_of_different_runs_are_refused(tmp_path, key, value, words):
+    """Shards at 200 ms and 300 ms, or of a scenario edited between jobs, once merged into one run that said neither."""
+
+    def edit(doc):
+        setattr(doc.plan, key, value)
+
+    def recorded(doc):  # both shards record the hashes, as this runner writes them
+        doc.plan.matrix_hash = doc.plan.matrix_hash or "0123456789abcdef"
+        doc.plan.expect_hash = doc.plan.expect_hash or "0123456789abcdef"
+
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    for n, shard in enumerate(shards):
+        doc = load(shard)
+        recorded(doc)
+        if n == 1:
+            edit(doc)
+        doc.save(os.path.join(shard, "results.json"))
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"))
+    assert done.code == 2 and f"plan.{key}: {words}" in done.err, done.err
+    assert not (tmp_path / "merged" / "results.json").exists()
+
+
 def test_merge_exit_code_follows_the_cells(tmp_path):
     done = merge_edited(tmp_path, [[0], [1]], lambda doc: setattr(doc.cells[0], "status", Status.FAILED), "--no-plots")
     assert done.code == 1

@@ -193,9 +193,14 @@ def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_na
     problems = []
     for cell_id in [c for c in n if c in b]:
         old, now = b[cell_id][0], n[cell_id][0]
-        if old.spec_hash == now.spec_hash:
+        was, ran = _asked(base, old), _asked(new, now)
+        longer = []
+        if was is not None and ran is not None and was != ran:
+            longer.append(f"ran for {units.format_duration(was)} in the baseline, {units.format_duration(ran)} now")
+        if old.spec_hash == now.spec_hash and not longer:
             continue
-        diffs = spec_differences(old.spec, now.spec) or ["the resolved scenario (no stored spec to say which setting)"]
+        diffs = longer + (spec_differences(old.spec, now.spec) if old.spec_hash != now.spec_hash else [])
+        diffs = diffs or ["the resolved scenario (no stored spec to say which setting)"]
         problems.append(
             Problem(
                 new_name,
@@ -209,6 +214,17 @@ def check_comparable(base: RunDocument, new: RunDocument, base_name: str, new_na
         )
     if problems:
         raise ScenarioError(problems)
+
+
+def _asked(doc: RunDocument, cell: CellResult) -> int | None:
+    """How long the cell was asked to run (ns): the run's --duration, else the scenario's; None when not recorded."""
+    if doc.plan.duration_ns is not None:
+        return doc.plan.duration_ns
+    value = cell.spec.get("duration")
+    try:
+        return units.parse_duration(value) if isinstance(value, str) else None
+    except units.UnitError:
+        return None
 
 
 def _ids(groups: dict[str, list[CellResult]]) -> str:

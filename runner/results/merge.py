@@ -63,6 +63,10 @@ def conflicts(docs: list[tuple[str, RunDocument]]) -> list[Problem]:
             why = f"is {doc.name!r}, but {results_file(first_path)} is {first.name!r}; merge shards of one scenario"
             problems.append(Problem(where, 1, 1, "scenario.name", why))
             continue
+        problems += [
+            Problem(where, 1, 1, f"plan.{key}", f"{why} than {results_file(first_path)}; merge shards of one run")
+            for key, why in _plan_differences(first, doc)
+        ]
         for cell in doc.cells:
             key = (cell.id, cell.repeat)
             if key in seen:
@@ -75,6 +79,22 @@ def conflicts(docs: list[tuple[str, RunDocument]]) -> list[Problem]:
                 problems.append(Problem(where, 1, 1, f"cells.{cell.id}", why))
             specs.setdefault(cell.id, (cell.spec_hash, where))
     return problems
+
+
+def _plan_differences(first: RunDocument, doc: RunDocument) -> list[tuple[str, str]]:
+    """How `doc`'s run differs from `first`'s in what decides its cells: its length, its scenario, its expectations.
+
+    A hash that one of them does not record (an older runner's file) is not held against it.
+    """
+    a, b = first.plan, doc.plan
+    out = []
+    if a.duration_ns != b.duration_ns:
+        out.append(("duration_ns", "ran its cells for another --duration"))
+    if a.matrix_hash and b.matrix_hash and a.matrix_hash != b.matrix_hash:
+        out.append(("matrix_hash", "ran another version of the scenario (its cells' settings differ)"))
+    if a.expect_hash and b.expect_hash and a.expect_hash != b.expect_hash:
+        out.append(("expect_hash", "judged its cells by other expectations"))
+    return out
 
 
 def _copy_samples(doc: RunDocument, cell: CellResult, out: str, repeated: bool) -> str | None:

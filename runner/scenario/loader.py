@@ -83,6 +83,11 @@ def spec_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def matrix_hash(cells: list[ResolvedCell]) -> str:
+    """A short content hash of every cell of a scenario (ids and resolved specs): shards of one run agree on it."""
+    return hashlib.sha256(json.dumps(sorted((c.id, c.spec_hash) for c in cells)).encode()).hexdigest()[:16]
+
+
 def expect_hash(cells: list[ResolvedCell]) -> str:
     """A short content hash of the expectations that judge each cell, to refuse resuming a run under changed ones."""
     judged = [(c.id, [c.scenario.expect[i].model_dump(mode="json") for i in expectations_for(c.scenario, c)]) for c in cells]
