@@ -27,7 +27,7 @@ from runner import outdir, units
 from runner.errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
 from runner.report.compare import Threshold, parse_threshold, thresholds_with
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
-from runner.results.files import cell_dir, results_file
+from runner.results.files import cell_dir, results_file, slug
 from runner.results.journal import ResultsStore
 from runner.results.read import load
 from runner.results.samplesfile import SamplesWriter
@@ -323,6 +323,11 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
         load(options.baseline)  # read now: a baseline that cannot be compared is found before the cells run, not after
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
+    if len(cells) * options.repeat > MAX_REPEAT:  # the run order is planned up front: a billion cell runs would fill memory first
+        raise UsageError(
+            f"runner: --repeat {options.repeat:,} of {len(cells):,} cells is {len(cells) * options.repeat:,} cell runs; "
+            f"at most {MAX_REPEAT:,} in one run"
+        )
     by_id = {c.id: c for c in cells}
     start = backend.start_settings()
     perms = backend.preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)
@@ -331,7 +336,7 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
     backend.prepare(options.trace)
     if doc is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-        folder = options.out or os.path.join("reports", loaded.name, stamp)
+        folder = options.out or os.path.join("reports", slug(loaded.name), stamp)  # a name is a label, not a path: `..` stays inside
         held = outdir.claim(folder)
         doc = _new_document(loaded, options, cells, perms, start, backend.machine())
     else:

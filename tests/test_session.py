@@ -17,7 +17,7 @@ from conftest import SCENARIOS, run_cli
 from fakebackend import Act, Died, FakeBackend
 
 from runner.cli import _run_parser
-from runner.errors import ScenarioError
+from runner.errors import ScenarioError, UsageError
 from runner.scenario.loader import load_scenario
 from runner.session import RunOptions, run_scenario
 
@@ -174,6 +174,19 @@ def test_a_baseline_the_run_cannot_be_compared_with_still_leaves_its_report_and_
     assert json.load(open(tmp_path / "r" / "results.json"))["status"] == "passed"
 
 
+@pytest.mark.parametrize("name", ["..", ".", "x" * 300])
+def test_the_default_results_folder_stays_under_reports_whatever_the_scenario_is_named(tmp_path, monkeypatch, name):
+    """`name: ..` once put the results beside reports/, and a 300-character name failed the run (File name too long)."""
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(open(FIFO80).read().replace("name: fifo80", f"name: '{name}'"))
+    monkeypatch.chdir(tmp_path)
+    ns = _run_parser().parse_args([str(scenario), "--quiet", "--no-plots", "--duration", "1s", "--settle", "0"])
+    assert run_scenario(load_scenario(str(scenario)), RunOptions.from_namespace(ns, env={}), FakeBackend()) == 0
+    (kept,) = os.listdir(tmp_path / "reports")
+    assert len(kept) <= 160 and ".." not in kept and "/" not in kept
+    assert sorted(os.listdir(tmp_path)) == ["reports", "s.yaml"]
+
+
 def test_resume_runs_only_what_did_not_finish(tmp_path):
     out = tmp_path / "r"
     acts = preempted_other()
@@ -308,6 +321,13 @@ def test_duration_options_out_of_range_are_refused_before_anything_runs(tmp_path
     assert done.code == 2, done.err
     assert f"{option} {value} is out of range; expected {expected}" in done.err and "Traceback" not in done.err
     assert not os.path.exists(tmp_path / "r" / "results.json")
+
+
+def test_repeats_times_cells_beyond_a_million_are_refused_before_anything_runs(tmp_path):
+    backend = FakeBackend()
+    with pytest.raises(UsageError, match=r"--repeat 300,000 of 5 cells is 1,500,000 cell runs; at most 1,000,000 in one run"):
+        run(MATRIX, tmp_path / "r", backend, "--repeat", "300000")
+    assert backend.ran == [] and not os.path.exists(tmp_path / "r")
 
 
 @pytest.mark.parametrize(("key", "value"), [("duration_ns", 10**18), ("settle_ns", 10**18), ("repeat", 10**11)])

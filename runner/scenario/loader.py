@@ -316,6 +316,11 @@ def _cross_checks(
                     doc.problem(path + ("cells", key), f"{key!r} is not a matrix key{did_you_mean(key, keys)}; keys: {known}", key=True)
                 )
                 continue
+            if wanted == []:
+                values = ", ".join(sorted(index.values[key]))
+                why = f"{key}: [] selects no cell, so the expectation would check nothing; values: {values}"
+                out.append(doc.problem(path + ("cells", key), why))
+                continue
             for value in wanted if isinstance(wanted, list) else [wanted]:
                 if mx.format_value(value) not in index.values[key]:
                     values = sorted(index.values[key])
