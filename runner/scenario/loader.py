@@ -317,8 +317,7 @@ def _cross_checks(
                 )
                 continue
             if wanted == []:
-                values = ", ".join(sorted(index.values[key]))
-                why = f"{key}: [] selects no cell, so the expectation would check nothing; values: {values}"
+                why = f"{key}: [] selects no cell, so the expectation would check nothing; values: {', '.join(sorted(index.values[key]))}"
                 out.append(doc.problem(path + ("cells", key), why))
                 continue
             for value in wanted if isinstance(wanted, list) else [wanted]:
