@@ -62,6 +62,16 @@ def test_improvement_is_reported_as_better_not_regression():
     assert result.regressions == 0
 
 
+def test_a_cell_with_several_regressed_figures_is_named_once():
+    """The headline once said '6 regressions in 6 of 5 cells', naming a cell once per figure."""
+    base = matrix()
+    cell = base.cells[0]
+    p99 = main_thread(cell).figures.latency_ns.p99
+    worse = with_figures(with_figures(base, cell.id, latency_p99=p99 * 10 + 1_000_000), cell.id, invol_mean=9.0)
+    result = cmp.compare(base, worse)
+    assert result.regressions >= 2 and result.regressed_cells() == [cell.id]
+
+
 def test_a_cell_that_now_fails_is_a_regression():
     base = matrix()
     new = copy.deepcopy(base)

@@ -157,9 +157,9 @@ class Comparison:
         return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(f.verdict == Verdict.REGRESSION for f in self.figures)
 
     def regressed_cells(self) -> list[str]:
-        out = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
-        out += [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION and f.cell not in out]
-        return out
+        """The cells with a regression, each once: those whose status regressed first, then those with a figure that did."""
+        cells = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
+        return list(dict.fromkeys(cells + [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION]))
 
 
 def spec_differences(base: Any, new: Any, path: str = "") -> list[str]:
