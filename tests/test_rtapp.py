@@ -810,6 +810,16 @@ def test_cli_is_in_the_top_help():
     assert "runner import-rtapp JSON [-o FILE]" in run_cli("--help").out
 
 
+def test_conversion_notes_are_notes_not_errors_in_the_terminal_and_in_github(monkeypatch):
+    """A note of what did not map exactly once printed bare and became a GitHub ::error on a file that validated."""
+    monkeypatch.setenv("GITHUB_ACTIONS", "true")
+    done = run_cli("validate", os.path.join(RTAPP, "example4.json"))
+    assert done.code == 0, done.err
+    lines = done.err.splitlines()
+    assert lines and all(": note: " in line for line in lines), lines
+    assert "::notice file=" in done.out and "::error" not in done.out
+
+
 def test_an_oversized_json_is_refused_unread_by_import_and_by_validate(tmp_path):
     """Both read an rt-app file through `rtapp.read`, which stops one character past MAX_BYTES, and refuse it in the same words."""
     from runner.scenario.rtapp import MAX_BYTES, read

@@ -138,6 +138,6 @@ def _capped(items: list[Annotation], level: str) -> list[Annotation]:
 def for_problem(problem: Problem, file: Optional[str] = None) -> Annotation:
     """A problem in a file (`file:line:col: key.path: message`) as an annotation at its place; `file` as the workspace
     names it (`workspace_path`), when given."""
-    level = "warning" if problem.severity == "warning" else "error"
+    level = {"warning": "warning", "note": "notice"}.get(problem.severity, "error")
     message = f"{problem.path}: {problem.message}" if problem.path else problem.message
     return Annotation(level, message, file or problem.file, problem.line, problem.col)

@@ -125,7 +125,7 @@ def load_scenario(path: str, machine: lim.MachineLimits | None = None, for_run: 
     notes: list[str] = []
     doc = _rtapp_document(path, notes) if path.endswith(".json") else load_file(path)
     loaded = parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read(), for_run)
-    loaded.warnings[:0] = [Problem(path, 1, 1, "", note) for note in notes]
+    loaded.warnings[:0] = [Problem(path, 1, 1, "", note, severity="note") for note in notes]
     return loaded
 
 
