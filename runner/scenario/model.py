@@ -26,6 +26,8 @@ from pydantic import (
     PlainSerializer,
     PrivateAttr,
     SerializerFunctionWrapHandler,
+    StrictBool,
+    StrictInt,
     Tag,
     ValidationInfo,
     WithJsonSchema,
@@ -344,13 +346,13 @@ class Sched(Strict):
     model_config = ConfigDict(json_schema_extra={"examples": ["fifo:80", "SCHED_RR", {"policy": "other", "nice": -5}]})
 
     policy: Policy = Field(description="other, batch, idle, fifo, rr or deadline (SCHED_ prefix and upper case accepted)")
-    priority: Optional[int] = Field(None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
-    nice: Optional[int] = Field(None, ge=-20, le=19, description="nice value -20..19 for other and batch")
+    priority: Optional[StrictInt] = Field(None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
+    nice: Optional[StrictInt] = Field(None, ge=-20, le=19, description="nice value -20..19 for other and batch")
     runtime: Optional[Duration] = Field(None, description="deadline: CPU time granted every period (sched_runtime)")
     deadline: Optional[Duration] = Field(None, description="deadline: relative deadline (default: the period, as rt-app)")
     period: Optional[Duration] = Field(None, description="deadline: period (default: the runtime, as rt-app)")
-    util_min: Optional[int] = Field(None, ge=0, le=1024, description="uclamp minimum utilisation 0..1024 (kernels with uclamp)")
-    util_max: Optional[int] = Field(None, ge=0, le=1024, description="uclamp maximum utilisation 0..1024 (kernels with uclamp)")
+    util_min: Optional[StrictInt] = Field(None, ge=0, le=1024, description="uclamp minimum utilisation 0..1024 (kernels with uclamp)")
+    util_max: Optional[StrictInt] = Field(None, ge=0, le=1024, description="uclamp maximum utilisation 0..1024 (kernels with uclamp)")
 
     @model_serializer(mode="wrap")
     def _without_unset(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
@@ -773,7 +775,7 @@ class Phase(Strict):
     """A named, ordered list of events run `loop` times, with scheduling and CPUs applied when it is entered."""
 
     name: Optional[str] = Field(None, description="phase name (default p0, p1, ...)")
-    loop: int = Field(1, ge=1, le=1 << 40, description="passes over the events before the next phase")
+    loop: StrictInt = Field(1, ge=1, le=1 << 40, description="passes over the events before the next phase")
     sched: Optional[Sched] = Field(None, description="scheduling applied when the phase is entered")
     cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied when the phase is entered")
     events: list[Event] = Field(min_length=1, description="what the phase does, in order")
@@ -813,7 +815,7 @@ class PhasesWork(Strict):
 
     kind: Literal["phases"] = "phases"
     delay: Duration = Field(0, description="start this long after the common start")
-    loop: int = Field(0, ge=0, le=1 << 40, description="passes over all phases; 0: until the run ends")
+    loop: StrictInt = Field(0, ge=0, le=1 << 40, description="passes over all phases; 0: until the run ends")
     phases: list[Phase] = Field(min_length=1, description="the phases, in order (or write events: for one phase)")
 
     @model_validator(mode="before")
@@ -974,13 +976,13 @@ class ThreadSpec(Strict):
     """A thread created by the main thread, in declared order; with `count`, that many such threads."""
 
     name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...; with pin: each, the CPU)")
-    count: int = Field(
+    count: StrictInt = Field(
         1,
         ge=1,
         le=MAX_THREAD_COUNT,
         description="how many such threads; 'cpus': one per CPU of cpus, or per CPU the runner may use (cyclictest -t)",
     )
-    inherit: bool = Field(
+    inherit: StrictBool = Field(
         True,
         description="true: start with the creator's settings (PTHREAD_INHERIT_SCHED); false: start with "
         "explicit defaults (SCHED_OTHER, nice 0, all CPUs) as PTHREAD_EXPLICIT_SCHED does",
@@ -996,11 +998,11 @@ class ThreadSpec(Strict):
         description="each: thread i is pinned to the i-th CPU of cpus alone and named by it (cyclictest -t -a)",
     )
     work: Work = Field(default_factory=SleepWork)
-    priospread: bool = Field(
+    priospread: StrictBool = Field(
         False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
     )
     distance: Duration = Field(0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
-    spawned: bool = Field(
+    spawned: StrictBool = Field(
         False,
         description="created mid-run by a spawn event of another thread of this process (rt-app's fork), not at the start; "
         "count is how many can be spawned (a spawn beyond it is counted as dropped); needs kind: phases work",
@@ -1155,7 +1157,7 @@ class ThreadSpec(Strict):
 class Memory(Strict):
     """Memory settings of a process, as the seed's minimal_memory_lock applies them."""
 
-    lock: bool = Field(False, description="mlockall(MCL_CURRENT|MCL_FUTURE) with glibc tuning (no mmap, no trim)")
+    lock: StrictBool = Field(False, description="mlockall(MCL_CURRENT|MCL_FUTURE) with glibc tuning (no mmap, no trim)")
     prealloc: Size = Field(0, description="heap to reserve after locking: allocated, faulted in, and kept")
     stack_size: Optional[Size] = Field(None, description="default stack size of threads the process creates")
 
@@ -1174,8 +1176,8 @@ class ProcessSpec(Strict):
     """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
 
     name: str = Field(description="process name as ps shows it (COMMAND), 15 bytes at most")
-    instances: int = Field(1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
-    reset_on_fork: bool = Field(
+    instances: StrictInt = Field(1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
+    reset_on_fork: StrictBool = Field(
         False,
         description="start from SCHED_OTHER and nice >= 0 as SCHED_RESET_ON_FORK would, instead of inheriting the runner's settings",
     )
@@ -1270,7 +1272,7 @@ class ProgramSpec(Strict):
     env: dict[str, str] = Field(default_factory=dict, description="environment variables added to the runner's")
     sched: Optional[Sched] = Field(None, description="scheduling applied before exec: every thread the program creates inherits it")
     cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied before exec, inherited likewise")
-    reset_on_fork: bool = Field(
+    reset_on_fork: StrictBool = Field(
         False, description="set SCHED_RESET_ON_FORK before exec: threads and children the program creates start from SCHED_OTHER"
     )
     threads: list[ThreadRule] = Field(
@@ -1366,7 +1368,7 @@ class HogKind(str, enum.Enum):
 class Hog(Strict):
     """Busy loops that compete for the CPUs while the scenario runs."""
 
-    count: int = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
+    count: StrictInt = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
     kind: HogKind = Field(HogKind.PROCESS, description="process: one process each; thread: threads of one process")
     name: str = Field("hog", description="process and thread name")
     sched: Optional[Sched] = Field(None, description="policy of the hogs (default: inherited, normally SCHED_OTHER)")
@@ -1443,6 +1445,8 @@ def _limit(value: Any) -> Any:
             return -parsed if negative else parsed
         except units.UnitError as exc:
             raise ValueError(str(exc)) from None
+    if isinstance(value, bool):  # a bool is an int to Python: `max: true` would be a limit of 1
+        raise ValueError(f"{str(value).lower()} is not a limit; expected a number, or a duration such as 2ms for latency figures")
     return value
 
 
@@ -1549,7 +1553,7 @@ class Samples(Strict):
     model_config = ConfigDict(json_schema_extra={"examples": ["all", "outliers", "last 10000"]})
 
     mode: SamplesMode = SamplesMode.ALL
-    last: Optional[int] = Field(None, ge=1, le=MAX_LAST_SAMPLES, description="with mode last: how many callbacks per thread")
+    last: Optional[StrictInt] = Field(None, ge=1, le=MAX_LAST_SAMPLES, description="with mode last: how many callbacks per thread")
 
     @model_validator(mode="before")
     @classmethod
