@@ -72,6 +72,26 @@ def test_a_cell_with_several_regressed_figures_is_named_once():
     assert result.regressions >= 2 and result.regressed_cells() == [cell.id]
 
 
+def test_a_programs_threads_are_compared_by_what_is_measured_of_them():
+    """A program's threads have no callbacks: they were left out, so its switches per second could never regress."""
+
+    def as_program(doc, per_second: float):
+        out = copy.deepcopy(doc)
+        for cell in out.cells:
+            t = main_thread(cell)
+            i = cell.threads.index(t)
+            invol = t.figures.involuntary.model_copy(update={"per_second": per_second})
+            figures = t.figures.model_copy(update={"involuntary": invol, "latency_ns": None, "callbacks": 0})
+            cell.threads[i] = t.model_copy(update={"periodic": False, "released": False, "program": True, "figures": figures})
+        return out
+
+    base = as_program(matrix(), 40.0)
+    result = cmp.compare(base, as_program(matrix(), 72.0))
+    changed = [(f.figure.name, f.verdict) for f in result.figures if f.cell == base.cells[0].id]
+    assert ("involuntary.per_second", cmp.Verdict.REGRESSION) in changed
+    assert cmp.compare(base, as_program(matrix(), 41.0)).regressions == 0
+
+
 def test_a_cell_that_now_fails_is_a_regression():
     base = matrix()
     new = copy.deepcopy(base)

@@ -297,7 +297,7 @@ def _status(cells: list[CellResult]) -> Status:
 
 def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
     out = []
-    keys = [t.key for t in now[0].threads if t.has_callbacks]
+    keys = [t.key for t in now[0].threads if t.has_callbacks or t.program]  # a program's threads: the figures measured from outside
     for key in keys:
         for th in thresholds:
             fig = fg.figure(th.figure)
