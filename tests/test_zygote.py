@@ -179,3 +179,12 @@ def test_the_trace_follows_the_zygotes_workers_without_writing_their_pids(tmp_pa
     finally:
         traces.close()
     assert not os.path.exists(traces.paths[0])
+
+
+def test_a_process_that_leads_no_group_yet_is_still_signalled():
+    """A stop in the instant between a worker's fork and its setsid() once missed it: killpg found no such group."""
+    from runner.run.spawn import _kill_group_or_process
+
+    child = subprocess.Popen(["sleep", "30"])  # in our group: it leads none
+    _kill_group_or_process(child.pid)
+    assert child.wait(timeout=5) == -signal.SIGKILL

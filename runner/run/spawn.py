@@ -338,11 +338,12 @@ class Worker:
             pass
 
     def signal(self, sig: int) -> None:
+        """Signal the worker's process group, or the worker alone while it has none yet (forked, not yet setsid()).
+
+        A stop that came in that moment once missed the worker, and the cell waited out the 2 s grace.
+        """
         if self.popen is not None and self.popen.poll() is None:
-            try:
-                os.killpg(self.popen.pid, sig)
-            except ProcessLookupError:
-                pass
+            _kill_group_or_process(self.popen.pid, sig)
 
     def exit_reason(self) -> Optional[str]:
         """Why the worker ended badly, or None if it exited cleanly."""
@@ -873,10 +874,7 @@ class _CellRun:
             try:
                 proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
             except subprocess.TimeoutExpired:
-                try:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+                _kill_group_or_process(proc.pid)
                 proc.wait()
             try:
                 os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
@@ -1001,6 +999,17 @@ def _ready_report(w: Worker) -> Optional[ReadyReport]:
         return ReadyReport.parse(w.ready, w.nslots)
     except ValueError:
         return None
+
+
+def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:
+    """Signal the process group `pid` leads, or the process alone while it leads none yet (forked, before its setsid())."""
+    try:
+        os.killpg(pid, sig)
+    except ProcessLookupError:
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            pass
 
 
 # The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.
