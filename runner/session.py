@@ -176,7 +176,7 @@ def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
 
 
 class StopSignals:
-    """Ctrl-C and SIGTERM as a request to stop, honoured at the run's safe points, never mid-write.
+    """Ctrl-C, SIGTERM and SIGHUP as a request to stop, honoured at the run's safe points, never mid-write.
 
     The handler only records the request: the cell loop and the cell's supervision poll it and
     stop there, so results.json and the report are always written.  A second or third signal
@@ -184,7 +184,7 @@ class StopSignals:
     Ctrl-C can no longer cut the report short or leave the run without results.
     """
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # SIGHUP: the terminal or the ssh session went away
 
     def __init__(self) -> None:
         self.received: Optional[int] = None

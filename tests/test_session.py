@@ -122,7 +122,7 @@ def test_an_interrupt_stops_after_the_cell_and_exits_130_with_results_and_report
     assert os.path.exists(tmp_path / "r" / "report.md")
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_stop_while_the_runner_prepares_runs_no_cell_and_exits_130_with_results(tmp_path, sig):
     backend = FakeBackend(signal_on_prepare=sig)
     code, results = run(MATRIX, tmp_path / "r", backend)
