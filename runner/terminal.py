@@ -116,9 +116,16 @@ class Progress:
     def line(self, text: str) -> None:
         if self.live:
             text = text if text.startswith("[") else f"{self.prefix}: {text}"
-            sys.stderr.write("\r" + text.ljust(self.width))
-            sys.stderr.flush()
+            self._draw("\r" + text.ljust(self.width))
             self.width = len(text)
+
+    def _draw(self, text: str) -> None:
+        """The live line on the terminal; a terminal gone (SIGHUP, a closed ssh session) ends it, never the run."""
+        try:
+            sys.stderr.write(text)
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            self.live = False
 
     def finish(self, seconds: float) -> None:
         self.done += 1
@@ -127,8 +134,7 @@ class Progress:
 
     def clear(self) -> None:
         if self.live and self.width:
-            sys.stderr.write("\r" + " " * self.width + "\r")
-            sys.stderr.flush()
+            self._draw("\r" + " " * self.width + "\r")
             self.width = 0
 
 
