@@ -71,3 +71,15 @@ def test_completion_refuses_a_shell_it_cannot_write_for():
     with pytest.raises(SystemExit) as caught:  # argparse's own usage error
         run_cli("completion", "fish")
     assert caught.value.code == 2
+
+
+def test_list_honours_the_options_a_run_would_honour():
+    """--list once listed every cell and the file's duration whatever --cell, --duration or a bad option said."""
+    matrix = os.path.join(SCENARIOS, "policy_matrix.yaml")
+    done = run_cli(matrix, "--list", "--cell", "policy=fifo*", "--duration", "2s")
+    assert done.code == 0, done.err
+    cells = [line for line in done.out.splitlines() if line.startswith("cell ")]
+    assert len(cells) == 2 and all("duration 2s)" in line for line in cells) and "2 of 5 cells" in done.out
+    for bad in (["--cell", "nosuch"], ["--duration", "abc"], ["--repeat", "0"], ["--dma-latency", "x"], ["--shard", "9/2"]):
+        done = run_cli(matrix, "--list", *bad)
+        assert done.code == 2 and "Traceback" not in done.err, (bad, done.err)

@@ -132,10 +132,10 @@ def expansion(loaded: LoadedScenario) -> list[str]:
     return out
 
 
-def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...]) -> str:
-    """One cell: background, processes with per-thread settings, expectations."""
+def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...], duration_ns: Optional[int] = None) -> str:
+    """One cell: background, processes with per-thread settings, expectations; `duration_ns`: --duration, if given."""
     sc: Scenario = cell.scenario
-    lines = [f"cell {cell.id}  (spec {cell.spec_hash}, duration {units.format_duration(sc.duration)})"]
+    lines = [f"cell {cell.id}  (spec {cell.spec_hash}, duration {units.format_duration(duration_ns or sc.duration)})"]
     for hog in sc.background.hogs:
         sched = hog.sched.label() if hog.sched else "inherited"
         where = units.format_cpus(hog.cpus) if hog.cpus else "any CPU"
@@ -190,10 +190,18 @@ def _program_lines(prog: ProgramSpec, start: Settings, online: tuple[int, ...]) 
     return lines + ["    " + row for row in table.splitlines()]
 
 
-def render(loaded: LoadedScenario, start: Settings, online: tuple[int, ...]) -> str:
-    """The whole listing of a scenario file."""
-    count = len(loaded.cells)
-    head = [f"{loaded.name}: {count} cell{'s' if count != 1 else ''} ({loaded.path})"]
+def render(
+    loaded: LoadedScenario,
+    start: Settings,
+    online: tuple[int, ...],
+    cells: Optional[list[ResolvedCell]] = None,
+    duration_ns: Optional[int] = None,
+) -> str:
+    """The listing of a scenario file: its cells (`cells`: those a run would run, --cell and --shard applied)."""
+    shown = loaded.cells if cells is None else cells
+    count = len(shown)
+    of = f" of {len(loaded.cells)}" if count != len(loaded.cells) else ""
+    head = [f"{loaded.name}: {count}{of} cell{'s' if len(loaded.cells) != 1 else ''} ({loaded.path})"]
     if loaded.description:
         head.append("  " + loaded.description)
-    return "\n\n".join(["\n".join(head)] + [render_cell(c, start, online) for c in loaded.cells]) + "\n"
+    return "\n\n".join(["\n".join(head)] + [render_cell(c, start, online, duration_ns) for c in shown]) + "\n"
