@@ -70,6 +70,17 @@ def test_the_json_summary_has_cyclictests_shape():
     assert sum(t["histogram"].values()) == 5 and t["histogram"]["3"] == 2
 
 
+def test_a_worst_latency_of_an_hour_exports_as_few_entries_as_it_has_buckets():
+    """The JSON summary once made a list of one slot per microsecond up to the worst value: 3.6e9 for an hour."""
+    cell = _cell()
+    hist = hg.from_values([*LATENCIES, 3_600_000_000_000])
+    thread = cell.threads[0].model_copy(update={"histograms": ThreadHistograms(latency=hist)})
+    doc = RunDocument(command=["runner", "x.yaml"], cells=[cell.model_copy(update={"threads": [thread]})])
+    t = json_summary(doc, doc.cells[0])["thread"]["0"]
+    assert len(t["histogram"]) <= len(hist.buckets) and sum(t["histogram"].values()) == 6
+    assert t["max"] == 3_600_000_000 and list(map(int, t["histogram"])) == sorted(map(int, t["histogram"]))
+
+
 def test_a_run_of_several_cells_needs_cell_and_a_wrong_one_is_named():
     doc = RunDocument(cells=[_cell("a=1"), _cell("a=2")])
     with pytest.raises(UsageError, match="--cell"):

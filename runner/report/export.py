@@ -44,14 +44,22 @@ def _threads(cell: CellResult) -> list[tuple[ThreadResult, Histogram]]:
     return out
 
 
+def _per_us(hist: Histogram) -> dict[int, int]:
+    """Counts per whole microsecond that has any, ascending: as many entries as buckets, however long the worst value."""
+    out: dict[int, int] = {}
+    for _low, high, n in hist.buckets:
+        us = max(0, min(high, hist.max) // 1000)
+        out[us] = out.get(us, 0) + n
+    return out
+
+
 def _bins(hist: Histogram, size: int) -> tuple[list[int], int]:
     """Counts per whole microsecond below `size`, and the count at or above it (overflows)."""
     counts = [0] * size
     over = 0
-    for _low, high, n in hist.buckets:
-        us = min(high, hist.max) // 1000
+    for us, n in _per_us(hist).items():
         if us < size:
-            counts[max(0, us)] += n
+            counts[us] += n
         else:
             over += n
     return counts, over
@@ -94,9 +102,8 @@ def json_summary(doc: RunDocument, cell: CellResult) -> dict[str, Any]:
         "thread": {},
     }
     for i, (t, hist) in enumerate(threads):
-        counts, _ = _bins(hist, max(1, hist.max // 1000 + 1))
         out["thread"][str(i)] = {
-            "histogram": {str(us): n for us, n in enumerate(counts) if n},
+            "histogram": {str(us): n for us, n in _per_us(hist).items()},  # a 1 h worst value once listed 3.6e9 slots
             "cycles": hist.count,
             "min": hist.min // 1000,
             "max": hist.max // 1000,
