@@ -4,7 +4,7 @@ import pytest
 import yaml
 
 from runner.errors import ScenarioError
-from runner.scenario.yamlsource import load_text
+from runner.scenario.yamlsource import load_file, load_text
 
 
 def test_positions_of_keys_and_values():
@@ -122,3 +122,12 @@ def test_libyaml_is_used_only_where_it_refuses_deep_nesting_itself(monkeypatch):
     finally:
         monkeypatch.undo()
         yamlsource._loader_class.cache_clear()
+
+
+def test_a_byte_that_is_not_utf8_is_reported_at_its_line_and_column(tmp_path):
+    """A Latin-1 é in a comment on line 5 was once reported at 1:1."""
+    path = tmp_path / "s.yaml"
+    path.write_bytes(b"name: x\nprocesses:\n  - name: app\n    main: {work: {kind: periodic, period: 10ms}}\n# caf\xe9\n")
+    with pytest.raises(ScenarioError) as err:
+        load_file(str(path))
+    assert str(err.value.problems[0]) == f"{path}:5:6: not UTF-8 text: byte 0xe9 (invalid continuation byte)"

@@ -76,7 +76,7 @@ import yaml
 from runner import units
 from runner.errors import Problem, ScenarioError, special_file
 from runner.scenario.model import COMM_MAX, control_character
-from runner.scenario.yamlsource import dotted, printable
+from runner.scenario.yamlsource import byte_position, dotted, printable
 
 MAX_BYTES = 1 << 20  # rt-app files are a few KiB; a megabyte is not a workload
 DEFAULT_DURATION_S = 10
@@ -499,12 +499,17 @@ def read(path: str) -> str:
     if kind := special_file(path):
         raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected an rt-app workload (JSON)")])
     try:
-        with open(path, encoding="utf-8") as handle:
-            return handle.read(MAX_BYTES + 1)
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_BYTES + 1)
     except OSError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
+    if len(raw) > MAX_BYTES:
+        return raw.decode("utf-8", "replace")  # still over MAX_BYTES: convert() says it is too large
+    try:
+        return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+        line, col = byte_position(raw, exc.start)
+        raise ScenarioError([Problem(path, line, col, "", f"not UTF-8 text: byte {raw[exc.start]:#04x} ({exc.reason})")]) from None
 
 
 def convert(text: str, name: str) -> Conversion:

@@ -140,7 +140,7 @@ def load_text(text: str, file: str) -> Document:
         message = f"{text[exc.start]!r} is not a character (a lone UTF-16 surrogate); write the character itself"
         raise ScenarioError([Problem(file, line, col, "", f"invalid YAML: {message}")]) from None
     if size > MAX_BYTES:
-        raise ScenarioError([Problem(file, 1, 1, "", f"file is larger than {MAX_BYTES} bytes; is it really a scenario?")])
+        raise _too_large(file)
     loader_class = _loader_class()
     try:
         loader = loader_class(text)
@@ -201,13 +201,28 @@ def load_file(path: str) -> Document:
     if kind := special_file(path):
         raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected a scenario file (YAML)")])
     try:
-        with open(path, encoding="utf-8") as handle:
-            text = handle.read(MAX_BYTES + 1)
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_BYTES + 1)
     except OSError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read file: {exc.strerror}")]) from None
+    if len(raw) > MAX_BYTES:
+        raise _too_large(path)
+    try:
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ScenarioError([Problem(path, 1, 1, "", f"not UTF-8 text: {exc.reason}")]) from None
+        line, col = byte_position(raw, exc.start)
+        raise ScenarioError([Problem(path, line, col, "", f"not UTF-8 text: byte {raw[exc.start]:#04x} ({exc.reason})")]) from None
     return load_text(text, path)
+
+
+def _too_large(file: str) -> ScenarioError:
+    return ScenarioError([Problem(file, 1, 1, "", f"file is larger than {MAX_BYTES} bytes; is it really a scenario?")])
+
+
+def byte_position(raw: bytes, offset: int) -> tuple[int, int]:
+    """The 1-based line and column (in characters) of byte `offset` of `raw`, for a problem at a byte that is not text."""
+    line_start = raw.rfind(b"\n", 0, offset) + 1
+    return raw.count(b"\n", 0, offset) + 1, len(raw[line_start:offset].decode("utf-8", "replace")) + 1
 
 
 class _Builder:
