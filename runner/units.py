@@ -138,7 +138,11 @@ def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int
                 raise UnitError("'all' stands for the CPUs the runner may use, which are not known here; name the CPUs")
             cpus.update(every)
         elif re.fullmatch(_MASK, text):
-            mask = int(text.replace("_", ""), 0)
+            try:
+                mask = int(text.replace("_", ""), 0)
+            except ValueError:  # a prefix with no digit after it: 0b_, 0x
+                why = "a mask needs digits after its 0b or 0x"
+                raise UnitError(f"cannot read CPUs {_shorten(value)}: {why}; expected {CPUS_EXPECTED}") from None
             if mask.bit_length() > MAX_CPUS:
                 raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)

@@ -1164,11 +1164,13 @@ class Memory(Strict):
     @model_validator(mode="after")
     def _consistent(self) -> Memory:
         if self.prealloc and not self.lock:
-            raise ValueError("prealloc only keeps memory resident together with lock: true")
+            raise KeyProblem("prealloc", "prealloc only keeps memory resident together with lock: true")
         if self.stack_size is not None and self.stack_size < MIN_STACK:
-            raise ValueError(f"stack_size {units.format_size(self.stack_size)} is below the 16KiB minimum")
+            raise KeyProblem("stack_size", f"stack_size {units.format_size(self.stack_size)} is below the 16KiB minimum")
         if self.stack_size is not None and self.stack_size > MAX_STACK:
-            raise ValueError(f"stack_size {units.format_size(self.stack_size)} is too large; at most {units.format_size(MAX_STACK)}")
+            raise KeyProblem(
+                "stack_size", f"stack_size {units.format_size(self.stack_size)} is too large; at most {units.format_size(MAX_STACK)}"
+            )
         return self
 
 
@@ -1544,6 +1546,8 @@ def _samples_text(value: Any) -> Any:
             except ValueError:
                 raise ValueError(f"samples {value!r}: expected 'last N' with a whole number N, e.g. 'last 10000'") from None
         return {"mode": word}
+    if not isinstance(value, (dict, Samples)):  # null, a number: the model's own message would name its class
+        raise ValueError(f"samples {'null' if value is None else repr(value)}: expected all, none, outliers or 'last N'")
     return value
 
 

@@ -168,5 +168,7 @@ def problems_from(exc: ValidationError, doc: Document, data: Any, root: type[Bas
             message = err["msg"][0].lower() + err["msg"][1:]
             if isinstance(given, _SCALARS) and not isinstance(given, dict):
                 message += f", got {given!r}"
+            if kind == "string_type" and isinstance(given, bool):  # YAML 1.1 reads yes/no/on/off as booleans
+                message += "; YAML reads an unquoted yes, no, on, off, true or false as a boolean: quote it ('off') to keep the word"
         out.append(doc.problem(full, message, key=key))
     return out
