@@ -41,6 +41,7 @@ from runner.runorder import Shard, Unit, plan_units
 from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, matrix_hash
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
+from runner.scenario.program import never_released
 from runner.terminal import Progress, note, render_cell, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
@@ -323,6 +324,9 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
         load(options.baseline)  # read now: a baseline that cannot be compared is found before the cells run, not after
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
+    late = {why for c in cells if options.duration_ns for _, why in never_released(c.scenario.processes, options.duration_ns)}
+    if late:
+        raise UsageError(f"runner: --duration {units.format_duration(options.duration_ns or 0)}: " + "; ".join(sorted(late)))
     if len(cells) * options.repeat > MAX_REPEAT:  # the run order is planned up front: a billion cell runs would fill memory first
         raise UsageError(
             f"runner: --repeat {options.repeat:,} of {len(cells):,} cells is {len(cells) * options.repeat:,} cell runs; "

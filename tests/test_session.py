@@ -323,6 +323,17 @@ def test_duration_options_out_of_range_are_refused_before_anything_runs(tmp_path
     assert not os.path.exists(tmp_path / "r" / "results.json")
 
 
+def test_a_duration_that_ends_before_a_threads_first_release_is_refused(tmp_path):
+    scenario = tmp_path / "s.yaml"
+    main = "{work: {kind: periodic, period: 100ms, offset: 1s}}"
+    scenario.write_text(f"name: late\nduration: 2s\nprocesses:\n  - name: a\n    main: {main}\n")
+    backend = FakeBackend()
+    with pytest.raises(UsageError, match=r"--duration 500ms: offset 1s is not before the cell ends \(500ms\)"):
+        run(str(scenario), tmp_path / "r", backend, "--duration", "500ms")
+    assert backend.ran == []
+    assert run(str(scenario), tmp_path / "s", FakeBackend(), "--duration", "1500ms")[0] == 0
+
+
 def test_repeats_times_cells_beyond_a_million_are_refused_before_anything_runs(tmp_path):
     backend = FakeBackend()
     with pytest.raises(UsageError, match=r"--repeat 300,000 of 5 cells is 1,500,000 cell runs; at most 1,000,000 in one run"):

@@ -201,6 +201,8 @@ def _check_cell(
         cell_problems.extend(_partial_cross_checks(doc, raw, index, context))
         return None, cell_problems, ""
     cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index, scenario.resources))
+    late = program.never_released(scenario.processes, scenario.duration)
+    cell_problems.extend(doc.problem(written_path(doc.data, path), message) for path, message in late)
     findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
     for f in findings:
         warn = f.elsewhere and not for_run

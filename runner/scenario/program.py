@@ -16,11 +16,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Optional, Union
 
+from runner import units
 from runner.errors import did_you_mean
 from runner.scenario.model import (
     AnyProcess,
     ApplyWhen,
     EventKind,
+    PeriodicWork,
     PhasesWork,
     Policy,
     ProcessSpec,
@@ -81,6 +83,27 @@ def reference_problems(processes: list[AnyProcess], resources: dict[str, Resourc
     waited = used.get(EventKind.WAIT, set()) & {n for n, r in resources.items() if r.kind is ResourceKind.COND}
     for name in sorted(waited - used.get(EventKind.SIGNAL, set()) - used.get(EventKind.BROADCAST, set())):
         out.append((("resources", name), f"threads wait on cond {name!r} but no thread signals or broadcasts it"))
+    return out
+
+
+def never_released(processes: list[AnyProcess], duration_ns: int) -> list[tuple[Path, str]]:
+    """Threads whose first release (a periodic `offset`, a program's `delay`) is not before the cell ends.
+
+    Such a thread runs no callback, misses nothing and fails no check: its cell would pass with
+    nothing measured of it.  `duration_ns` is the cell's (the file's, or --duration).
+    """
+    out: list[tuple[Path, str]] = []
+    for i, proc in enumerate(processes):
+        if not isinstance(proc, ProcessSpec):
+            continue
+        works: list[tuple[Path, object]] = [(("processes", i, "main", "work"), proc.main.work)]
+        works += [(("processes", i, "threads", j, "work"), t.work) for j, t in enumerate(proc.threads)]
+        for path, work in works:
+            key, wait = ("offset", work.offset) if isinstance(work, PeriodicWork) else ("delay", getattr(work, "delay", 0))
+            if wait and wait >= duration_ns:
+                shown, cell = units.format_duration(wait), units.format_duration(duration_ns)
+                why = f"{key} {shown} is not before the cell ends ({cell}): the thread would never be released, and nothing measured"
+                out.append((path + (key,), why))
     return out
 
 
