@@ -38,7 +38,7 @@ from runner.run.preflight import Permissions
 from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
-from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, matrix_hash
+from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.scenario.program import never_released
@@ -70,6 +70,7 @@ class RunOptions:
     dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
     junit: Optional[str] = None  # --junit FILE: the run as JUnit XML, for CI test reporters
     trace: bool = True  # trace the scheduler (tracefs) while cells run, where the kernel lets the runner
+    resume_options: tuple[str, ...] = ()  # with --resume: the run-shaping options given, for a file that may not record them
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
@@ -86,8 +87,9 @@ class RunOptions:
                 raise UsageError(f"runner: --shuffle {ns.shuffle!r}: expected a seed (an integer) or 'random'") from None
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
-        if ns.resume and (shaping := _run_shaping(ns)):
-            raise UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(shaping)}")
+        shaping = _run_shaping(ns) if ns.resume else []
+        if recorded := [option for option in shaping if option not in _RECORDED_SINCE]:
+            raise UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(recorded)}")
         in_ci = env.get("CI", "") not in ("", "0", "false")
         dma_latency = None if ns.no_dma_latency else _dma_latency(ns.dma_latency)
         return cls(
@@ -112,7 +114,12 @@ class RunOptions:
             dma_latency_us=dma_latency,
             junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
             trace=not ns.no_trace,
+            resume_options=tuple(shaping),
         )
+
+
+_RECORDED_SINCE = ("--dma-latency", "--no-dma-latency", "--no-trace")
+"""Options a run's plan records only since plan.trace: a file without it may be resumed with them, as it began."""
 
 
 def _run_shaping(ns: argparse.Namespace) -> list[str]:
@@ -195,6 +202,8 @@ class StopSignals:
 
     def __enter__(self) -> StopSignals:
         for sig in self.SIGNALS:
+            if signal.getsignal(sig) is signal.SIG_IGN:
+                continue  # ignored on entry, as nohup does for SIGHUP: the caller's choice stands
             self.previous[sig] = signal.signal(sig, self._handle)
         return self
 
@@ -250,7 +259,7 @@ def _new_document(
             trace=options.trace,
             dma_latency_us=options.dma_latency_us,
             expect_hash=expect_hash(loaded.cells),
-            matrix_hash=matrix_hash(loaded.cells),
+            scenario_hash=loaded.source_hash or None,
         ),
         shard=str(options.shard) if options.shard else None,
     )
@@ -287,6 +296,10 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     options.duration_ns = plan.duration_ns
     options.shard = Shard.parse(doc.shard) if doc.shard else None
     if plan.trace is not None:  # recorded since this runner: the rest of the run traces, and holds the latency, as its start did
+        if options.resume_options:
+            raise UsageError(
+                "runner: --resume DIR finishes DIR's run with the options it recorded; leave out " + ", ".join(options.resume_options)
+            )
         options.trace, options.dma_latency_us = plan.trace, plan.dma_latency_us
     doc.status, doc.finished_at = "running", None
     doc.command = options.command

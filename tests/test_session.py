@@ -132,6 +132,20 @@ def test_a_stop_while_the_runner_prepares_runs_no_cell_and_exits_130_with_result
     assert os.path.exists(tmp_path / "r" / "report.md")
 
 
+def test_a_signal_ignored_on_entry_stays_ignored(tmp_path, monkeypatch):
+    """Under nohup SIGHUP is ignored: logging out must not stop the run."""
+    from runner.session import StopSignals
+
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with StopSignals() as stop:
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN and signal.getsignal(signal.SIGTERM) == stop._handle
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert not stop.requested()
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_stop_after_the_last_cell_leaves_the_results_whole_and_exits_130(tmp_path, sig, capfd):
     code, results = run(FIFO80, tmp_path / "r", FakeBackend(signal_on_close=sig), "--duration", "1s")
@@ -233,6 +247,19 @@ def test_resume_runs_the_rest_traced_and_held_as_the_run_began(tmp_path):
     assert backend.dma_requests == [100]
     mains = [t for c in results["cells"] for t in c["threads"] if t["index"] == 0]
     assert len(mains) == 5 and {t["figures"]["callbacks"] for t in mains} == {3}, "every cell ran the 300 ms the run began with"
+
+
+def test_a_run_from_before_trace_was_recorded_resumes_with_the_options_given_again(tmp_path):
+    """An older file does not say how it traced: --no-trace and --dma-latency may restore its start's options."""
+    out = tmp_path / "r"
+    run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)}), "--no-trace", "--dma-latency", "10")
+    doc = json.loads((out / "results.json").read_text())
+    for key in ("trace", "dma_latency_us", "expect_hash", "scenario_hash"):
+        doc["plan"].pop(key)
+    (out / "results.json").write_text(json.dumps(doc))
+    backend = FakeBackend(preempted_other())
+    code, _ = resume(MATRIX, out, backend, "--no-trace", "--dma-latency", "10")
+    assert code == 0 and backend.prepared is False and backend.dma_requests == [10]
 
 
 def test_resume_refuses_a_scenario_whose_expectations_changed(tmp_path):
