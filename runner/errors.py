@@ -109,13 +109,16 @@ def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | 
 def special_file(path: str) -> str:
     """What `path` is when it exists and is neither a file nor a folder ("a FIFO", "a character device"), else "".
 
-    Reading one is never what a user meant: a FIFO blocks until something writes to it, a
+    Reading one is never what a user meant: a named FIFO blocks until something writes to it, a
     device like /dev/zero never ends.  Readers of scenario and results files refuse these first.
+    An anonymous pipe (a shell's `<(...)`, a pipe as /dev/stdin) has a writer already and is read.
     """
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):
         return ""  # absent or unreadable: opening it says why
+    if stat.S_ISFIFO(mode) and not os.path.exists(os.path.realpath(path)):
+        return ""  # a pipe with a writer (`< file` as /dev/stdin, `<(zcat ...)` as /dev/fd/63): it has no name to block on
     kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
     return next((words for test, words in kinds if test(mode)), "")
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from runner.errors import UsageError, from_os_error
+from runner.results.files import written_through
 
 LOCK_NAME = ".runner.lock"
 
@@ -74,9 +75,11 @@ def is_results_file(path: str) -> bool:
     real = os.path.realpath(path)
     if os.path.basename(real) in ("results.json", "cells.jsonl"):
         return True
+    if not os.path.isfile(real):  # a FIFO would block the open until something wrote to it
+        return False
     try:
         with open(real, "rb") as handle:
-            head = handle.read(256) if os.path.isfile(real) else b""
+            head = handle.read(256)
     except OSError:
         return False
     return b'"runner.results/' in head
@@ -91,6 +94,8 @@ def writable_file(path: str, option: str) -> str:
     """
     if is_results_file(path):
         raise UsageError(f"runner: {option} {path}: that is a results file, which only a run writes; choose another file")
+    if written_through(path):  # /dev/stdout, a device, a FIFO: written into where it is, no file made beside it
+        return path
     if os.path.isdir(path):
         raise UsageError(f"runner: {option} {path}: a folder stands where a file is expected")
     folder = os.path.dirname(os.path.abspath(path))

@@ -162,6 +162,30 @@ def test_no_output_option_overwrites_a_results_file(tmp_path, argv):
     assert (copy / "results.json").read_bytes() == before and renamed.read_bytes() == before
 
 
+def test_a_fifo_named_as_an_output_is_checked_without_waiting_on_it(tmp_path):
+    fifo = tmp_path / "out.xml"
+    os.mkfifo(fifo)
+    began = time.monotonic()
+    assert outdir.writable_file(str(fifo), "--junit") == str(fifo)
+    assert time.monotonic() - began < 2
+
+
+def test_stdout_and_a_pipe_as_stdin_are_written_and_read_where_they_are(tmp_path):
+    """/dev/stdout on a pipe once resolved to /proc/N/fd/pipe:[M], which no file can be made beside."""
+    code = "from runner.results.files import write_atomic; write_atomic('/dev/stdout', 'through\\n')"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout == "through\n", done.stderr
+    log = tmp_path / "log"
+    log.write_text("kept\n")
+    with open(log, "a") as handle:  # `>> log`: what the file held stays
+        subprocess.run([sys.executable, "-c", code], stdout=handle, check=True, timeout=60)
+    assert log.read_text() == "kept\nthrough\n"
+    scenario = open(os.path.join(SCENARIOS, "fifo80.yaml"), "rb").read()
+    argv = [sys.executable, "-m", "runner", "validate", "/dev/stdin"]
+    done = subprocess.run(argv, input=scenario, capture_output=True, timeout=120)
+    assert done.returncode == 0 and b"/dev/stdin: ok (1 cell)" in done.stdout, done.stderr
+
+
 def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):
     def unwritable(argv: list[str]) -> int:
         raise PermissionError(13, "Permission denied", "/somewhere/results.json")

@@ -96,7 +96,7 @@ def test_mixed_specs_are_refused(tmp_path):
     ("key", "value", "words"),
     [
         ("duration_ns", 300_000_000, "ran its cells for another --duration"),
-        ("matrix_hash", "ffffffffffffffff", "ran another version of the scenario"),
+        ("scenario_hash", "ffffffffffffffff", "ran another version of the scenario file"),
         ("expect_hash", "ffffffffffffffff", "judged its cells by other expectations"),
     ],
 )
@@ -107,7 +107,7 @@ def test_shards_of_different_runs_are_refused(tmp_path, key, value, words):
         setattr(doc.plan, key, value)
 
     def recorded(doc):  # both shards record the hashes, as this runner writes them
-        doc.plan.matrix_hash = doc.plan.matrix_hash or "0123456789abcdef"
+        doc.plan.scenario_hash = doc.plan.scenario_hash or "0123456789abcdef"
         doc.plan.expect_hash = doc.plan.expect_hash or "0123456789abcdef"
 
     shards = split(tmp_path, [[0, 2, 4], [1, 3]])
@@ -214,3 +214,18 @@ def test_merge_refuses_a_samples_file_that_is_a_symlink_out_of_the_folder(tmp_pa
     assert not any(
         "passwd" in Path(d, f).read_text(errors="replace") for d, _, fs in os.walk(tmp_path / "merged") for f in fs if f.endswith(".gz")
     )
+
+
+def test_shards_of_one_file_on_machines_of_different_sizes_agree_on_its_hash(tmp_path):
+    """The spec of a `count: cpus` cell differs with the machine; the file's hash, which merge holds shards to, does not."""
+    from runner.scenario import limits as lim
+    from runner.scenario.loader import load_scenario
+
+    path = tmp_path / "s.yaml"
+    path.write_text("name: x\nprocesses:\n  - name: app\n    threads: [{name: t, count: cpus}]\n")
+    small = load_scenario(str(path), lim.MachineLimits(cpus=(0, 1)))
+    large = load_scenario(str(path), lim.MachineLimits(cpus=(0, 1, 2, 3)))
+    assert small.cells[0].spec_hash != large.cells[0].spec_hash
+    assert small.source_hash == large.source_hash != ""
+    path.write_text(path.read_text().replace("count: cpus", "count: 3"))
+    assert load_scenario(str(path), lim.MachineLimits(cpus=(0, 1))).source_hash != small.source_hash

@@ -578,7 +578,7 @@ class Plan(_Record):
     trace: Optional[bool] = Field(None, description="scheduler traced (false: --no-trace); null: not recorded, nor dma_latency_us")
     dma_latency_us: Optional[NonNegativeInt] = Field(None, description="/dev/cpu_dma_latency asked for (--dma-latency); null: left alone")
     expect_hash: Optional[str] = Field(None, description="the expectations, hashed: --resume refuses a change; null: not recorded")
-    matrix_hash: Optional[str] = Field(None, description="every cell of the matrix, resolved and hashed: merge refuses shards that differ")
+    scenario_hash: Optional[str] = Field(None, description="the scenario as written, hashed: merge refuses shards of another version")
 
 
 class ScenarioInfo(_Record):

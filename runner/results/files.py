@@ -72,14 +72,14 @@ def write_atomic(path: str, data: str | bytes) -> None:
     regular file: renaming over `/dev/null` as root would replace the machine's own.
     """
     blob = data.encode("utf-8") if isinstance(data, str) else data
-    target = os.path.realpath(path)
-    if _special(target):
+    if written_through(path):
         try:
-            with open(target, "wb") as handle:
+            with open(path, "ab") as handle:  # append: `>> log` behind /dev/stdout keeps what it holds
                 handle.write(blob)
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
         return
+    target = os.path.realpath(path)
     folder = os.path.dirname(target)
     tmp = None
     try:
@@ -100,8 +100,11 @@ def write_atomic(path: str, data: str | bytes) -> None:
     _sync_folder(folder)
 
 
-def _special(path: str) -> bool:
-    """Whether `path` is a device, FIFO or socket: something to write into, never to replace."""
+def written_through(path: str) -> bool:
+    """Whether `path` is to be written into, never replaced: a device, FIFO or socket, or one of this process's
+    descriptors (`/dev/stdout`, `/dev/fd/N`), whatever it is open on (a pipe, a file the shell opened)."""
+    if path in ("/dev/stdout", "/dev/stderr") or path.startswith(("/dev/fd/", "/proc/")):
+        return True
     try:
         mode = os.stat(path).st_mode
     except OSError:

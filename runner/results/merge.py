@@ -90,8 +90,8 @@ def _plan_differences(first: RunDocument, doc: RunDocument) -> list[tuple[str, s
     out = []
     if a.duration_ns != b.duration_ns:
         out.append(("duration_ns", "ran its cells for another --duration"))
-    if a.matrix_hash and b.matrix_hash and a.matrix_hash != b.matrix_hash:
-        out.append(("matrix_hash", "ran another version of the scenario (its cells' settings differ)"))
+    if a.scenario_hash and b.scenario_hash and a.scenario_hash != b.scenario_hash:
+        out.append(("scenario_hash", "ran another version of the scenario file"))
     if a.expect_hash and b.expect_hash and a.expect_hash != b.expect_hash:
         out.append(("expect_hash", "judged its cells by other expectations"))
     return out

@@ -15,6 +15,7 @@ theirs are removed by the next `create` (a cgroup without tasks is removed by rm
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import signal
@@ -173,7 +174,14 @@ class MemoryCgroup:
         """A new cgroup `runner-<pid>-<name>` with `limit` bytes (None: no limit, it only holds); OSError when the kernel refuses."""
         _remove_stale(h)
         folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}")
-        os.mkdir(folder)
+        for n in itertools.count(2):  # an earlier cell's group still leaving, or another of the same name: a name of its own
+            try:
+                os.mkdir(folder)
+                break
+            except FileExistsError:
+                if n > 100:
+                    raise
+                folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}-{n}")
         group = cls(h, folder)
         try:
             if limit is not None:

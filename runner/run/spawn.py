@@ -701,7 +701,10 @@ class _CellRun:
             return list(argv)
         if shutil.which(argv[0]) is None:  # as Popen would have said, before the shell would say it less clearly
             raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), argv[0])
-        group = memcg.MemoryCgroup.create(where, f"command{n}", None)
+        try:
+            group = memcg.MemoryCgroup.create(where, f"command{n}", None)
+        except OSError:
+            return list(argv)  # no cgroup after all: its process group is what holds it, as without cgroups
         self.command_groups.append(group)
         self.guard.watch_cgroup(group.folder)
         return [*_HELD_SHIM, group.folder, *argv]
@@ -1013,7 +1016,7 @@ def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:
 
 
 # The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.
-_HELD_SHIM = ("/bin/sh", "-c", 'echo 0 > "$0/cgroup.procs" 2>/dev/null; exec "$@"')
+_HELD_SHIM = ("/bin/sh", "-c", 'echo 0 2>/dev/null >"$0/cgroup.procs"; exec "$@"')
 
 
 def _argv(command: subprocess.Popen[bytes]) -> list[str]:

@@ -66,6 +66,7 @@ class LoadedScenario:
     name: str
     cells: list[ResolvedCell]
     warnings: list[Problem] = field(default_factory=list)
+    source_hash: str = ""  # the file's data as written (matrix and `count: cpus` unresolved), hashed: the same on every machine
 
     @property
     def description(self) -> str:
@@ -83,9 +84,10 @@ def spec_hash(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def matrix_hash(cells: list[ResolvedCell]) -> str:
-    """A short content hash of every cell of a scenario (ids and resolved specs): shards of one run agree on it."""
-    return hashlib.sha256(json.dumps(sorted((c.id, c.spec_hash) for c in cells)).encode()).hexdigest()[:16]
+def source_hash(data: Any) -> str:
+    """A short content hash of a scenario's data as written (comments and layout aside): shards of one run agree on it,
+    on machines of any size, since nothing is resolved against a machine yet."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def expect_hash(cells: list[ResolvedCell]) -> str:
@@ -183,7 +185,7 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_
         (problems if problem.severity == "error" else warnings).append(problem)
     if problems:
         raise ScenarioError(problems + warnings)
-    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings)
+    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings, source_hash(doc.data))
 
 
 def _check_cell(
