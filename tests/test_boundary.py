@@ -125,10 +125,10 @@ def test_output_that_cannot_be_written_never_hides_the_outcome(monkeypatch, caps
     assert ("cannot write to standard output" in err) is said and "Traceback" not in err
 
 
-def test_a_full_disk_under_stdout_is_exit_4_with_one_line():
+def test_a_full_disk_under_stdout_is_exit_4_with_one_line(tmp_path):
     argv = [sys.executable, "-m", "runner", "compare", POLICY, POLICY]
-    with open("/dev/full", "w") as full:
-        done = subprocess.run(argv, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    with open("/dev/full", "w") as full:  # run from elsewhere than the clone: the installed runner, not the source tree
+        done = subprocess.run(argv, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 4, done.stderr
     assert done.stderr.strip().splitlines()[-1] == "runner: cannot write to standard output: No space left on device"
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr
@@ -173,16 +173,16 @@ def test_a_fifo_named_as_an_output_is_checked_without_waiting_on_it(tmp_path):
 def test_stdout_and_a_pipe_as_stdin_are_written_and_read_where_they_are(tmp_path):
     """/dev/stdout on a pipe once resolved to /proc/N/fd/pipe:[M], which no file can be made beside."""
     code = "from runner.results.files import write_atomic; write_atomic('/dev/stdout', 'through\\n')"
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 0 and done.stdout == "through\n", done.stderr
     log = tmp_path / "log"
     log.write_text("kept\n")
     with open(log, "a") as handle:  # `>> log`: what the file held stays
-        subprocess.run([sys.executable, "-c", code], stdout=handle, check=True, timeout=60)
+        subprocess.run([sys.executable, "-c", code], stdout=handle, check=True, timeout=60, cwd=tmp_path)
     assert log.read_text() == "kept\nthrough\n"
     scenario = open(os.path.join(SCENARIOS, "fifo80.yaml"), "rb").read()
     argv = [sys.executable, "-m", "runner", "validate", "/dev/stdin"]
-    done = subprocess.run(argv, input=scenario, capture_output=True, timeout=120)
+    done = subprocess.run(argv, input=scenario, capture_output=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0 and b"/dev/stdin: ok (1 cell)" in done.stdout, done.stderr
 
 

@@ -1469,7 +1469,7 @@ class Expectation(Strict):
     metric: Metric = Field(description="figure to check, as named in results.json")
     max: Optional[Limit] = Field(None, description="upper bound (a duration for latency metrics)")
     min: Optional[Limit] = Field(None, description="lower bound (a duration for latency metrics)")
-    cells: dict[str, Union[MatrixValue, list[MatrixValue]]] = Field(
+    cells: dict[str, Union[MatrixValue, Annotated[list[MatrixValue], Field(json_schema_extra={"minItems": 1})]]] = Field(
         default_factory=dict, description="only in cells whose matrix values match, e.g. {policy: [fifo, rr]}"
     )
 
