@@ -50,6 +50,12 @@ class _NoGuard:
     def forget(self, pid: int) -> None:
         pass
 
+    def watch_cgroup(self, path: str) -> None:
+        pass
+
+    def forget_cgroup(self, path: str) -> None:
+        pass
+
 
 def _listing_only(pids: frozenset[int]) -> tuple[Optional[ProcEvents], str]:
     return None, "listing, for the bench"
