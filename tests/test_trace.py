@@ -547,3 +547,34 @@ def test_guard_removes_only_runner_instances(tmp_path):
     assert (ours / "tracing_on").read_text() == "0", "tracing is turned off first"
     (ours / "tracing_on").unlink()
     assert guard.remove_instance(str(ours)) and not ours.exists()
+
+
+def test_a_migrate_instance_that_cannot_be_made_is_not_left_with_the_guard(tmp_path, monkeypatch):
+    """A failed mkdir of the migrate instance once left its path with the guard, to be removed by it one day."""
+    (tmp_path / "instances").mkdir()
+    (tmp_path / "events" / "sched" / "sched_migrate_task").mkdir(parents=True)
+    monkeypatch.setattr(tracing, "find_tracefs", lambda: tracing.TracefsRoot(str(tmp_path), False))
+    made = os.mkdir
+
+    def mkdir(path: str, *args: object) -> None:
+        if str(path).endswith("-migrate"):
+            raise PermissionError(1, "Operation not permitted", path)
+        made(path, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "mkdir", mkdir)
+
+    class Told:
+        def __init__(self) -> None:
+            self.held: set[str] = set()
+
+        def watch_trace(self, path: str) -> None:
+            self.held.add(path)
+
+        def forget_trace(self, path: str) -> None:
+            self.held.discard(path)
+
+    told = Told()
+    why = tracing.TraceInstances(guard=told)._set_up()  # type: ignore[arg-type]
+    assert isinstance(why, tracing.TraceUnavailable) and "-migrate" in why.reason
+    assert told.held == set(), "every path told to the guard is taken back"
+    assert os.listdir(tmp_path / "instances") == [], "the first instance is removed too"

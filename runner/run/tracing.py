@@ -331,10 +331,10 @@ class TraceInstances:
         try:
             paths.append(_new_instance(root.path, self.guard))
             if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
+                paths.append(paths[0] + "-migrate")  # listed before it exists, so a failure takes it back from the guard too
                 if self.guard is not None:
-                    self.guard.watch_trace(paths[0] + "-migrate")  # before it exists, as _new_instance does
-                os.mkdir(paths[0] + "-migrate")
-                paths.append(paths[0] + "-migrate")
+                    self.guard.watch_trace(paths[-1])  # before it exists, as _new_instance does
+                os.mkdir(paths[-1])
             self._layout = _configure(paths, self.buffer_kb)
         except (OSError, FormatError, ValueError) as error:
             _remove_all(paths, self.guard, [])
