@@ -24,7 +24,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 from runner.run import _probe, kernel, memcg
 from runner.run.kernel import Counters
@@ -32,6 +32,9 @@ from runner.run.procevents import Kind, ProcEvents
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread, Snapshot
 from runner.scenario.model import Policy, ProgramSpec, Sched
 from runner.scenario.plan import Settings, first_rule
+
+if TYPE_CHECKING:
+    from runner.run.guard import Watcher
 
 LIST_EVERY_S = 0.002  # without process events, how often the monitor lists a program's threads (a new thread's wait for its rule)
 COUNT_EVERY_S = 0.05  # how often it reads every thread's counters (what a thread that exits loses at most), and lists them with events
@@ -138,7 +141,7 @@ class ProgramRun:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
         self.pid, self.attached = pid, True
 
-    def launch(self, guard: Any) -> None:
+    def launch(self, guard: Watcher) -> None:
         """Fork it with its settings applied, held before exec; `failure` says why when it cannot start."""
         self.path, self.failure = resolve(self.spec)
         if self.failure:
@@ -199,7 +202,7 @@ class ProgramRun:
             self.status, self.exited_ns = status, time.monotonic_ns()
         return self.status is not None
 
-    def stop(self, guard: Any) -> None:
+    def stop(self, guard: Watcher) -> None:
         """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""
         if not self.pid or self.attached:
             self._close_cgroup(guard)
@@ -219,7 +222,7 @@ class ProgramRun:
         guard.forget(self.pid)
         self._close_cgroup(guard)
 
-    def _hold(self, guard: Any, limit: Optional[int]) -> None:
+    def _hold(self, guard: Watcher, limit: Optional[int]) -> None:
         """Put the program, still at its gate, in a cgroup of its own, which all it starts joins too.
 
         With `limit` (memory_max) a memory cgroup that holds it to that; `memory_note` says why
@@ -242,7 +245,7 @@ class ProgramRun:
         if limit is not None:
             self.memory_limit = self.cgroup.limit()
 
-    def _close_cgroup(self, guard: Any) -> None:
+    def _close_cgroup(self, guard: Watcher) -> None:
         """Its cgroup's peak and OOM kills (memory_max), then the cgroup itself, with anything the program left in it."""
         if self.cgroup is None:
             return

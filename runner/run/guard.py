@@ -30,7 +30,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import IO, Optional
+from typing import IO, Optional, Protocol
 
 from runner.run import memcg
 from runner.run.child import child_env, python_module
@@ -120,6 +120,21 @@ def main() -> int:
             memcg.kill_all(folder)
             memcg.remove(folder)
     return 0
+
+
+class Watcher(Protocol):
+    """What a process starter tells the guard: the process groups and cgroups to kill should the runner die.
+
+    The Guard is the one the runner uses; benches and tests hand in stand-ins.
+    """
+
+    def watch(self, pgid: int) -> None: ...
+
+    def forget(self, pgid: int) -> None: ...
+
+    def watch_cgroup(self, path: str) -> None: ...
+
+    def forget_cgroup(self, path: str) -> None: ...
 
 
 class Guard:

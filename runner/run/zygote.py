@@ -35,9 +35,12 @@ import sys
 import time
 import traceback
 from collections.abc import Sequence
-from typing import IO, Any, Optional
+from typing import IO, TYPE_CHECKING, Any, Optional
 
 from runner.run.child import child_env, python_module
+
+if TYPE_CHECKING:
+    from runner.run.guard import Watcher
 
 _MAX_FDS = 8
 _READY_TIMEOUT_S = 10.0
@@ -93,7 +96,7 @@ class Zygote:
         self.failure = ""  # why it stopped serving, in words
 
     @classmethod
-    def start(cls, guard: Any = None) -> Optional[Zygote]:
+    def start(cls, guard: Optional[Watcher] = None) -> Optional[Zygote]:
         """Start the zygote (it gets ready while the run prepares); None where this kernel has no pidfds."""
         if not hasattr(os, "pidfd_open"):
             return None
@@ -183,7 +186,7 @@ class Zygote:
             self.sock = None
             self.failure = why
 
-    def close(self, guard: Any = None) -> None:
+    def close(self, guard: Optional[Watcher] = None) -> None:
         """End the zygote (its end of the socket reaches end of file) and reap it."""
         if self.sock is not None:
             self.sock.close()
