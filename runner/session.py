@@ -89,7 +89,7 @@ class RunOptions:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
         shaping = _run_shaping(ns) if ns.resume else []
         if recorded := [option for option in shaping if option not in _RECORDED_SINCE]:
-            raise UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(recorded)}")
+            raise _recorded_options_given(recorded)
         in_ci = env.get("CI", "") not in ("", "0", "false")
         dma_latency = None if ns.no_dma_latency else _dma_latency(ns.dma_latency)
         return cls(
@@ -265,6 +265,11 @@ def _new_document(
     )
 
 
+def _recorded_options_given(options: Sequence[str]) -> UsageError:
+    """The refusal of options given with --resume that the run's plan already decides."""
+    return UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(options)}")
+
+
 def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocument:
     """The interrupted run in --resume DIR, checked against the scenario as it is now."""
     assert options.resume
@@ -297,9 +302,7 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     options.shard = Shard.parse(doc.shard) if doc.shard else None
     if plan.trace is not None:  # recorded since this runner: the rest of the run traces, and holds the latency, as its start did
         if options.resume_options:
-            raise UsageError(
-                "runner: --resume DIR finishes DIR's run with the options it recorded; leave out " + ", ".join(options.resume_options)
-            )
+            raise _recorded_options_given(options.resume_options)
         options.trace, options.dma_latency_us = plan.trace, plan.dma_latency_us
     doc.status, doc.finished_at = "running", None
     doc.command = options.command
