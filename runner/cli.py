@@ -396,7 +396,7 @@ def _report_parser() -> argparse.ArgumentParser:
 
 def _cmd_report(argv: list[str]) -> int:
     ns = _report_parser().parse_args(argv)
-    from runner.outdir import writable_file
+    from runner.outdir import REPORT_NAME, writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.markdown import render_run
     from runner.report.publish import comparison_text, write_report
@@ -417,7 +417,7 @@ def _cmd_report(argv: list[str]) -> int:
     if ns.output == "-":
         say(render_run(doc, None, section))
     else:
-        target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, "report.md")
+        target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, REPORT_NAME)
         try:
             path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
         except OSError as exc:

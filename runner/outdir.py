@@ -20,6 +20,7 @@ from runner.errors import UsageError, from_os_error
 from runner.results.files import written_through
 
 LOCK_NAME = ".runner.lock"
+REPORT_NAME = "report.md"  # what a run or a merge writes beside its results
 
 
 @dataclass
@@ -39,7 +40,8 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
     """Create `folder` if needed and hold it exclusively; raise a UsageError (exit 2) naming why not.
 
     A folder that already holds a results.json is refused unless `resume` is set: a new run
-    into it would overwrite or mix with the results of an earlier one.
+    into it would overwrite or mix with the results of an earlier one.  So is one that holds
+    a report.md without results (the user's own, say): the run would replace it.
     """
     folder = os.path.abspath(folder)
     try:
@@ -65,6 +67,12 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
         os.close(fd)
         raise UsageError(
             f"runner: {what} {folder} already holds the results of another run; choose a new folder, or finish that run with --resume"
+        )
+    if not resume and os.path.lexists(os.path.join(folder, REPORT_NAME)):
+        os.close(fd)  # a run writes its report.md after its results.json: this one is not a run's
+        raise UsageError(
+            f"runner: {what} {folder} holds a {REPORT_NAME} of no run (no results.json beside it), which the run would replace; "
+            "choose a new folder"
         )
     return Claim(folder, fd)
 

@@ -322,3 +322,13 @@ def test_a_hog_at_priority_99_obeys_the_threads_rule(write_scenario, tmp_path):
     assert done.code == 2, done.err
     assert "background hog hog asks for RT priority 99" in done.err and "--allow-priority-99" in done.err
     assert not (tmp_path / "r").exists()
+
+
+def test_a_folder_with_a_report_of_no_run_is_refused(tmp_path):
+    """`--out docs` once replaced the user's own docs/report.md with the run's."""
+    (tmp_path / "report.md").write_text("# my notes\n")
+    with pytest.raises(UsageError, match=r"holds a report\.md of no run"):
+        outdir.claim(str(tmp_path))
+    assert (tmp_path / "report.md").read_text() == "# my notes\n"
+    (tmp_path / "results.json").write_text("{}")
+    outdir.claim(str(tmp_path), resume=True).release()  # a run's own report, beside its results: resumed over

@@ -10,6 +10,7 @@ import os
 from typing import Optional
 
 from runner.errors import RunnerError, from_os_error
+from runner.outdir import REPORT_NAME
 from runner.report import github
 from runner.report import markdown as report
 from runner.report.compare import Comparison, Threshold, compare
@@ -23,7 +24,7 @@ STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
 
 def write_report(
-    doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True, pid_width: int = 5, name: str = "report.md"
+    doc: RunDocument, folder: str, comparison: Optional[str] = None, plots: bool = True, pid_width: int = 5, name: str = REPORT_NAME
 ) -> str:
     """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path.
 
