@@ -320,6 +320,46 @@ def test_a_deadlock_ends_with_its_cell_as_an_error_naming_where_each_thread_stoo
     assert c["duration_ns"] < 10_000_000_000, "the deadlock ended with the cell"
 
 
+def test_a_deadlock_late_in_the_run_is_stuck_and_a_stage_waiting_as_ever_is_not(tmp_path):
+    """A deadlock that began at 1.2 s of 2 s once ended `passed`: the rule was half the run blocked."""
+    scenario = {
+        "name": "latedeadlock",
+        "duration": "2s",
+        "resources": {"a": {"kind": "mutex"}, "b": {"kind": "mutex"}, "q": {"kind": "queue"}, "slow": {"kind": "queue"}},
+        "processes": [
+            {
+                "name": "ld",
+                "threads": [
+                    {"name": "producer", "work": {"kind": "phases", "events": [{"timer": {"period": "10ms"}}, {"resume": "q"}]}},
+                    {
+                        "name": "consumer",
+                        "work": {
+                            "kind": "phases",
+                            "events": [{"suspend": "q"}, {"lock": "b"}, {"run": "1ms"}, {"lock": "a"}, {"unlock": "a"}, {"unlock": "b"}],
+                        },
+                    },
+                    {
+                        "name": "maint",
+                        "work": {
+                            "kind": "phases",
+                            "delay": "1200ms",
+                            "loop": 1,
+                            "events": [{"lock": "a"}, {"run": "15ms"}, {"lock": "b"}, {"unlock": "b"}, {"unlock": "a"}],
+                        },
+                    },
+                    {"name": "ticker", "work": {"kind": "phases", "events": [{"timer": {"period": "300ms"}}, {"resume": "slow"}]}},
+                    {"name": "stage", "work": {"kind": "phases", "events": [{"suspend": "slow"}, {"run": "1ms"}]}},
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario, "--duration", "2s")
+    c = done.results["cells"][0]
+    assert c["status"] == "error" and done.code == 4, c["reason"]
+    assert "ld/maint" in c["reason"] and "blocked in `lock b`" in c["reason"] and "blocked in `lock a`" in c["reason"]
+    assert "ld/stage" not in c["reason"], "waiting up to 300 ms for its next release, as it always did"
+
+
 def test_an_rt_app_file_runs_directly(tmp_path):
     done = run_file(tmp_path, os.path.join(REPO, "tests", "rtapp", "example2.json"), "--duration", "500ms")
     t = thread(done.results, "thread0")

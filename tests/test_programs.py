@@ -263,17 +263,42 @@ def test_a_phase_the_kernel_refused_says_so_with_its_reason():
     assert phases[1].degraded == ["policy fifo:40 requested, other applied (Operation not permitted)"]
 
 
-def test_a_thread_blocked_for_half_the_run_at_its_end_is_stuck():
+def test_a_thread_blocked_at_its_end_far_longer_than_ever_before_is_stuck():
     a = scenario().processes[0].threads[1].work
     assert isinstance(a, PhasesWork)
-    slot = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), cur_phase=0, cur_event=1, blocked_since_ns=400_000_000)
+
+    def slot(since: int, longest: int) -> SlotData:
+        return SlotData(
+            1,
+            "done",
+            0,
+            0,
+            0,
+            0,
+            0,
+            (0,) * 4,
+            (0,) * 4,
+            0,
+            0,
+            0,
+            0,
+            (),
+            cur_phase=0,
+            cur_event=1,
+            blocked_since_ns=since,
+            block_max_ns=longest,
+        )
+
     assert (
-        programs.stall(a, slot, 1_000_000_000, 0, "app/b")
-        == "app/b was blocked in `lock m` (phase p0, event 1) for the last 600.00 ms of the run"
+        programs.stall(a, slot(400_000_000, 0), 1_000_000_000, "app/b")
+        == "app/b was blocked in `lock m` (phase p0, event 1) for the last 600.00 ms of the run; it had come out of no block before"
     )
-    assert programs.stall(a, slot, 1_000_000_000, 0, "x") is not None
-    waiting = SlotData(1, "done", 0, 0, 0, 0, 0, (0,) * 4, (0,) * 4, 0, 0, 0, 0, (), cur_event=1, blocked_since_ns=990_000_000)
-    assert programs.stall(a, waiting, 1_000_000_000, 0, "x") is None
+    # A deadlock that began late in the run (780 ms of 2 s, after waits of 10 ms at most) was once `passed`.
+    late = programs.stall(a, slot(1_220_000_000, 10_000_000), 2_000_000_000, "app/b")
+    assert late is not None and late.endswith("for the last 780.00 ms of the run; its longest block before was 10.00 ms")
+    assert programs.stall(a, slot(990_000_000, 0), 1_000_000_000, "x") is None, "10 ms: waiting, not stuck"
+    assert programs.stall(a, slot(500_000_000, 300_000_000), 1_000_000_000, "x") is None, "as long as it always waited"
+    assert programs.stall(a, slot(300_000_000, 300_000_000), 1_000_000_000, "x") is not None, "more than twice its longest"
 
 
 def test_a_deadline_refusal_is_explained_with_the_cells_bandwidth_and_the_kernels_limit():

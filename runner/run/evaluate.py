@@ -245,7 +245,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
             fig = fig.model_copy(update=extra)
             degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
-            stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, raw.timeline.start_ns, verdict_label(p, raw.processes))
+            stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, verdict_label(p, raw.processes))
             if stuck and not raw.interrupted:
                 stalls.append(stuck)
         result.threads.append(

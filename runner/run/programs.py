@@ -37,7 +37,8 @@ _FIGURE_OF = {
     EventKind.BARRIER: "barrier_wait_ns",
     EventKind.SUSPEND: "resume_latency_ns",
 }
-STALL_MIN_NS = 100_000_000  # blocked at least this long at the end of the run, and for half of it: stuck, not just waiting
+STALL_MIN_NS = 100_000_000  # blocked at least this long at the end of the run, ...
+STALL_FACTOR = 2  # ... and more than this many times its longest block before: stuck, not just waiting
 
 
 def _event_result(
@@ -154,18 +155,30 @@ def _phase_degraded(requested: Optional[Settings], applied: Optional[Settings], 
     return out
 
 
-def stall(work: PhasesWork, slot: SlotData, end_ns: Optional[int], start_ns: Optional[int], label: str) -> Optional[str]:
-    """A thread still blocked at the end of the run, for half of it or more: a deadlock or a release that never came."""
-    if not slot.blocked_since_ns or end_ns is None or start_ns is None:
+def stall(work: PhasesWork, slot: SlotData, end_ns: Optional[int], label: str) -> Optional[str]:
+    """A thread still blocked at the end of the run, stuck rather than waiting: a deadlock or a release that never came.
+
+    Stuck: blocked for STALL_MIN_NS or more, and more than STALL_FACTOR times the longest block
+    it came out of during the run (or it came out of none).  A thread that waits as long as it
+    always did (a stage between its producer's releases) is waiting; one that had waited 10 ms
+    at most and has now waited 780 ms is not, however late in the run its block began.
+    """
+    if not slot.blocked_since_ns or end_ns is None:
         return None
     blocked = end_ns - slot.blocked_since_ns
-    if blocked < max(STALL_MIN_NS, (end_ns - start_ns) // 2):
+    if blocked < STALL_MIN_NS or blocked <= STALL_FACTOR * slot.block_max_ns:
         return None
     events = [e for _, e in work.events()]
     where = events[slot.cur_event].label() if 0 <= slot.cur_event < len(events) else "an event"
     phase = work.phase_names()[slot.cur_phase] if 0 <= slot.cur_phase < len(work.phases) else "?"
+    before = (
+        f"its longest block before was {units.human_duration(slot.block_max_ns)}"
+        if slot.block_max_ns
+        else "it had come out of no block before"
+    )
     return (
-        f"{label} was blocked in `{where}` (phase {phase}, event {slot.cur_event}) for the last {units.human_duration(blocked)} of the run"
+        f"{label} was blocked in `{where}` (phase {phase}, event {slot.cur_event}) for the last {units.human_duration(blocked)} "
+        f"of the run; {before}"
     )
 
 
