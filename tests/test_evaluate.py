@@ -141,3 +141,24 @@ def test_a_scenarios_own_bound_on_misses_replaces_the_implicit_verdict_and_the_w
     assert len(result.warnings) == 1 and "could not keep up: missed 7 of 10 releases" in result.warnings[0]
     strict = scenario.model_copy(update={"expect": [*cell.scenario.expect, own.model_copy(update={"max": 6})]})
     assert evaluate(cell, strict, raw, False).status is Status.FAILED
+
+
+def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenario_bounds_them():
+    """A periodic phases thread starved before its timer phase (no release, so none missed) once passed."""
+    from runner.scenario.model import PhasesWork
+
+    cell, raw = _raw(10)
+    main = raw.threads[0]
+    work = PhasesWork.model_validate(
+        {"kind": "phases", "phases": [{"name": "init", "loop": 1, "events": [{"run": "5s"}]}, {"events": [{"timer": {"period": "10ms"}}]}]}
+    )
+    starved = RawThread(
+        main.planned.__class__(**{**main.planned.__dict__, "work": work}), 99, slot_of([], tid=100), FIFO80, ApplyErrors(), True
+    )
+    raw = RawCell("now", (starved, *raw.threads[1:]), 1, raw.timeline)
+    result = evaluate(cell, cell.scenario, raw, False)
+    implicit = [(v.metric, v.limit, v.measured, v.passed) for v in result.expectations if v.line is None]
+    assert result.status is Status.FAILED and implicit == [("callbacks", ">= 1", 0, False)]
+    own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "callbacks", "min": 0})
+    scenario = cell.scenario.model_copy(update={"expect": [own]})
+    assert [v for v in evaluate(cell, scenario, raw, False).expectations if v.line is None] == []

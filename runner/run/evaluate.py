@@ -145,34 +145,54 @@ def warnings(threads: list[ThreadResult], processes: int, failed: frozenset[str]
 
 
 KEEPS_UP_METRICS = ("missed_releases", "overruns")  # figures of the registry: a scenario's own bound on them replaces the implicit one
+RAN_METRIC = "callbacks"  # ... and on this one, the implicit verdict that a thread with callbacks ran one
 
 
 def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: list[Expectation], raw: RawCell) -> list[Verdict]:
-    """A failed verdict for each periodic thread that missed releases or overran: a cell never passes on a thread that could not keep up.
+    """A failed verdict for each thread that could not keep up: a cell never passes on one.
 
+    A periodic thread that missed releases or overran, and a thread with callbacks (periodic,
+    or released by resumes) that ran none: starved, or stuck before it reached its timer.
     The verdict is implicit (no line in the scenario); an expectation of the scenario's own
-    on `missed_releases` or `overruns` naming the thread in this cell replaces it, so a
-    scenario that accepts some misses says how many.
+    on `missed_releases` or `overruns` (on `callbacks`, for one that ran none) naming the
+    thread in this cell replaces it, so a scenario that accepts some misses says how many.
     """
-    own = {
-        id(t) for exp in expectations if exp.metric.value in KEEPS_UP_METRICS for t in match_threads([p for p, _ in measured], exp.thread)
-    }
+    planned_threads = [p for p, _ in measured]
+
+    def bounded(metrics: tuple[str, ...]) -> set[int]:
+        return {id(t) for exp in expectations if exp.metric.value in metrics for t in match_threads(planned_threads, exp.thread)}
+
+    own, own_ran = bounded(KEEPS_UP_METRICS), bounded((RAN_METRIC,))
     out = []
     for planned, fig in measured:
-        if not is_periodic(planned.work) or id(planned) in own or not (fig.missed_releases or fig.overruns):
-            continue
-        metric = KEEPS_UP_METRICS[0] if fig.missed_releases else KEEPS_UP_METRICS[1]
-        out.append(
-            Verdict(
-                thread=verdict_label(planned, raw.processes),
-                metric=metric,
-                limit="<= 0",
-                measured=fig.missed_releases or fig.overruns,
-                passed=False,
-                note=f"could not keep up: {behind(fig)}; implicit (every release served) unless the scenario bounds "
-                "missed_releases or overruns for this thread itself",
+        label = verdict_label(planned, raw.processes)
+        if is_periodic(planned.work) and (fig.missed_releases or fig.overruns):
+            if id(planned) in own:
+                continue
+            metric = KEEPS_UP_METRICS[0] if fig.missed_releases else KEEPS_UP_METRICS[1]
+            out.append(
+                Verdict(
+                    thread=label,
+                    metric=metric,
+                    limit="<= 0",
+                    measured=fig.missed_releases or fig.overruns,
+                    passed=False,
+                    note=f"could not keep up: {behind(fig)}; implicit (every release served) unless the scenario bounds "
+                    "missed_releases or overruns for this thread itself",
+                )
             )
-        )
+        elif has_callbacks(planned.work) and not fig.callbacks and id(planned) not in own_ran and not raw.interrupted:
+            out.append(
+                Verdict(
+                    thread=label,
+                    metric=RAN_METRIC,
+                    limit=">= 1",
+                    measured=0,
+                    passed=False,
+                    note="could not keep up: not one callback ran (starved, or it never reached its timer or a resume); "
+                    "implicit unless the scenario bounds callbacks for this thread itself",
+                )
+            )
     return out
 
 
