@@ -123,7 +123,7 @@ class Figure:
     worse: Worse = Worse.HIGHER
     signed: bool = False  # may be negative (slack of a callback that overran)
     overload: bool = False  # tells whether a thread kept up: its column is shown when some thread did not
-    needs_period: bool = False  # measured against a period's releases: a thread released by resumes has no such figure
+    needs_period: bool = False  # measured against a period's next release: a thread released by resumes has no such figure
 
     @property
     def is_duration(self) -> bool:
@@ -190,7 +190,7 @@ class ThreadFigures(_Figures):
 
     callbacks: int
     missed_releases: int
-    releases: int = 0  # releases due in the cell (callbacks + missed), for periodic threads
+    releases: int = 0  # releases due in the cell (callbacks + missed), for periodic threads and stages released by resumes
     overruns: int = 0  # callbacks that ended after their next release
     involuntary: Involuntary
     voluntary: Voluntary
@@ -233,7 +233,7 @@ _LATENCY_COLUMN = {"p50": "lat p50", "p99": "p99", "max": "max"}
 
 REGISTRY: tuple[Figure, ...] = (
     Figure("callbacks", "callbacks run", Unit.COUNT, Scope.CALLBACKS, ("callbacks",), column="callbacks", worse=Worse.LOWER),
-    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",), worse=Worse.LOWER, needs_period=True),
+    Figure("releases", "releases due in the cell", Unit.COUNT, Scope.CALLBACKS, ("releases",), worse=Worse.LOWER),
     Figure(
         "missed_releases",
         "releases missed (no callback ran for them)",
@@ -243,7 +243,6 @@ REGISTRY: tuple[Figure, ...] = (
         Threshold(absolute=0),
         column="missed",
         overload=True,
-        needs_period=True,
     ),
     Figure(
         "overruns",

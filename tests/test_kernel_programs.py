@@ -360,6 +360,35 @@ def test_a_deadlock_late_in_the_run_is_stuck_and_a_stage_waiting_as_ever_is_not(
     assert "ld/stage" not in c["reason"], "waiting up to 300 ms for its next release, as it always did"
 
 
+@pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")
+def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
+    """A consumer 5 ms a resume behind a 2 ms producer once passed, its 583 dropped resumes a warning only."""
+    scenario = {
+        "name": "slowconsumer",
+        "resources": {"q": {"kind": "queue"}},
+        "processes": [
+            {
+                "name": "sc",
+                "threads": [
+                    {
+                        "name": "producer",
+                        "sched": "fifo:40",
+                        "work": {"kind": "phases", "events": [{"timer": {"period": "2ms"}}, {"resume": "q"}]},
+                    },
+                    {"name": "consumer", "sched": "fifo:30", "work": {"kind": "phases", "events": [{"suspend": "q"}, {"run": "5ms"}]}},
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    c = done.results["cells"][0]
+    consumer = thread(done.results, "consumer")["figures"]
+    assert c["status"] == "failed" and done.code == 1, c["reason"]
+    assert consumer["missed_releases"] > 100 and consumer["releases"] == consumer["callbacks"] + consumer["missed_releases"]
+    failed = [(v["thread"], v["metric"]) for v in c["expectations"] if not v["passed"]]
+    assert failed == [("sc/consumer #2", "missed_releases")]
+
+
 def test_an_rt_app_file_runs_directly(tmp_path):
     done = run_file(tmp_path, os.path.join(REPO, "tests", "rtapp", "example2.json"), "--duration", "500ms")
     t = thread(done.results, "thread0")

@@ -56,7 +56,7 @@ def threads_shown(cell: CellResult, most: int) -> Shown:
     ranked: list[ThreadResult] = []
     ranked += [t for t in threads if t.label(True) in failed or t.label(False) in failed]
     ranked += [t for t in threads if t.degraded]
-    behind = [t for t in threads if t.periodic and not fg.kept_up(t.figures)]
+    behind = [t for t in threads if t.has_callbacks and not fg.kept_up(t.figures)]
     ranked += sorted(behind, key=lambda t: -(t.figures.missed_releases or 0))
     ranked += sorted((t for t in threads if t.has_callbacks), key=lambda t: -_p99(t))
     ranked += [t for t in threads if t.index == 0]

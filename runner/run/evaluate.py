@@ -134,7 +134,7 @@ def warnings(threads: list[ThreadResult], processes: int, failed: frozenset[str]
     for t in threads:
         f = t.figures
         name = t.label(processes > 1)
-        if t.periodic and (f.missed_releases or f.overruns) and name not in failed:
+        if (t.periodic or t.released) and (f.missed_releases or f.overruns) and name not in failed:
             out.append(f"{name} could not keep up: {behind(f)}")
         if t.samples_lost:
             out.append(
@@ -151,7 +151,8 @@ RAN_METRIC = "callbacks"  # ... and on this one, the implicit verdict that a thr
 def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: list[Expectation], raw: RawCell) -> list[Verdict]:
     """A failed verdict for each thread that could not keep up: a cell never passes on one.
 
-    A periodic thread that missed releases or overran, and a thread with callbacks (periodic,
+    A periodic thread that missed releases or overran, a stage released by resumes whose queue
+    dropped some (it was QUEUE_DEPTH activations behind), and a thread with callbacks (periodic,
     or released by resumes) that ran none: starved, or stuck before it reached its timer.
     The verdict is implicit (no line in the scenario); an expectation of the scenario's own
     on `missed_releases` or `overruns` (on `callbacks`, for one that ran none) naming the
@@ -166,7 +167,7 @@ def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: 
     out = []
     for planned, fig in measured:
         label = verdict_label(planned, raw.processes)
-        if is_periodic(planned.work) and (fig.missed_releases or fig.overruns):
+        if (is_periodic(planned.work) or is_released(planned.work)) and (fig.missed_releases or fig.overruns):
             if id(planned) in own:
                 continue
             metric = KEEPS_UP_METRICS[0] if fig.missed_releases else KEEPS_UP_METRICS[1]
@@ -248,6 +249,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     names = {gid: verdict_label(t.planned, raw.processes) for gid, t in enumerate(raw.threads)}
     admission = programs.deadline_admission(scenario, raw.rt_limit_us[0], raw.rt_limit_us[1], len(raw.online_cpus))
     stalls: list[str] = []
+    queue_drops = {r.name: r.dropped for r in raw.resources if r.dropped}
     spawned: dict[str, bool] = {}  # spawned thread, as `process/name`: whether any instance ran
     for t in raw.threads:
         p = t.planned
@@ -264,6 +266,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if isinstance(p.work, PhasesWork):
             events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
             fig = fig.model_copy(update=extra)
+            if is_released(p.work) and (dropped := sum(queue_drops.get(q, 0) for q in p.work.suspends_on())):
+                fig = fig.model_copy(update={"missed_releases": dropped, "releases": fig.callbacks + dropped})  # no activation served them
             degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
             stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, verdict_label(p, raw.processes))
             if stuck and not raw.interrupted:
@@ -339,8 +343,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     result.warnings = (
         warnings(result.threads, raw.processes, frozenset(v.thread for v in implicit))
         + [
-            f"queue {r.name}: {r.dropped:,} resumes were dropped because the thread suspending on it was "
-            f"{QUEUE_DEPTH} activations behind; chain figures cover the activations that ran"
+            f"queue {r.name}: {r.dropped:,} resumes were dropped, each when {QUEUE_DEPTH} were queued already that no "
+            "thread suspending on it had taken; chain figures cover the activations that ran"
             for r in raw.resources
             if r.dropped
         ]

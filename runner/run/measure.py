@@ -32,7 +32,8 @@ def thread_figures(
     callback served is missed, the ones after the last callback too.  Latency counts every
     release answered, those a late callback skipped included (see README, "Latency").  A thread
     `released` by resumes (not `periodic`) has callbacks and their figures, but no releases due,
-    misses, overruns or slack: no period says when its next release is.
+    overruns or slack: no period says when its next release is (its misses are the resumes its
+    queue dropped, which the caller adds).
     """
     st = slot.stats
     callbacks = slot.loops if periodic or released else 0

@@ -117,7 +117,7 @@ class ResourceState:
     kind: str
     acquisitions: int = 0  # mutex: locks taken
     contended: int = 0  # mutex: locks that had to wait
-    dropped: int = 0  # queue: resumes lost because the consumer was QDEPTH behind
+    dropped: int = 0  # queue: resumes lost because its consumers were QDEPTH behind
 
 
 @dataclass(frozen=True)

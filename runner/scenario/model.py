@@ -845,6 +845,10 @@ class PhasesWork(Strict):
         """Every event with the index of its phase, in program order."""
         return [(k, e) for k, p in enumerate(self.phases) for e in p.events]
 
+    def suspends_on(self) -> set[str]:
+        """The queues the thread suspends on: a resume of one releases its next activation."""
+        return {e.resource for _, e in self.events() if e.event is EventKind.SUSPEND and e.resource}
+
     def buffer_bytes(self) -> int:
         """The buffer the native core gives the thread for its mem and iorun events, resident all run long."""
         sizes = [(e.event, e.size or 0) for _, e in self.events()]

@@ -80,6 +80,9 @@ def reference_problems(processes: list[AnyProcess], resources: dict[str, Resourc
             out.append(
                 (("resources", name), f"threads suspend on queue {name!r} but no thread resumes it; they would wait for the whole run")
             )
+    for name in sorted(used.get(EventKind.RESUME, set()) - used.get(EventKind.SUSPEND, set())):
+        if name in resources and resources[name].kind is ResourceKind.QUEUE:
+            out.append((("resources", name), f"threads resume queue {name!r} but no thread suspends on it; every resume would be dropped"))
     waited = used.get(EventKind.WAIT, set()) & {n for n, r in resources.items() if r.kind is ResourceKind.COND}
     for name in sorted(waited - used.get(EventKind.SIGNAL, set()) - used.get(EventKind.BROADCAST, set())):
         out.append((("resources", name), f"threads wait on cond {name!r} but no thread signals or broadcasts it"))
