@@ -97,6 +97,8 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
             if stop_requested():
                 interrupted = True
                 break
+            for r in runs:
+                r.watch_state()
             if not table and time.monotonic_ns() >= began + duration_ns // 2:
                 table = [row for r in runs if not r.poll() for row in kernel.thread_rows(r.pid)]
             time.sleep(min(0.05, max(0.0, (end - time.monotonic_ns()) / 1e9)))

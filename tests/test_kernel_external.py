@@ -10,6 +10,7 @@ involuntary switches per second against none), never exact timings.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import time
 
@@ -154,6 +155,35 @@ def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_pat
     ctl = thread(results, "ctl_loop")
     assert ctl["figures"]["voluntary"]["per_second"] > 500  # a 1 ms loop sleeps about 1000 times a second
     assert ctl["tid"] != pid and thread(results, NAME)["tid"] == pid
+
+
+def test_watch_of_a_real_time_process_changes_and_checks_nothing_and_a_stopped_one_is_an_error(tmp_path):
+    """`runner watch` of a FIFO 30 process was an error (`policy other requested`); of a stopped one, `passed`."""
+    proc = subprocess.Popen(["chrt", "-f", "30", "sleep", "30"], start_new_session=True)
+    try:
+        time.sleep(0.2)
+        out = tmp_path / "rt"
+        done = finish(
+            start_runner("watch", str(proc.pid), "--duration", "500ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
+        )
+        assert done.code == 0 and done.results["cells"][0]["status"] == "passed", done.results["cells"][0]["reason"]
+        os.kill(proc.pid, signal.SIGSTOP)
+        out = tmp_path / "stopped"
+        done = finish(
+            start_runner("watch", str(proc.pid), "--duration", "500ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
+        )
+        cell = done.results["cells"][0]
+        assert done.code == 4 and cell["status"] == "error" and "was stopped (SIGSTOP or a debugger)" in cell["reason"]
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_program_that_stops_itself_is_an_error_that_says_so(tmp_path):
+    """A program that SIGSTOPped itself 0.3 s in passed its cell (it was SIGKILLed at the end, a warning)."""
+    path = _scenario(tmp_path, {"command": ["sh", "-c", "sleep 0.3; kill -STOP $$; echo resumed"], "grace": "200ms"})
+    cell = _run(tmp_path, path).results["cells"][0]
+    assert cell["status"] == "error" and "program talker" in cell["reason"] and "was stopped (SIGSTOP or a debugger)" in cell["reason"]
 
 
 def _table_rows(cell: dict) -> list[dict]:

@@ -139,7 +139,7 @@ def test_only_what_the_runner_asked_for_is_checked_against_the_kernel():
         ("end", None, signal.SIGSEGV, "", "was killed by SIGSEGV 0.50s into the cell"),
         ("exit", 3, None, "", "exited with code 3 0.50s into the cell; its last output: talker.stderr: boom"),
         ("exit", 0, None, "", None),
-        ("exit", None, signal.SIGTERM, "SIGTERM", "did not exit within the cell's 1s and was stopped with SIGTERM"),
+        ("exit", None, signal.SIGTERM, "SIGTERM", "did not exit within the cell's 1.00 s and was stopped with SIGTERM"),
         ("end", None, signal.SIGTERM, "SIGTERM", None),
     ],
 )
@@ -247,3 +247,38 @@ def test_an_oom_kill_of_something_the_program_started_is_a_warning_and_an_unappl
     assert out.failures == [] and "program talker: the OOM killer ended 2 of its tasks at its memory_max of 32MiB" in out.warnings
     raw = _program(spec, (_thread(500, 0, "rtprog", FIFO80),), memory_note="cgroup v1: Permission denied")
     assert "memory_max 32MiB not applied: cgroup v1: Permission denied" in outcome(raw, T0, T0 + SECOND, False, degradation).result.degraded
+
+
+def test_a_program_that_sets_its_own_policy_as_it_starts_is_not_degraded_and_a_watched_one_is_not_checked():
+    """A program that made itself FIFO 50 before the first look was an error (`policy other requested`), one that
+    did it 0.5 s later passed; and `runner watch` of any RT process was an error."""
+    mine = Settings(Policy.FIFO, 50, 0, None)
+    spec = ProgramSpec.model_validate({"name": "rtspin", "command": ["rtspin"]})
+    out = outcome(_program(spec, (_thread(500, 0, "rtspin", mine),)), T0, T0 + SECOND, False, degradation)
+    assert [t.degraded for _, t in out.threads] == [[]] and out.result.degraded == [] and out.warnings == []
+    watched = _program(spec, (_thread(500, 0, "rtspin", mine),), attached=True)
+    assert [t.degraded for _, t in outcome(watched, T0, T0 + SECOND, False, degradation).threads] == [[]]
+    # Asked for FIFO 80 (the kernel took it before exec) and then changed by the program: words, not an error.
+    changed = outcome(_program(_spec(), (_thread(500, 0, "rtprog", mine),)), T0, T0 + SECOND, False, degradation)
+    assert changed.failures == [] and [t.degraded for _, t in changed.threads] == [[]]
+    assert any("changed the settings the runner gave it before exec" in w and "fifo:80 requested" in w for w in changed.warnings)
+
+
+def test_a_rule_that_matched_the_main_thread_is_checked_against_the_rule():
+    """`match: '*'` at fifo:5 was checked against the process's settings: an error when the rule worked."""
+    spec = ProgramSpec.model_validate({"name": "star", "command": ["sleep", "10"], "threads": [{"match": "*", "sched": "fifo:5"}]})
+    worked = _program(spec, (_thread(500, 0, "sleep", Settings(Policy.FIFO, 5, 0, None), rule=0),))
+    assert [t.degraded for _, t in outcome(worked, T0, T0 + SECOND, False, degradation).threads] == [[]]
+    refused = _program(spec, (_thread(500, 0, "sleep", OTHER, rule=0, rule_errors=ApplyErrors(sched=1)),))
+    assert [t.degraded for _, t in outcome(refused, T0, T0 + SECOND, False, degradation).threads] == [
+        ["policy fifo:5 requested, other applied (Operation not permitted)"]
+    ]
+
+
+def test_a_program_seen_stopped_is_an_error_that_says_when():
+    raw = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), halted_ns=T0 + SECOND // 4, exit_signal=signal.SIGKILL, stopped="SIGKILL")
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert out.failures == [
+        "program talker (pid 500) was stopped (SIGSTOP or a debugger) 0.25s into the cell; its threads could not run while it was"
+    ]
+    assert outcome(raw, T0, T0 + SECOND, True, degradation).failures == [], "interrupted: the user's stop says it"

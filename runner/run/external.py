@@ -136,6 +136,7 @@ class ProgramRun:
         self.memory_limit: Optional[int] = None  # the limit as read back from the cgroup
         self.memory_peak: Optional[int] = None
         self.oom_kills: Optional[int] = None
+        self.halted_ns: Optional[int] = None  # when it was first seen stopped (SIGSTOP, a debugger)
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
@@ -201,6 +202,11 @@ class ProgramRun:
         if pid:
             self.status, self.exited_ns = status, time.monotonic_ns()
         return self.status is not None
+
+    def watch_state(self) -> None:
+        """Note when it is first seen stopped (state T: SIGSTOP, a debugger): its threads cannot run while it is."""
+        if self.halted_ns is None and self.pid and not self.poll() and kernel.process_state(self.pid) in ("T", "t"):
+            self.halted_ns = time.monotonic_ns()
 
     def stop(self, guard: Watcher) -> None:
         """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""
@@ -287,6 +293,7 @@ class ProgramRun:
             self.memory_peak,
             self.oom_kills,
             self.memory_note,
+            self.halted_ns,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:

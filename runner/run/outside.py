@@ -105,7 +105,11 @@ def outcome(
     failures: list[str] = []
     warnings: list[str] = []
     main = next((t for t in raw.threads if t.index == 0), None)
-    degraded = degradation(main_wanted, main.history[0].settings if main and main.history else None, raw.start_errors) if main else []
+    main_first = main.history[0].settings if main and main.history else None
+    # The runner applies a program's settings before exec, and the kernel's errno says whether each took: only
+    # a refusal is a degradation.  What the program then sets itself (at once or later) is its own doing, in its history.
+    refused = main is not None and not raw.attached and bool(raw.start_errors.failed())
+    degraded = degradation(main_wanted, main_first, raw.start_errors) if refused else []
     at = (lambda ns: f"{max(0, ns - t0) / 1e9:.2f}s into the cell") if t0 is not None else (lambda ns: "before the cell started")
     exited_by_itself = raw.exited_ns is not None and not raw.stopped
     how = ""
@@ -135,9 +139,23 @@ def outcome(
             failures.append(f"program {spec.name} {how} {at(raw.exited_ns)}{last}")
     elif spec.until is Until.EXIT and raw.stopped:
         failures.append(
-            f"program {spec.name} did not exit within the cell's {units.format_duration(end_ns - t0 if t0 else 0)} "
+            f"program {spec.name} did not exit within the cell's {units.human_duration(end_ns - t0 if t0 else 0)} "
             f"and was stopped with {raw.stopped}{last}"
         )
+    if raw.halted_ns is not None and not interrupted:
+        what = "process" if raw.attached else "program"
+        failures.append(
+            f"{what} {spec.name} (pid {raw.pid}) was stopped (SIGSTOP or a debugger) {at(raw.halted_ns)}; "
+            "its threads could not run while it was"
+        )
+    own = spec.sched is not None or spec.cpus is not None
+    if own and main_first is not None and not refused and not raw.attached and not raw.failure:
+        changed = degradation(main_wanted, main_first, ApplyErrors())
+        if changed:
+            warnings.append(
+                f"program {spec.name} changed the settings the runner gave it before exec, as it started: {'; '.join(changed)} "
+                "(its history says when)"
+            )
     if raw.oom_kills and not oom:
         warnings.append(
             f"program {spec.name}: the OOM killer ended {raw.oom_kills} of its tasks at its memory_max of "
@@ -171,13 +189,12 @@ def outcome(
     threads = []
     for t in raw.threads:
         rule = spec.threads[t.rule] if t.rule is not None else None
-        if t.index == 0:
-            wanted, errors = main_wanted, raw.start_errors
-        elif rule is not None:
-            wanted, errors = rule_settings(spec, rule, start), t.rule_errors
+        if rule is not None:  # the rule's settings, the main thread's too when a rule matched it
+            wanted, errors, checked = rule_settings(spec, rule, start), t.rule_errors, True
+        elif t.index == 0:
+            wanted, errors, checked = main_wanted, raw.start_errors, refused
         else:
-            wanted, errors = others_wanted, ApplyErrors()
-        checked = t.index == 0 or rule is not None  # only where the runner asked for something
+            wanted, errors, checked = others_wanted, ApplyErrors(), False  # only where the runner asked for something
         first = next((s.settings for s in t.history if s.why == ("rule" if rule is not None else "appeared")), None)
         thread_degraded = degradation(wanted, first, errors) if checked and first is not None else []
         planned = PlannedThread(spec.name, 0, ordinal[t.tid], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, ORIGIN)

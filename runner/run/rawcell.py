@@ -176,6 +176,7 @@ class RawProgram:
     memory_peak: Optional[int] = None  # the most its cgroup was charged with
     oom_kills: Optional[int] = None  # its tasks the OOM killer ended
     memory_note: str = ""  # why memory_max could not be applied
+    halted_ns: Optional[int] = None  # when it was first seen stopped (state T: SIGSTOP, a debugger), if it was
 
 
 @dataclass(frozen=True)

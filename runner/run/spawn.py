@@ -848,6 +848,8 @@ class _CellRun:
             if code is not None and label not in self.incidents:
                 how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
                 self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
+        for p in self.programs:
+            p.watch_state()
         for w in self.workers + self.hogs:
             assert w.popen is not None
             if w.label not in self.incidents and kernel.process_state(w.pid) in ("T", "t"):
