@@ -179,6 +179,16 @@ def test_watch_of_a_real_time_process_changes_and_checks_nothing_and_a_stopped_o
         proc.wait()
 
 
+def test_a_grace_longer_than_the_runners_own_is_given_in_full_before_sigkill(tmp_path, program):
+    """With `grace: 8s` the watchdog fired at about 3 s: an error, `overran its deadline`, not the grace's SIGKILL."""
+    path = _scenario(tmp_path, {"command": [program, "--ignore-term"], "grace": "3500ms"})
+    started = time.monotonic()
+    cell = _run(tmp_path, path, "--duration", "500ms").results["cells"][0]
+    assert cell["status"] == "passed", cell["reason"]
+    assert cell["programs"][0]["stopped"] == "SIGKILL" and any("within 3.5s of SIGTERM" in w for w in cell["warnings"])
+    assert time.monotonic() - started > 3.5
+
+
 def test_a_program_that_stops_itself_is_an_error_that_says_so(tmp_path):
     """A program that SIGSTOPped itself 0.3 s in passed its cell (it was SIGKILLed at the end, a warning)."""
     path = _scenario(tmp_path, {"command": ["sh", "-c", "sleep 0.3; kill -STOP $$; echo resumed"], "grace": "200ms"})

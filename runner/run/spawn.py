@@ -744,7 +744,9 @@ class _CellRun:
         self.t0, self.t_end = t0, t_end
         longest = max((p for t in self.planned for p in t.periods), default=0)
         grace = int(max(STOP_GRACE_S * 1e9, 2 * longest))
-        self.watchdog.arm(t_end + grace + int(1e9), pids)
+        # The programs are stopped one after another, each given its own grace between SIGTERM and SIGKILL.
+        stopping = sum(p.spec.grace for p in self.programs)
+        self.watchdog.arm(t_end + grace + stopping + int(1e9), pids)
         for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
             w.send(f"go {t0} {t_end}")
             w.seen = [0] * w.nslots
