@@ -52,13 +52,15 @@ def resolve_targets(targets: list[str]) -> list[int]:
     pids: list[int] = []
     for target in targets:
         if target.isdecimal():
-            if kernel.process_state(int(target)) in (None, "Z", "X"):
+            if not kernel.process_alive(int(target)):
                 raise UsageError(f"runner watch: no live process has PID {target}")
             found = [int(target)]
         else:
             found = kernel.find_pids(target)
             if not found:
                 raise UsageError(f"runner watch: no live process is named {target!r} (its COMMAND, as ps -C selects it)")
+        if found == [os.getpid()]:
+            raise UsageError(f"runner watch: {target} is this runner itself; name the processes to watch")
         pids += [p for p in found if p not in pids and p != os.getpid()]
     return pids
 

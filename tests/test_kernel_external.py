@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 
 import pytest
@@ -187,6 +188,26 @@ def test_a_grace_longer_than_the_runners_own_is_given_in_full_before_sigkill(tmp
     assert cell["status"] == "passed", cell["reason"]
     assert cell["programs"][0]["stopped"] == "SIGKILL" and any("within 3.5s of SIGTERM" in w for w in cell["warnings"])
     assert time.monotonic() - started > 3.5
+
+
+def test_watch_follows_a_process_whose_main_thread_has_exited(tmp_path):
+    """pthread_exit in main leaves the leader a zombie while its other threads run: watch refused such a process."""
+    code = "import threading, ctypes, time; threading.Thread(target=time.sleep, args=(20,)).start(); ctypes.CDLL(None).pthread_exit(None)"
+    proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    try:
+        until = time.monotonic() + 5
+        while kernel.process_state(proc.pid) != "Z" and time.monotonic() < until:
+            time.sleep(0.02)
+        assert kernel.process_state(proc.pid) == "Z" and kernel.process_alive(proc.pid)
+        out = tmp_path / "w"
+        done = finish(
+            start_runner("watch", str(proc.pid), "--duration", "300ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
+        )
+        assert done.code == 0, done.err
+    finally:
+        proc.kill()
+        proc.wait()
+    assert not kernel.process_alive(proc.pid)
 
 
 def test_a_program_that_stops_itself_is_an_error_that_says_so(tmp_path):

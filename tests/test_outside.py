@@ -208,6 +208,8 @@ def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
         resolve_targets(["no-such-proc-xyz"])
     with pytest.raises(UsageError, match="no live process has PID 999999999"):
         resolve_targets(["999999999"])
+    with pytest.raises(UsageError, match="is this runner itself"):  # it once watched nothing and passed
+        resolve_targets([str(os.getpid())])
 
 
 def test_how_the_threads_were_found_is_kept_and_the_report_says_when_it_was_the_slower_listing():

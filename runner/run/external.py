@@ -195,7 +195,7 @@ class ProgramRun:
         if self.status is not None or not self.pid:
             return True
         if self.attached:
-            if self.exited_ns is None and kernel.process_state(self.pid) in (None, "Z", "X"):
+            if self.exited_ns is None and not kernel.process_alive(self.pid):
                 self.exited_ns = time.monotonic_ns()
             return self.exited_ns is not None
         pid, status = os.waitpid(self.pid, os.WNOHANG)

@@ -120,12 +120,13 @@ def thread_rows(pid: int) -> list[ThreadRow]:
 
 
 def find_pids(name: str) -> list[int]:
-    """Live PIDs whose COMMAND (comm) is `name`, as `ps -C name` selects them; zombies are dead, so left out."""
+    """Live PIDs whose COMMAND (comm) is `name`, as `ps -C name` selects them; zombies are dead, so left out (not a
+    process whose main thread alone has exited)."""
     out = []
     for entry in os.listdir("/proc"):
         if entry.isdigit():
             try:
-                if _read(f"/proc/{entry}/comm").rstrip("\n") == name and not _zombie(entry):
+                if _read(f"/proc/{entry}/comm").rstrip("\n") == name and process_alive(int(entry)):
                     out.append(int(entry))
             except OSError:
                 continue
@@ -139,6 +140,27 @@ def process_state(pid: int) -> Optional[str]:
     except OSError:
         return None
     return stat[stat.rfind(")") + 2 :][:1] or None
+
+
+def process_alive(pid: int) -> bool:
+    """Whether the process has a thread that lives: its main thread, or another once the main one has exited
+    (pthread_exit in main leaves the leader a zombie while the other threads run on)."""
+    state = process_state(pid)
+    if state is None or state == "X":
+        return False
+    if state != "Z":
+        return True
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return False
+    for tid in tasks:
+        try:
+            if not _zombie(f"{pid}/task/{tid}"):
+                return True
+        except OSError:
+            continue
+    return False
 
 
 def _zombie(pid: str) -> bool:
