@@ -118,15 +118,22 @@ def deadline_problems(processes: list[AnyProcess]) -> list[tuple[Path, str]]:
         "affinity otherwise); remove cpus, or run it in an exclusive cpuset"
     )
 
-    def check(path: Path, sched: Sched | None, cpus: object) -> None:
-        if sched is not None and sched.policy is Policy.DEADLINE and cpus is not None:
+    def deadline(sched: Sched | None) -> bool:
+        return sched is not None and sched.policy is Policy.DEADLINE
+
+    def check(path: Path, sched: Sched | None, cpus: object, work: object) -> None:
+        if deadline(sched) and cpus is not None:
             out.append((path + ("cpus",), why_cpus))
+        if isinstance(work, PhasesWork) and (deadline(sched) or any(deadline(p.sched) for p in work.phases)):
+            for k, phase in enumerate(work.phases):  # the thread is deadline, or turns deadline in some phase
+                if phase.cpus is not None:
+                    out.append((path + ("work", "phases", k, "cpus"), why_cpus))
 
     for i, proc in enumerate(processes):
         if not isinstance(proc, ProcessSpec):
             continue
         main = proc.main
-        check(("processes", i, "main"), main.sched, main.cpus)
+        check(("processes", i, "main"), main.sched, main.cpus, main.work)
         if main.sched is not None and main.sched.policy is Policy.DEADLINE and proc.threads and main.apply is ApplyWhen.BEFORE_THREADS:
             out.append(
                 (
@@ -135,13 +142,7 @@ def deadline_problems(processes: list[AnyProcess]) -> list[tuple[Path, str]]:
                 )
             )
         for j, spec in enumerate(proc.threads):
-            check(("processes", i, "threads", j), spec.sched, spec.cpus)
-            work = spec.work
-            if isinstance(work, PhasesWork):
-                deadline_phase = any(p.sched is not None and p.sched.policy is Policy.DEADLINE for p in work.phases)
-                for k, phase in enumerate(work.phases):
-                    if deadline_phase and phase.cpus is not None:  # the thread turns deadline in some phase
-                        out.append((("processes", i, "threads", j, "work", "phases", k, "cpus"), why_cpus))
+            check(("processes", i, "threads", j), spec.sched, spec.cpus, spec.work)
     return out
 
 
