@@ -632,6 +632,9 @@ def _event_shorthand(value: Any) -> Any:
         if not isinstance(arg, dict):
             raise ValueError(f"wait needs its condition and mutex, e.g. {_EVENT_EXAMPLES['wait']}")
         return {"event": word, **arg}
+    named = takes in ("resource", "thread") or (takes == "timer" and not isinstance(arg, dict))
+    if named and not isinstance(arg, str):  # the typed form's key (resource, thread) is not what the user wrote
+        raise ValueError(f"{word} takes one name, e.g. {_EVENT_EXAMPLES[takes]}; got {type(arg).__name__} {arg!r}")
     if takes == "timer":
         return {"event": word, **arg} if isinstance(arg, dict) else {"event": word, "timer": arg}
     if takes == "thread":
@@ -804,6 +807,8 @@ class Phase(Strict):
 
 def _phases_shorthand(value: Any) -> Any:
     """`events: [...]` directly under the work is one phase."""
+    if isinstance(value, dict) and "events" in value and "phases" in value:
+        raise KeyProblem("events", "events and phases are both given; write events: for one phase, or phases: [{events: [...]}, ...]")
     if isinstance(value, dict) and "events" in value and "phases" not in value:
         value = dict(value)
         value["phases"] = [{"events": value.pop("events")}]

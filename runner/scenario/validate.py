@@ -27,6 +27,7 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
     path: list[str | int] = []
     node: Any = data
     skip = 0
+    tagged = False  # the union tag of this node is passed: `kind: phases` with a key `phases` as well
     for n, elem in enumerate(loc):
         if skip:
             skip -= 1
@@ -34,11 +35,15 @@ def _data_path(data: Any, loc: tuple[Any, ...]) -> tuple[Path, Any]:
         if _events_shorthand(node, loc[n:]):
             skip = 1  # `events:` written directly under the work is its one phase: phases[0].events is events
             continue
+        if isinstance(node, dict) and not tagged and node.get("kind") == elem:
+            tagged = True  # pydantic names a tagged union's member right after the field: a tag, not the key
+            continue
         if (isinstance(node, dict) and isinstance(elem, str) and elem in node) or (
             isinstance(node, list) and isinstance(elem, int) and 0 <= elem < len(node)
         ):
             node = cast(Any, node)[elem]  # a key of this dict or an index of this list, as just checked
             path.append(elem)
+            tagged = False
         elif isinstance(node, dict) and isinstance(elem, str) and not _is_tag(elem, node):
             path.append(elem)  # a missing or unknown key: point at the parent
             node = None
