@@ -320,6 +320,30 @@ def test_a_deadlock_ends_with_its_cell_as_an_error_naming_where_each_thread_stoo
     assert c["duration_ns"] < 10_000_000_000, "the deadlock ended with the cell"
 
 
+def test_a_timer_thread_stuck_to_the_end_missed_every_release_it_did_not_serve(tmp_path):
+    """A 10 ms timer thread deadlocked for the last 0.99 s counted `missed 0` of its releases."""
+    ab = [{"timer": {"period": "10ms"}}, {"lock": "a"}, {"run": "1ms"}, {"lock": "b"}, {"unlock": "b"}, {"unlock": "a"}]
+    ba = [{"timer": {"period": "10ms"}}, {"lock": "b"}, {"run": "1ms"}, {"lock": "a"}, {"unlock": "a"}, {"unlock": "b"}]
+    scenario = {
+        "name": "abba",
+        "resources": {"a": {"kind": "mutex"}, "b": {"kind": "mutex"}},
+        "processes": [
+            {
+                "name": "dl",
+                "threads": [
+                    {"name": "first", "sched": "fifo:40", "work": {"kind": "phases", "events": ab}},
+                    {"name": "second", "sched": "fifo:40", "work": {"kind": "phases", "events": ba}},
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    assert done.results["cells"][0]["status"] == "error"
+    for name in ("first", "second"):
+        f = thread(done.results, name)["figures"]
+        assert f["callbacks"] <= 2 and f["missed_releases"] >= 90 and f["releases"] == f["callbacks"] + f["missed_releases"], f
+
+
 def test_a_deadlock_late_in_the_run_is_stuck_and_a_stage_waiting_as_ever_is_not(tmp_path):
     """A deadlock that began at 1.2 s of 2 s once ended `passed`: the rule was half the run blocked."""
     scenario = {
