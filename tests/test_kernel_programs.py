@@ -14,6 +14,8 @@ import gzip
 import json
 import os
 import statistics
+import subprocess
+import time
 
 import pytest
 import yaml
@@ -192,28 +194,34 @@ def test_a_deadline_thread_keeps_its_runtime_where_an_other_one_misses(tmp_path)
     assert [r["cls"] for r in table if r["comm"] == "worker"] == ["DLN"]
 
 
-def test_a_deadline_set_the_kernel_cannot_admit_is_refused_with_the_numbers(tmp_path):
-    scenario = {
-        "name": "dl_refused",
-        "processes": [
-            {
-                "name": "dl_over",
-                "threads": [
-                    {
-                        "name": "greedy",
-                        "count": 3,
-                        "sched": "deadline:9ms/10ms/10ms",
-                        "work": {"kind": "phases", "events": [{"timer": {"period": "10ms"}}, {"run": "1ms"}]},
-                    }
-                ],
-            }
-        ],
-    }
-    done = run_inline(tmp_path, scenario)
+def _deadline_set(name: str, count: int, sched: str) -> dict:
+    work = {"kind": "phases", "events": [{"timer": {"period": "10ms"}}, {"run": "1ms"}]}
+    return {"name": name, "processes": [{"name": name, "threads": [{"name": "greedy", "count": count, "sched": sched, "work": work}]}]}
+
+
+def test_a_deadline_set_the_machine_cannot_admit_is_refused_before_the_run_with_the_numbers(tmp_path):
+    path = tmp_path / "dl_over.yaml"
+    path.write_text(yaml.safe_dump(_deadline_set("dl_over", 3, "deadline:9ms/10ms/10ms"), sort_keys=False))
+    done = finish(start_runner(str(path), "--out", str(tmp_path / "out"), cwd=str(tmp_path)), str(tmp_path / "out"))
+    assert done.code == 2 and done.results is None
+    assert "ask 2.70 CPUs of bandwidth" in done.err and "sched_rt_runtime_us" in done.err
+
+
+def test_a_deadline_set_the_kernel_refuses_at_the_start_is_an_error_with_the_numbers(tmp_path):
+    """Bandwidth another deadline task holds is the kernel's to know: the cell is an error, in numbers."""
+    holder = subprocess.Popen(
+        ["chrt", "-d", "--sched-runtime", "900000000", "--sched-deadline", "1000000000", "--sched-period", "1000000000", "0", "sleep", "30"]
+    )
+    try:
+        time.sleep(0.2)
+        done = run_inline(tmp_path, _deadline_set("dl_refused", 2, "deadline:6ms/10ms/10ms"))
+    finally:
+        holder.kill()
+        holder.wait()
     c = done.results["cells"][0]
     assert c["status"] == "error" and done.code == 4
-    assert "refused SCHED_DEADLINE admission (EBUSY)" in c["reason"] and "this cell asks 2.70 CPUs" in c["reason"]
-    assert "sched_rt_runtime_us" in c["reason"]
+    assert "refused SCHED_DEADLINE admission (EBUSY)" in c["reason"] and "this cell asks 1.20 CPUs" in c["reason"]
+    assert "sched_rt_runtime_us" in c["reason"] and "less what other deadline tasks hold" in c["reason"]
 
 
 def test_a_chain_under_fifo_is_far_shorter_than_under_other(tmp_path):

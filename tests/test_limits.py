@@ -168,3 +168,17 @@ def test_validate_warns_and_list_refuses_a_cpu_beyond_the_machine(tmp_path):
     assert outcome.code == 0 and "warning: processes[0].main.cpus: CPU" in outcome.err and "ok (1 cell)" in outcome.out
     outcome = run_cli(str(path), "--list")
     assert outcome.code == 2 and "does not exist on this machine" in outcome.err and outcome.out == ""
+
+
+def test_deadline_bandwidth_past_what_this_machine_admits_is_refused_before_the_run():
+    """Three threads of 9 ms/10 ms on 2 CPUs once ran their whole cell with the policy refused (EBUSY)."""
+    text = (
+        "name: x\nmatrix:\n  runtime: [4ms, 9ms]\nprocesses:\n  - name: dlo\n    threads:\n"
+        "      - {name: greedy, count: 3, sched: 'deadline:${{ matrix.runtime }}/10ms/10ms'}\n"
+    )
+    two = lim.MachineLimits(online=(0, 1), rt_runtime_us=950_000, rt_period_us=1_000_000)
+    found = problems(text, two)
+    assert len(found) == 1 and "ask 2.70 CPUs of bandwidth (greedy 0.90, greedy 0.90, greedy 0.90)" in found[0]
+    assert "admits at most 0.95 per CPU x 2 CPUs = 1.90" in found[0] and found[0].endswith("(in cell runtime=9ms)")
+    assert problems(text, lim.MachineLimits(online=(0, 1, 2), rt_runtime_us=950_000, rt_period_us=1_000_000)) == []
+    assert problems(text, lim.MachineLimits(online=(0, 1), rt_runtime_us=-1, rt_period_us=1_000_000)) == [], "no limit"

@@ -23,6 +23,7 @@ from runner.run.measure import spread
 from runner.run.samples import EventStats, PhaseStats, SlotData
 from runner.scenario.model import EventKind, PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings
+from runner.scenario.program import deadline_asks
 
 _MEASURES = {
     EventKind.LOCK: "wait",
@@ -184,15 +185,7 @@ def stall(work: PhasesWork, slot: SlotData, end_ns: Optional[int], label: str) -
 
 def deadline_admission(scenario: Scenario, rt_runtime_us: Optional[int], rt_period_us: Optional[int], cpus: int) -> str:
     """Why the kernel refused SCHED_DEADLINE (EBUSY), in numbers: the cell's bandwidth against what the kernel admits."""
-    asks: list[tuple[str, float]] = []
-    for proc in scenario.workers:
-        scheds = [(proc.name, proc.main.sched)] + [(spec.name, spec.sched) for spec in proc.threads for _ in range(spec.count)]
-        for spec in proc.threads:
-            if isinstance(spec.work, PhasesWork):
-                scheds += [(spec.name, p.sched) for p in spec.work.phases for _ in range(spec.count)]
-        for name, sched in scheds:
-            if sched is not None and sched.policy is Policy.DEADLINE:
-                asks.extend([(name, sched.bandwidth)] * proc.instances)
+    asks = deadline_asks(scenario)
     total = sum(b for _, b in asks)
     parts = ", ".join(f"{name} {b:.2f}" for name, b in asks[:6]) + (", ..." if len(asks) > 6 else "")
     text = f"the kernel refused SCHED_DEADLINE admission (EBUSY): this cell asks {total:.2f} CPUs of bandwidth ({parts})"

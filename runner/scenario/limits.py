@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 from runner import units
 from runner.scenario.model import HogKind, PeriodicWork, PhasesWork, ProcessSpec, ProgramSpec, Scenario
+from runner.scenario.program import deadline_asks
 
 Path = tuple[str | int, ...]
 
@@ -47,6 +48,8 @@ class MachineLimits:
     default_stack: int = 8 << 20  # default thread stack (glibc takes RLIMIT_STACK, 2 MiB if unlimited)
     cpus: tuple[int, ...] | None = None  # CPUs the runner may use (its affinity)
     online: tuple[int, ...] | None = None  # CPUs this machine has online (/sys/devices/system/cpu/online)
+    rt_runtime_us: int | None = None  # sched_rt_runtime_us: with the period, what SCHED_DEADLINE may take per CPU (-1: no limit)
+    rt_period_us: int | None = None  # sched_rt_period_us
 
     @classmethod
     def read(cls) -> MachineLimits:
@@ -77,6 +80,8 @@ class MachineLimits:
             default_stack=stack if stack is not None and stack > 0 else 2 << 20,
             cpus=cpus,
             online=online,
+            rt_runtime_us=_read_int("/proc/sys/kernel/sched_rt_runtime_us"),
+            rt_period_us=_read_int("/proc/sys/kernel/sched_rt_period_us"),
         )
 
 
@@ -144,7 +149,35 @@ def check(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     out = _check_threads(scenario, limits) or static_check(scenario)  # this machine's limit is the one to name
     out.extend(_check_memory(scenario, limits))
     out.extend(_check_cpus(scenario, limits))
+    out.extend(_check_deadline(scenario, limits))
     return out
+
+
+def _check_deadline(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    """SCHED_DEADLINE bandwidth past what the kernel admits on this machine: it would refuse the policy (EBUSY) at the start.
+
+    The kernel admits runtime/period summed over a root domain's deadline threads up to
+    sched_rt_runtime_us/sched_rt_period_us per CPU (0.95 by default); the root domain is the
+    online CPUs unless exclusive cpusets split them, and other deadline tasks take their share.
+    """
+    if not limits.online or limits.rt_runtime_us is None or limits.rt_runtime_us < 0 or not limits.rt_period_us:
+        return []
+    asks = deadline_asks(scenario)
+    total = sum(b for _, b in asks)
+    share = limits.rt_runtime_us / limits.rt_period_us
+    room = share * len(limits.online)
+    if total <= room + 1e-9:
+        return []
+    parts = ", ".join(f"{name} {b:.2f}" for name, b in asks[:6]) + (", ..." if len(asks) > 6 else "")
+    return [
+        Finding(
+            ("processes",),
+            f"the cell's SCHED_DEADLINE threads ask {total:.2f} CPUs of bandwidth ({parts}), but this machine admits at most "
+            f"{share:.2f} per CPU x {len(limits.online)} CPUs = {room:.2f} (sched_rt_runtime_us {limits.rt_runtime_us} / "
+            f"sched_rt_period_us {limits.rt_period_us}); the kernel would refuse the policy (EBUSY): lower runtime or count",
+            elsewhere=True,
+        )
+    ]
 
 
 def _check_threads(scenario: Scenario, limits: MachineLimits) -> list[Finding]:

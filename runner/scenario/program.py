@@ -28,6 +28,7 @@ from runner.scenario.model import (
     ProcessSpec,
     Resource,
     ResourceKind,
+    Scenario,
     Sched,
 )
 
@@ -144,6 +145,29 @@ def deadline_problems(processes: list[AnyProcess]) -> list[tuple[Path, str]]:
         for j, spec in enumerate(proc.threads):
             check(("processes", i, "threads", j), spec.sched, spec.cpus, spec.work)
     return out
+
+
+def deadline_asks(scenario: Scenario) -> list[tuple[str, float]]:
+    """The SCHED_DEADLINE bandwidth (runtime/period, in CPUs) each thread of the cell asks the kernel to admit.
+
+    A thread counts once, at the most it asks (its own sched, or a phase's): the kernel holds one
+    reservation per thread.  Programs the user started are not counted (their own doing).
+    """
+    asks: list[tuple[str, float]] = []
+
+    def most(scheds: list[Sched | None]) -> float:
+        return max((s.bandwidth for s in scheds if s is not None and s.policy is Policy.DEADLINE), default=0.0)
+
+    for proc in scenario.workers:
+        main_work = proc.main.work
+        main = most([proc.main.sched, *(p.sched for p in main_work.phases)] if isinstance(main_work, PhasesWork) else [proc.main.sched])
+        per_instance = [(proc.name, main)] if main else []
+        for spec in proc.threads:
+            phases = [p.sched for p in spec.work.phases] if isinstance(spec.work, PhasesWork) else []
+            if b := most([spec.sched, *phases]):
+                per_instance += [(spec.name, b)] * spec.count
+        asks += per_instance * proc.instances
+    return asks
 
 
 @dataclass(frozen=True)
