@@ -87,6 +87,7 @@ class _Thread:
     gone_ns: Optional[int] = None
     cpus: set[int] = field(default_factory=set)
     history: list[Snapshot] = field(default_factory=list)
+    pid: int = 0  # its process: the program's, or one the program started (0: the program's)
 
 
 def _environment(extra: dict[str, str]) -> dict[str, str]:
@@ -137,6 +138,7 @@ class ProgramRun:
         self.memory_peak: Optional[int] = None
         self.oom_kills: Optional[int] = None
         self.halted_ns: Optional[int] = None  # when it was first seen stopped (SIGSTOP, a debugger)
+        self._family: list[int] = []  # its process and the processes it started, as found (see family)
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
@@ -202,6 +204,21 @@ class ProgramRun:
         if pid:
             self.status, self.exited_ns = status, time.monotonic_ns()
         return self.status is not None
+
+    def family(self) -> list[int]:
+        """The program's process and those it started (children, a daemon, `ros2 run`'s node), as its cgroup holds them.
+
+        Where the runner could not give it a cgroup (or it was attached to, by `runner watch`),
+        the program's process alone.  A process, once found, stays listed (its threads' ends
+        are seen by their counters).
+        """
+        if self.cgroup is not None and not self.attached:
+            for pid in self.cgroup.processes():
+                if pid not in self._family:
+                    self._family.append(pid)
+        elif not self._family and self.pid:
+            self._family.append(self.pid)
+        return self._family
 
     def watch_state(self) -> None:
         """Note when it is first seen stopped (state T: SIGSTOP, a debugger): its threads cannot run while it is."""
@@ -315,6 +332,7 @@ class ProgramRun:
             tuple(sorted(t.cpus)),
             tuple(t.history),
             t.settings,
+            t.pid or self.pid,
         )
 
     def _tail(self) -> tuple[str, ...]:
@@ -460,7 +478,7 @@ class Monitor:
         comm = kernel.thread_comm(p.pid, tid)
         if comm is None:
             return
-        t = p.threads[tid] = _Thread(tid, len(p.threads), comm, at_ns, at_ns)
+        t = p.threads[tid] = _Thread(tid, len(p.threads), comm, at_ns, at_ns, pid=p.pid)
         self._snapshot(p, t, at_ns, "appeared")
         self._apply_rule(p, t)
 
@@ -476,23 +494,25 @@ class Monitor:
             t.named_ns = at_ns  # its new name was read from /proc before this event was: the name dates from the event
 
     def _list(self, p: ProgramRun, now: int) -> None:
-        """New threads get their snapshot and their rule; a young thread's name is re-read until a rule matches it."""
-        for tid in kernel.task_ids(p.pid):
-            t = p.threads.get(tid)
-            if t is None:
-                comm = kernel.thread_comm(p.pid, tid)
-                if comm is None:
+        """New threads (of the program's process and those it started) get their snapshot and their rule; a young
+        thread's name is re-read until a rule matches it."""
+        for pid in p.family():
+            for tid in kernel.task_ids(pid):
+                t = p.threads.get(tid)
+                if t is None:
+                    comm = kernel.thread_comm(pid, tid)
+                    if comm is None:
+                        continue
+                    t = p.threads[tid] = _Thread(tid, len(p.threads), comm, now, now, pid=pid)
+                    self._snapshot(p, t, now, "appeared")
+                elif t.rule is None and now - t.seen_ns < RENAME_WATCH_NS:
+                    comm = kernel.thread_comm(pid, tid)
+                    if comm is None or comm == t.comm:
+                        continue
+                    t.comm, t.named_ns = comm, now
+                else:
                     continue
-                t = p.threads[tid] = _Thread(tid, len(p.threads), comm, now, now)
-                self._snapshot(p, t, now, "appeared")
-            elif t.rule is None and now - t.seen_ns < RENAME_WATCH_NS:
-                comm = kernel.thread_comm(p.pid, tid)
-                if comm is None or comm == t.comm:
-                    continue
-                t.comm, t.named_ns = comm, now
-            else:
-                continue
-            self._apply_rule(p, t)
+                self._apply_rule(p, t)
 
     def _apply_rule(self, p: ProgramRun, t: _Thread) -> None:
         index = first_rule(p.spec, t.comm)
@@ -518,11 +538,11 @@ class Monitor:
         for t in p.threads.values():
             if t.gone_ns is not None:
                 continue
-            counters = kernel.thread_counters(p.pid, t.tid)
+            counters = kernel.thread_counters(t.pid or p.pid, t.tid)
             if counters is None:
                 t.gone_ns = now
                 continue
-            comm = kernel.thread_comm(p.pid, t.tid)
+            comm = kernel.thread_comm(t.pid or p.pid, t.tid)
             if comm is not None and comm != t.comm:
                 t.comm, t.named_ns = comm, now
                 self._apply_rule(p, t)

@@ -194,6 +194,13 @@ class MemoryCgroup:
     def add(self, pid: int) -> None:
         _write(os.path.join(self.folder, "cgroup.procs"), str(pid))
 
+    def processes(self) -> list[int]:
+        """The processes in the group now (its program and all they started, in the kernel's order); [] once gone."""
+        try:
+            return [int(n) for n in _read(os.path.join(self.folder, "cgroup.procs")).split()]
+        except (OSError, ValueError):
+            return []
+
     def limit(self) -> Optional[int]:
         """The limit as the kernel holds it (rounded down to pages); None when unlimited or unreadable."""
         try:

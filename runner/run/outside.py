@@ -72,6 +72,13 @@ def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
     )
 
 
+def _role(t: RawProgramThread, pid: int) -> str:
+    """What the thread is to the program, in words (the results' `work`)."""
+    if t.index == 0:
+        return "its main thread"
+    return "a thread of the program" if t.pid in (0, pid) else f"a thread of process {t.pid}, which the program started"
+
+
 def _ordinals(threads: tuple[RawProgramThread, ...]) -> dict[int, int]:
     """Each thread's index in the results: 0 for the main thread, then its rank among threads of its name.
 
@@ -206,9 +213,9 @@ def outcome(
                     instance=0,
                     index=ordinal[t.tid],
                     name=t.comm,
-                    pid=raw.pid,
+                    pid=t.pid or raw.pid,
                     tid=t.tid,
-                    work="its main thread" if t.index == 0 else "a thread of the program",
+                    work=_role(t, raw.pid),
                     periodic=False,
                     requested=wanted,
                     applied=t.applied,

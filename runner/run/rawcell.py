@@ -148,6 +148,7 @@ class RawProgramThread:
     cpus_seen: tuple[int, ...]  # CPUs it was found running on at the readings
     history: tuple[Snapshot, ...]
     applied: Optional[Settings]  # its settings when last read
+    pid: int = 0  # its process: the program's, or one the program started
 
 
 @dataclass(frozen=True)

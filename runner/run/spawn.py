@@ -778,8 +778,8 @@ class _CellRun:
         if options.stop_requested():
             raise Interrupted()
         if not self.table and time.monotonic() >= snapshot_at:
-            pids = [w.pid for w in workers] + [p.pid for p in self.programs if p.pid and not p.poll()]
-            self.table = [row for pid in pids for row in kernel.thread_rows(pid)]
+            pids = [w.pid for w in workers] + [pid for p in self.programs if p.pid and not p.poll() for pid in p.family()]
+            self.table = [row for pid in dict.fromkeys(pids) for row in kernel.thread_rows(pid)]
         self._watch_for_incidents(t0, t_end)
         for w in workers:
             if options.follow:
