@@ -578,3 +578,19 @@ def test_a_migrate_instance_that_cannot_be_made_is_not_left_with_the_guard(tmp_p
     assert isinstance(why, tracing.TraceUnavailable) and "-migrate" in why.reason
     assert told.held == set(), "every path told to the guard is taken back"
     assert os.listdir(tmp_path / "instances") == [], "the first instance is removed too"
+
+
+def test_the_guard_kills_before_it_waits_for_a_busy_trace_instance(monkeypatch):
+    """A dead runner's program once outlived it by up to 2 s: the guard waited out a busy instance before any kill."""
+    done: list[str] = []
+
+    def remove(path: str, wait_s: float = 0.0) -> bool:
+        done.append(f"remove {path} wait={wait_s}")
+        return wait_s > 0  # busy until waited for
+
+    monkeypatch.setattr(guard, "remove_instance", remove)
+    monkeypatch.setattr(guard.os, "killpg", lambda pgid, sig: done.append(f"kill {pgid}"))
+    monkeypatch.setattr(guard.sys, "stdin", io.StringIO("+100\ntrace+/t/instances/runner-1-0\n"))
+    monkeypatch.setattr(guard.signal, "signal", lambda *args: None)  # the guard ignores Ctrl-C; this test process must not
+    assert guard.main() == 0
+    assert done == ["remove /t/instances/runner-1-0 wait=0.0", "kill 100", "remove /t/instances/runner-1-0 wait=2.0"]

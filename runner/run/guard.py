@@ -108,8 +108,9 @@ def main() -> int:
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGTSTP):
         signal.signal(sig, signal.SIG_IGN)
     left = follow(sys.stdin)
-    for path in sorted(left.instances):  # tracing stops first: what the kill below does is not recorded
-        remove_instance(path, wait_s=2.0)
+    # Tracing stops first, so what the kill below does is not recorded; an instance the dead runner's files
+    # still hold (EBUSY) is removed after the kill, which waits for nothing.
+    busy = [path for path in sorted(left.instances) if not remove_instance(path)]
     for pgid in sorted(left.groups):
         try:
             os.killpg(pgid, signal.SIGKILL)
@@ -119,6 +120,8 @@ def main() -> int:
         if os.path.basename(folder).startswith("runner-"):  # only what a runner made
             memcg.kill_all(folder)
             memcg.remove(folder)
+    for path in busy:
+        remove_instance(path, wait_s=2.0)
     return 0
 
 
