@@ -788,3 +788,14 @@ def test_preemption_lines_end_with_the_most_preempted_callbacks_and_who_held_the
     ), line
     sleeper = t.model_copy(update={"periodic": False, "figures": f, "preempted_runs": runs[:1]})
     assert "; most preempted runs: at 0.100 s" in report.preemption_lines([("p/idle", sleeper)])[0]
+
+
+def test_a_programs_command_line_is_written_as_a_shell_would_read_it_back():
+    """`["sh", "-c", "a b", ""]` was written `sh -c a b `: neither the argument boundaries nor the empty one showed."""
+    from runner.report.markdown import program_lines
+    from runner.results.document import CellResult, ProgramResult, Status
+    from runner.scenario.plan import Settings
+
+    program = ProgramResult(name="p", argv=["sh", "-c", "echo 'hi' $HOME", ""], path="/bin/sh", started=True, requested=Settings())
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="now", programs=[program])
+    assert "`sh -c 'echo '\"'\"'hi'\"'\"' $HOME' ''`" in program_lines(cell)[0]

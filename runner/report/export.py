@@ -14,6 +14,7 @@ cyclictest truncates them.
 
 from __future__ import annotations
 
+import shlex
 from typing import Any
 
 from runner.errors import UsageError, did_you_mean
@@ -92,7 +93,7 @@ def json_summary(doc: RunDocument, cell: CellResult) -> dict[str, Any]:
     threads = _threads(cell)
     out: dict[str, Any] = {
         "file_version": 1,
-        "cmdline:": " ".join(doc.command),
+        "cmdline:": shlex.join(doc.command),
         "rt_test_version:": f"runner {doc.tool.version}",
         "start_time": cell.started_at,
         "end_time": doc.finished_at or "",

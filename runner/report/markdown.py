@@ -9,6 +9,7 @@ are GitHub-flavoured markdown from tabulate.
 from __future__ import annotations
 
 import re
+import shlex
 import statistics
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -441,7 +442,7 @@ def program_lines(cell: CellResult) -> list[Markdown]:
             listed = f"; {p.threads_seen_note}"
         out.append(
             Markdown(
-                f"{md_text(p.name)}: {md_code(' '.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
+                f"{md_text(p.name)}: {md_code(shlex.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
                 f"{md_text(_ended(p))}{ran}{md_text(memory)}{output}{md_text(listed)}"
             )
         )
@@ -739,7 +740,7 @@ def facts(doc: RunDocument) -> Table:
         ["CPU frequency governor", ", ".join(m.cpufreq_governors) or "not exposed"],
         ["Permissions", perms],
         ["Tool", f"runner {doc.tool_version}, Python {_known(m.python)}"],
-        ["Command", md_code(" ".join(doc.command), in_table=True)],
+        ["Command", md_code(shlex.join(doc.command), in_table=True)],
         [
             "Result",
             Markdown(
@@ -841,7 +842,7 @@ def _load_line(cell: CellResult) -> Markdown:
     parts = []
     if hogs:
         parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
-    parts += [md_code(" ".join(c.argv)) for c in commands]
+    parts += [md_code(shlex.join(c.argv)) for c in commands]
     return Markdown(", ".join(parts) or "none")
 
 
