@@ -155,6 +155,16 @@ def test_a_program_that_cannot_start_is_an_error_in_words(tmp_path):
     assert cell["status"] == "error" and "'no-such-program-xyz' is not in PATH" in cell["reason"]
 
 
+def test_a_script_whose_interpreter_is_missing_is_said_so(tmp_path):
+    """`could not exec x.sh: No such file or directory` named a file that exists."""
+    script = tmp_path / "x.sh"
+    script.write_text("#!/nonexistent/interp\necho hi\n")
+    script.chmod(0o755)
+    done = _run(tmp_path, _scenario(tmp_path, {"command": [str(script)]}), "--duration", "0.5s")
+    reason = done.results["cells"][0]["reason"]
+    assert "No such file or directory (the file exists; the interpreter its #! line names, '/nonexistent/interp', does not)" in reason
+
+
 def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_path, program):
     proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
     try:

@@ -15,6 +15,7 @@ reads of its /proc files.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import signal
@@ -111,6 +112,24 @@ def resolve(spec: ProgramSpec) -> tuple[str, str]:
     return os.path.abspath(found), ""
 
 
+def _exec_hint(path: str, stage: int, error: int) -> str:
+    """Why an exec of a file that exists said ENOENT: the interpreter its `#!` line names is missing."""
+    if stage == _probe.STAGE_CWD or error != errno.ENOENT or not os.path.isfile(path):
+        return ""
+    try:
+        with open(path, "rb") as handle:
+            first = handle.readline(256)
+    except OSError:
+        return ""
+    if not first.startswith(b"#!"):
+        return ""
+    words = first[2:].split()
+    interpreter = os.fsdecode(words[0]) if words else ""
+    if interpreter and not os.path.exists(interpreter):
+        return f" (the file exists; the interpreter its #! line names, {interpreter!r}, does not)"
+    return ""
+
+
 class ProgramRun:
     """One program from its fork to its reaping; the monitor updates its threads while it runs."""
 
@@ -180,10 +199,10 @@ class ProgramRun:
         os.close(self._report)
         self._report = -1
         if len(data) == 8:
-            stage, errno = struct.unpack("2i", data)
+            stage, error = struct.unpack("2i", data)
             what = "change to its working directory" if stage == _probe.STAGE_CWD else "exec"
             where = f" {self.spec.cwd!r}" if stage == _probe.STAGE_CWD else f" {self.path}"
-            self.failure = f"program {self.spec.name} could not {what}{where}: {os.strerror(errno)}"
+            self.failure = f"program {self.spec.name} could not {what}{where}: {os.strerror(error)}{_exec_hint(self.path, stage, error)}"
 
     def abandon(self) -> None:
         """The cell will not run: close the gate without a byte, so the child exits without exec."""
