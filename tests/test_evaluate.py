@@ -162,3 +162,25 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
     own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "callbacks", "min": 0})
     scenario = cell.scenario.model_copy(update={"expect": [own]})
     assert [v for v in evaluate(cell, scenario, raw, False).expectations if v.line is None] == []
+
+
+def test_a_deadline_thread_whose_callbacks_outlast_its_runtime_is_said_to_be_throttled():
+    from runner.figures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
+    from runner.run.evaluate import throttled
+
+    def figures(wall_max: int) -> ThreadFigures:
+        wall = Spread(min=1, p50=wall_max, p90=wall_max, p99=wall_max, p999=wall_max, max=wall_max)
+        return ThreadFigures(
+            callbacks=50,
+            missed_releases=49,
+            involuntary=Involuntary(total=0),
+            voluntary=Voluntary(total=0),
+            faults=Faults(minor=0, major=0),
+            complete=True,
+            callback_wall_ns=wall,
+        )
+
+    dl = Settings(Policy.DEADLINE, 0, 0, None, 2_000_000, 10_000_000, 10_000_000)
+    words = throttled(dl, figures(12_140_000))
+    assert "2.00 ms of runtime every 10.00 ms and its callbacks took up to 12.14 ms" in words and "stops it" in words
+    assert throttled(dl, figures(1_900_000)) == "" and throttled(FIFO80, figures(12_140_000)) == ""

@@ -122,6 +122,18 @@ def behind(f: ThreadFigures) -> str:
     return ", ".join(parts) + worst
 
 
+def throttled(requested: Settings, f: ThreadFigures) -> str:
+    """Why a SCHED_DEADLINE thread fell behind, when its callbacks took longer than its runtime: the kernel throttled it."""
+    runtime, period = requested.runtime, requested.period
+    wall = f.callback_wall_ns
+    if requested.policy is not Policy.DEADLINE or not runtime or not period or wall is None or wall.max <= runtime:
+        return ""
+    return (
+        f"; as SCHED_DEADLINE it has {units.human_duration(runtime)} of runtime every {units.human_duration(period)} and its "
+        f"callbacks took up to {units.human_duration(wall.max)}: the kernel stops it until its next period once the runtime is spent"
+    )
+
+
 def warnings(threads: list[ThreadResult], processes: int, failed: frozenset[str] = frozenset()) -> list[str]:
     """What the figures show went wrong without an expectation failing, in words: never a silent `passed`.
 
@@ -135,7 +147,7 @@ def warnings(threads: list[ThreadResult], processes: int, failed: frozenset[str]
         f = t.figures
         name = t.label(processes > 1)
         if (t.periodic or t.released) and (f.missed_releases or f.overruns) and name not in failed:
-            out.append(f"{name} could not keep up: {behind(f)}")
+            out.append(f"{name} could not keep up: {behind(f)}{throttled(t.requested, f)}")
         if t.samples_lost:
             out.append(
                 f"{name}: {t.samples_lost:,} per-callback samples were overwritten before the runner could write them;"
@@ -178,8 +190,8 @@ def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: 
                     limit="<= 0",
                     measured=fig.missed_releases or fig.overruns,
                     passed=False,
-                    note=f"could not keep up: {behind(fig)}; implicit (every release served) unless the scenario bounds "
-                    "missed_releases or overruns for this thread itself",
+                    note=f"could not keep up: {behind(fig)}{throttled(planned.settings, fig)}; implicit (every release served) unless "
+                    "the scenario bounds missed_releases or overruns for this thread itself",
                 )
             )
         elif has_callbacks(planned.work) and not fig.callbacks and id(planned) not in own_ran and not raw.interrupted:
