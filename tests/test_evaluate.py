@@ -165,19 +165,14 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
 
 
 def test_a_deadline_thread_whose_callbacks_outlast_its_runtime_is_said_to_be_throttled():
-    from runner.figures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
+    from runner.figures import ThreadFigures
     from runner.run.evaluate import throttled
 
     def figures(wall_max: int) -> ThreadFigures:
-        wall = Spread(min=1, p50=wall_max, p90=wall_max, p99=wall_max, p999=wall_max, max=wall_max)
-        return ThreadFigures(
-            callbacks=50,
-            missed_releases=49,
-            involuntary=Involuntary(total=0),
-            voluntary=Voluntary(total=0),
-            faults=Faults(minor=0, major=0),
-            complete=True,
-            callback_wall_ns=wall,
+        quantiles = dict.fromkeys(("p50", "p90", "p99", "p999", "max"), wall_max)
+        counts = {"callbacks": 50, "missed_releases": 49, "involuntary": {"total": 0}, "voluntary": {"total": 0}}
+        return ThreadFigures.model_validate(
+            {**counts, "faults": {"minor": 0, "major": 0}, "complete": True, "callback_wall_ns": {"min": 1, **quantiles}}
         )
 
     dl = Settings(Policy.DEADLINE, 0, 0, None, 2_000_000, 10_000_000, 10_000_000)
