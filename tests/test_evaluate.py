@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 from runner.results.document import Status
@@ -152,16 +153,19 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
     work = PhasesWork.model_validate(
         {"kind": "phases", "phases": [{"name": "init", "loop": 1, "events": [{"run": "5s"}]}, {"events": [{"timer": {"period": "10ms"}}]}]}
     )
-    starved = RawThread(
-        main.planned.__class__(**{**main.planned.__dict__, "work": work}), 99, slot_of([], tid=100), FIFO80, ApplyErrors(), True
-    )
-    raw = RawCell("now", (starved, *raw.threads[1:]), 1, raw.timeline)
-    result = evaluate(cell, cell.scenario, raw, False)
+    starved = RawThread(dataclasses.replace(main.planned, work=work), 99, slot_of([], tid=100), FIFO80, ApplyErrors(), True)
+    held = RawCell("now", (starved, *raw.threads[1:]), 1, raw.timeline)
+    result = evaluate(cell, cell.scenario, held, False)
     implicit = [(v.metric, v.limit, v.measured, v.passed) for v in result.expectations if v.line is None]
     assert result.status is Status.FAILED and implicit == [("callbacks", ">= 1", 0, False)]
     own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "callbacks", "min": 0})
     scenario = cell.scenario.model_copy(update={"expect": [own]})
-    assert [v for v in evaluate(cell, scenario, raw, False).expectations if v.line is None] == []
+    assert [v for v in evaluate(cell, scenario, held, False).expectations if v.line is None] == []
+    # A timer it reached whose first release was past the end had none due: running none was right.
+    assert raw.timeline.end_ns is not None
+    late = dataclasses.replace(starved, slot=dataclasses.replace(starved.slot, timer_due_ns=raw.timeline.end_ns + 1))
+    quiet = evaluate(cell, cell.scenario, RawCell("now", (late, *raw.threads[1:]), 1, raw.timeline), False)
+    assert [v for v in quiet.expectations if v.line is None] == []
 
 
 def test_a_deadline_thread_whose_callbacks_outlast_its_runtime_is_said_to_be_throttled():

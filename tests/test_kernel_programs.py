@@ -352,6 +352,26 @@ def test_a_timer_thread_stuck_to_the_end_missed_every_release_it_did_not_serve(t
         assert f["callbacks"] <= 2 and f["missed_releases"] >= 90 and f["releases"] == f["callbacks"] + f["missed_releases"], f
 
 
+def test_a_timer_longer_than_the_cell_had_no_release_due_and_missed_none(tmp_path):
+    """A 2 s housekeeping timer in a 1 s cell once counted 26,168 missed releases (its last release read as 0)."""
+    scenario = {
+        "name": "slowtimer",
+        "processes": [
+            {
+                "name": "app",
+                "threads": [
+                    {"name": "fast", "work": {"kind": "phases", "events": [{"timer": {"period": "10ms"}}, {"run": "100us"}]}},
+                    {"name": "housekeeping", "work": {"kind": "phases", "events": [{"timer": {"period": "2s"}}, {"run": "1ms"}]}},
+                ],
+            }
+        ],
+    }
+    done = run_inline(tmp_path, scenario)
+    assert done.results["cells"][0]["status"] == "passed", done.results["cells"][0]["reason"]
+    f = thread(done.results, "housekeeping")["figures"]
+    assert (f["callbacks"], f["missed_releases"], f["releases"]) == (0, 0, 0)
+
+
 def test_a_deadlock_late_in_the_run_is_stuck_and_a_stage_waiting_as_ever_is_not(tmp_path):
     """A deadlock that began at 1.2 s of 2 s once ended `passed`: the rule was half the run blocked."""
     scenario = {

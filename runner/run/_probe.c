@@ -100,7 +100,8 @@ struct slot_header {
     int32_t cur_event;            /* index in the program's event list, -1 between events */
     int64_t blocked_since_ns;     /* when the current blocking event (lock, wait, barrier, suspend) began; 0 if none */
     int64_t block_max_ns;         /* the longest such block the thread came out of during the run; 0 if none */
-    uint8_t reserved[SLOT_HEADER - 464];
+    int64_t timer_due_ns;         /* at its end, the first release of the timer it followed that it had not served; 0: none */
+    uint8_t reserved[SLOT_HEADER - 472];
 };
 
 struct sample {
@@ -424,7 +425,8 @@ _Static_assert(sizeof(struct resource) == RES_BYTES, "resource size");
 
 struct timer_state {
     int started;
-    int64_t origin, last, period; /* its grid, its last release, and the step of the event that released it */
+    int64_t origin, last;
+    int64_t due, period; /* the first release not yet served (or counted missed), and the step it comes at; 0: none */
 };
 
 /* What a running program keeps to itself (not in the shared buffer). */
@@ -819,7 +821,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
         }
     }
     ps->timer_key = e->key;
-    t->period = period;
+    t->due = next, t->period = period;
     if (next >= g->end_ns) { /* no release left in the run: the program is over */
         sleep_until(g->end_ns);
         return;
@@ -828,6 +830,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     wait_until(&s->work, next);
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     t->last = rebased ? rebased : next;
+    t->due = t->last + period;
     ev_record(s, i, wake - next);
     activation_open(s, ps, next, wake, period, missed);
     if (!ps->chain_open) ps->origin = next;
@@ -1168,14 +1171,15 @@ static void run_program(struct slot *s, struct program_state *ps) {
     }
     phase_account(s, ps);
     int64_t end = now_ns(CLOCK_MONOTONIC);
-    if (!live(g) && ps->timer_key >= 0 && ps->timers[ps->timer_key].started) {
-        /* Cut by the end of the run: the releases of the timer it follows that came after its last one and before
-         * the end, while it was blocked or still busy, were never served (a thread stuck for the last 1.99 s of a
-         * 10 ms timer missed 199, not 0). */
+    if (!live(g) && ps->timer_key >= 0) {
+        /* Cut by the end of the run: the releases of the timer it follows from the first it had not served, before
+         * the end, came while it was blocked or still busy and were never served (a thread stuck for the last 1.99 s
+         * of a 10 ms timer missed 199, not 0).  A timer whose first release was past the end had none due. */
         const struct timer_state *t = &ps->timers[ps->timer_key];
         int64_t until = end < g->end_ns ? end : g->end_ns; /* an interrupt ends the count where it came */
-        if (t->period > 0 && t->last + t->period < until) s->hdr->missed += (uint64_t)((until - 1 - t->last) / t->period);
+        if (t->period > 0 && t->due > 0 && t->due < until) s->hdr->missed += (uint64_t)((until - 1 - t->due) / t->period + 1);
     }
+    if (ps->timer_key >= 0) s->hdr->timer_due_ns = ps->timers[ps->timer_key].due;
     activation_close(s, ps, end, own_next(ps));
     chain_close(s, ps, end);
     while (ps->nheld > 0) unlock_mutex(s, ps, ps->held[ps->nheld - 1]);

@@ -35,7 +35,7 @@ from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
 from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
-from runner.scenario.model import Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
+from runner.scenario.model import EventKind, Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
 from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_periodic, is_released
 
 QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
@@ -160,13 +160,43 @@ KEEPS_UP_METRICS = ("missed_releases", "overruns")  # figures of the registry: a
 RAN_METRIC = "callbacks"  # ... and on this one, the implicit verdict that a thread with callbacks ran one
 
 
-def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: list[Expectation], raw: RawCell) -> list[Verdict]:
+def no_release_due(raw: RawCell) -> set[int]:
+    """The threads (ids of their plans) that had no release due in the cell, so that running no callback was right.
+
+    A program's timer releases first one period after the thread reaches it: one longer than
+    what was left of the cell had none due (the native core says where its next release was).
+    A stage released by resumes had none due when its queues got no resume.  A thread that
+    never reached its timer at all is not among them: it was held before it (starved, stuck).
+    """
+    resumes: dict[str, int] = {}
+    for t in raw.threads:
+        if isinstance(t.planned.work, PhasesWork):
+            for e, (_, event) in enumerate(t.planned.work.events()):
+                if event.event is EventKind.RESUME and event.resource and e < len(t.slot.events):
+                    resumes[event.resource] = resumes.get(event.resource, 0) + t.slot.events[e].count
+    end = raw.timeline.end_ns
+    out = set()
+    for t in raw.threads:
+        work = t.planned.work
+        if not isinstance(work, PhasesWork):
+            continue
+        late_timer = is_periodic(work) and end is not None and t.slot.timer_due_ns >= end
+        never_resumed = is_released(work) and not any(resumes.get(q, 0) for q in work.suspends_on())
+        if late_timer or never_resumed:
+            out.add(id(t.planned))
+    return out
+
+
+def keeps_up(
+    measured: list[tuple[PlannedThread, ThreadFigures]], expectations: list[Expectation], raw: RawCell, idle: frozenset[int] = frozenset()
+) -> list[Verdict]:
     """A failed verdict for each thread that could not keep up: a cell never passes on one.
 
     A periodic thread that missed releases or overran, a stage released by resumes whose queue
     dropped some (it was QUEUE_DEPTH activations behind), and a thread with callbacks (periodic,
     or released by resumes) that ran none: starved, or stuck before it reached its timer.
-    The verdict is implicit (no line in the scenario); an expectation of the scenario's own
+    `idle` names the threads that had no release due (no_release_due).  The verdict is
+    implicit (no line in the scenario); an expectation of the scenario's own
     on `missed_releases` or `overruns` (on `callbacks`, for one that ran none) naming the
     thread in this cell replaces it, so a scenario that accepts some misses says how many.
     """
@@ -194,7 +224,7 @@ def keeps_up(measured: list[tuple[PlannedThread, ThreadFigures]], expectations: 
                     "the scenario bounds missed_releases or overruns for this thread itself",
                 )
             )
-        elif has_callbacks(planned.work) and not fig.callbacks and id(planned) not in own_ran and not raw.interrupted:
+        elif has_callbacks(planned.work) and not fig.callbacks and id(planned) not in own_ran | idle and not raw.interrupted:
             out.append(
                 Verdict(
                     thread=label,
@@ -341,7 +371,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 if mark is not None:  # where the expectation is written: CI annotations point there
                     verdict.line, verdict.col = mark.line, mark.col
                 result.expectations.append(verdict)
-    implicit = keeps_up(measured, [scenario.expect[i] for i in expectations_for(scenario, cell)], raw)
+    implicit = keeps_up(measured, [scenario.expect[i] for i in expectations_for(scenario, cell)], raw, frozenset(no_release_due(raw)))
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)
     result.background = [
