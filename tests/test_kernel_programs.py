@@ -439,6 +439,14 @@ def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
     assert consumer["missed_releases"] > 100 and consumer["releases"] == consumer["callbacks"] + consumer["missed_releases"]
     failed = [(v["thread"], v["metric"]) for v in c["expectations"] if not v["passed"]]
     assert failed == [("sc/consumer #2", "missed_releases")]
+    # A pool of two behind one queue: its drops fail the cell as the pool's, charged to neither stage (once each got them all).
+    scenario["processes"][0]["threads"][1].update(count=2, sched="other")  # beneath the producer, which then serves its timer
+    (tmp_path / "pool").mkdir()
+    pool = run_inline(tmp_path / "pool", {**scenario, "name": "pool"}).results
+    c = pool["cells"][0]
+    failed = [(v["thread"], v["metric"], v["measured"]) for v in c["expectations"] if not v["passed"]]
+    assert len(failed) == 1 and failed[0][:2] == ("sc/consumer-0 #2, sc/consumer-1 #3", "missed_releases") and failed[0][2] > 20
+    assert [thread(pool, f"consumer-{i}")["figures"]["missed_releases"] for i in (0, 1)] == [0, 0]
 
 
 def test_an_rt_app_file_runs_directly(tmp_path):

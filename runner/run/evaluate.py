@@ -160,6 +160,45 @@ KEEPS_UP_METRICS = ("missed_releases", "overruns")  # figures of the registry: a
 RAN_METRIC = "callbacks"  # ... and on this one, the implicit verdict that a thread with callbacks ran one
 
 
+def queue_consumers(raw: RawCell) -> dict[str, list[PlannedThread]]:
+    """The stages released by resumes that take from each queue (instances apart), by queue name."""
+    out: dict[str, list[PlannedThread]] = {}
+    for t in raw.threads:
+        if isinstance(t.planned.work, PhasesWork) and is_released(t.planned.work) and (t.slot.tid or not t.planned.spawned):
+            for q in t.planned.work.suspends_on():
+                out.setdefault(q, []).append(t.planned)
+    return out
+
+
+def pool_verdicts(raw: RawCell, expectations: list[Expectation]) -> list[Verdict]:
+    """A failed verdict for each queue several stages take from that dropped resumes: the pool could not keep up.
+
+    No one stage missed them (any of them could have taken each), so none is charged with them;
+    a bound of the scenario's own on missed_releases for every stage of the pool replaces it.
+    """
+    out = []
+    for q, stages in queue_consumers(raw).items():
+        dropped = next((r.dropped for r in raw.resources if r.name == q), 0)
+        if len(stages) < 2 or not dropped:
+            continue
+        own = {id(t) for exp in expectations if exp.metric.value == KEEPS_UP_METRICS[0] for t in match_threads(stages, exp.thread)}
+        if all(id(t) in own for t in stages):
+            continue
+        labels = [verdict_label(t, raw.processes) for t in stages]
+        out.append(
+            Verdict(
+                thread=", ".join(labels),
+                metric=KEEPS_UP_METRICS[0],
+                limit="<= 0",
+                measured=dropped,
+                passed=False,
+                note=f"could not keep up: queue {q} dropped {dropped:,} resumes, each when {QUEUE_DEPTH} were queued already that "
+                f"none of its {len(stages)} stages had taken; implicit unless the scenario bounds missed_releases for them itself",
+            )
+        )
+    return out
+
+
 def no_release_due(raw: RawCell) -> set[int]:
     """The threads (ids of their plans) that had no release due in the cell, so that running no callback was right.
 
@@ -291,7 +330,9 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     names = {gid: verdict_label(t.planned, raw.processes) for gid, t in enumerate(raw.threads)}
     admission = programs.deadline_admission(scenario, raw.rt_limit_us[0], raw.rt_limit_us[1], len(raw.online_cpus))
     stalls: list[str] = []
-    queue_drops = {r.name: r.dropped for r in raw.resources if r.dropped}
+    consumers = queue_consumers(raw)
+    # A queue's drops are the missed releases of the one stage that takes from it; a pool's are the pool's (pool_verdicts).
+    queue_drops = {r.name: r.dropped for r in raw.resources if r.dropped and len(consumers.get(r.name, ())) == 1}
     spawned: dict[str, bool] = {}  # spawned thread, as `process/name`: whether any instance ran
     for t in raw.threads:
         p = t.planned
@@ -308,8 +349,9 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if isinstance(p.work, PhasesWork):
             events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
             fig = fig.model_copy(update=extra)
-            if is_released(p.work) and (dropped := sum(queue_drops.get(q, 0) for q in p.work.suspends_on())):
-                fig = fig.model_copy(update={"missed_releases": dropped, "releases": fig.callbacks + dropped})  # no activation served them
+            if is_released(p.work):  # its releases are the resumes it took, and those its queue dropped (no activation served them)
+                dropped = sum(queue_drops.get(q, 0) for q in p.work.suspends_on())
+                fig = fig.model_copy(update={"missed_releases": dropped, "releases": fig.callbacks + dropped})
             degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
             stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, verdict_label(p, raw.processes))
             if stuck and not raw.interrupted:
@@ -371,7 +413,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 if mark is not None:  # where the expectation is written: CI annotations point there
                     verdict.line, verdict.col = mark.line, mark.col
                 result.expectations.append(verdict)
-    implicit = keeps_up(measured, [scenario.expect[i] for i in expectations_for(scenario, cell)], raw, frozenset(no_release_due(raw)))
+    own = [scenario.expect[i] for i in expectations_for(scenario, cell)]
+    implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, own)
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)
     result.background = [
