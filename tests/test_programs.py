@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import mmap
@@ -15,7 +16,7 @@ from pydantic import ValidationError
 from runner import histogram as hg
 from runner.run import _probe, kernel, programs, samples
 from runner.run.evaluate import degradation
-from runner.run.rawcell import ApplyErrors
+from runner.run.rawcell import ApplyErrors, RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData, rows
 from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, work_tuple
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
@@ -263,42 +264,60 @@ def test_a_phase_the_kernel_refused_says_so_with_its_reason():
     assert phases[1].degraded == ["policy fifo:40 requested, other applied (Operation not permitted)"]
 
 
-def test_a_thread_blocked_at_its_end_far_longer_than_ever_before_is_stuck():
-    a = scenario().processes[0].threads[1].work
-    assert isinstance(a, PhasesWork)
-
-    def slot(since: int, longest: int) -> SlotData:
-        return SlotData(
-            1,
-            "done",
-            0,
-            0,
-            0,
-            0,
-            0,
-            (0,) * 4,
-            (0,) * 4,
-            0,
-            0,
-            0,
-            0,
-            (),
-            cur_phase=0,
-            cur_event=1,
-            blocked_since_ns=since,
-            block_max_ns=longest,
-        )
-
-    assert (
-        programs.stall(a, slot(400_000_000, 0), 1_000_000_000, "app/b")
-        == "app/b was blocked in `lock m` (phase p0, event 1) for the last 600.00 ms of the run; it had come out of no block before"
+def _cell_of(threads: dict[str, list[object]], resources: dict[str, str]) -> list[RawThread]:
+    """Raw threads of one process `app` whose threads run the given events (in that order: gid = position)."""
+    spec = Scenario.model_validate(
+        {
+            "name": "s",
+            "resources": {name: {"kind": kind} for name, kind in resources.items()},
+            "processes": [{"name": "app", "threads": [{"name": n, "work": {"kind": "phases", "events": e}} for n, e in threads.items()]}],
+        }
     )
-    # A deadlock that began late in the run (780 ms of 2 s, after waits of 10 ms at most) was once `passed`.
-    late = programs.stall(a, slot(1_220_000_000, 10_000_000), 2_000_000_000, "app/b")
-    assert late is not None and late.endswith("for the last 780.00 ms of the run; its longest block before was 10.00 ms")
-    assert programs.stall(a, slot(990_000_000, 0), 1_000_000_000, "x") is None, "10 ms: waiting, not stuck"
-    assert programs.stall(a, slot(500_000_000, 300_000_000), 1_000_000_000, "x") is None, "as long as it always waited"
-    assert programs.stall(a, slot(300_000_000, 300_000_000), 1_000_000_000, "x") is not None, "more than twice its longest"
+    planned = [t for t in plan_scenario(spec, Settings()) if t.index > 0]
+    return [
+        RawThread(p, 1, SlotData(10 + i, "done", *(0,) * 5, (0,) * 4, (0,) * 4, 0, 0, 0, 0, ()), None, ApplyErrors(), True)
+        for i, p in enumerate(planned)
+    ]
+
+
+def _at(t: RawThread, **slot: int) -> RawThread:
+    return dataclasses.replace(t, slot=dataclasses.replace(t.slot, **slot))
+
+
+END = 2_000_000_000
+
+
+def test_threads_blocked_at_the_end_that_nothing_going_could_release_are_stuck():
+    """A deadlock that began at 1.2 s of 2 s once ended `passed`; the rule was half the run blocked."""
+    ab = [{"lock": "a"}, {"run": "1ms"}, {"lock": "b"}, {"unlock": "b"}, {"unlock": "a"}]
+    ba = [{"lock": "b"}, {"run": "1ms"}, {"lock": "a"}, {"unlock": "a"}, {"unlock": "b"}]
+    first, second = _cell_of({"first": ab, "second": ba}, {"a": "mutex", "b": "mutex"})
+    threads = [
+        _at(first, blocked_since_ns=1_220_000_000, cur_event=2, cur_phase=0),
+        _at(second, blocked_since_ns=1_221_000_000, cur_event=2, cur_phase=0),
+    ]
+    out = programs.stalls(threads, END, {0: "app/first", 1: "app/second"})
+    assert out == [
+        "app/first was blocked in `lock b` (phase p0, event 2) for the last 780.00 ms of the run; its holder, app/second, was stuck too",
+        "app/second was blocked in `lock a` (phase p0, event 2) for the last 779.00 ms of the run; its holder, app/first, was stuck too",
+    ]
+    assert programs.stalls(threads[:1], END, {}) == [], "nobody holds b: the waiter is about to take it"
+
+
+def test_a_stage_whose_producer_goes_on_is_waiting_however_long_and_one_whose_producer_finished_is_stuck():
+    """A filter behind a sensor that slowed to a 2 s heartbeat once erred: it had waited 12 ms before, 700 ms at the end."""
+    sensor, sink = _cell_of(
+        {"sensor": [{"timer": {"period": "2s"}}, {"resume": "q"}], "filter": [{"suspend": "q"}, {"run": "1ms"}]}, {"q": "queue"}
+    )
+    waiting = _at(sink, blocked_since_ns=1_300_000_000, cur_event=0, cur_phase=0)
+    assert programs.stalls([sensor, waiting], END, {}) == []
+    finished = _at(sensor, work_end_ns=1_200_000_000)
+    assert programs.stalls([finished, waiting], END, {1: "app/filter"}) == [
+        "app/filter was blocked in `suspend q` (phase p0, event 0) for the last 700.00 ms of the run; "
+        "no thread that resumes q was still going"
+    ]
+    brief = _at(sink, blocked_since_ns=END - 50_000_000, cur_event=0, cur_phase=0)
+    assert programs.stalls([finished, brief], END, {}) == [], "blocked 50 ms: the end came, not a deadlock"
 
 
 def test_a_deadline_refusal_is_explained_with_the_cells_bandwidth_and_the_kernels_limit():

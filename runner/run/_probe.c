@@ -99,9 +99,8 @@ struct slot_header {
     int32_t cur_phase;            /* -1 before the first phase */
     int32_t cur_event;            /* index in the program's event list, -1 between events */
     int64_t blocked_since_ns;     /* when the current blocking event (lock, wait, barrier, suspend) began; 0 if none */
-    int64_t block_max_ns;         /* the longest such block the thread came out of during the run; 0 if none */
     int64_t timer_due_ns;         /* at its end, the first release of the timer it followed that it had not served; 0: none */
-    uint8_t reserved[SLOT_HEADER - 472];
+    uint8_t reserved[SLOT_HEADER - 464];
 };
 
 struct sample {
@@ -836,14 +835,6 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     if (!ps->chain_open) ps->origin = next;
 }
 
-/* A blocking event ended before the run did: the slot is no longer blocked, and the longest block it came out of
- * grows to this one (the runner tells a thread stuck at the end from one that waits as long as it always did). */
-static void block_done(struct slot *s, int64_t t0) {
-    int64_t took = now_ns(CLOCK_MONOTONIC) - t0;
-    if (took > s->hdr->block_max_ns) s->hdr->block_max_ns = took;
-    s->hdr->blocked_since_ns = 0;
-}
-
 static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, int slot) {
     struct resource *m = res_at(s, r);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
@@ -861,7 +852,7 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, in
             if (rc != ETIMEDOUT || !live(s->group)) break;
         }
         /* Given up at the end of the run, or let through only by a thread that was leaving: the slot keeps where it stood. */
-        if (rc == 0 && live(s->group)) block_done(s, t0);
+        if (rc == 0 && live(s->group)) s->hdr->blocked_since_ns = 0;
         if (rc == 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
         if (rc == 0) __atomic_add_fetch(&m->contended, 1, __ATOMIC_RELAXED);
     }
@@ -911,7 +902,7 @@ static void ev_wait(struct slot *s, struct program_state *ps, int i, const struc
     }
     m->owner = s->prog->gid;
     if (c->generation == gen) return; /* the run ended while waiting: the slot keeps where it stood */
-    if (live(s->group)) block_done(s, t0);
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t now = now_ns(CLOCK_MONOTONIC);
     ev_record(s, i, now - t0);
     ps->act_cond_wait += now - t0;
@@ -955,7 +946,7 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
     int passed = b->generation != gen;
     pthread_mutex_unlock(&b->m);
     if (!passed) return; /* the run ended at the barrier: the slot keeps where it stood */
-    if (live(s->group)) block_done(s, t0);
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
     ev_record(s, i, waited);
     ps->act_barrier_wait += waited;
@@ -999,7 +990,7 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
     }
     pthread_mutex_unlock(&q->m);
     if (!got) return; /* the run ended while suspended: the slot keeps where it stood */
-    if (live(s->group)) block_done(s, t0);
+    if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     /* Wake-up latency of the hop: from the resume (or from this wait, if the resume came first) to running. */
     ev_record(s, i, wake - (resumed > t0 ? resumed : t0));

@@ -329,7 +329,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     measured: list[tuple[PlannedThread, ThreadFigures]] = []
     names = {gid: verdict_label(t.planned, raw.processes) for gid, t in enumerate(raw.threads)}
     admission = programs.deadline_admission(scenario, raw.rt_limit_us[0], raw.rt_limit_us[1], len(raw.online_cpus))
-    stalls: list[str] = []
+    stalls = [] if raw.interrupted else programs.stalls(raw.threads, raw.timeline.end_ns, names)
     consumers = queue_consumers(raw)
     # A queue's drops are the missed releases of the one stage that takes from it; a pool's are the pool's (pool_verdicts).
     queue_drops = {r.name: r.dropped for r in raw.resources if r.dropped and len(consumers.get(r.name, ())) == 1}
@@ -353,9 +353,6 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 dropped = sum(queue_drops.get(q, 0) for q in p.work.suspends_on())
                 fig = fig.model_copy(update={"missed_releases": dropped, "releases": fig.callbacks + dropped})
             degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
-            stuck = programs.stall(p.work, t.slot, raw.timeline.end_ns, verdict_label(p, raw.processes))
-            if stuck and not raw.interrupted:
-                stalls.append(stuck)
         result.threads.append(
             ThreadResult(
                 process=p.process,

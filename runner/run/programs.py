@@ -13,6 +13,7 @@ resume_latency, chain), and finds threads that were stuck at the end of the run.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Optional
 
 from runner import figures as fg
@@ -20,8 +21,9 @@ from runner import histogram as hg
 from runner import units
 from runner.results.document import EventResult, Holder, PhaseResult
 from runner.run.measure import spread
+from runner.run.rawcell import RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData
-from runner.scenario.model import EventKind, PhasesWork, Policy, Scenario
+from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings
 from runner.scenario.program import deadline_asks
 
@@ -38,8 +40,7 @@ _FIGURE_OF = {
     EventKind.BARRIER: "barrier_wait_ns",
     EventKind.SUSPEND: "resume_latency_ns",
 }
-STALL_MIN_NS = 100_000_000  # blocked at least this long at the end of the run, ...
-STALL_FACTOR = 2  # ... and more than this many times its longest block before: stuck, not just waiting
+STALL_MIN_NS = 100_000_000  # blocked at least this long at the end of the run, with nothing left to release it: stuck
 
 
 def _event_result(
@@ -156,31 +157,103 @@ def _phase_degraded(requested: Optional[Settings], applied: Optional[Settings], 
     return out
 
 
-def stall(work: PhasesWork, slot: SlotData, end_ns: Optional[int], label: str) -> Optional[str]:
-    """A thread still blocked at the end of the run, stuck rather than waiting: a deadlock or a release that never came.
+_RELEASED_BY = {  # what a thread blocked in the first is waiting for: another thread's event of the second kind on it
+    EventKind.WAIT: (EventKind.SIGNAL, EventKind.BROADCAST),
+    EventKind.SUSPEND: (EventKind.RESUME,),
+    EventKind.BARRIER: (EventKind.BARRIER,),
+}
 
-    Stuck: blocked for STALL_MIN_NS or more, and more than STALL_FACTOR times the longest block
-    it came out of during the run (or it came out of none).  A thread that waits as long as it
-    always did (a stage between its producer's releases) is waiting; one that had waited 10 ms
-    at most and has now waited 780 ms is not, however late in the run its block began.
+
+def stalls(threads: Sequence[RawThread], end_ns: Optional[int], labels: dict[int, str]) -> list[str]:
+    """The threads still blocked at the end that nothing left in the cell could release: deadlocks, releases that never came.
+
+    A thread blocked at the end (in a lock, a condition wait, a barrier or a suspend) for
+    STALL_MIN_NS or more is stuck unless some thread that could release it was still going:
+    the holder of its mutex, or a thread with a signal, resume or barrier event on what it waits
+    for, which itself was not blocked for good and had not finished its program.  A stage
+    waiting for its producer's next release (however far apart they came) is waiting; two
+    threads each holding the mutex the other wants, a waiter whose only signaller finished, and
+    a barrier a finished thread will never pass again are stuck.  `labels` names threads by
+    their index in `threads`.
     """
-    if not slot.blocked_since_ns or end_ns is None:
-        return None
-    blocked = end_ns - slot.blocked_since_ns
-    if blocked < STALL_MIN_NS or blocked <= STALL_FACTOR * slot.block_max_ns:
-        return None
-    events = [e for _, e in work.events()]
-    where = events[slot.cur_event].label() if 0 <= slot.cur_event < len(events) else "an event"
-    phase = work.phase_names()[slot.cur_phase] if 0 <= slot.cur_phase < len(work.phases) else "?"
-    before = (
-        f"its longest block before was {units.human_duration(slot.block_max_ns)}"
-        if slot.block_max_ns
-        else "it had come out of no block before"
-    )
-    return (
-        f"{label} was blocked in `{where}` (phase {phase}, event {slot.cur_event}) for the last {units.human_duration(blocked)} "
-        f"of the run; {before}"
-    )
+    if end_ns is None:
+        return []
+    owners: dict[str, int] = {}  # who held each mutex when the run ended, by where each thread stood in its program
+    waits: dict[int, tuple[Event, PhasesWork]] = {}
+    going: set[int] = set()
+    can_release: dict[tuple[EventKind, str], set[int]] = {}
+    for gid, t in enumerate(threads):
+        work, slot = t.planned.work, t.slot
+        if not isinstance(work, PhasesWork) or not slot.tid:
+            continue
+        events = [e for _, e in work.events()]
+        for e in events:
+            for name, _ in e.names():
+                can_release.setdefault((e.event, name), set()).add(gid)
+        for name in _held(work, slot.cur_phase, slot.cur_event):
+            owners[name] = gid
+        if slot.blocked_since_ns and 0 <= slot.cur_event < len(events):
+            waits[gid] = (events[slot.cur_event], work)
+        elif not (slot.work_end_ns and slot.work_end_ns < end_ns):  # neither blocked nor done with its program
+            going.add(gid)
+    changed = True
+    while changed:  # a blocked thread that something going can release is going too
+        changed = False
+        for gid, (event, _) in waits.items():
+            if gid not in going and _releasable(gid, event, going, owners, can_release):
+                going.add(gid)
+                changed = True
+    out = []
+    for gid, (event, work) in waits.items():
+        slot = threads[gid].slot
+        blocked = end_ns - slot.blocked_since_ns
+        if gid in going or blocked < STALL_MIN_NS:
+            continue
+        phase = work.phase_names()[slot.cur_phase] if 0 <= slot.cur_phase < len(work.phases) else "?"
+        out.append(
+            f"{labels.get(gid, str(gid))} was blocked in `{event.label()}` (phase {phase}, event {slot.cur_event}) for the last "
+            f"{units.human_duration(blocked)} of the run; {_why_stuck(event, owners, labels)}"
+        )
+    return out
+
+
+def _held(work: PhasesWork, phase: int, at: int) -> set[str]:
+    """The mutexes a thread standing at event `at` (program order) of `phase` holds: those locked earlier in the phase's
+    pass and not unlocked (a phase ends holding none: validation sees to that); a condition wait's mutex is let go
+    while it waits.  The runner reads this from where the thread stood, not from the mutexes: a thread cut by the
+    end unlocks what it held as it leaves, before the runner looks."""
+    held: set[str] = set()
+    if not 0 <= phase < len(work.phases):
+        return held
+    for n, (k, event) in enumerate(work.events()):
+        if k != phase or n > at:
+            continue
+        name = event.names()[0][0] if event.names() else ""
+        if event.event is EventKind.LOCK and n < at:
+            held.add(name)
+        elif event.event is EventKind.UNLOCK and n < at:
+            held.discard(name)
+        elif event.event is EventKind.WAIT and n == at and event.mutex:
+            held.discard(event.mutex)
+    return held
+
+
+def _releasable(
+    gid: int, event: Event, going: set[int], owners: dict[str, int], can_release: dict[tuple[EventKind, str], set[int]]
+) -> bool:
+    name = event.names()[0][0] if event.names() else ""
+    if event.event is EventKind.LOCK:
+        owner = owners.get(name, -1)
+        return owner < 0 or owner in going
+    return any(other in going and other != gid for kind in _RELEASED_BY.get(event.event, ()) for other in can_release.get((kind, name), ()))
+
+
+def _why_stuck(event: Event, owners: dict[str, int], labels: dict[int, str]) -> str:
+    name = event.names()[0][0] if event.names() else ""
+    if event.event is EventKind.LOCK:
+        return f"its holder, {labels.get(owners.get(name, -1), 'a thread')}, was stuck too"
+    what = {EventKind.WAIT: f"signals {name}", EventKind.SUSPEND: f"resumes {name}", EventKind.BARRIER: f"passes the barrier {name}"}
+    return f"no thread that {what.get(event.event, name)} was still going"
 
 
 def deadline_admission(scenario: Scenario, rt_runtime_us: Optional[int], rt_period_us: Optional[int], cpus: int) -> str:

@@ -31,7 +31,7 @@ SLOT_HEADER = 512
 HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
 LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
-_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqqq")
+_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqq")
 _COUNT_AT, _LOOPS_AT = 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
 EV_HDR = 192
@@ -41,7 +41,7 @@ _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
 assert (
     SAMPLE.size == _probe.SAMPLE_SIZE == 112
     and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
-    and _SLOT.size == 472
+    and _SLOT.size == 464
     and _EVENT.size == 152
     and _PHASE.size == 360
 )
@@ -182,7 +182,6 @@ class SlotData:
     cur_phase: int = -1  # where a program stood when the slot was read
     cur_event: int = -1
     blocked_since_ns: int = 0
-    block_max_ns: int = 0  # the longest block (lock, wait, barrier, suspend) it came out of during the run
     timer_due_ns: int = 0  # programs: the first release of the timer it last followed that it had not served; 0: it reached none
 
     @property
@@ -443,8 +442,7 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
         cur_phase=f[58],
         cur_event=f[59],
         blocked_since_ns=f[60],
-        block_max_ns=f[61],
-        timer_due_ns=f[62],
+        timer_due_ns=f[61],
     )
 
 
