@@ -263,7 +263,7 @@ def test_a_program_that_sets_its_own_policy_as_it_starts_is_not_degraded_and_a_w
     # Asked for FIFO 80 (the kernel took it before exec) and then changed by the program: words, not an error.
     changed = outcome(_program(_spec(), (_thread(500, 0, "rtprog", mine),)), T0, T0 + SECOND, False, degradation)
     assert changed.failures == [] and [t.degraded for _, t in changed.threads] == [[]]
-    assert any("changed the settings the runner gave it before exec" in w and "fifo:80 requested" in w for w in changed.warnings)
+    assert any("held other settings than the runner gave it before exec" in w and "fifo:80 requested" in w for w in changed.warnings)
 
 
 def test_a_rule_that_matched_the_main_thread_is_checked_against_the_rule():
@@ -284,3 +284,18 @@ def test_a_program_seen_stopped_is_an_error_that_says_when():
         "program talker (pid 500) was stopped (SIGSTOP or a debugger) 0.25s into the cell; its threads could not run while it was"
     ]
     assert outcome(raw, T0, T0 + SECOND, True, degradation).failures == [], "interrupted: the user's stop says it"
+
+
+def test_a_program_is_stopped_when_two_ticks_find_it_so_and_a_tracers_stop_is_not_one(monkeypatch):
+    from runner.run import external, kernel
+
+    states = iter(["t", "S", "T", "S", "T", "T", "T"])
+    monkeypatch.setattr(kernel, "process_state", lambda pid: next(states))
+    run = external.ProgramRun(_spec(), "/tmp", OTHER, (0, 1))
+    run.pid = 500
+    monkeypatch.setattr(run, "poll", lambda: False)
+    seen = []
+    for _ in range(6):
+        run.watch_state()
+        seen.append(run.halted_ns is not None)
+    assert seen == [False, False, False, False, False, True], "strace's t, then T once, then T twice in a row"

@@ -157,7 +157,7 @@ class ProgramRun:
         self.memory_peak: Optional[int] = None
         self.oom_kills: Optional[int] = None
         self.halted_ns: Optional[int] = None  # when it was first seen stopped (SIGSTOP, a debugger)
-        self._family: list[int] = []  # its process and the processes it started, as found (see family)
+        self._stopped_seen: Optional[int] = None  # when a tick first found it stopped (one more says it stayed so)
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
@@ -225,24 +225,28 @@ class ProgramRun:
         return self.status is not None
 
     def family(self) -> list[int]:
-        """The program's process and those it started (children, a daemon, `ros2 run`'s node), as its cgroup holds them.
+        """The program's process and those it started (children, a daemon, `ros2 run`'s node), as its cgroup holds them now.
 
-        Where the runner could not give it a cgroup (or it was attached to, by `runner watch`),
-        the program's process alone.  A process, once found, stays listed (its threads' ends
-        are seen by their counters).
+        Read afresh each time (a pid that left cannot be reused into the list, and two threads
+        asking need no lock); where the runner could not give it a cgroup (or it was attached
+        to, by `runner watch`), the program's process alone.
         """
-        if self.cgroup is not None and not self.attached:
-            for pid in self.cgroup.processes():
-                if pid not in self._family:
-                    self._family.append(pid)
-        elif not self._family and self.pid:
-            self._family.append(self.pid)
-        return self._family
+        found = self.cgroup.processes() if self.cgroup is not None and not self.attached else []
+        return [self.pid] + [pid for pid in found if pid != self.pid] if self.pid else found
 
     def watch_state(self) -> None:
-        """Note when it is first seen stopped (state T: SIGSTOP, a debugger): its threads cannot run while it is."""
-        if self.halted_ns is None and self.pid and not self.poll() and kernel.process_state(self.pid) in ("T", "t"):
-            self.halted_ns = time.monotonic_ns()
+        """Note when it was stopped (SIGSTOP, a debugger's stop), found so by two ticks in a row: its threads cannot run.
+
+        Only state T counts: a tracer's stop at each system call (t, strace) passes at once.
+        """
+        if self.halted_ns is not None or not self.pid or self.poll():
+            return
+        if kernel.process_state(self.pid) != "T":
+            self._stopped_seen = None
+        elif self._stopped_seen is None:
+            self._stopped_seen = time.monotonic_ns()
+        else:
+            self.halted_ns = self._stopped_seen
 
     def stop(self, guard: Watcher) -> None:
         """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""

@@ -160,8 +160,8 @@ def outcome(
         changed = degradation(main_wanted, main_first, ApplyErrors())
         if changed:
             warnings.append(
-                f"program {spec.name} changed the settings the runner gave it before exec, as it started: {'; '.join(changed)} "
-                "(its history says when)"
+                f"program {spec.name} held other settings than the runner gave it before exec when first seen: {'; '.join(changed)} "
+                "(the program, or the kernel, changed them; its history says when)"
             )
     if raw.oom_kills and not oom:
         warnings.append(
