@@ -170,14 +170,15 @@ def queue_consumers(raw: RawCell) -> dict[str, list[PlannedThread]]:
     return out
 
 
-def pool_verdicts(raw: RawCell, expectations: list[Expectation]) -> list[Verdict]:
+def pool_verdicts(raw: RawCell, consumers: dict[str, list[PlannedThread]], expectations: list[Expectation]) -> list[Verdict]:
     """A failed verdict for each queue several stages take from that dropped resumes: the pool could not keep up.
 
     No one stage missed them (any of them could have taken each), so none is charged with them;
     a bound of the scenario's own on missed_releases for every stage of the pool replaces it.
+    `consumers`: queue_consumers of the cell.
     """
     out = []
-    for q, stages in queue_consumers(raw).items():
+    for q, stages in consumers.items():
         dropped = next((r.dropped for r in raw.resources if r.name == q), 0)
         if len(stages) < 2 or not dropped:
             continue
@@ -411,7 +412,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                     verdict.line, verdict.col = mark.line, mark.col
                 result.expectations.append(verdict)
     own = [scenario.expect[i] for i in expectations_for(scenario, cell)]
-    implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, own)
+    implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own)
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)
     result.background = [
