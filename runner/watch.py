@@ -43,7 +43,10 @@ def parse_rule(text: str) -> ThreadRule:
     try:
         return ThreadRule.model_validate(data)
     except ValidationError as exc:
-        what = "; ".join(f"{'.'.join(str(x) for x in e['loc']) or 'rule'}: {e['msg']}" for e in exc.errors(include_url=False))
+        what = "; ".join(
+            f"{'.'.join(str(x) for x in e['loc']) or 'rule'}: {e['ctx']['error'] if e['type'] == 'value_error' else e['msg']}"
+            for e in exc.errors(include_url=False)
+        )
         raise UsageError(f"runner watch: --rule {text!r}: {what}") from None
 
 

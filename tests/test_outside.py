@@ -201,6 +201,9 @@ def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
     rule = parse_rule("ctl_*=fifo:80@1")
     assert (rule.match, rule.sched and rule.sched.label(), rule.cpus) == ("ctl_*", "fifo:80", (1,))
     assert parse_rule("mw_*@0").sched is None
+    with pytest.raises(UsageError) as bad_priority:
+        parse_rule("x=fifo:bad")
+    assert "priority 'bad' in 'fifo:bad' is not an integer" in str(bad_priority.value) and "Value error" not in str(bad_priority.value)
     for bad, words in (("ctl_loop", "expected PATTERN=SCHED"), ("x=fifo:200", "rule"), ("=fifo:80", "expected PATTERN")):
         with pytest.raises(UsageError, match=words):
             parse_rule(bad)
