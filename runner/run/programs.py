@@ -25,7 +25,7 @@ from runner.run.rawcell import RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario
 from runner.scenario.plan import Settings
-from runner.scenario.program import deadline_asks
+from runner.scenario.program import admitted_words, asked_words, deadline_asks
 
 _MEASURES = {
     EventKind.LOCK: "wait",
@@ -258,14 +258,7 @@ def _why_stuck(event: Event, owners: dict[str, int], labels: dict[int, str]) -> 
 
 def deadline_admission(scenario: Scenario, rt_runtime_us: Optional[int], rt_period_us: Optional[int], cpus: int) -> str:
     """Why the kernel refused SCHED_DEADLINE (EBUSY), in numbers: the cell's bandwidth against what the kernel admits."""
-    asks = deadline_asks(scenario)
-    total = sum(b for _, b in asks)
-    parts = ", ".join(f"{name} {b:.2f}" for name, b in asks[:6]) + (", ..." if len(asks) > 6 else "")
-    text = f"the kernel refused SCHED_DEADLINE admission (EBUSY): this cell asks {total:.2f} CPUs of bandwidth ({parts})"
+    text = f"the kernel refused SCHED_DEADLINE admission (EBUSY): this cell asks {asked_words(deadline_asks(scenario))}"
     if rt_runtime_us is not None and rt_period_us and rt_runtime_us >= 0:
-        share = rt_runtime_us / rt_period_us
-        text += (
-            f" and the kernel admits at most {share:.2f} per CPU x {cpus} CPUs = {share * cpus:.2f} "
-            f"(sched_rt_runtime_us {rt_runtime_us} / sched_rt_period_us {rt_period_us}), less what other deadline tasks hold"
-        )
+        text += f" and the kernel admits {admitted_words(rt_runtime_us, rt_period_us, cpus)}, less what other deadline tasks hold"
     return text

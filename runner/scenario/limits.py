@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 from runner import units
 from runner.scenario.model import HogKind, PeriodicWork, PhasesWork, ProcessSpec, ProgramSpec, Scenario
-from runner.scenario.program import deadline_asks
+from runner.scenario.program import admitted_words, asked_words, deadline_asks
 
 Path = tuple[str | int, ...]
 
@@ -163,18 +163,15 @@ def _check_deadline(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     if not limits.online or limits.rt_runtime_us is None or limits.rt_runtime_us < 0 or not limits.rt_period_us:
         return []
     asks = deadline_asks(scenario)
-    total = sum(b for _, b in asks)
-    share = limits.rt_runtime_us / limits.rt_period_us
-    room = share * len(limits.online)
-    if total <= room + 1e-9:
+    room = limits.rt_runtime_us / limits.rt_period_us * len(limits.online)
+    if sum(b for _, b in asks) <= room + 1e-9:
         return []
-    parts = ", ".join(f"{name} {b:.2f}" for name, b in asks[:6]) + (", ..." if len(asks) > 6 else "")
     return [
         Finding(
             ("processes",),
-            f"the cell's SCHED_DEADLINE threads ask {total:.2f} CPUs of bandwidth ({parts}), but this machine admits at most "
-            f"{share:.2f} per CPU x {len(limits.online)} CPUs = {room:.2f} (sched_rt_runtime_us {limits.rt_runtime_us} / "
-            f"sched_rt_period_us {limits.rt_period_us}); the kernel would refuse the policy (EBUSY): lower runtime or count",
+            f"the cell's SCHED_DEADLINE threads ask {asked_words(asks)}, but this machine admits "
+            f"{admitted_words(limits.rt_runtime_us, limits.rt_period_us, len(limits.online))}; "
+            "the kernel would refuse the policy (EBUSY): lower runtime or count",
             elsewhere=True,
         )
     ]

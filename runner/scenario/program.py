@@ -170,6 +170,21 @@ def deadline_asks(scenario: Scenario) -> list[tuple[str, float]]:
     return asks
 
 
+def asked_words(asks: list[tuple[str, float]]) -> str:
+    """`2.70 CPUs of bandwidth (greedy 0.90, greedy 0.90, greedy 0.90)`: what deadline_asks asks, in words."""
+    parts = ", ".join(f"{name} {b:.2f}" for name, b in asks[:6]) + (", ..." if len(asks) > 6 else "")
+    return f"{sum(b for _, b in asks):.2f} CPUs of bandwidth ({parts})"
+
+
+def admitted_words(rt_runtime_us: int, rt_period_us: int, cpus: int) -> str:
+    """`at most 0.95 per CPU x 2 CPUs = 1.90 (sched_rt_runtime_us 950000 / sched_rt_period_us 1000000)`."""
+    share = rt_runtime_us / rt_period_us
+    return (
+        f"at most {share:.2f} per CPU x {cpus} CPUs = {share * cpus:.2f} "
+        f"(sched_rt_runtime_us {rt_runtime_us} / sched_rt_period_us {rt_period_us})"
+    )
+
+
 @dataclass(frozen=True)
 class SpawnSite:
     """Where a spawn event stands: the spawning thread spec (None: the main thread), its phase, the event's path."""
