@@ -417,6 +417,7 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         if options.dma_latency_us is not None and not dma.held:
             warn(f"{dma.note}; CPUs may enter deep idle states during the run (--no-dma-latency to not try)")
         loop = _cell_loop(units_left, run, store)
+    run.backend.cells_done()
     statuses = loop.final(stop.requested())
     stop.late_words = "runner: asked to stop; the cells are done, finishing the results and the report"
     doc.finished_at = datetime.now(timezone.utc).isoformat(timespec="seconds")

@@ -53,6 +53,7 @@ class FakeBackend:
     acts: dict[str, Act] = field(default_factory=dict)
     ran: list[str] = field(default_factory=list)
     closed: bool = False
+    cells_over: bool = False  # cells_done() was called
     prepared: Optional[bool] = None  # prepare()'s trace argument, once the session called it
     dma_refused: str = ""  # why the fake /dev/cpu_dma_latency cannot be held; "" holds it
     dma_requests: list[Optional[int]] = field(default_factory=list)
@@ -163,6 +164,9 @@ class FakeBackend:
             (BackgroundProcess("hog", "hog", 4343),),
             released_late=act.released_late,
         )
+
+    def cells_done(self) -> None:
+        self.cells_over = True
 
     def close(self) -> None:
         self.closed = True

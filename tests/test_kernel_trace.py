@@ -144,6 +144,26 @@ def test_a_killed_owner_leaves_no_instance_behind(tmp_path):
     assert not any(os.path.exists(p) for p in paths), "the guard removes the instances of its dead owner"
 
 
+def test_a_backend_lets_go_of_its_instances_and_zygote_once_the_cells_are_done():
+    from runner.run.spawn import KernelBackend
+
+    backend = KernelBackend()
+    try:
+        backend.prepare(trace=True)
+        assert backend._preparing is not None
+        backend._preparing.join()
+        paths, zygote = backend.traces.paths, backend.zygote
+        assert paths and all(os.path.isdir(p) for p in paths) and zygote is not None
+        backend.cells_done()
+        backend.cells_done()  # a second call starts nothing more
+        assert len(backend._winding_down) == 2
+    finally:
+        backend.close()
+    assert not any(os.path.exists(p) for p in paths), "the trace's instances are removed by the time close() returns"
+    assert zygote.proc.returncode is not None and zygote.closed, "the zygote is reaped"
+    assert backend.guard.proc is None
+
+
 def test_instances_of_a_dead_runner_are_removed_at_open():
     gone = subprocess.Popen(["true"])
     gone.wait()

@@ -44,7 +44,7 @@ def test_a_matrix_that_meets_its_expectations_exits_0(tmp_path):
     code, results = run(MATRIX, tmp_path / "r", backend)
     assert code == 0
     assert results["status"] == "passed" and [c["status"] for c in results["cells"]] == ["passed"] * 5
-    assert sorted(backend.ran) == sorted(FIFO_CELLS + [OTHER]) and backend.closed
+    assert sorted(backend.ran) == sorted(FIFO_CELLS + [OTHER]) and backend.closed and backend.cells_over
     assert os.path.exists(tmp_path / "r" / "report.md")
 
 

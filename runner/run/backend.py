@@ -77,5 +77,8 @@ class Backend(Protocol):
     def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
         """Run one cell's processes into `folder`; OSError when its files cannot be created."""
 
+    def cells_done(self) -> None:
+        """The run's last cell has ended: start letting go of what only cells use, while the run saves and reports."""
+
     def close(self) -> None:
         """Release what the backend holds (the watchdog thread, the guard process)."""

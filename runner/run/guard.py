@@ -28,6 +28,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import IO, Optional, Protocol
@@ -145,6 +146,7 @@ class Guard:
 
     def __init__(self) -> None:
         self.proc: Optional[subprocess.Popen[str]] = None
+        self._lock = threading.Lock()
         try:
             self.proc = subprocess.Popen(
                 python_module("runner.run.guard"),
@@ -161,13 +163,14 @@ class Guard:
             self.proc = None  # without a guard, PDEATHSIG still covers the workers
 
     def _send(self, line: str) -> None:
-        if self.proc is None or self.proc.stdin is None:
-            return
-        try:
-            self.proc.stdin.write(line + "\n")
-            self.proc.stdin.flush()
-        except (OSError, ValueError):
-            self.proc = None
+        with self._lock:  # the run's threads (trace set-up and removal, the zygote's end) tell it things too: whole lines
+            if self.proc is None or self.proc.stdin is None:
+                return
+            try:
+                self.proc.stdin.write(line + "\n")
+                self.proc.stdin.flush()
+            except (OSError, ValueError):
+                self.proc = None
 
     def watch(self, pgid: int) -> None:
         """Kill process group `pgid` should the runner die before it reaps it."""

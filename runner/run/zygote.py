@@ -94,6 +94,7 @@ class Zygote:
         self.sock: Optional[socket.socket] = sock
         self.statuses: dict[int, int] = {}  # exit statuses the zygote reported, by pid, until their child takes them
         self.failure = ""  # why it stopped serving, in words
+        self.closed = False  # ended and reaped: a second close() does nothing
 
     @classmethod
     def start(cls, guard: Optional[Watcher] = None) -> Optional[Zygote]:
@@ -192,6 +193,8 @@ class Zygote:
             self.sock.close()
             self.sock = None
             self.failure = "closed"
+        if self.closed:
+            return
         try:
             self.proc.wait(timeout=2)
         except subprocess.TimeoutExpired:
@@ -199,6 +202,7 @@ class Zygote:
             self.proc.wait()
         if guard is not None:
             guard.forget(self.proc.pid)
+        self.closed = True
 
 
 # ---- the zygote process ----
