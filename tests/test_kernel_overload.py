@@ -225,3 +225,24 @@ def test_the_most_preempted_callbacks_are_those_the_kernel_counted_switches_in_a
         assert row["nivcsw"] + before + after == r["preemptions"], (r, row)
         assert r["preempted_ns"] <= r["wall_ns"] and r["by_ns"] <= r["preempted_ns"]
     assert sum(r["by"]["comm"] == "hog" for r in runs) >= len(runs) // 2, [r["by"] for r in runs]
+
+
+def test_the_background_load_lasts_until_a_callback_that_ran_past_the_end_is_done(tmp_path):
+    """The load ends early only once no measured thread works: never under a callback still running at the end.
+
+    Released 0.95 s into a 1 s cell, a callback of 150 ms of CPU time shares its CPU with a
+    hog to its end (about 300 ms of wall); had the hog stopped at the end, it would have run
+    alone from there (about 175 ms).  Every callback is as slow as the first ones.
+    """
+    scenario = {
+        "name": "loadend",
+        "duration": "1s",
+        "processes": [{"name": "ldend", "main": {"cpus": [0], "work": {"kind": "periodic", "period": "475ms", "burn": "150ms"}}}],
+        "background": {"hogs": [{"count": 1, "cpus": [0], "name": "ldhog"}]},
+        "expect": [{"thread": "ldend", "metric": "overruns", "max": 10}, {"thread": "ldend", "metric": "missed_releases", "max": 10}],
+    }
+    done, _ = run(tmp_path, scenario)
+    main = thread(done.results, "ldend")
+    assert main["figures"]["callbacks"] == 3, main["figures"]
+    wall = main["figures"]["callback_wall_ns"]
+    assert wall["min"] > 250_000_000, f"a callback ran without the hog beside it: {wall}"

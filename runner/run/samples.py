@@ -32,8 +32,9 @@ HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
 LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqq")
-_COUNT_AT, _LOOPS_AT = 8, 96
+_STATE_AT, _COUNT_AT, _LOOPS_AT = 4, 8, 96
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
+_WORKING = (1, 2)  # ready, running
 EV_HDR = 192
 PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
@@ -458,6 +459,10 @@ class Buffer:
     def loops(self) -> list[int]:
         """Callbacks (or spin slices) so far, per slot."""
         return [struct.unpack_from("<Q", self.map, self.layout.slot(i) + _LOOPS_AT)[0] for i in range(self.layout.nthreads)]
+
+    def working(self) -> bool:
+        """Whether a thread is at the gate or in its work: one created later, finished or failed is not."""
+        return any(struct.unpack_from("<i", self.map, self.layout.slot(i) + _STATE_AT)[0] in _WORKING for i in range(self.layout.nthreads))
 
     def written(self, index: int) -> int:
         return int(struct.unpack_from("<Q", self.map, self.layout.slot(index) + _COUNT_AT)[0])

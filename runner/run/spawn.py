@@ -23,7 +23,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Mapping
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, suppress
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
@@ -667,6 +667,7 @@ class _CellRun:
         self.t0: Optional[int] = None  # the common start instant, once the gate opened
         self.t_end: Optional[int] = None
         self.incidents: dict[str, str] = {}  # background load that died, processes that were stopped: by who
+        self.load_ended = False  # the background load was stopped once the measured work was over
 
     def start(self) -> None:
         """Start every process; once all are ready, read back each thread's settings and start background commands."""
@@ -787,8 +788,10 @@ class _CellRun:
         exits = _Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
         try:
             while self._running(t_end):
-                exits.wait(0.05 if options.follow else 0.2)
+                exits.wait(self._next_wait(t_end))
                 self._tick(t0, t_end, snapshot_at, epoch_offset, total_expected)
+                if self.loading and time.monotonic_ns() >= t_end and not any(w.buffer and w.buffer.working() for w in workers):
+                    self._end_load()
         finally:
             exits.close()
         self.exit_time = time.monotonic_ns()
@@ -798,6 +801,35 @@ class _CellRun:
             if options.follow:
                 _follow_lines(w, epoch_offset, options.follow)
             _read_done(w)
+
+    def _next_wait(self, t_end: int) -> float:
+        """Seconds the supervising loop sleeps at most: a tick, and while load runs, up to the end, then briefly.
+
+        The workers' threads finish at the end, but leave their processes only as the CPUs let
+        them: the background load is ended as soon as no measured thread works any more, so that
+        it does not hold up their exit (SCHED_OTHER threads beside a busy loop per CPU: 2 to 8 ms).
+        After the end the wait grows with the time since (a millisecond at first, half of it later),
+        so a callback that overran far past the end is not polled a thousand times a second.
+        """
+        tick = 0.05 if self.options.follow else 0.2
+        if not self.loading:
+            return tick
+        left = (t_end - time.monotonic_ns()) / 1e9
+        return min(tick, left if left > 0 else max(0.001, -left / 2))
+
+    @property
+    def loading(self) -> bool:
+        """Whether background load still runs that the cell's end may stop early: hogs or commands, and no program measured."""
+        return not self.load_ended and bool(self.hogs or self.commands) and not self.programs
+
+    def _end_load(self) -> None:
+        """The measured work is over: the background load stops now (stop() reaps it)."""
+        self.load_ended = True
+        for h in self.hogs:
+            h.signal(signal.SIGTERM)
+        for c in self.commands:
+            with suppress(ProcessLookupError):
+                os.killpg(c.pid, signal.SIGTERM)
 
     def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
         """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
@@ -896,13 +928,7 @@ class _CellRun:
         for p in self.programs:
             p.abandon()
             p.stop(self.guard)
-        for h in self.hogs:
-            h.signal(signal.SIGTERM)
-        for c in self.commands:
-            try:
-                os.killpg(c.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
+        self._end_load()
         stop_by = time.monotonic() + STOP_GRACE_S
         for proc in [w.popen for w in self.workers + self.hogs if w.popen] + self.commands:
             try:
