@@ -18,7 +18,6 @@ from runner.errors import Problem, ScenarioError, special_file
 from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
 from runner.results.journal import journal_path, merge_journal
-from runner.results.legacy import _V1File, upgrade_v1
 
 # ---------------------------------------------------------------- reading a results file
 
@@ -46,6 +45,8 @@ def load(path: str) -> RunDocument:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read results: {exc.strerror}")]) from None
     data = parse_json(path, raw)
     if _schema_version(path, data) == 1:
+        from runner.results.legacy import _V1File, upgrade_v1  # its models cost 17 ms to build: only for files of the first schema
+
         try:
             _V1File.model_validate(data)
         except ValidationError as exc:
