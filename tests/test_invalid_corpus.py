@@ -58,3 +58,12 @@ def test_run_of_an_invalid_file_exits_2_without_starting_anything():
     assert outcome.code == 2
     assert "priority 100 is out of range" in outcome.err
     assert outcome.out == ""
+
+
+def test_one_invalid_process_hides_no_cross_reference_problem_and_invents_none():
+    """The processes that validate are cross-checked beside the one that does not; what that one names stays unjudged."""
+    path = os.path.join(REPO, "tests", "invalid", "problems_beside_an_invalid_process.yaml")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    reported = sorted(str(p).removeprefix(f"{path}:") for p in caught.value.problems)
+    assert reported == sorted(expectations(path)), "exactly the problems written in the file: none about t1 or p/t1"

@@ -96,7 +96,7 @@ def expect_hash(cells: list[ResolvedCell]) -> str:
     return hashlib.sha256(json.dumps(judged, sort_keys=True).encode()).hexdigest()[:16]
 
 
-_PROCESSES = TypeAdapter(list[AnyProcess])
+_PROCESS: TypeAdapter[AnyProcess] = TypeAdapter(AnyProcess)
 _RESOURCES = TypeAdapter(dict[str, Resource])
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
 
@@ -228,11 +228,24 @@ def _cells_note(where: list[str], total: int) -> str:
 
 
 def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex, context: dict[str, Any] | None) -> list[Problem]:
-    """Cross-field checks on the parts that did validate, so one bad field does not hide the rest."""
-    try:
-        processes = _PROCESSES.validate_python(raw.get("processes"), context=context)
-    except ValidationError:
+    """Cross-field checks on the parts that did validate, so one bad field does not hide the rest.
+
+    Each process is taken on its own: those that validate are checked, and the names written
+    in those that do not (process, main and thread names) are not called unknown by an
+    expectation.  References between processes (resources' users) wait for every process to be valid.
+    """
+    written = raw.get("processes")
+    if not isinstance(written, list):
         return []
+    processes: list[AnyProcess] = []
+    at: list[int] = []  # where each valid process is written
+    unreadable: set[str] = set()
+    for i, item in enumerate(written):
+        try:
+            processes.append(_PROCESS.validate_python(item, context=context))
+            at.append(i)
+        except ValidationError:
+            unreadable |= _written_names(item)
     expectations = []
     for i, item in enumerate(raw.get("expect") or [] if isinstance(raw.get("expect"), list) else []):
         try:
@@ -243,7 +256,18 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
         resources: dict[str, Resource] | None = _RESOURCES.validate_python(raw.get("resources") or {})
     except ValidationError:
         resources = None  # its own problems are reported; references to it cannot be checked
-    return _cross_checks(doc, processes, expectations, index, resources)
+    if unreadable or len(processes) < len(written):
+        resources = None
+    return _cross_checks(doc, processes, expectations, index, resources, at, frozenset(unreadable))
+
+
+def _written_names(item: Any) -> set[str]:
+    """The names a process that did not validate is written with: its own, its main thread's, its threads'."""
+    if not isinstance(item, dict):
+        return set()
+    threads = item.get("threads")
+    nodes = [item, item.get("main"), *(threads if isinstance(threads, list) else [])]
+    return {n["name"] for n in nodes if isinstance(n, dict) and isinstance(n.get("name"), str)}
 
 
 def _cross_checks(
@@ -252,32 +276,45 @@ def _cross_checks(
     expectations: list[tuple[int, Expectation]],
     index: MatrixIndex,
     resources: dict[str, Resource] | None,
+    at: list[int] | None = None,
+    unreadable: frozenset[str] = frozenset(),
 ) -> list[Problem]:
-    """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules."""
+    """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules.
+
+    `at`: where each of `processes` is written, when they are the valid ones of a list with
+    invalid ones; `unreadable`: the names written in those, which expectations may name.
+    """
     out: list[Problem] = []
+
+    def written(path: tuple[Any, ...]) -> tuple[Any, ...]:
+        if at is not None and path[:1] == ("processes",):
+            path = ("processes", at[path[1]], *path[2:])
+        return written_path(doc.data, path)
+
     if resources is not None:
-        out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.reference_problems(processes, resources))
-    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.deadline_problems(processes))
-    out.extend(doc.problem(written_path(doc.data, path), message) for path, message in program.spawn_problems(processes))
+        out.extend(doc.problem(written(path), message) for path, message in program.reference_problems(processes, resources))
+    out.extend(doc.problem(written(path), message) for path, message in program.deadline_problems(processes))
+    out.extend(doc.problem(written(path), message) for path, message in program.spawn_problems(processes))
     seen: set[str] = set()
     programs = {p.name for p in processes if isinstance(p, ProgramSpec)}
     for i, proc in enumerate(processes):
-        if isinstance(proc, ProgramSpec) and proc.until is Until.EXIT and len(programs) < len(processes):
+        if isinstance(proc, ProgramSpec) and proc.until is Until.EXIT and (len(programs) < len(processes) or at is not None):
             out.append(
                 doc.problem(
-                    ("processes", i, "until"),
+                    written(("processes", i, "until")),
                     "until: exit ends the cell when the program exits, but the runner's own processes run for the whole duration; "
                     "run the load as background (hogs, commands) or use until: end",
                 )
             )
         if proc.name in seen:
-            out.append(doc.problem(("processes", i, "name"), f"process name {proc.name!r} is used twice; use instances: N for copies"))
+            twice = f"process name {proc.name!r} is used twice; use instances: N for copies"
+            out.append(doc.problem(written(("processes", i, "name")), twice))
         seen.add(proc.name)
     planned = [t for proc in workers(processes) for t in plan_process(proc, Settings())]
     names: dict[str, list[str]] = {}
     for t in planned:
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
-    every = sorted({n for group in names.values() for n in group})
+    every = sorted({n for group in names.values() for n in group} | unreadable)
     keys = index.keys
     for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
@@ -285,6 +322,8 @@ def _cross_checks(
         process, sep, thread = exp.thread.rpartition("/")
         if process in programs if sep else not targets and programs:
             continue  # a program's threads are known only once it runs: one that never appears fails its expectation then
+        if not targets and (process if sep else thread) in unreadable:
+            continue  # written in a process that did not validate (its problems are reported)
         if sep and process not in names:
             out.append(doc.problem(path + ("thread",), f"no process named {process!r}{did_you_mean(process, names)}"))
         elif not targets:
