@@ -298,7 +298,7 @@ def _cross_checks(
     seen: set[str] = set()
     programs = {p.name for p in processes if isinstance(p, ProgramSpec)}
     for i, proc in enumerate(processes):
-        if isinstance(proc, ProgramSpec) and proc.until is Until.EXIT and (len(programs) < len(processes) or at is not None):
+        if isinstance(proc, ProgramSpec) and proc.until is Until.EXIT and len(programs) < len(processes):
             out.append(
                 doc.problem(
                     written(("processes", i, "until")),
