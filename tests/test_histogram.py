@@ -95,6 +95,22 @@ def test_the_native_core_reads_a_histogram_in_place_as_python_builds_it(filled, 
     assert _probe.buckets(buffer, 8 * pad, negated) == (expected.buckets if expected else [])
 
 
+@settings(max_examples=300)
+@given(st.lists(st.integers(-(2**41), 2**41), min_size=1, max_size=40), st.booleans())
+def test_reading_only_the_buckets_of_the_minimum_to_the_maximum_misses_no_row(values, negated):
+    """What a finished thread's histogram holds lies in the buckets of its exact minimum and maximum."""
+    counts = [0] * hg.BUCKETS
+    for v in values:
+        counts[hg.index(v)] += 1
+    buffer = array("Q", counts).tobytes()
+    low, high = max(0, min(values)), max(0, max(values))
+    assert _probe.buckets(buffer, 0, negated, hg.index(low), hg.index(high)) == _probe.buckets(buffer, 0, negated)
+    assert _probe.buckets(buffer, 0, negated, 5, 4) == [], "an empty span reads nothing"
+    for first, last in ((-1, 3), (0, hg.BUCKETS), (6, 4)):
+        with pytest.raises(ValueError, match="not within"):
+            _probe.buckets(buffer, 0, negated, first, last)
+
+
 def test_the_native_core_refuses_a_histogram_beyond_its_buffer():
     buffer = bytes(hg.BUCKETS * 8)
     assert _probe.buckets(buffer, 0) == []

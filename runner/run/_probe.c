@@ -1729,11 +1729,12 @@ static PyObject *probe_apply(PyObject *mod, PyObject *args) {
 }
 
 PyDoc_STRVAR(buckets_doc,
-"buckets(buffer, offset, negated=False) -> [(low, high, count), ...]\n\n"
+"buckets(buffer, offset, negated=False, first=0, last=HIST_BUCKETS-1) -> [(low, high, count), ...]\n\n"
 "The rows of the histogram of HIST_BUCKETS native uint64 counters at `offset` of `buffer`: the buckets\n"
 "that are not zero with the values each holds, ascending (histogram.from_rows, read in place: a cell of\n"
 "1,024 threads holds 4,096 histograms of 4,352 counters).  `negated`: the counters are of the negation\n"
-"of the values, so the rows are (-high, -low, count), still ascending.");
+"of the values, so the rows are (-high, -low, count), still ascending.  Only counters first..last are\n"
+"looked at (the buckets of a finished thread's exact minimum and maximum: the rest are zero).");
 
 static PyObject *bucket_row(int i, int negated, uint64_t count) {
     int64_t low, high;
@@ -1744,8 +1745,12 @@ static PyObject *bucket_row(int i, int negated, uint64_t count) {
 static PyObject *probe_buckets(PyObject *mod, PyObject *args) {
     PyObject *buffer;
     Py_ssize_t offset;
-    int negated = 0;
-    if (!PyArg_ParseTuple(args, "On|p", &buffer, &offset, &negated)) return NULL;
+    int negated = 0, first = 0, last = HIST_BUCKETS - 1;
+    if (!PyArg_ParseTuple(args, "On|pii", &buffer, &offset, &negated, &first, &last)) return NULL;
+    if (first < 0 || last >= HIST_BUCKETS || first > last + 1) {
+        PyErr_Format(PyExc_ValueError, "counters %d..%d are not within 0..%d", first, last, HIST_BUCKETS - 1);
+        return NULL;
+    }
     Py_buffer view;
     if (PyObject_GetBuffer(buffer, &view, PyBUF_SIMPLE) != 0) return NULL;
     PyObject *out = NULL;
@@ -1755,8 +1760,8 @@ static PyObject *probe_buckets(PyObject *mod, PyObject *args) {
     }
     if (!(out = PyList_New(0))) goto done;
     const char *at = (const char *)view.buf + offset;
-    for (int k = 0; k < HIST_BUCKETS; k++) {
-        int i = negated ? HIST_BUCKETS - 1 - k : k;
+    for (int k = 0; k <= last - first; k++) {
+        int i = negated ? last - k : first + k;
         uint64_t v;
         memcpy(&v, at + (Py_ssize_t)i * 8, 8);
         if (!v) continue;

@@ -343,9 +343,21 @@ def _bits(words: tuple[int, ...]) -> tuple[int, ...]:
     return tuple(out)
 
 
-def _hist(buf: bytes | mmap.mmap, at: int, which: int, negated: bool = False) -> list[tuple[int, int, int]]:
-    """The rows of a slot's histogram `which`, read in place by the native core (`negated`: it counts negations)."""
-    return _probe.buckets(buf, at + SLOT_HEADER + which * hg.BUCKETS * 8, negated)
+def _hist(
+    buf: bytes | mmap.mmap, at: int, which: int, negated: bool = False, span: Optional[tuple[int, int]] = None
+) -> list[tuple[int, int, int]]:
+    """The rows of a slot's histogram `which`, read in place by the native core (`negated`: it counts negations).
+
+    `span`: the least and greatest value it can hold (of the negations, when `negated`); the
+    native core then reads only their buckets.  Only for a finished thread: its exact minimum
+    and maximum were written before its counters, and it wrote nothing after.
+    """
+    offset = at + SLOT_HEADER + which * hg.BUCKETS * 8
+    if span is None:
+        return _probe.buckets(buf, offset, negated)
+    if span[0] > span[1]:
+        return []
+    return _probe.buckets(buf, offset, negated, hg.index(span[0]), hg.index(span[1]))
 
 
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
@@ -397,9 +409,12 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
     loops = f[15]
     latency = slack = wall = None
     if layout.histograms and loops:
-        latency = hg.of_buckets(_hist(buf, at, 0), lat_min, lat_max)
-        slack = hg.of_buckets(_hist(buf, at, 2, negated=True) + _hist(buf, at, 1), slack_min, slack_max)
-        wall = hg.of_buckets(_hist(buf, at, 3), wall_min, wall_max)
+        done = STATES.get(f[1]) == "done"  # a thread cut short may have counted a value before its minimum or maximum
+        latency = hg.of_buckets(_hist(buf, at, 0, span=(lat_min, lat_max) if done else None), lat_min, lat_max)
+        late = (max(1, -slack_max), -slack_min) if done else None  # the negations of the slack below 0
+        early = (max(0, slack_min), slack_max) if done else None
+        slack = hg.of_buckets(_hist(buf, at, 2, negated=True, span=late) + _hist(buf, at, 1, span=early), slack_min, slack_max)
+        wall = hg.of_buckets(_hist(buf, at, 3, span=(wall_min, wall_max) if done else None), wall_min, wall_max)
     stats = CallbackStats(
         releases=releases,
         overruns=overruns,
