@@ -225,6 +225,9 @@ def test_the_most_preempted_callbacks_are_those_the_kernel_counted_switches_in_a
         assert row["nivcsw"] + before + after == r["preemptions"], (r, row)
         assert r["preempted_ns"] <= r["wall_ns"] and r["by_ns"] <= r["preempted_ns"]
     assert sum(r["by"]["comm"] == "hog" for r in runs) >= len(runs) // 2, [r["by"] for r in runs]
+    hog = next(b for b in c["background"] if b["kind"] == "hog")
+    named = [p for p in main["preempted_by"] if p["comm"] == "hog"] + [r["by"] for r in runs if r["by"]["comm"] == "hog"]
+    assert named and all(p["pid"] == hog["pid"] and p["cls"] == "TS" for p in named), "read from /proc while the hog lived"
 
 
 def test_the_background_load_lasts_until_a_callback_that_ran_past_the_end_is_done(tmp_path):

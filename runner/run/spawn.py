@@ -135,12 +135,13 @@ class KernelBackend:
         """
         if self._winding_down:
             return
-        self._winding_down = [
-            threading.Thread(target=self._end_zygote, name="runner-zygote-end", daemon=True),
-            threading.Thread(target=self._remove_traces, name="runner-trace-remove", daemon=True),
-        ]
-        for thread in self._winding_down:
-            thread.start()
+        for target, name in ((self._end_zygote, "runner-zygote-end"), (self._remove_traces, "runner-trace-remove")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            try:
+                thread.start()
+            except RuntimeError:  # no thread to be had: close() does it
+                continue
+            self._winding_down.append(thread)
 
     def _end_zygote(self) -> None:
         if self.zygote is not None:
@@ -791,6 +792,7 @@ class _CellRun:
                 exits.wait(self._next_wait(t_end))
                 self._tick(t0, t_end, snapshot_at, epoch_offset, total_expected)
                 if self.loading and time.monotonic_ns() >= t_end and not any(w.buffer and w.buffer.working() for w in workers):
+                    self._stop_trace()  # the measured work is over; the tasks it names are looked up while the load lives
                     self._end_load()
         finally:
             exits.close()
