@@ -230,22 +230,24 @@ def _cells_note(where: list[str], total: int) -> str:
 def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex, context: dict[str, Any] | None) -> list[Problem]:
     """Cross-field checks on the parts that did validate, so one bad field does not hide the rest.
 
-    Each process is taken on its own: those that validate are checked, and the names written
-    in those that do not (process, main and thread names) are not called unknown by an
-    expectation.  References between processes (resources' users) wait for every process to be valid.
+    Each process is taken on its own: those that validate are checked.  While one does not, an
+    expectation is judged only when it names a valid process (`process/thread`): a bare thread
+    name may be one of the invalid process's, written or numbered (`count`, `pin: each`), or a
+    program's.  References between processes (resources' users) wait for every process to be valid.
     """
     written = raw.get("processes")
     if not isinstance(written, list):
         return []
     processes: list[AnyProcess] = []
     at: list[int] = []  # where each valid process is written
-    unreadable: set[str] = set()
+    invalid: set[str] = set()  # the names the invalid processes are written with
     for i, item in enumerate(written):
         try:
             processes.append(_PROCESS.validate_python(item, context=context))
             at.append(i)
         except ValidationError:
-            unreadable |= _written_names(item)
+            if isinstance(item, dict) and isinstance(item.get("name"), str):
+                invalid.add(item["name"])
     expectations = []
     for i, item in enumerate(raw.get("expect") or [] if isinstance(raw.get("expect"), list) else []):
         try:
@@ -256,18 +258,8 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
         resources: dict[str, Resource] | None = _RESOURCES.validate_python(raw.get("resources") or {})
     except ValidationError:
         resources = None  # its own problems are reported; references to it cannot be checked
-    if unreadable or len(processes) < len(written):
-        resources = None
-    return _cross_checks(doc, processes, expectations, index, resources, at, frozenset(unreadable))
-
-
-def _written_names(item: Any) -> set[str]:
-    """The names a process that did not validate is written with: its own, its main thread's, its threads'."""
-    if not isinstance(item, dict):
-        return set()
-    threads = item.get("threads")
-    nodes = [item, item.get("main"), *(threads if isinstance(threads, list) else [])]
-    return {n["name"] for n in nodes if isinstance(n, dict) and isinstance(n.get("name"), str)}
+    complete = len(processes) == len(written)
+    return _cross_checks(doc, processes, expectations, index, resources if complete else None, at, None if complete else frozenset(invalid))
 
 
 def _cross_checks(
@@ -277,12 +269,12 @@ def _cross_checks(
     index: MatrixIndex,
     resources: dict[str, Resource] | None,
     at: list[int] | None = None,
-    unreadable: frozenset[str] = frozenset(),
+    invalid: frozenset[str] | None = None,
 ) -> list[Problem]:
     """Checks that span several fields: unique names, expectation targets and selectors, programs' resources, deadline rules.
 
-    `at`: where each of `processes` is written, when they are the valid ones of a list with
-    invalid ones; `unreadable`: the names written in those, which expectations may name.
+    `at`: where each of `processes` is written, when they are the valid ones of a list; `invalid`:
+    given when some process did not validate, the names those are written with.
     """
     out: list[Problem] = []
 
@@ -314,7 +306,7 @@ def _cross_checks(
     names: dict[str, list[str]] = {}
     for t in planned:
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
-    every = sorted({n for group in names.values() for n in group} | unreadable)
+    every = sorted({n for group in names.values() for n in group})
     keys = index.keys
     for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
@@ -322,8 +314,8 @@ def _cross_checks(
         process, sep, thread = exp.thread.rpartition("/")
         if process in programs if sep else not targets and programs:
             continue  # a program's threads are known only once it runs: one that never appears fails its expectation then
-        if not targets and (process if sep else thread) in unreadable:
-            continue  # written in a process that did not validate (its problems are reported)
+        if invalid is not None and (not sep or process in invalid):
+            continue  # may name threads of a process that did not validate (its problems are reported)
         if sep and process not in names:
             out.append(doc.problem(path + ("thread",), f"no process named {process!r}{did_you_mean(process, names)}"))
         elif not targets:
