@@ -457,6 +457,15 @@ def test_an_rt_app_file_runs_directly(tmp_path):
     assert t["figures"]["callbacks"] >= 4 and event(t, "run")["count"] in (t["figures"]["callbacks"], t["figures"]["callbacks"] + 1)
 
 
+def test_a_signal_wakes_an_rt_app_suspend_of_the_same_name(tmp_path):
+    """rt-app's suspend waits on the condition of its name, which a signal of that name wakes: the waiter keeps pace."""
+    done = run_file(tmp_path, os.path.join(REPO, "tests", "rtapp", "signal_wakes_suspend.json"))
+    assert done.code == 0, done.err
+    ticker, waiter = thread(done.results, "ticker"), thread(done.results, "waiter")
+    assert ticker["figures"]["callbacks"] >= 90
+    assert event(waiter, "run")["count"] >= ticker["figures"]["callbacks"] // 2, "woken by the ticker's signals"
+
+
 def test_spawned_threads_are_created_mid_run_and_inherit_their_spawners_settings(tmp_path):
     done = run_file(tmp_path, os.path.join(REPO, "scenarios", "spawn.yaml"))
     res = done.results

@@ -374,6 +374,30 @@ def test_suspend_and_resume_are_queues_named_after_the_suspended_thread():
     assert any("nothing resumes thread2" in n for n in c.notes)
 
 
+def test_a_suspend_also_waited_on_signalled_or_locked_takes_that_condition_and_mutex_as_rt_app_does():
+    """rt-app's suspend and resume of X are lock, wait or broadcast, unlock on the condition and mutex X."""
+    c = conv(
+        """
+        {"tasks": {
+            "waiter": {"suspend": "waiter", "run": 1000},
+            "ticker": {"lock": "waiter", "signal": "waiter", "unlock": "waiter", "resume": "waiter",
+                       "timer": {"ref": "unique", "period": 10000}},
+            "pair0": {"run": 10, "resume": "pair1", "suspend"},
+            "pair1": {"run": 10, "resume": "pair0", "suspend"}
+        }}
+        """
+    )
+    ts = {t["name"]: t["work"]["phases"][0]["events"] for t in c.scenario["processes"][0]["threads"]}
+    mutex, cond = "waiter_mutex", "waiter_cond"
+    assert ts["waiter"][:3] == [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
+    signal, broadcast = [{"lock": mutex}, {"signal": cond}, {"unlock": mutex}], [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
+    assert ts["ticker"][:6] == signal + broadcast
+    assert ts["pair0"][1:] == [{"resume": "pair1"}, {"suspend": "pair0"}], "only suspended and resumed: a queue"
+    kinds = {k: v["kind"] for k, v in c.scenario["resources"].items()}
+    assert kinds == {mutex: "mutex", cond: "cond", "pair1": "queue", "pair0": "queue"}
+    assert any('"waiter" is suspended on or resumed and also waited on, signalled or locked' in n for n in c.notes)
+
+
 def test_locks_conditions_sync_and_barriers():
     c = conv(
         """

@@ -48,7 +48,8 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   a named `kind: timer` resource shared by every thread naming it.  Mode `relative` (rt-app's
   default: the next release is a period after a late one) -> `overrun: rebase`, `absolute` ->
   `overrun: catchup`.  `suspend: X` blocks on, and `resume: X` wakes, the queue `X` (rt-app
-  names the thread; an empty suspend is the thread's own).  `iorun` -> `iorun` (to /dev/null,
+  names the thread; an empty suspend is the thread's own); where a wait, sync, signal or lock
+  also names `X`, they take that condition and mutex instead, as rt-app's do (see `_Wake`).  `iorun` -> `iorun` (to /dev/null,
   rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
   the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
   `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
@@ -389,6 +390,26 @@ class _Fork:
 
 
 @dataclass
+class _Wake:
+    """A suspend or resume until every task is read.
+
+    rt-app's suspend and resume of X take the condition and the mutex X (lock, wait or
+    broadcast, unlock): a resume with no thread suspended at that moment is lost.  Where a
+    wait, sync, signal or lock also names X, that sharing is what the workload relies on, so
+    they take them here too.  Otherwise they take the queue X, whose resumes are counted: the
+    threads here start together at the common start, where rt-app starts them one after the
+    other, and a pair that resume each other would lose their first wake-ups to that race
+    (rt-app's example4 deadlocked at once).
+    """
+
+    kind: str  # suspend or resume
+    name: str
+    at: Any
+    task: int
+    shared: bool = False
+
+
+@dataclass
 class _Use:
     """How the scenario uses one resource name as one kind."""
 
@@ -529,6 +550,7 @@ class _Converter:
         self.problems: list[Problem] = []
         self.notes: list[str] = []
         self.uses: dict[str, dict[str, _Use]] = {}
+        self.wakes: list[_Wake] = []  # suspends and resumes, decided once every task is read
         self.unique: dict[tuple[int, str], _Use] = {}
         self.pi = False
         self.default_policy = "other"
@@ -965,7 +987,9 @@ class _Converter:
                     self.note(phase_at, f'"{key}" names no thread; left out')
                     return []
                 ref = str(at.names[1])  # workgen fills an empty suspend with the thread's own name
-            return [{kind: self.use("queue", ref, at, task, kind)}]
+            wake = _Wake(kind, ref, at, task)
+            self.wakes.append(wake)
+            return [wake]
         return self.timer(key, value, at, task, phase_at)
 
     def wait_refs(self, value: Any, at: _At) -> Optional[tuple[str, str]]:
@@ -1194,8 +1218,26 @@ class _Converter:
 
     # -- resources
 
+    def wake_objects(self) -> None:
+        """Decide what each suspend and resume takes, once every task is read (see `_Wake`)."""
+        shared = {w.name for w in self.wakes if {"cond", "mutex"} & set(self.uses.get(w.name, {}))}
+        for w in self.wakes:
+            if w.name in shared:
+                w.shared = True
+                self.use("mutex", w.name, w.at, w.task, w.kind)
+                self.use("cond", w.name, w.at, w.task, "wait" if w.kind == "suspend" else "signal")
+            else:
+                self.use("queue", w.name, w.at, w.task, w.kind)
+        for name in sorted(shared):
+            self.note(
+                "",
+                f'"{printable(name)}" is suspended on or resumed and also waited on, signalled or locked: its suspends and resumes '
+                "take that condition and mutex, as in rt-app (lock, wait or broadcast, unlock; a resume with no thread suspended is lost)",
+            )
+
     def resources(self) -> dict[str, Any]:
         """Every resource the events name, under its final name; set `self.final` for `resolve`."""
+        self.wake_objects()
         self.final: dict[tuple[str, str], str] = {}
         taken: set[str] = set()
         out: dict[str, Any] = {}
@@ -1263,8 +1305,16 @@ class _Converter:
         if isinstance(value, dict):
             return {k: self.resolve(v) for k, v in value.items()}
         if isinstance(value, list):
-            return [self.resolve(v) for v in value]
+            return [e for v in value for e in (self.wake_events(v) if isinstance(v, _Wake) else [self.resolve(v)])]
         return value
+
+    def wake_events(self, wake: _Wake) -> list[dict[str, Any]]:
+        if not wake.shared:
+            return [{wake.kind: self.final[("queue", wake.name)]}]
+        mutex, cond = self.final[("mutex", wake.name)], self.final[("cond", wake.name)]
+        if wake.kind == "suspend":
+            return [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
+        return [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
 
 
 def _comments(text: str) -> Iterator[str]:
