@@ -566,8 +566,8 @@ def _record(doc: RunDocument, result: CellResult, unit: Unit, store: ResultsStor
     """Add a finished cell to the document and store it at once (`window_end`: when its measured window ended)."""
     result.machine = doc.machine
     result.repeat = unit.repeat
-    if result.samples_file and os.path.isabs(result.samples_file):
-        result.samples_file = os.path.relpath(result.samples_file, doc.folder)
+    if result.samples_file:  # written where the run's folder is, relative to the working directory or not
+        result.samples_file = os.path.relpath(os.path.abspath(result.samples_file), doc.folder)
     doc.cells.append(result)
     if window_end is not None:
         result.overhead_ns.end_to_saved = time.monotonic_ns() - window_end

@@ -287,6 +287,14 @@ def test_resume_runs_again_a_cell_the_disk_spoiled(tmp_path):
     assert [c["status"] for c in results["cells"]] == ["passed"] * 5 and not any(c["unwritten"] for c in results["cells"])
 
 
+def test_a_relative_out_stores_each_samples_file_relative_to_the_results_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, results = run(MATRIX, "nightly/shard-1", FakeBackend(preempted_other()))
+    assert code == 0
+    assert all(c["samples_file"].startswith("cells/") for c in results["cells"]), [c["samples_file"] for c in results["cells"]]
+    assert all(os.path.exists(tmp_path / "nightly" / "shard-1" / c["samples_file"]) for c in results["cells"])
+
+
 def test_repeats_and_a_shuffle_seed_give_one_folder_per_repeat_and_a_recorded_order(tmp_path):
     backend = FakeBackend(preempted_other())
     code, results = run(MATRIX, tmp_path / "r", backend, "--repeat", "2", "--shuffle", "7")
