@@ -191,7 +191,7 @@ class ThreadFigures(_Figures):
     callbacks: int
     missed_releases: int
     releases: int = 0  # releases due in the cell (callbacks + missed), for periodic threads and stages released by resumes
-    overruns: int = 0  # callbacks that ended after their next release
+    overruns: Optional[int] = None  # callbacks that ended after their next release; None: not recorded (files before it was)
     involuntary: Involuntary
     voluntary: Voluntary
     latency_ns: Optional[Spread] = None  # wake-up latency: actual wake minus scheduled release

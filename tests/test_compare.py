@@ -45,6 +45,16 @@ def test_involuntary_regression_and_its_threshold_override(tmp_path):
     assert run_cli("compare", MATRIX, new, "--threshold", "involuntary.per_callback_mean=off").code == 0
 
 
+def test_a_figure_the_baseline_never_recorded_is_no_baseline_not_a_regression():
+    """The first schema kept no overruns: a run's first overrun against it is new, not a change from an invented 0."""
+    base = matrix()  # the recorded policy_matrix run, a file of the first schema
+    assert main_thread(base.cells[-1]).figures.overruns is None
+    result = cmp.compare(base, with_figures(base, base.cells[-1].id, overruns=1))
+    assert result.regressions == 0
+    rows = [f for f in result.figures if f.figure.name == "overruns"]
+    assert [f.verdict for f in rows] == [cmp.Verdict.NEW], rows
+
+
 def test_small_latency_wobble_is_under_the_noise_floor():
     base = matrix()
     p99 = main_thread(base.cells[0]).figures.latency_ns.p99
