@@ -502,6 +502,7 @@ def _cmd_merge(argv: list[str]) -> int:
     from runner.outdir import claim, writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import finish
+    from runner.results.document import Status
     from runner.results.merge import merge
     from runner.session import exit_code
 
@@ -510,9 +511,11 @@ def _cmd_merge(argv: list[str]) -> int:
     held = claim(ns.out, "merge folder")
     try:
         try:
-            doc = merge(ns.inputs, ns.out)
+            doc, errors = merge(ns.inputs, ns.out)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the merged results", before_run=False) from None
+        for error in errors:
+            note(f"runner merge: error: {error}")
         missing = [c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}]
         if missing:
             note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
@@ -523,7 +526,7 @@ def _cmd_merge(argv: list[str]) -> int:
             raise from_os_error(exc, "cannot write the report", before_run=False) from None
     finally:
         held.release()
-    return int(exit_code([c.status for c in doc.cells], regressions))
+    return int(exit_code([c.status for c in doc.cells] + [Status(doc.status)], regressions))
 
 
 def _import_rtapp_parser() -> argparse.ArgumentParser:

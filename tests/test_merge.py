@@ -25,6 +25,7 @@ def split(tmp_path, parts):
     for n, idx in enumerate(parts):
         doc = copy.deepcopy(full)
         doc.cells = [doc.cells[i] for i in idx]
+        doc.cell_ids = [c.id for c in doc.cells]  # what a shard's run is asked for
         doc.shard = f"{n + 1}/{len(parts)}"
         folder = tmp_path / f"shard-{n + 1}"
         folder.mkdir()
@@ -59,6 +60,31 @@ def test_a_missing_shard_is_a_warning_and_the_report_says_so(tmp_path):
     assert done.code == 0
     assert "2 cell(s) of the matrix are in no input: policy=fifo,priority=80, policy=rr,priority=80" in done.err
     assert ", 2 not run" in (tmp_path / "merged" / "report.md").read_text()
+
+
+@pytest.mark.parametrize("status", ["running", "error", "passed"])
+def test_a_shard_whose_run_did_not_finish_makes_the_merge_an_error(tmp_path, status):
+    """A shard killed outright (status running) or stopped by an error, or lacking cells it was asked for, is no pass."""
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    killed = load(shards[1])
+    killed.status, killed.cells = status, killed.cells[:1]  # the runner died during its second cell
+    killed.save(os.path.join(shards[1], "results.json"))
+    junit = tmp_path / "merged.xml"
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots", "--junit", str(junit))
+    assert done.code == 4, done.err
+    assert f"{shards[1]}/results.json: " in done.err and ("1 of its 2 cell runs" in done.err or "1 of the 2 cell runs" in done.err)
+    assert load(str(tmp_path / "merged")).status == "error"
+    xml = junit.read_text()
+    assert 'errors="1"' in xml and "not run: the run ended before it" in xml
+
+
+def test_a_shard_asked_to_stop_is_interrupted_not_an_error(tmp_path):
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    stopped = load(shards[1])
+    stopped.status, stopped.cells = "interrupted", stopped.cells[:1]
+    stopped.save(os.path.join(shards[1], "results.json"))
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots")
+    assert done.code == 130 and "merged run is an error" not in done.err, done.err
 
 
 def test_duplicate_cells_are_refused(tmp_path):

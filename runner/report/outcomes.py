@@ -170,10 +170,18 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
         if item.checks:
             out.append(item)
     ran = {c.id for c in doc.cells}
-    out.extend(_skipped(cell_id, "not run") for cell_id in _unique(doc.cell_ids) if cell_id not in ran and run)
+    lost = doc.status in ("running", Status.ERROR.value)  # killed, crashed, or stopped by an error: what it had not reached is lost
+    for cell_id in _unique(doc.cell_ids) if run else []:
+        if cell_id not in ran:
+            out.append(_lost(cell_id, doc.status) if lost else _skipped(cell_id, "not run"))
     if comparison:
         out.extend(_skipped(c.cell, "in the baseline, not in this run") for c in comparison.cells if c.verdict == Verdict.MISSING)
     return out
+
+
+def _lost(cell_id: str, status: str) -> CellChecks:
+    why = f"not run: the run ended before it (its status: {status})"
+    return CellChecks(cell=cell_id, title=cell_id, checks=[Check("run", Kind.RUN, Outcome.ERROR, why)])
 
 
 def _skipped(cell_id: str, why: str) -> CellChecks:

@@ -17,8 +17,30 @@ from runner.results.files import cell_dir, results_file
 from runner.results.read import load
 
 
-def merge(paths: list[str], out: str) -> RunDocument:
-    """Merge the results in `paths` (folders or results.json files) into `out`; return the merged document."""
+def unfinished(doc: RunDocument) -> str:
+    """Why `doc`'s run did not finish what it was asked, in words; "" when it did (or was asked to stop).
+
+    A run killed outright (SIGKILL, a crash, the machine lost) leaves its status `running`
+    and the cells it had not reached out; one that stopped for an error says `error`.
+    """
+    if doc.status == "interrupted":
+        return ""
+    planned = {(c, r) for c in doc.cell_ids for r in range(doc.plan.repeat)}
+    lacking = len(planned - {(c.id, c.repeat) for c in doc.cells})
+    if doc.status == "running":
+        missing = f": {lacking} of its {len(planned)} cell runs are missing" if lacking else ""
+        return f"its run never finished (results.json says running){missing}"
+    if lacking:
+        return f"{lacking} of the {len(planned)} cell runs it was asked for are missing (its status: {doc.status})"
+    return ""
+
+
+def merge(paths: list[str], out: str) -> tuple[RunDocument, list[str]]:
+    """Merge the results in `paths` (folders or results.json files) into `out`; the merged document, and its errors.
+
+    An input whose run did not finish (`unfinished`) makes the merged run an error: the
+    errors say which, in words.
+    """
     docs = [(p, load(p)) for p in paths]
     problems = conflicts(docs)
     if problems:
@@ -46,9 +68,12 @@ def merge(paths: list[str], out: str) -> RunDocument:
     for doc, cell in cells:
         cell.samples_file = _copy_samples(doc, cell, out, cell.id in repeated)
         merged.cells.append(cell)
-    merged.status = worst([c.status for _, c in cells] + [Status(d.status) for _, d in docs if d.status == "interrupted"]).value
+    errors = [f"{results_file(p)}: {why}; the merged run is an error" for p, d in docs if (why := unfinished(d))]
+    merged.status = worst(
+        [c.status for _, c in cells] + [Status(d.status) for _, d in docs if d.status == "interrupted"] + [Status.ERROR] * bool(errors)
+    ).value
     merged.save(os.path.join(out, "results.json"))
-    return merged
+    return merged, errors
 
 
 def conflicts(docs: list[tuple[str, RunDocument]]) -> list[Problem]:
