@@ -121,6 +121,31 @@ def test_a_damaged_journal_line_is_refused_with_its_place(tmp_path, monkeypatch)
     assert f"{tmp_path / JOURNAL}:2:1: status:" in text and "splendid" in text
 
 
+def test_a_journal_of_cells_another_run_was_asked_for_is_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    store = ResultsStore(str(tmp_path / "results.json"))
+    doc = RunDocument(cell_ids=["c0", "c1"])
+    store.begin(doc)
+    doc.cells.append(_cell(0))
+    store.add(doc, doc.cells[-1])
+    with open(tmp_path / JOURNAL, "ab") as handle:  # a journal copied from another scenario's folder
+        handle.write((_cell(7).model_dump_json() + "\n").encode())
+    with pytest.raises(ScenarioError) as caught:
+        load(str(tmp_path))
+    assert f"{tmp_path / JOURNAL}:2:1: cell 'c7' is not one" in str(caught.value)
+
+
+def test_a_journal_that_is_a_fifo_or_a_device_is_refused_without_reading_it(tmp_path):
+    RunDocument(cell_ids=["c0"]).save(str(tmp_path / "results.json"))
+    os.mkfifo(tmp_path / JOURNAL)  # reading it would wait for a writer forever
+    with pytest.raises(ScenarioError, match="is a FIFO, not a file"):
+        load(str(tmp_path))
+    os.unlink(tmp_path / JOURNAL)
+    os.symlink("/dev/zero", tmp_path / JOURNAL)  # reading it would never end
+    with pytest.raises(ScenarioError, match="is a character device, not a file"):
+        load(str(tmp_path))
+
+
 def test_a_write_that_fails_halfway_leaves_no_torn_line(tmp_path, monkeypatch):
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     store = ResultsStore(str(tmp_path / "results.json"))

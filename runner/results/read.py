@@ -58,7 +58,23 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
-    doc.cells.extend(merge_journal(doc, journal_cells(journal_path(doc.folder))))
+    journal = journal_path(doc.folder)
+    journaled = journal_cells(journal)
+    problems = [
+        Problem(
+            journal,
+            n,
+            1,
+            "",
+            f"cell {c.id!r}{f' (repeat {c.repeat + 1})' if c.repeat else ''} is not one {path} was asked for; "
+            "a journal holds the cells of the run beside it only",
+        )
+        for n, c in enumerate(journaled, start=1)
+        if (doc.cell_ids and c.id not in doc.cell_ids) or c.repeat >= doc.plan.repeat
+    ]
+    if problems:
+        raise ScenarioError(problems)
+    doc.cells.extend(merge_journal(doc, journaled))
     problems = [
         Problem(path, 1, 1, f"cells.{c.id}.samples_file", why)
         for c in doc.cells
@@ -74,6 +90,8 @@ def journal_cells(path: str) -> list[CellResult]:
 
     A last line without its newline was cut short by the run's death and is left out.
     """
+    if kind := special_file(path):
+        raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; a cells journal is the file a run appends its cells to")])
     try:
         with open(path, "rb") as handle:
             lines = handle.read().split(b"\n")
