@@ -55,6 +55,18 @@ def test_a_figure_the_baseline_never_recorded_is_no_baseline_not_a_regression():
     assert [f.verdict for f in rows] == [cmp.Verdict.NEW], rows
 
 
+def test_a_figure_whose_threshold_is_off_is_not_checked_not_within_threshold(tmp_path):
+    base = matrix()
+    p99 = main_thread(base.cells[1]).figures.latency_ns.p99
+    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=p99 * 500), tmp_path / "new")
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", MATRIX, new, "--threshold", "latency.p99=off", "--junit", str(junit))
+    assert done.code == 0, done.err
+    row = next(line for line in done.out.splitlines() if "policy=fifo,priority=80" in line and "latency p99" in line)
+    assert "not checked (threshold off)" in row and "within threshold" not in row, row
+    assert "not checked (its threshold is off)" in junit.read_text()
+
+
 def test_small_latency_wobble_is_under_the_noise_floor():
     base = matrix()
     p99 = main_thread(base.cells[0]).figures.latency_ns.p99

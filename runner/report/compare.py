@@ -36,6 +36,11 @@ class Threshold:
     relative: float | None = None  # 0.2 is +20%
     absolute: Number | None = None  # in the figure's unit (ns for durations)
 
+    @property
+    def off(self) -> bool:
+        """`FIGURE=off`: the figure is shown beside its baseline, never judged."""
+        return self.relative is None and self.absolute is None
+
     def exceeded(self, base: float, new: float) -> bool:
         """Whether `new` is worse than `base` by more than the threshold (worse: lower, for figures like slack)."""
         delta = new - base
@@ -111,6 +116,7 @@ class Verdict:
     REGRESSION = "regression"
     BETTER = "better"
     SAME = "within threshold"
+    OFF = "not checked"  # its threshold is off
     NEW = "no baseline"
     MISSING = "missing"
 
@@ -307,6 +313,8 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
                 continue
             if base is None or new is None:
                 verdict = Verdict.NEW if base is None else Verdict.MISSING
+            elif th.off:
+                verdict = Verdict.OFF
             elif th.exceeded(base, new):
                 verdict = Verdict.REGRESSION
             elif th.exceeded(new, base):

@@ -1007,6 +1007,7 @@ VERDICT_ICON = {
     "regression": "❌ regression",
     "better": "🟢 better",
     "within threshold": "✅ within threshold",
+    "not checked": "⏸️ not checked (threshold off)",
     "no baseline": "🆕 no baseline",
     "missing": "➖ missing",
 }

@@ -96,15 +96,16 @@ def figure_message(f: FigureChange, labels: dict[str, str]) -> str:
         return f"{thread}: {f.figure.words}: no baseline (this run {new})"
     if f.verdict == Verdict.MISSING:
         return f"{thread}: {f.figure.words}: not measured in this run (baseline {base})"
+    if f.verdict == Verdict.OFF:
+        return f"{thread}: {f.figure.words} {base} → {new}: not checked (its threshold is off)"
     return (
         f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: {f.verdict}"
     )
 
 
 def _figure_check(f: FigureChange, labels: dict[str, str]) -> Check:
-    outcome = {Verdict.REGRESSION: Outcome.FAILED, Verdict.NEW: Outcome.SKIPPED, Verdict.MISSING: Outcome.SKIPPED}.get(
-        f.verdict, Outcome.PASSED
-    )
+    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.MISSING: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED}
+    outcome = {Verdict.REGRESSION: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
     name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the baseline"
     return Check(name, Kind.BASELINE, outcome, figure_message(f, labels) if outcome is not Outcome.PASSED else "")
 
