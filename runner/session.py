@@ -25,7 +25,7 @@ from typing import Any, Optional
 
 from runner import outdir, units
 from runner.errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
-from runner.report.compare import Threshold, parse_threshold, thresholds_with
+from runner.report.compare import Threshold, check_common, check_comparable, parse_threshold, thresholds_with
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
 from runner.results.journal import ResultsStore
@@ -38,7 +38,7 @@ from runner.run.preflight import Permissions
 from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
-from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash
+from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, spec_json
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.scenario.program import never_released
@@ -336,10 +336,11 @@ def stopped_late(code: int) -> int:
 
 
 def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: StopSignals) -> int:
-    if options.baseline:
-        load(options.baseline)  # read now: a baseline that cannot be compared is found before the cells run, not after
+    baseline = load(options.baseline) if options.baseline else None
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
+    if baseline is not None:
+        _check_baseline(baseline, cells, options, loaded.path)
     late = {why for c in cells if options.duration_ns for _, why in never_released(c.scenario.processes, options.duration_ns)}
     if late:
         raise UsageError(f"runner: --duration {units.format_duration(options.duration_ns or 0)}: " + "; ".join(sorted(late)))
@@ -366,6 +367,20 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
         return _run_units(loaded, _Claimed(options, doc, by_id, folder, start, stop, backend))
     finally:
         held.release()
+
+
+def _check_baseline(baseline: RunDocument, cells: list[ResolvedCell], options: RunOptions, path: str) -> None:
+    """Refuse, before any cell runs, a baseline the finished run could not be compared with (the comparison's own refusals).
+
+    The cells this run will record are known now, with their resolved scenarios and length:
+    a baseline of another scenario, or whose cells ran another spec or for another duration,
+    is found here rather than after the whole run, whose JUnit would then say nothing of it.
+    """
+    planned = RunDocument(plan=Plan(duration_ns=options.duration_ns))
+    planned.cells = [CellResult(id=c.id, spec_hash=c.spec_hash, spec=spec_json(c.scenario), status=Status.PASSED) for c in cells]
+    assert options.baseline is not None
+    check_comparable(baseline, planned, options.baseline, path)
+    check_common(baseline, planned, options.baseline, path)
 
 
 @dataclass

@@ -179,13 +179,18 @@ def test_a_baseline_that_cannot_be_read_is_refused_before_any_cell_runs(tmp_path
     assert backend.ran == [] and not os.path.exists(tmp_path / "r" / "results.json")
 
 
-def test_a_baseline_the_run_cannot_be_compared_with_still_leaves_its_report_and_junit(tmp_path):
-    run(MATRIX, tmp_path / "other", FakeBackend(preempted_other()))
-    junit = tmp_path / "junit.xml"
-    with pytest.raises(ScenarioError):
-        run(FIFO80, tmp_path / "r", FakeBackend(), "--duration", "1s", "--baseline", str(tmp_path / "other"), "--junit", str(junit))
-    assert os.path.exists(tmp_path / "r" / "report.md") and junit.exists()
-    assert json.load(open(tmp_path / "r" / "results.json"))["status"] == "passed"
+def test_a_baseline_the_run_could_not_be_compared_with_is_refused_before_any_cell_runs(tmp_path):
+    """Another scenario's baseline, or one whose cells ran another spec or length, is refused up front, not after the run."""
+    run(MATRIX, tmp_path / "other", FakeBackend(preempted_other()), "--duration", "1s")
+    backend = FakeBackend()
+    with pytest.raises(ScenarioError, match="no cell in common with the baseline"):
+        run(FIFO80, tmp_path / "r", backend, "--duration", "1s", "--baseline", str(tmp_path / "other"))
+    longer = r"cells\.policy=fifo,priority=80: differs from the baseline .*ran for 1s in the baseline, 2s now"
+    with pytest.raises(ScenarioError, match=longer):
+        run(MATRIX, tmp_path / "r2", backend, "--duration", "2s", "--baseline", str(tmp_path / "other"))
+    assert backend.ran == [] and not os.path.exists(tmp_path / "r" / "results.json") and not os.path.exists(tmp_path / "r2")
+    code, _ = run(MATRIX, tmp_path / "r3", FakeBackend(preempted_other()), "--duration", "1s", "--baseline", str(tmp_path / "other"))
+    assert code == 0, "the same scenario and length compare"
 
 
 @pytest.mark.parametrize("name", ["..", ".", "x" * 300])

@@ -249,25 +249,22 @@ def _median(values: list[Number | None]) -> Number | None:
 _OK = (Status.PASSED, Status.DEGRADED)
 
 
+def check_common(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
+    """Refuse runs without a cell in common: nothing of them could be compared."""
+    b, n = _groups(base), _groups(new)
+    if not any(cell_id in b for cell_id in n):
+        why = f"no cell in common with the baseline {base_name} ({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario"
+        raise ScenarioError([Problem(new_name, 1, 1, "cells", why)])
+
+
 def compare(
     base: RunDocument, new: RunDocument, thresholds: list[Threshold] | None = None, base_name: str = "baseline", new_name: str = "new"
 ) -> Comparison:
     """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
     check_comparable(base, new, base_name, new_name)
+    check_common(base, new, base_name, new_name)
     out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
     b, n = _groups(base), _groups(new)
-    if not any(cell_id in b for cell_id in n):
-        raise ScenarioError(
-            [
-                Problem(
-                    new_name,
-                    1,
-                    1,
-                    "cells",
-                    f"no cell in common with the baseline {base_name} ({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario",
-                )
-            ]
-        )
     was, now = base.machine, new.machine
     if (was.hostname, was.kernel) != (now.hostname, now.kernel):
         out.notes.append(
