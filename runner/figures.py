@@ -19,9 +19,9 @@ import enum
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Optional, Union
+from typing import Annotated, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Number = Union[int, float]
 
@@ -134,6 +134,9 @@ class Figure:
         return self.scope is Scope.CALLBACKS
 
 
+Count = Annotated[int, Field(ge=0)]  # what the kernel and the native core count: never below 0 (a file that says so is refused)
+
+
 class _Figures(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -141,15 +144,15 @@ class _Figures(BaseModel):
 class Involuntary(_Figures):
     """Involuntary context switches (preemptions): the thread was runnable and lost the CPU."""
 
-    total: int
+    total: Count
     per_callback_mean: Optional[float] = None
-    per_callback_max: Optional[int] = None
-    callbacks_with_any: Optional[int] = None
+    per_callback_max: Optional[Count] = None
+    callbacks_with_any: Optional[Count] = None
     per_second: Optional[float] = None  # over the time the thread was measured (programs' threads)
 
 
 class Voluntary(_Figures):
-    total: int
+    total: Count
     per_second: Optional[float] = None
 
 
@@ -164,7 +167,7 @@ class Spread(_Figures):
     max: int
     mean: Optional[int] = None  # exact (a running mean), rounded to the ns
     stddev: Optional[int] = None  # population standard deviation, rounded to the ns
-    above_bound: Optional[int] = None  # values above the scenario's latency_bound, when one is set
+    above_bound: Optional[Count] = None  # values above the scenario's latency_bound, when one is set
 
 
 class Slack(_Figures):
@@ -178,20 +181,20 @@ class Slack(_Figures):
 
 
 class Faults(_Figures):
-    minor: int
-    major: int
-    minor_first_callback: Optional[int] = None
-    minor_after_first: Optional[int] = None
-    minor_per_callback_max: Optional[int] = None
+    minor: Count
+    major: Count
+    minor_first_callback: Optional[Count] = None
+    minor_after_first: Optional[Count] = None
+    minor_per_callback_max: Optional[Count] = None
 
 
 class ThreadFigures(_Figures):
     """What was measured for one thread; durations in integer nanoseconds."""
 
-    callbacks: int
-    missed_releases: int
-    releases: int = 0  # releases due in the cell (callbacks + missed), for periodic threads and stages released by resumes
-    overruns: Optional[int] = None  # callbacks that ended after their next release; None: not recorded (files before it was)
+    callbacks: Count
+    missed_releases: Count
+    releases: Count = 0  # releases due in the cell (callbacks + missed), for periodic threads and stages released by resumes
+    overruns: Optional[Count] = None  # callbacks that ended after their next release; None: not recorded (files before it was)
     involuntary: Involuntary
     voluntary: Voluntary
     latency_ns: Optional[Spread] = None  # wake-up latency: actual wake minus scheduled release
@@ -205,10 +208,10 @@ class ThreadFigures(_Figures):
     barrier_wait_ns: Optional[Spread] = None  # programs: time waiting at a barrier
     resume_latency_ns: Optional[Spread] = None  # programs: from a resume (or the suspend, if later) to running again
     chain_ns: Optional[Spread] = None  # programs: from the release that started a chain to the end of this thread's part
-    cpu_time_ns: Optional[int] = None  # time on a CPU over the measured window (programs' threads, from schedstat)
-    migrations: Optional[int] = None  # moves between CPUs (the kernel's se.nr_migrations, or the trace's)
+    cpu_time_ns: Optional[Count] = None  # time on a CPU over the measured window (programs' threads, from schedstat)
+    migrations: Optional[Count] = None  # moves between CPUs (the kernel's se.nr_migrations, or the trace's)
     wakeup_ns: Optional[Spread] = None  # scheduler trace: from each sched_waking to the switch onto a CPU
-    preemptions: Optional[int] = None  # scheduler trace: switched out while runnable
+    preemptions: Optional[Count] = None  # scheduler trace: switched out while runnable
 
     @model_validator(mode="after")
     def _releases(self) -> ThreadFigures:

@@ -149,7 +149,10 @@ def test_shards_of_different_runs_are_refused(tmp_path, key, value, words):
 
 
 def test_merge_exit_code_follows_the_cells(tmp_path):
-    done = merge_edited(tmp_path, [[0], [1]], lambda doc: setattr(doc.cells[0], "status", Status.FAILED), "--no-plots")
+    def fail(doc):
+        doc.cells[0].status, doc.status = Status.FAILED, "failed"  # as the run would have written it
+
+    done = merge_edited(tmp_path, [[0], [1]], fail, "--no-plots")
     assert done.code == 1
 
 

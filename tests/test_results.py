@@ -398,3 +398,27 @@ def test_rt_throttling_is_stored_in_ns_from_the_kernels_microseconds():
     assert RtThrottling.from_sysctl(950_000, 1_000_000) == RtThrottling(runtime_ns=950_000_000, period_ns=1_000_000_000, enabled=True)
     assert RtThrottling.from_sysctl(-1, 1_000_000) == RtThrottling(runtime_ns=None, period_ns=1_000_000_000, enabled=False)
     assert RtThrottling.from_sysctl(None, None) == RtThrottling()
+
+
+def test_a_negative_count_is_refused_where_it_is(tmp_path):
+    from reportdata import MATRIX
+
+    text = load(MATRIX).model_dump_json(by_alias=True).replace('"missed_releases":0', '"missed_releases":-1000000', 1)
+    (tmp_path / "results.json").write_text(text)
+    where = r"cells\[0\]\.threads\[0\]\.figures\.missed_releases"
+    with pytest.raises(ScenarioError, match=where + ": input should be greater than or equal to 0"):
+        load(str(tmp_path))
+
+
+def test_a_cell_run_twice_and_a_run_better_than_its_cells_are_refused_at_once(tmp_path):
+    from reportdata import MATRIX
+
+    doc = load(MATRIX)
+    doc.cells.append(doc.cells[0])
+    doc.cells[1].status = Status.ERROR
+    doc.save(str(tmp_path / "results.json"))
+    with pytest.raises(ScenarioError) as caught:
+        load(str(tmp_path))
+    said = str(caught.value)
+    assert f"cells.{doc.cells[0].id}: cell is in the file twice" in said
+    assert "status: the run says passed, but a cell of it says error" in said

@@ -15,7 +15,7 @@ from pydantic import (
 
 from runner import __version__
 from runner.errors import Problem, ScenarioError, special_file
-from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument
+from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument, Status, worst
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
 from runner.results.journal import journal_path, merge_journal
 
@@ -80,9 +80,27 @@ def load(path: str) -> RunDocument:
         for c in doc.cells
         if (why := samples_path_problem(c.samples_file, doc.folder))
     ]
+    problems += _inconsistencies(path, doc)
     if problems:
         raise ScenarioError(problems)
     return doc
+
+
+def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
+    """What no run writes: a cell run twice, a run's status better than one of its cells'."""
+    out: list[Problem] = []
+    seen: set[tuple[str, int]] = set()
+    for c in doc.cells:
+        if (c.id, c.repeat) in seen:
+            which = f" (repeat {c.repeat + 1})" if c.repeat else ""
+            out.append(Problem(path, 1, 1, f"cells.{c.id}", f"cell{which} is in the file twice; a run records each cell run once"))
+        seen.add((c.id, c.repeat))
+    if doc.status in {s.value for s in Status} and doc.cells:
+        cells = worst([c.status for c in doc.cells])
+        if list(Status).index(cells) < list(Status).index(Status(doc.status)):
+            why = f"the run says {doc.status}, but a cell of it says {cells.value}; a run is never better than its cells"
+            out.append(Problem(path, 1, 1, "status", why))
+    return out
 
 
 def journal_cells(path: str) -> list[CellResult]:

@@ -181,14 +181,18 @@ class Counters:
     cpu: int  # the CPU it last ran on
 
     def minus(self, base: Counters) -> Counters:
-        """The counts since `base` (an earlier reading of the same thread)."""
-        migrations = None if self.migrations is None or base.migrations is None else self.migrations - base.migrations
+        """The counts since `base` (an earlier reading of the same thread).
+
+        The kernel's counters of a thread only grow; one that fell belongs to another thread the
+        TID now names (reused after the first exited): no count below 0 is made of it.
+        """
+        migrations = None if self.migrations is None or base.migrations is None else max(0, self.migrations - base.migrations)
         return Counters(
-            self.voluntary - base.voluntary,
-            self.involuntary - base.involuntary,
-            self.minor_faults - base.minor_faults,
-            self.major_faults - base.major_faults,
-            self.cpu_time_ns - base.cpu_time_ns,
+            max(0, self.voluntary - base.voluntary),
+            max(0, self.involuntary - base.involuntary),
+            max(0, self.minor_faults - base.minor_faults),
+            max(0, self.major_faults - base.major_faults),
+            max(0, self.cpu_time_ns - base.cpu_time_ns),
             migrations,
             self.cpu,
         )
