@@ -23,6 +23,7 @@ from runner.errors import Problem
 from runner.report import compare as cmp
 from runner.report import github
 from runner.report.junit import junit_xml, xml_text
+from runner.report.outcomes import Kind, cell_checks
 from runner.results.document import RunDocument, Status, Verdict
 from runner.results.read import load
 from runner.scenario.loader import load_scenario
@@ -216,6 +217,28 @@ def test_compare_junit_has_a_case_per_compared_figure_and_regressions_fail(tmp_p
     assert suite(root, base.cells[1].id).find("testcase[failure]") is not None
     assert suite(root, OTHER).find("testcase/skipped").get("message") == "in the baseline, not in this run"
     assert not root.findall(".//testcase[@name='run']/..//error")  # compare judges figures, not the runs
+
+
+def test_a_shuffled_repeated_run_puts_its_baseline_checks_under_the_first_repeat_every_night(tmp_path):
+    """JUnit test names are a history: the checks against the baseline stay under `(repeat 1)` whatever order repeats ran in."""
+    acts = {OTHER: Act(nivcsw=5)}
+    _, base = run(tmp_path / "base", acts, "--duration", "1s")
+    placed = set()
+    for seed in ("3", "7"):
+        _, doc = run(tmp_path / seed, acts, "--duration", "1s", "--repeat", "2", "--shuffle", seed)
+        assert [c.repeat for c in doc.cells] != sorted(c.repeat for c in doc.cells), "the shuffle must put a second repeat first"
+        checks = cell_checks(doc, cmp.compare(base, doc))
+        placed.add(frozenset(item.title for item in checks if any(c.kind is Kind.BASELINE for c in item.checks)))
+    (titles,) = placed
+    assert len(titles) == 5 and all(t.endswith("(repeat 1)") for t in titles), titles
+
+
+def test_a_cell_missing_from_a_merge_and_in_the_baseline_is_one_test_suite(tmp_path):
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    done = run_cli("merge", shards[0], "--out", str(tmp_path / "m"), "--no-plots", "--baseline", MATRIX, "--junit", str(tmp_path / "j.xml"))
+    assert done.code == 0, done.err
+    names = [s.get("name") for s in parsed((tmp_path / "j.xml").read_bytes()).findall("testsuite")]
+    assert len(names) == len(set(names)) == 5, names
 
 
 # ---------------------------------------------------------------- GitHub annotations

@@ -149,7 +149,9 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
     for f in comparison.figures if comparison else []:
         figures.setdefault(f.cell, []).append(f)
     out: list[CellChecks] = []
-    compared: set[str] = set()
+    first_repeat: dict[str, int] = {}  # the checks against the baseline go with a cell's first repeat, whatever order they ran in
+    for cell in doc.cells:
+        first_repeat[cell.id] = min(cell.repeat, first_repeat.get(cell.id, cell.repeat))
     for cell in doc.cells:
         item = CellChecks(
             cell=cell.id,
@@ -164,8 +166,7 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
             item.checks.append(_run_check(cell))
             item.checks.extend(_expectation_check(v) for v in cell.expectations)
             item.notes = _notes(cell)
-        if cell.id in changes and cell.id not in compared:  # repeats are compared once, by their median
-            compared.add(cell.id)
+        if cell.id in changes and cell.repeat == first_repeat[cell.id]:  # repeats are compared once, by their median
             item.checks.append(_status_check(changes[cell.id]))
             item.checks.extend(_figure_check(f, labels) for f in figures.get(cell.id, []))
         if item.checks:
@@ -175,8 +176,14 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
     for cell_id in _unique(doc.cell_ids) if run else []:
         if cell_id not in ran:
             out.append(_lost(cell_id, doc.status) if lost else _skipped(cell_id, "not run"))
-    if comparison:
-        out.extend(_skipped(c.cell, "in the baseline, not in this run") for c in comparison.cells if c.verdict == Verdict.MISSING)
+    unrun = {item.cell: item for item in out if item.cell not in ran}
+    for c in comparison.cells if comparison else []:
+        if c.verdict == Verdict.MISSING:  # one test suite per cell: beside its not-run check when it has one
+            check = Check("against the baseline", Kind.BASELINE, Outcome.SKIPPED, "in the baseline, not in this run")
+            if c.cell in unrun:
+                unrun[c.cell].checks.append(check)
+            else:
+                out.append(CellChecks(cell=c.cell, title=c.cell, checks=[check]))
     return out
 
 
