@@ -417,6 +417,11 @@ def _cmd_report(argv: list[str]) -> int:
     if ns.output == "-":
         say(render_run(doc, None, section))
     else:
+        if not ns.output and not (os.path.isdir(ns.results) or os.path.isfile(ns.results)):
+            raise UsageError(
+                f"runner report: {ns.results} is not a file in a results folder (a pipe?): there is no folder to write "
+                f"{REPORT_NAME} beside; give -o FILE, or -o - for standard output"
+            )
         target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, REPORT_NAME)
         try:
             path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))

@@ -422,3 +422,19 @@ def test_a_cell_run_twice_and_a_run_better_than_its_cells_are_refused_at_once(tm
     said = str(caught.value)
     assert f"cells.{doc.cells[0].id}: cell is in the file twice" in said
     assert "status: the run says passed, but a cell of it says error" in said
+
+
+def test_a_report_of_results_given_on_standard_input_is_written_beside_the_file_or_refused_for_a_pipe(tmp_path):
+    """`runner report /dev/stdin < results.json` once wrote /dev/report.md (as root)."""
+    import subprocess
+    import sys
+
+    from reportdata import MATRIX
+
+    shutil.copy(os.path.join(MATRIX, "results.json"), tmp_path / "results.json")
+    cmd = [sys.executable, "-m", "runner", "report", "/dev/stdin", "--no-plots"]
+    with open(tmp_path / "results.json", "rb") as handle:
+        done = subprocess.run(cmd, stdin=handle, capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0 and (tmp_path / "report.md").exists(), done.stderr
+    piped = subprocess.run(cmd, input=(tmp_path / "results.json").read_text(), capture_output=True, text=True, cwd=tmp_path)
+    assert piped.returncode == 2 and "is not a file in a results folder (a pipe?)" in piped.stderr, piped.stderr

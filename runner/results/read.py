@@ -57,7 +57,7 @@ def load(path: str) -> RunDocument:
         doc = RunDocument.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
-    doc.folder, doc.source = os.path.dirname(os.path.abspath(path)), path
+    doc.folder, doc.source = os.path.dirname(os.path.realpath(path)), path  # where the file is: a link to it (/dev/stdin) is not its folder
     journal = journal_path(doc.folder)
     journaled = journal_cells(journal)
     problems = [
