@@ -449,6 +449,42 @@ def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
     assert [thread(pool, f"consumer-{i}")["figures"]["missed_releases"] for i in (0, 1)] == [0, 0]
 
 
+@pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")
+def test_a_stage_whose_backlog_grows_could_not_keep_up_before_its_queue_drops_one(tmp_path):
+    """12 ms of work a resume behind a 10 ms producer: about 17 resumes queued at the end of 1 s, none dropped yet.
+
+    It once passed.  A stage that serves a burst of two resumes per period within the period
+    keeps up, though the second of each burst waits a whole activation.
+    """
+
+    def scenario(name: str, run: str, resumes: int) -> dict:
+        producer = [{"timer": {"period": "10ms"}}] + [{"resume": "q"}] * resumes
+        return {
+            "name": name,
+            "resources": {"q": {"kind": "queue"}},
+            "processes": [
+                {
+                    "name": "bk",
+                    "threads": [
+                        {"name": "producer", "sched": "fifo:40", "work": {"kind": "phases", "events": producer}},
+                        {"name": "consumer", "sched": "fifo:30", "work": {"kind": "phases", "events": [{"suspend": "q"}, {"run": run}]}},
+                    ],
+                }
+            ],
+        }
+
+    done = run_inline(tmp_path, scenario("backlog", "12ms", 1))
+    c, consumer = done.results["cells"][0], thread(done.results, "consumer")["figures"]
+    assert c["status"] == "failed" and done.code == 1, c["reason"]
+    assert 5 <= consumer["missed_releases"] <= 30 and consumer["releases"] == consumer["callbacks"] + consumer["missed_releases"]
+    failed = [v for v in c["expectations"] if not v["passed"] and "consumer" in v["thread"]]
+    assert [v["metric"] for v in failed] == ["missed_releases"] and "could not keep up" in failed[0]["note"]
+    (tmp_path / "burst").mkdir()
+    done = run_inline(tmp_path / "burst", scenario("burst", "3ms", 2))
+    consumer = thread(done.results, "consumer")["figures"]
+    assert done.code == 0 and consumer["missed_releases"] == 0, done.results["cells"][0]["reason"]
+
+
 def test_an_rt_app_file_runs_directly(tmp_path):
     done = run_file(tmp_path, os.path.join(REPO, "tests", "rtapp", "example2.json"), "--duration", "500ms")
     t = thread(done.results, "thread0")

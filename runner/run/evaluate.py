@@ -31,7 +31,7 @@ from runner.results.document import (
 )
 from runner.run import outside, programs, traced
 from runner.run.measure import check, thread_figures
-from runner.run.rawcell import ApplyErrors, RawCell, RawThread, Timeline
+from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ResourceState, Timeline
 from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
@@ -170,17 +170,46 @@ def queue_consumers(raw: RawCell) -> dict[str, list[PlannedThread]]:
     return out
 
 
-def pool_verdicts(raw: RawCell, consumers: dict[str, list[PlannedThread]], expectations: list[Expectation]) -> list[Verdict]:
-    """A failed verdict for each queue several stages take from that dropped resumes: the pool could not keep up.
+def left_behind(queue: ResourceState, longest: Optional[int]) -> int:
+    """Resumes still queued at the end that had waited longer than the longest activation of the stages taking from it.
+
+    A stage that keeps up takes each resume within one activation of its own (a burst of two
+    waits one activation for the second): one that waited longer was left behind, as a
+    backlog that grows is.  `longest`: the stages' longest callback (None: they served none,
+    and every resume still queued was left).
+    """
+    return sum(1 for waited in queue.waiting_ns if longest is None or waited > longest)
+
+
+def _missed_words(queue: str, dropped: int, left: int) -> str:
+    parts = [f"queue {queue} dropped {dropped:,} resumes, each when {QUEUE_DEPTH} were queued already"] if dropped else []
+    if left:
+        parts.append(f"{left:,} resumes of queue {queue} were still waiting at the end, longer than any activation took")
+    return "; ".join(parts)
+
+
+def _longest(figures: list[ThreadFigures]) -> Optional[int]:
+    walls = [f.callback_wall_ns.max for f in figures if f.callback_wall_ns is not None]
+    return max(walls) if walls else None
+
+
+def pool_verdicts(
+    raw: RawCell, consumers: dict[str, list[PlannedThread]], expectations: list[Expectation], figures: dict[int, ThreadFigures]
+) -> list[Verdict]:
+    """A failed verdict for each queue several stages take from that dropped resumes or left some behind: the pool could not keep up.
 
     No one stage missed them (any of them could have taken each), so none is charged with them;
     a bound of the scenario's own on missed_releases for every stage of the pool replaces it.
-    `consumers`: queue_consumers of the cell.
+    `consumers`: queue_consumers of the cell; `figures`: the stages' figures, by id of their plan.
     """
     out = []
     for q, stages in consumers.items():
-        dropped = next((r.dropped for r in raw.resources if r.name == q), 0)
-        if len(stages) < 2 or not dropped:
+        queue = next((r for r in raw.resources if r.name == q), None)
+        if len(stages) < 2 or queue is None:
+            continue
+        left = 0 if raw.interrupted else left_behind(queue, _longest([figures[id(t)] for t in stages if id(t) in figures]))
+        dropped = queue.dropped + left
+        if not dropped:
             continue
         own = {id(t) for exp in expectations if exp.metric.value == KEEPS_UP_METRICS[0] for t in match_threads(stages, exp.thread)}
         if all(id(t) in own for t in stages):
@@ -193,8 +222,8 @@ def pool_verdicts(raw: RawCell, consumers: dict[str, list[PlannedThread]], expec
                 limit="<= 0",
                 measured=dropped,
                 passed=False,
-                note=f"could not keep up: queue {q} dropped {dropped:,} resumes, each when {QUEUE_DEPTH} were queued already that "
-                f"none of its {len(stages)} stages had taken; implicit unless the scenario bounds missed_releases for them itself",
+                note=f"could not keep up: {_missed_words(q, queue.dropped, left)} that none of its {len(stages)} stages had taken; "
+                "implicit unless the scenario bounds missed_releases for them itself",
             )
         )
     return out
@@ -333,7 +362,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     stalls = [] if raw.interrupted else programs.stalls(raw.threads, raw.timeline.end_ns, names)
     consumers = queue_consumers(raw)
     # A queue's drops are the missed releases of the one stage that takes from it; a pool's are the pool's (pool_verdicts).
-    queue_drops = {r.name: r.dropped for r in raw.resources if r.dropped and len(consumers.get(r.name, ())) == 1}
+    sole = {r.name: r for r in raw.resources if len(consumers.get(r.name, ())) == 1}  # the queues one stage takes from
     spawned: dict[str, bool] = {}  # spawned thread, as `process/name`: whether any instance ran
     for t in raw.threads:
         p = t.planned
@@ -350,9 +379,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if isinstance(p.work, PhasesWork):
             events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
             fig = fig.model_copy(update=extra)
-            if is_released(p.work):  # its releases are the resumes it took, and those its queue dropped (no activation served them)
-                dropped = sum(queue_drops.get(q, 0) for q in p.work.suspends_on())
-                fig = fig.model_copy(update={"missed_releases": dropped, "releases": fig.callbacks + dropped})
+            if is_released(p.work):  # its releases are the resumes it took, and those it missed: dropped, or left waiting at the end
+                longest = _longest([fig])
+                queues = [sole[q] for q in p.work.suspends_on() if q in sole]
+                missed = sum(r.dropped + (0 if raw.interrupted else left_behind(r, longest)) for r in queues)
+                fig = fig.model_copy(update={"missed_releases": missed, "releases": fig.callbacks + missed})
             degraded += [f"phase {ph.name}: {d}" for ph in phases for d in ph.degraded]
         result.threads.append(
             ThreadResult(
@@ -412,7 +443,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                     verdict.line, verdict.col = mark.line, mark.col
                 result.expectations.append(verdict)
     own = [scenario.expect[i] for i in expectations_for(scenario, cell)]
-    implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own)
+    figures = {id(planned): fig for planned, fig in measured}
+    implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own, figures)
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)
     result.background = [
