@@ -818,6 +818,24 @@ def test_cli_writes_a_file_with_o(tmp_path):
     assert yaml.safe_load(target.read_text())["resources"] == {"thread1": {"kind": "queue"}, "thread0": {"kind": "queue"}}
 
 
+def test_cli_says_what_a_scenario_cannot_hold_at_the_lines_it_wrote_and_exits_2(tmp_path):
+    """rt-app holds a mutex from one phase to the next; a phase here may not: said at import, not at the first run."""
+    src = tmp_path / "lp.json"
+    src.write_text(
+        '{"tasks": {"t": {"loop": -1, "phases": {"take": {"lock": "m", "run": 1000}, '
+        '"hold": {"run": 2000, "unlock": "m", "timer": {"ref": "unique", "period": 10000}}}}}}'
+    )
+    target = tmp_path / "lp.yaml"
+    done = run_cli("import-rtapp", str(src), "-o", str(target))
+    assert done.code == 2 and target.exists(), "written anyway, to be edited"
+    lines = target.read_text().splitlines()
+    (problem,) = [line for line in done.err.splitlines() if "the phase ends holding m" in line]
+    line = int(problem.split(":")[1])
+    assert problem.startswith(f"{target}:") and lines[line - 1].strip() == "- {lock: m}", (problem, lines[line - 1])  # the events
+    printed = run_cli("import-rtapp", str(src))
+    assert printed.code == 2 and f"{src} (as `runner import-rtapp` converts it):{line}:" in printed.err
+
+
 def test_cli_bad_input_exits_2_with_the_problems(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"tasks": {"t": {"run": "x"}}}')
