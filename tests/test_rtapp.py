@@ -398,6 +398,14 @@ def test_a_suspend_also_waited_on_signalled_or_locked_takes_that_condition_and_m
     assert any('"waiter" is suspended on or resumed and also waited on, signalled or locked' in n for n in c.notes)
 
 
+def test_a_named_timer_of_several_threads_is_noted_as_sharing_its_ticks_in_rt_app():
+    c = conv('{"tasks": {"t": {"instance": 2, "loop": -1, "run": 10000, "timer": {"ref": "tick", "period": 100000}}}}')
+    assert c.scenario["resources"]["tick"]["kind"] == "timer"
+    assert any("timer tick is used by 2 threads: in rt-app they share its ticks" in n for n in c.notes), c.notes
+    alone = conv('{"tasks": {"t": {"loop": -1, "run": 10000, "timer": {"ref": "tick", "period": 100000}}}}')
+    assert not any("is used by" in n for n in alone.notes)
+
+
 def test_locks_conditions_sync_and_barriers():
     c = conv(
         """

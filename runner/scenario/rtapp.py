@@ -551,6 +551,7 @@ class _Converter:
         self.notes: list[str] = []
         self.uses: dict[str, dict[str, _Use]] = {}
         self.wakes: list[_Wake] = []  # suspends and resumes, decided once every task is read
+        self.instances: dict[int, int] = {}  # task index -> its threads (instance)
         self.unique: dict[tuple[int, str], _Use] = {}
         self.pi = False
         self.default_policy = "other"
@@ -772,6 +773,7 @@ class _Converter:
                 phases = []
         name = self.thread_name(key, count, at)
         thread: dict[str, Any] = {"name": name}
+        self.instances[index] = count
         if count > 1:
             thread["count"] = count
         if sched is not None:
@@ -1278,6 +1280,14 @@ class _Converter:
                     use.first,
                     f"timer {final} is given periods {', '.join(_us(p) for p in periods)}: rt-app advances its grid by each event's own; "
                     f"here it keeps {_us(periods[0])}",
+                )
+            users = sum(self.instances.get(task, 1) for task in use.mentions)
+            if users > 1:
+                self.note(
+                    use.first,
+                    f"timer {final} is used by {users} threads: in rt-app they share its ticks (each use moves the timer on "
+                    "by a period, so each of them gets some of the ticks, not all); here the named timer releases every one "
+                    "of them at every tick",
                 )
             return {"kind": "timer", "period": _us(periods[0]), "overrun": "catchup" if use.absolute else "rebase"}
         if kind == "cond" and "signal" not in use.ops and "both" not in use.ops:
