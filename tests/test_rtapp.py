@@ -406,6 +406,13 @@ def test_a_named_timer_of_several_threads_is_noted_as_sharing_its_ticks_in_rt_ap
     assert not any("is used by" in n for n in alone.notes)
 
 
+def test_a_renamed_resource_is_noted_with_the_name_it_has_here():
+    c = conv('{"tasks": {"t": {"lock": "ö", "unlock": "ö", "run": 1}, "u": {"lock": "_", "unlock": "_", "run": 1}}}')
+    assert list(c.scenario["resources"]) == ["_", "__2"]
+    assert 'resource "ö" is named _ here (letters, digits, _ . - only)' in c.notes
+    assert 'resource "_" is named __2 here (_ is taken)' in c.notes
+
+
 def test_locks_conditions_sync_and_barriers():
     c = conv(
         """
@@ -475,7 +482,8 @@ def test_fork_spawns_an_instance_0_task_and_says_what_it_cannot_map():
     child = threads["child"]
     assert (child["spawned"], child["count"], child["inherit"], child["work"]["loop"]) == (True, 16, False, 1)
     assert "unused" not in threads
-    assert any("tasks.parent.fork: rt-app forks a new thread of 'child' each time, without bound" in n for n in c.notes)
+    forks = "tasks.parent.fork: rt-app forks a new thread of 'child' each time (1,024 per forking thread, then it exits)"
+    assert any(forks in n for n in c.notes)
     assert "tasks.parent.fork2: fork of 'nobody': no task of instance 0 has that name; left out" in c.notes
     assert "tasks.parent.fork3: fork of 'sibling': a task started at the start (rt-app would start another); left out" in c.notes
     assert "tasks.unused: instance 0: rt-app starts no thread for this task and no fork names it; left out" in c.notes

@@ -53,7 +53,7 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
   the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
   `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
-  (rt-app has no bound; noted).  Anything else is left out with a note, as are zero durations and
+  (rt-app's bound is 1,024 forks per forking thread; noted).  Anything else is left out with a note, as are zero durations and
   sizes (they do nothing).
 * Keys rt-app does not read (a typo, `taskgroup`, the old grammar's `exec`/`period`/`lock_order`)
   are noted where they are.  Wrong types and values rt-app or the kernel would refuse (a string
@@ -84,7 +84,7 @@ DEFAULT_DURATION_S = 10
 MAX_DURATION_S = 24 * 3600  # the scenario's bound on a cell's duration
 MAX_INT = 2**31 - 1  # rt-app reads every number as a C int
 FOREVER = MAX_INT  # a phase loop that never ends before the run does
-FORK_INSTANCES = 16  # how many threads a forked task can have here (rt-app has no bound)
+FORK_INSTANCES = 16  # how many threads a forked task can have here (rt-app: 1,024 forks per forking thread, then it exits)
 MAX_US = 24 * 3600 * 1_000_000  # no event lasts longer than a run
 MAX_BYTES_EVENT = 1 << 40  # the scenario's bound on a size
 
@@ -814,8 +814,8 @@ class _Converter:
                 thread.update({"spawned": True, "count": FORK_INSTANCES, "inherit": False})
                 self.note(
                     at,
-                    f"rt-app forks a new thread of {printable(target)!r} each time, without bound; here it can be spawned "
-                    f"{FORK_INSTANCES} times (count), later spawns are counted as dropped",
+                    f"rt-app forks a new thread of {printable(target)!r} each time (1,024 per forking thread, then it exits); "
+                    f"here it can be spawned {FORK_INSTANCES} times (count), later spawns are counted as dropped",
                 )
                 out.append(thread)
         for thread, at in self.templates.values():
@@ -1245,8 +1245,6 @@ class _Converter:
         out: dict[str, Any] = {}
         for name, kinds in self.uses.items():
             base = re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "unnamed"
-            if base != name:
-                self.note("", f'resource "{printable(name)}" is named {base} here (letters, digits, _ . - only)')
             several = len(kinds) > 1
             finals = []
             for kind in kinds:
@@ -1258,6 +1256,9 @@ class _Converter:
                 self.final[(kind, name)] = final
                 finals.append(final)
                 out[final] = self.resource(kind, final, kinds[kind])
+            if finals[0] != name and not several:  # several kinds: the note below names each
+                why = "letters, digits, _ . - only" if base != name else f"{base} is taken"
+                self.note("", f'resource "{printable(name)}" is named {finals[0]} here ({why})')
             if several:
                 kinds_used = list(kinds)
                 uses = ", a ".join(kinds_used[:-1]) + " and a " + kinds_used[-1]
