@@ -95,7 +95,7 @@ def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | 
     path = path or (exc.filename if exc.filename is not None else "")
     reason = exc.strerror or str(exc)
     hint = {
-        28: "; free some space or choose another folder with --out",  # ENOSPC
+        28: "; free some space or write somewhere else",  # ENOSPC: on --out, -o or --junit alike
         13: "; choose a folder you may write, or fix its permissions",  # EACCES
         30: "; choose a folder on a writable file system",  # EROFS
         20: "; a file stands where a folder is expected",  # ENOTDIR
