@@ -413,6 +413,15 @@ def test_a_renamed_resource_is_noted_with_the_name_it_has_here():
     assert 'resource "_" is named __2 here (_ is taken)' in c.notes
 
 
+def test_events_of_newer_rt_app_are_left_out_saying_so_and_alloc_is_said_to_be_none_of_rt_apps():
+    c = conv('{"tasks": {"t": {"memrun": {"size": 1000}, "sem_post": "s", "sem_wait": "s", "alloc": 4096, "run": 1}}}')
+    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"alloc": "4KiB"}, {"run": "1us"}]
+    for key in ("memrun", "sem_post", "sem_wait"):
+        assert any(n.startswith(f"tasks.t.{key}: ") and "of rt-app after 1.0, which this scenario cannot run" in n for n in c.notes)
+    assert "tasks.t.alloc: alloc is no rt-app event (rt-app refuses the file); read as the scenario's alloc event" in c.notes
+    assert not any("not an rt-app task key" in n for n in c.notes)
+
+
 def test_locks_conditions_sync_and_barriers():
     c = conv(
         """
