@@ -453,8 +453,8 @@ def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
 def test_a_stage_whose_backlog_grows_could_not_keep_up_before_its_queue_drops_one(tmp_path):
     """12 ms of work a resume behind a 10 ms producer: about 17 resumes queued at the end of 1 s, none dropped yet.
 
-    It once passed.  A stage that serves a burst of two resumes per period within the period
-    keeps up, though the second of each burst waits a whole activation.
+    It once passed.  A stage that serves a burst of three resumes per period within the period
+    keeps up, though the end may find two of a burst still queued.
     """
 
     def scenario(name: str, run: str, resumes: int) -> dict:
@@ -479,10 +479,11 @@ def test_a_stage_whose_backlog_grows_could_not_keep_up_before_its_queue_drops_on
     assert 5 <= consumer["missed_releases"] <= 30 and consumer["releases"] == consumer["callbacks"] + consumer["missed_releases"]
     failed = [v for v in c["expectations"] if not v["passed"] and "consumer" in v["thread"]]
     assert [v["metric"] for v in failed] == ["missed_releases"] and "could not keep up" in failed[0]["note"]
-    (tmp_path / "burst").mkdir()
-    done = run_inline(tmp_path / "burst", scenario("burst", "3ms", 2))
-    consumer = thread(done.results, "consumer")["figures"]
-    assert done.code == 0 and consumer["missed_releases"] == 0, done.results["cells"][0]["reason"]
+    for ends in ("1003ms", "1009ms"):  # 3 ms after a burst of three, two of them still queued; and after it was served
+        (tmp_path / ends).mkdir()
+        done = run_inline(tmp_path / ends, scenario("burst", "2ms", 3), "--duration", ends)
+        consumer = thread(done.results, "consumer")["figures"]
+        assert done.code == 0 and consumer["missed_releases"] == 0, done.results["cells"][0]["reason"]
 
 
 def test_an_rt_app_file_runs_directly(tmp_path):

@@ -2309,7 +2309,6 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "PHASE_BYTES", PHASE_BYTES);
     PyModule_AddIntConstant(m, "RES_BYTES", RES_BYTES);
     PyModule_AddIntConstant(m, "QDEPTH", QDEPTH);
-    PyModule_AddIntConstant(m, "RES_QUEUED_AT", (long)offsetof(struct resource, q_time));
     PyModule_AddIntConstant(m, "EV_RUN", EV_RUN);
     PyModule_AddIntConstant(m, "EV_RUNTIME", EV_RUNTIME);
     PyModule_AddIntConstant(m, "EV_SLEEP", EV_SLEEP);

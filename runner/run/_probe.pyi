@@ -30,7 +30,6 @@ EV_HDR: int
 PHASE_BYTES: int
 RES_BYTES: int
 QDEPTH: int
-RES_QUEUED_AT: int  # where a resource's q_time[] starts: when each queued resume came
 EV_RUN: int
 EV_RUNTIME: int
 EV_SLEEP: int

@@ -118,7 +118,7 @@ class ResourceState:
     acquisitions: int = 0  # mutex: locks taken
     contended: int = 0  # mutex: locks that had to wait
     dropped: int = 0  # queue: resumes lost because its consumers were QDEPTH behind
-    waiting_ns: tuple[int, ...] = ()  # queue: how long each resume still queued at the end had waited by then, oldest first
+    queued: int = 0  # queue: resumes still waiting to be taken at the end
 
 
 @dataclass(frozen=True)

@@ -1009,14 +1009,10 @@ class _CellRun:
         if self.resources is None:
             return ()
         out = []
-        end = self.t_end or time.monotonic_ns()
         for i, (name, res) in enumerate(self.scenario.resources.items()):
-            at = i * _probe.RES_BYTES
-            f = struct.unpack_from("<iiiiq6q2Q", self.resources, at)
-            pending, head = f[7], f[9]
-            queued = struct.unpack_from(f"<{_probe.QDEPTH}q", self.resources, at + _probe.RES_QUEUED_AT)
-            waiting = tuple(max(0, end - queued[(head + k) % _probe.QDEPTH]) for k in range(min(pending, _probe.QDEPTH)))
-            out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], waiting_ns=waiting))
+            f = struct.unpack_from("<iiiiq6q2Q", self.resources, i * _probe.RES_BYTES)
+            queued = f[7] if res.kind is ResourceKind.QUEUE else 0  # `pending`; for a barrier the same word counts arrivals
+            out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], queued=queued))
         return tuple(out)
 
 
