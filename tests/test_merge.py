@@ -78,6 +78,16 @@ def test_a_shard_whose_run_did_not_finish_makes_the_merge_an_error(tmp_path, sta
     assert 'errors="1"' in xml and "not run: the run ended before it" in xml
 
 
+def test_a_merge_merged_again_with_the_last_shard_is_whole(tmp_path):
+    """A merge's cell_ids are the whole matrix: merged again, it is not taken for a run that lacks cells."""
+    shards = split(tmp_path, [[0, 2], [4], [1, 3]])
+    first = run_cli("merge", shards[0], shards[1], "--out", str(tmp_path / "m12"), "--no-plots")
+    assert first.code == 0, first.err
+    done = run_cli("merge", str(tmp_path / "m12"), shards[2], "--out", str(tmp_path / "m123"), "--no-plots")
+    assert done.code == 0 and "the merged run is an error" not in done.err, done.err
+    assert load(str(tmp_path / "m123")).status == "passed"
+
+
 def test_a_shard_asked_to_stop_is_interrupted_not_an_error(tmp_path):
     shards = split(tmp_path, [[0, 2, 4], [1, 3]])
     stopped = load(shards[1])

@@ -413,12 +413,12 @@ def test_a_renamed_resource_is_noted_with_the_name_it_has_here():
     assert 'resource "_" is named __2 here (_ is taken)' in c.notes
 
 
-def test_events_of_newer_rt_app_are_left_out_saying_so_and_alloc_is_said_to_be_none_of_rt_apps():
+def test_events_of_newer_rt_app_are_left_out_saying_so_and_alloc_is_passed_over_as_rt_app_does():
     c = conv('{"tasks": {"t": {"memrun": {"size": 1000}, "sem_post": "s", "sem_wait": "s", "alloc": 4096, "run": 1}}}')
-    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"alloc": "4KiB"}, {"run": "1us"}]
+    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"run": "1us"}]
     for key in ("memrun", "sem_post", "sem_wait"):
         assert any(n.startswith(f"tasks.t.{key}: ") and "of rt-app after 1.0, which this scenario cannot run" in n for n in c.notes)
-    assert "tasks.t.alloc: alloc is no rt-app event (rt-app refuses the file); read as the scenario's alloc event" in c.notes
+    assert "tasks.t.alloc: rt-app has no alloc event and passes over the key; so does this scenario" in c.notes
     assert not any("not an rt-app task key" in n for n in c.notes)
 
 
@@ -491,7 +491,7 @@ def test_fork_spawns_an_instance_0_task_and_says_what_it_cannot_map():
     child = threads["child"]
     assert (child["spawned"], child["count"], child["inherit"], child["work"]["loop"]) == (True, 16, False, 1)
     assert "unused" not in threads
-    forks = "tasks.parent.fork: rt-app forks a new thread of 'child' each time (1,024 per forking thread, then it exits)"
+    forks = "tasks.parent.fork: rt-app forks a new thread of 'child' each time (1,024 of it in all, then rt-app exits)"
     assert any(forks in n for n in c.notes)
     assert "tasks.parent.fork2: fork of 'nobody': no task of instance 0 has that name; left out" in c.notes
     assert "tasks.parent.fork3: fork of 'sibling': a task started at the start (rt-app would start another); left out" in c.notes
@@ -501,7 +501,7 @@ def test_fork_spawns_an_instance_0_task_and_says_what_it_cannot_map():
 
 def test_memory_events_and_the_buffer_size():
     c = conv('{"global": {"mem_buffer_size": 1048576}, "tasks": {"t": {"mem": 65536, "alloc": 1048576}}}')
-    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"mem": "64KiB"}, {"alloc": "1MiB"}]
+    assert c.scenario["processes"][0]["threads"][0]["work"]["phases"][0]["events"] == [{"mem": "64KiB"}]  # rt-app has no alloc
     assert any(n.startswith("global.mem_buffer_size: has no equivalent") for n in c.notes)
 
 

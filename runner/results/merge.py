@@ -26,7 +26,8 @@ def unfinished(doc: RunDocument) -> str:
     if doc.status == "interrupted":
         return ""
     planned = {(c, r) for c in doc.cell_ids for r in range(doc.plan.repeat)}
-    lacking = len(planned - {(c.id, c.repeat) for c in doc.cells})
+    # A merge's cell_ids are the whole matrix (its inputs may cover part of it): it lacks nothing it was asked for.
+    lacking = 0 if doc.merged_from else len(planned - {(c.id, c.repeat) for c in doc.cells})
     if doc.status == "running":
         missing = f": {lacking} of its {len(planned)} cell runs are missing" if lacking else ""
         return f"its run never finished (results.json says running){missing}"
@@ -70,7 +71,9 @@ def merge(paths: list[str], out: str) -> tuple[RunDocument, list[str]]:
         merged.cells.append(cell)
     errors = [f"{results_file(p)}: {why}; the merged run is an error" for p, d in docs if (why := unfinished(d))]
     merged.status = worst(
-        [c.status for _, c in cells] + [Status(d.status) for _, d in docs if d.status == "interrupted"] + [Status.ERROR] * bool(errors)
+        [c.status for _, c in cells]
+        + [Status(d.status) for _, d in docs if d.status in ("interrupted", "error")]  # an input merged from an unfinished run stays so
+        + [Status.ERROR] * bool(errors)
     ).value
     merged.save(os.path.join(out, "results.json"))
     return merged, errors

@@ -54,6 +54,7 @@ def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
         return ThreadFigures(
             callbacks=0,
             missed_releases=0,
+            overruns=0,  # no callbacks: none missed or overran, as every runner has written for a program's thread
             involuntary=Involuntary(total=0),
             voluntary=Voluntary(total=0),
             faults=Faults(minor=0, major=0),
@@ -62,6 +63,7 @@ def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
     return ThreadFigures(
         callbacks=0,
         missed_releases=0,
+        overruns=0,
         involuntary=Involuntary(total=c.involuntary, per_second=_per_second(c.involuntary, t.measured_ns)),
         voluntary=Voluntary(total=c.voluntary, per_second=_per_second(c.voluntary, t.measured_ns)),
         faults=Faults(minor=c.minor_faults, major=c.major_faults),

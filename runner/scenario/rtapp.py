@@ -41,7 +41,7 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
 * rt-app returns a phase without `cpus` to the task's CPUs; a phase here keeps the CPUs it has,
   so such phases get the task's `cpus` written out.  A phase `loop` of 0 or less never ends in
   rt-app: the phases after it are left out.
-* Events: run, runtime, sleep, mem, alloc, lock, unlock, signal, broad (-> broadcast), wait
+* Events: run, runtime, sleep, mem, lock, unlock, signal, broad (-> broadcast), wait
   (`{ref, mutex}` -> `{cond, mutex}`), sync (-> signal then wait, as rt-app runs it), barrier,
   yield, timer, suspend, resume.  A timer whose ref starts with `unique` is one per rt-app
   instance, that is one per thread here: a private `timer: {period, overrun}`; any other ref is
@@ -53,7 +53,7 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
   the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
   `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
-  (rt-app's bound is 1,024 forks per forking thread; noted).  Anything else is left out with a note, as are zero durations and
+  (rt-app forks 1,024 of a task in all, then exits; noted).  Anything else is left out with a note, as are zero durations and
   sizes (they do nothing).
 * Keys rt-app does not read (a typo, `taskgroup`, the old grammar's `exec`/`period`/`lock_order`)
   are noted where they are.  Wrong types and values rt-app or the kernel would refuse (a string
@@ -84,9 +84,8 @@ DEFAULT_DURATION_S = 10
 MAX_DURATION_S = 24 * 3600  # the scenario's bound on a cell's duration
 MAX_INT = 2**31 - 1  # rt-app reads every number as a C int
 FOREVER = MAX_INT  # a phase loop that never ends before the run does
-FORK_INSTANCES = 16  # how many threads a forked task can have here (rt-app: 1,024 forks per forking thread, then it exits)
+FORK_INSTANCES = 16  # how many threads a forked task can have here (rt-app: 1,024 forks of it in all, then it exits)
 MAX_US = 24 * 3600 * 1_000_000  # no event lasts longer than a run
-MAX_BYTES_EVENT = 1 << 40  # the scenario's bound on a size
 
 # rt-app's event names, in the order it tests them: a key is the first event it starts with
 EVENTS = (
@@ -821,7 +820,7 @@ class _Converter:
                 thread.update({"spawned": True, "count": FORK_INSTANCES, "inherit": False})
                 self.note(
                     at,
-                    f"rt-app forks a new thread of {printable(target)!r} each time (1,024 per forking thread, then it exits); "
+                    f"rt-app forks a new thread of {printable(target)!r} each time (1,024 of it in all, then rt-app exits); "
                     f"here it can be spawned {FORK_INSTANCES} times (count), later spawns are counted as dropped",
                 )
                 out.append(thread)
@@ -935,7 +934,8 @@ class _Converter:
             self.note(at, f"{_NEWER_EVENTS[kind]}, which this scenario cannot run; left out, so the workload runs without it")
             return []
         if kind == "alloc":
-            self.note(at, "alloc is no rt-app event (rt-app refuses the file); read as the scenario's alloc event")
+            self.note(at, "rt-app has no alloc event and passes over the key; so does this scenario")
+            return []
         if kind in ("run", "runtime", "sleep"):
             us = self.integer(value, at, "a duration in microseconds", 0, MAX_US)
             if us is None:
@@ -944,18 +944,14 @@ class _Converter:
                 self.note(phase_at, f'"{key}": 0 does nothing; left out')
                 return []
             return [{kind: _us(us)}]
-        if kind in ("mem", "alloc"):
-            size = (
-                self.integer(value, at, "a size in bytes", 0, MAX_BYTES_EVENT)
-                if kind == "alloc"
-                else self.integer(value, at, "a size in bytes", 0)
-            )
+        if kind == "mem":
+            size = self.integer(value, at, "a size in bytes", 0)
             if size is None:
                 return []
             if size == 0:
                 self.note(phase_at, f'"{key}": 0 bytes does nothing; left out')
                 return []
-            self.mem_events = self.mem_events or kind == "mem"
+            self.mem_events = True
             return [{kind: units.format_size(size)}]
         if kind == "iorun":
             size = self.integer(value, at, "a size in bytes", 0)
