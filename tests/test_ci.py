@@ -204,6 +204,7 @@ def test_compare_junit_has_a_case_per_compared_figure_and_regressions_fail(tmp_p
     p99 = main_thread(base.cells[1]).figures.latency_ns.p99
     new_doc = with_figures(base, base.cells[1].id, latency_p99=round(p99 * 1.5) + 20_000)
     new_doc.cells = [c for c in new_doc.cells if c.id != OTHER]  # the baseline's other cell is not in this run
+    new_doc.cell_ids = [c.id for c in new_doc.cells]  # (run with --cell)
     (tmp_path / "new").mkdir()
     new_doc.save(str(tmp_path / "new" / "results.json"))
     done = run_cli("compare", MATRIX, str(tmp_path / "new"), "--junit", str(tmp_path / "j.xml"))

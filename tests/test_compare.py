@@ -263,13 +263,14 @@ def test_runs_with_no_cell_in_common_are_refused_naming_both_files(tmp_path):
     other = copy.deepcopy(matrix())
     for cell in other.cells:
         cell.id = "x=" + cell.id
+    other.cell_ids = [c.id for c in other.cells]
     path = save(other, tmp_path / "other")
     done = run_cli("compare", MATRIX, path)
     assert done.code == 2, done.out
     assert "no cell in common with the baseline" in done.err and MATRIX in done.err and path in done.err
     assert "No regression" not in done.out
     empty = copy.deepcopy(matrix())
-    empty.cells = []
+    empty.cells, empty.cell_ids = [], []
     assert run_cli("compare", save(empty, tmp_path / "empty"), MATRIX).code == 2
 
 

@@ -424,6 +424,19 @@ def test_a_cell_run_twice_and_a_run_better_than_its_cells_are_refused_at_once(tm
     assert "status: the run says passed, but a cell of it says error" in said
 
 
+def test_a_finished_run_without_cells_it_was_asked_for_is_refused_but_a_merge_may_cover_part_of_the_matrix(tmp_path):
+    from reportdata import MATRIX
+
+    doc = load(MATRIX)
+    doc.cells = doc.cells[:2]
+    doc.save(str(tmp_path / "results.json"))
+    with pytest.raises(ScenarioError, match="cells: the run says passed, but 3 of the 5 cell runs it was asked for are not in it"):
+        load(str(tmp_path))
+    doc.merged_from = ["shard-1/results.json"]
+    doc.save(str(tmp_path / "results.json"))
+    assert len(load(str(tmp_path)).cells) == 2
+
+
 def test_a_report_of_results_given_on_standard_input_is_written_beside_the_file_or_refused_for_a_pipe(tmp_path):
     """`runner report /dev/stdin < results.json` once wrote /dev/report.md (as root)."""
     import subprocess

@@ -95,6 +95,12 @@ def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
             which = f" (repeat {c.repeat + 1})" if c.repeat else ""
             out.append(Problem(path, 1, 1, f"cells.{c.id}", f"cell{which} is in the file twice; a run records each cell run once"))
         seen.add((c.id, c.repeat))
+    finished = doc.status in (Status.PASSED.value, Status.DEGRADED.value, Status.FAILED.value)
+    if finished and not doc.merged_from:  # a merge may cover part of the matrix; a run that finished has every cell it was asked for
+        planned = {(c, r) for c in doc.cell_ids for r in range(doc.plan.repeat)}
+        if lacking := len(planned - seen):
+            why = f"the run says {doc.status}, but {lacking:,} of the {len(planned):,} cell runs it was asked for are not in it"
+            out.append(Problem(path, 1, 1, "cells", why))
     if doc.status in {s.value for s in Status} and doc.cells:
         cells = worst([c.status for c in doc.cells])
         if list(Status).index(cells) < list(Status).index(Status(doc.status)):
