@@ -1011,7 +1011,7 @@ class _CellRun:
         out = []
         for i, (name, res) in enumerate(self.scenario.resources.items()):
             f = struct.unpack_from("<iiiiq6q2Q", self.resources, i * _probe.RES_BYTES)
-            queued = f[7] if res.kind is ResourceKind.QUEUE else 0  # `pending`; for a barrier the same word counts arrivals
+            queued = f[7] if res.kind is ResourceKind.QUEUE else 0  # `pending`: resumes not taken yet
             out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], queued=queued))
         return tuple(out)
 
