@@ -697,6 +697,14 @@ class RunDocument(_Record):
         write_atomic(path, blob)
         return len(blob)
 
+    def planned_runs(self) -> set[tuple[str, int]]:
+        """The cell runs (id, repeat) it was asked for, none for a merge: its inputs may cover part of the matrix it names."""
+        return set() if self.merged_from else {(c, r) for c in self.cell_ids for r in range(self.plan.repeat)}
+
+    def missing_runs(self) -> int:
+        """How many of `planned_runs` it does not hold."""
+        return len(self.planned_runs() - {(c.id, c.repeat) for c in self.cells})
+
     def samples_path(self, cell: CellResult) -> str | None:
         """The cell's samples file, refused (ScenarioError) unless it lies inside the results folder.
 

@@ -25,14 +25,12 @@ def unfinished(doc: RunDocument) -> str:
     """
     if doc.status == "interrupted":
         return ""
-    planned = {(c, r) for c in doc.cell_ids for r in range(doc.plan.repeat)}
-    # A merge's cell_ids are the whole matrix (its inputs may cover part of it): it lacks nothing it was asked for.
-    lacking = 0 if doc.merged_from else len(planned - {(c.id, c.repeat) for c in doc.cells})
+    lacking, planned = doc.missing_runs(), len(doc.planned_runs())
     if doc.status == "running":
-        missing = f": {lacking} of its {len(planned)} cell runs are missing" if lacking else ""
+        missing = f": {lacking} of its {planned} cell runs are missing" if lacking else ""
         return f"its run never finished (results.json says running){missing}"
     if lacking:
-        return f"{lacking} of the {len(planned)} cell runs it was asked for are missing (its status: {doc.status})"
+        return f"{lacking} of the {planned} cell runs it was asked for are missing (its status: {doc.status})"
     return ""
 
 

@@ -96,11 +96,9 @@ def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
             out.append(Problem(path, 1, 1, f"cells.{c.id}", f"cell{which} is in the file twice; a run records each cell run once"))
         seen.add((c.id, c.repeat))
     finished = doc.status in (Status.PASSED.value, Status.DEGRADED.value, Status.FAILED.value)
-    if finished and not doc.merged_from:  # a merge may cover part of the matrix; a run that finished has every cell it was asked for
-        planned = {(c, r) for c in doc.cell_ids for r in range(doc.plan.repeat)}
-        if lacking := len(planned - seen):
-            why = f"the run says {doc.status}, but {lacking:,} of the {len(planned):,} cell runs it was asked for are not in it"
-            out.append(Problem(path, 1, 1, "cells", why))
+    if finished and (lacking := doc.missing_runs()):  # a run that finished holds every cell run it was asked for
+        why = f"the run says {doc.status}, but {lacking:,} of the {len(doc.planned_runs()):,} cell runs it was asked for are not in it"
+        out.append(Problem(path, 1, 1, "cells", why))
     if doc.status in {s.value for s in Status} and doc.cells:
         cells = worst([c.status for c in doc.cells])
         if list(Status).index(cells) < list(Status).index(Status(doc.status)):
