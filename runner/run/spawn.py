@@ -790,10 +790,10 @@ class _CellRun:
         try:
             while self._running(t_end):
                 exits.wait(self._next_wait(t_end))
-                self._tick(t0, t_end, snapshot_at, epoch_offset, total_expected)
-                if self.loading and time.monotonic_ns() >= t_end and not any(w.buffer and w.buffer.working() for w in workers):
+                if self.awaiting_end and time.monotonic_ns() >= t_end and not any(w.buffer and w.buffer.working() for w in workers):
                     self._stop_trace()  # the measured work is over; the tasks it names are looked up while the load lives
                     self._end_load()
+                self._tick(t0, t_end, snapshot_at, epoch_offset, total_expected)  # after: its drain can take a while
         finally:
             exits.close()
         self.exit_time = time.monotonic_ns()
@@ -805,19 +805,30 @@ class _CellRun:
             _read_done(w)
 
     def _next_wait(self, t_end: int) -> float:
-        """Seconds the supervising loop sleeps at most: a tick, and while load runs, up to the end, then briefly.
+        """Seconds the supervising loop sleeps at most: a tick, and while the end is awaited, up to the end, then briefly.
 
         The workers' threads finish at the end, but leave their processes only as the CPUs let
-        them: the background load is ended as soon as no measured thread works any more, so that
-        it does not hold up their exit (SCHED_OTHER threads beside a busy loop per CPU: 2 to 8 ms).
-        After the end the wait grows with the time since (a millisecond at first, half of it later),
-        so a callback that overran far past the end is not polled a thousand times a second.
+        them: as soon as no measured thread works any more, the trace's last read and the end
+        of the background load need not wait for those exits.  The load would hold them up
+        (SCHED_OTHER threads beside a busy loop per CPU: 2 to 8 ms), and the trace's read
+        overlaps them (1,024 threads in 16 processes: 40 ms of each, which went one after the
+        other).  After the end the wait grows with the time since (a millisecond at first,
+        half of it later), so a callback that overran far past the end is not polled a
+        thousand times a second.
         """
         tick = 0.05 if self.options.follow else 0.2
-        if not self.loading:
+        if not self.awaiting_end:
             return tick
         left = (t_end - time.monotonic_ns()) / 1e9
         return min(tick, left if left > 0 else max(0.001, -left / 2))
+
+    @property
+    def awaiting_end(self) -> bool:
+        """Whether the end of the measured work is watched for: a trace to stop or load to end, and no program measured.
+
+        A program's threads have no slots to say when they are done: with programs, both wait for every exit.
+        """
+        return not self.programs and (self.tracer is not None or self.loading)
 
     @property
     def loading(self) -> bool:

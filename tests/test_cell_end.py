@@ -1,0 +1,60 @@
+"""When the supervising loop watches for the end of the measured work, and how often it looks then.
+
+Once no measured thread works, the trace's last read and the end of the background load no
+longer wait for the workers' exits; a program's threads have no slots to say they are done,
+so with programs both wait.  The rule is checked here on a cell run's state, without processes;
+that the load and the trace still cover a callback running past the end is checked against the
+kernel (test_kernel_overload.py, test_kernel_trace.py).
+"""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from runner.run.spawn import _CellRun
+
+
+def _cell_run(**state: Any) -> _CellRun:
+    run = _CellRun.__new__(_CellRun)  # the state the rule reads, nothing started
+    defaults: dict[str, Any] = {
+        "programs": [],
+        "tracer": None,
+        "hogs": [],
+        "commands": [],
+        "load_ended": False,
+        "options": SimpleNamespace(follow=None),
+    }
+    for name, value in {**defaults, **state}.items():
+        setattr(run, name, value)
+    return run
+
+
+@pytest.mark.parametrize(
+    ("state", "awaited"),
+    [
+        ({}, False),  # nothing to end early: the loop waits for the exits
+        ({"tracer": object()}, True),
+        ({"hogs": [object()]}, True),
+        ({"commands": [object()]}, True),
+        ({"hogs": [object()], "load_ended": True}, False),
+        ({"hogs": [object()], "load_ended": True, "tracer": object()}, True),
+        ({"tracer": object(), "programs": [object()]}, False),
+        ({"hogs": [object()], "programs": [object()]}, False),
+    ],
+)
+def test_the_end_is_watched_for_while_a_trace_or_load_would_wait_on_exits(state: dict[str, Any], awaited: bool) -> None:
+    assert _cell_run(**state).awaiting_end is awaited
+
+
+def test_after_the_end_the_loop_looks_soon_then_less_often() -> None:
+    now = time.monotonic_ns()
+    watching = _cell_run(tracer=object())
+    assert watching._next_wait(now + 10_000_000_000) == pytest.approx(0.2)  # a tick while the window runs
+    assert 0.05 < watching._next_wait(now + 100_000_000) <= 0.1  # the end itself
+    assert watching._next_wait(now - 100_000) == pytest.approx(0.001, abs=1e-3)  # a millisecond once it passed
+    assert watching._next_wait(now - 100_000_000) == pytest.approx(0.05, rel=0.2)  # half the time since, later
+    assert _cell_run()._next_wait(now - 100_000) == pytest.approx(0.2)  # nothing awaited: the exits wake the loop
