@@ -171,7 +171,7 @@ def test_a_write_that_fails_halfway_leaves_no_torn_line(tmp_path, monkeypatch):
 def test_a_rewrite_empties_the_journal_and_a_small_run_never_keeps_one(tmp_path, monkeypatch):
     store = ResultsStore(str(tmp_path / "results.json"))
     _doc_with(store, 3)
-    assert not (tmp_path / JOURNAL).exists(), "results.json under 1 MiB is rewritten after every cell"
+    assert not (tmp_path / JOURNAL).exists(), "results.json under 64 KiB is rewritten after every cell"
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     doc = _doc_with(store, 30)
     assert len(json.loads((tmp_path / "results.json").read_text())["cells"]) + len((tmp_path / JOURNAL).read_text().splitlines()) == len(
