@@ -101,6 +101,18 @@ def test_a_cell_that_kept_up_passes():
     assert main.key == "minimal_schedul[0]/minimal_schedul (main)" and main.histograms is not None
 
 
+def test_a_late_release_or_a_hog_whose_load_began_late_is_said_in_words_without_failing_the_cell():
+    cell, raw = _raw(10)
+    late = dataclasses.replace(raw, released_late=(("process app[0]", 2_500_000),), load_late=(("hog busy[1]", 400_000),))
+    result = evaluate(cell, cell.scenario, late, allow_degraded=False)
+    assert result.status is Status.PASSED
+    assert any(w.startswith("process app[0] was released 2.50 ms after the common start") for w in result.warnings), result.warnings
+    assert any(
+        w.startswith("background hog busy[1] began its load 400 µs after the common start") and "ran without it" in w
+        for w in result.warnings
+    ), result.warnings
+
+
 def test_failures_interrupts_and_degradations_decide_the_status_in_order():
     cell, raw = _raw(10, failures=("process x (pid 1) was killed by SIGKILL",))
     result = evaluate(cell, cell.scenario, raw, False)

@@ -455,7 +455,8 @@ class Overhead(_Record):
     )
     save: Optional[int] = Field(
         None,
-        description="that write's own time (results.json or its journal line); stored by the run's next write, so null when none came",
+        description="that write's own time (results.json or its journal line); stored by the next rewrite of results.json (the run's"
+        " last at least), so null in a journal line and when none came",
     )
 
 

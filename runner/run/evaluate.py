@@ -468,6 +468,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             " its threads' first releases were late by the runner's doing, not the scheduler's"
             for label, late in raw.released_late
         ]
+        + [
+            f"background {label} began its load {units.human_duration(late)} after the common start (the runner's start margin"
+            " was too short): the cell's first moments ran without it"
+            for label, late in raw.load_late
+        ]
     )
     if stalls:
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")

@@ -212,3 +212,4 @@ class RawCell:
     trace: Optional[TraceData | TraceUnavailable] = None  # the scheduler trace; None when not asked for
     trace_tasks: dict[int, Task] = field(default_factory=dict)  # tasks the trace names, as /proc had them at its end
     released_late: tuple[tuple[str, int], ...] = ()  # (process, ns): measured processes released after the common start
+    load_late: tuple[tuple[str, int], ...] = ()  # (hog, ns): background hogs whose load began after the common start

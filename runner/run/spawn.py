@@ -11,7 +11,6 @@ what the kernel and the native core recorded, and `evaluate` makes results of it
 from __future__ import annotations
 
 import errno
-import itertools
 import json
 import mmap
 import os
@@ -74,17 +73,21 @@ COMMAND_HEAD_START_S = 0.1
 
 
 def start_margin(processes: int, threads: int) -> float:
-    """Seconds from sending `go` to the common start: time for every measured process to read it and release its threads.
+    """Seconds from sending `go` to the common start: time for every process to read it and release its threads.
 
-    Measured on the development VM (`released` against `go`, the hogs started after every
-    worker was released, which they no longer delay): one process of a few threads at most
-    0.32 ms after `go` (50 cells); 16 of one thread, 1.3 ms; one of 256 threads, 3.4 ms; four
-    of 64, 3.8 ms; 16 of 64, 7 to 20 ms.  Releasing a thread is a wake-up on CPUs the others
-    share: about 15 us each.  The margin is 3 ms, 0.5 ms a process and 25 us a thread: twice
-    the slowest measured and more.  A worker released after the start is said in the cell's
-    warnings (it reports how late it was).
+    `processes` counts the workers and hogs, `threads` the workers' slots.  Measured on the
+    development VM from `go` to a worker's release: a fifo80 cell's worker 0.1 to 1.8 ms
+    (24 cells), with its hogs spinning from their own `go`, sent just after; with no hog,
+    16 processes of one thread 1.3 ms, 256 threads in one or four processes 3.4 and 3.8 ms,
+    1,024 threads in 16 processes 7 to 20 ms (beyond the 18 ms this gave before its term
+    per thread: two late releases in four such cells).  Releasing a thread is a wake-up on
+    CPUs the others share, about 15 us each.  Hogs started later than their `go` (after
+    every worker said it was released, or asleep to 1 ms before the start) began their load
+    after the start in 1 of 40 and 23 of 70 small cells: they keep their `go` at once and the
+    10 ms.  A worker released after the start is said in the cell's warnings (it reports how
+    late it was), as is a hog whose load began after it (its slots say when).
     """
-    return min(0.060, 0.003 + 0.0005 * processes + 0.000025 * threads)
+    return min(0.060, 0.010 + 0.0005 * processes + 0.000025 * threads)
 
 
 STOP_GRACE_S = 2.0
@@ -291,7 +294,6 @@ class Worker:
     seen: list[int] = field(default_factory=list)
     written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
     late_ns: int = 0  # how long after the common start it was released (its `done` says)
-    early: list[str] = field(default_factory=list)  # lines read while waiting for `released` that were not it
 
     @property
     def pid(self) -> int:
@@ -538,42 +540,16 @@ def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable
     return None
 
 
-def _await_released(workers: list[Worker], until_ns: int) -> None:
-    """Wait until every worker says it was released (its `released` line), or the common start at the latest.
-
-    The background load starts after: a hog spinning from its own `go` held a SCHED_OTHER
-    worker off the CPU it needed to read its `go` for 4 to 5 ms in 3 cells of 30 (the others
-    took 0.3 ms at most).  A worker that says something else, or nothing, is not waited for
-    again; `done` reads what is left of its lines.
-    """
-    sel = selectors.DefaultSelector()
-    try:
-        for w in workers:
-            assert w.popen is not None and w.popen.stdout is not None
-            sel.register(w.popen.stdout, selectors.EVENT_READ, w)
-        while sel.get_map() and (left := until_ns - time.monotonic_ns()) > 0:
-            for key, _ in sel.select(timeout=left / 1e9):
-                sel.unregister(key.fileobj)
-                line = key.fileobj.readline()  # type: ignore[union-attr]
-                if line and not _says(line, "released"):
-                    key.data.early.append(line)  # not the line awaited (a worker that failed): kept for `done`
-    finally:
-        sel.close()
-
-
-def _says(line: str, key: str) -> bool:
-    """Whether a worker's line is the message `key` (a line that is no JSON object is no message)."""
-    try:
-        message = json.loads(line)
-    except ValueError:
-        return False
-    return isinstance(message, dict) and bool(message.get(key))
+def _load_late(buffer: samples.Buffer, t0: int) -> int:
+    """How long after the common start `t0` a hog's last thread began its work, from its slots (ns; 0 or less: in time)."""
+    starts = [slot.work_start_ns for slot in buffer.slots() if slot.work_start_ns]
+    return max(starts) - t0 if starts else 0
 
 
 def _read_done(w: Worker) -> None:
     assert w.popen is not None and w.popen.stdout is not None
     try:
-        for line in itertools.chain(w.early, w.popen.stdout):
+        for line in w.popen.stdout:
             message = json.loads(line)
             if message.get("done"):
                 w.done = True
@@ -803,7 +779,7 @@ class _CellRun:
         pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs]
         now = time.monotonic_ns()
         head_start = COMMAND_HEAD_START_S if self.commands else 0.0
-        t0 = now + int((head_start + start_margin(len(workers), sum(w.nslots for w in workers))) * 1e9)
+        t0 = now + int((head_start + start_margin(len(workers) + len(hogs), sum(w.nslots for w in workers))) * 1e9)
         t_end = t0 + options.duration_ns
         if self.tracer is not None:
             self.tracer.window(t0, t_end)
@@ -816,10 +792,8 @@ class _CellRun:
         for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
             w.send(f"go {t0} {t_end}")
             w.seen = [0] * w.nslots
-        if hogs:
-            _await_released(workers, t0)
         for h in hogs:
-            h.send(f"go {time.monotonic_ns()} {t_end + grace}")
+            h.send(f"go {now} {t_end + grace}")
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
@@ -1052,6 +1026,7 @@ class _CellRun:
             self.trace,
             dict(self.trace_tasks),
             tuple((w.label, w.late_ns) for w in self.workers if w.late_ns > 0),
+            tuple((h.label, late) for h in self.hogs if self.t0 and h.buffer is not None and (late := _load_late(h.buffer, self.t0)) > 0),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:

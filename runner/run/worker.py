@@ -14,8 +14,7 @@ Steps, in the order the ros2-realtime-examples take them:
   4. main thread settings if applied after_threads;
   5. lock memory and preallocate, once every thread exists;
   6. report ready (TIDs, errors) and wait for `go START END` (a hog's START is now; how
-     long after START a measured process was released goes back with `done`); say
-     `released` once the threads know START;
+     long after START a measured process was released goes back with `done`);
   7. run: every thread starts at START (CLOCK_MONOTONIC) and stops at END.
 """
 
@@ -143,7 +142,6 @@ def run(spec: dict[str, Any]) -> int:
     start_ns, end_ns = int(line[1]), int(line[2])
     group.release(start_ns, end_ns)
     late_ns = time.monotonic_ns() - start_ns  # > 0: released after the common start, by the runner's doing
-    _send({"released": True})  # the runner starts the hogs once every measured process has come this far
     group.run_main(0)
     group.join()
     _send({"done": True, "stopped": _probe.stopped(), "late_ns": max(0, late_ns)})
