@@ -81,13 +81,16 @@ def start_margin(processes: int, threads: int) -> float:
     16 processes of one thread 1.3 ms, 256 threads in one or four processes 3.4 and 3.8 ms,
     1,024 threads in 16 processes 7 to 20 ms (beyond the 18 ms this gave before its term
     per thread: two late releases in four such cells).  Releasing a thread is a wake-up on
-    CPUs the others share, about 15 us each.  Hogs started later than their `go` (after
-    every worker said it was released, or asleep to 1 ms before the start) began their load
-    after the start in 1 of 40 and 23 of 70 small cells: they keep their `go` at once and the
-    10 ms.  A worker released after the start is said in the cell's warnings (it reports how
-    late it was), as is a hog whose load began after it (its slots say when).
+    CPUs the others share, about 15 us each: 12 us a thread on top of the rest gives 1,024
+    threads 30 ms, half again their slowest (more would push their start past its 300 ms
+    target; none late in nine such cells).  Hogs started later than their `go` (after every
+    worker said it was released, or asleep to 1 ms before the start) began their load after
+    the start in 1 of 40 and 23 of 70 small cells, woken together onto one CPU to wait for the
+    load balancer: they keep their `go` at once and the 10 ms to spread.  A worker released
+    after the start is said in the cell's warnings (it reports how late it was), as is a hog
+    whose load began after it (its slots say when).
     """
-    return min(0.060, 0.010 + 0.0005 * processes + 0.000025 * threads)
+    return min(0.060, 0.010 + 0.0005 * processes + 0.000012 * threads)
 
 
 STOP_GRACE_S = 2.0
