@@ -12,13 +12,12 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-import time
 from types import SimpleNamespace
 from typing import Any
 
 import pytest
 
-from runner.run import samples
+from runner.run import samples, spawn
 from runner.run.samples import Layout
 from runner.run.spawn import _CellRun, _load_late, start_margin
 
@@ -57,14 +56,16 @@ def test_the_end_is_watched_for_while_a_trace_or_load_would_wait_on_exits(state:
     assert _cell_run(**state).awaiting_end is awaited
 
 
-def test_after_the_end_the_loop_looks_soon_then_less_often() -> None:
-    now = time.monotonic_ns()
+def test_after_the_end_the_loop_looks_soon_then_less_often(monkeypatch: pytest.MonkeyPatch) -> None:
+    now = 50_000_000_000
+    monkeypatch.setattr(spawn.time, "monotonic_ns", lambda: now)  # a clock that stands still: the waits, exactly
     watching = _cell_run(tracer=object())
-    assert watching._next_wait(now + 10_000_000_000) == pytest.approx(0.2)  # a tick while the window runs
-    assert 0.05 < watching._next_wait(now + 100_000_000) <= 0.1  # the end itself
-    assert 0.001 <= watching._next_wait(now - 100_000) < 0.0012  # a millisecond once it passed
-    assert watching._next_wait(now - 100_000_000) == pytest.approx(0.05, rel=0.2)  # half the time since, later
-    assert _cell_run()._next_wait(now - 100_000) == pytest.approx(0.2)  # nothing awaited: the exits wake the loop
+    assert watching._next_wait(now + 10_000_000_000) == 0.2  # a tick while the window runs
+    assert watching._next_wait(now + 80_000_000) == 0.08  # up to the end itself
+    assert watching._next_wait(now - 100_000) == 0.001  # a millisecond once it passed
+    assert watching._next_wait(now - 100_000_000) == 0.05  # half the time since, later
+    assert watching._next_wait(now - 10_000_000_000) == 0.2  # a tick at most
+    assert _cell_run()._next_wait(now - 100_000) == 0.2  # nothing awaited: the exits wake the loop
 
 
 def test_the_start_margin_grows_with_processes_and_threads() -> None:
