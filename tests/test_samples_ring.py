@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import re
 import struct
 from collections.abc import Iterator
 
@@ -80,3 +81,33 @@ def test_the_buffer_can_be_unmapped_after_a_drain(ring: tuple[samples.Buffer, _W
     writer.write(CAPACITY + 3)
     assert len(reader.drain(1, stopped=True)) == CAPACITY
     reader.map.close()  # no view of the map outlives the drain
+
+
+def test_the_slot_states_are_the_native_cores_own() -> None:
+    """STATES names the numbers of _probe.c's `enum slot_state`, every one of them: a state added there is named here."""
+    source = open(os.path.join(os.path.dirname(samples.__file__), "_probe.c")).read()
+    enum = re.search(r"enum slot_state \{([^}]*)\}", source)
+    assert enum is not None
+    native = {int(n): name.removeprefix("ST_").lower() for name, n in re.findall(r"(ST_\w+) = (\d+)", enum.group(1))}
+    assert native == samples.STATES
+
+
+@pytest.mark.parametrize(
+    ("states", "working"),
+    [
+        (("done", "done"), False),
+        (("done", "created"), False),  # a spawn template no spawn took
+        (("failed", "done"), False),
+        (("done", "starting"), True),  # being spawned: its thread has not said it is ready yet
+        (("ready", "done"), True),
+        (("done", "running"), True),
+    ],
+)
+def test_a_buffer_works_while_a_thread_is_at_the_gate_in_its_work_or_being_spawned(
+    ring: tuple[samples.Buffer, _Writer], states: tuple[str, str], working: bool
+) -> None:
+    reader, writer = ring
+    number = {name: n for n, name in samples.STATES.items()}
+    for index, state in enumerate(states):
+        struct.pack_into("<i", writer.map, writer.layout.slot(index) + samples._STATE_AT, number[state])
+    assert reader.working() is working

@@ -63,7 +63,7 @@
 #define HIST_SETS 4 /* latency, slack >= 0, -slack, callback wall time */
 
 enum work_kind { WORK_SLEEP = 0, WORK_PERIODIC = 1, WORK_SPIN = 2, WORK_PROGRAM = 3 };
-enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_FAILED = 4 };
+enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_FAILED = 4, ST_STARTING = 5 };
 enum ring_mode { RING_NONE = 0, RING_ALL = 1, RING_OUTLIERS = 2 };
 
 struct slot_header {
@@ -1014,7 +1014,15 @@ static void ev_spawn(struct slot *s, int i, const struct event *e) {
     int k = atomic_load(&first->claimed);
     while (k < e->arg && !atomic_compare_exchange_weak(&first->claimed, &k, k + 1)) {
     }
-    if (k >= e->arg || create_thread(g, &g->slots[e->res + k]) != 0) {
+    if (k >= e->arg) {
+        ev_stats(s, i)->dropped++;
+        return;
+    }
+    /* Working from now: the runner must not take the cell's work for over before the new thread says it is ready. */
+    struct slot *spawned = &g->slots[e->res + k];
+    atomic_store((_Atomic int32_t *)&spawned->hdr->state, ST_STARTING);
+    if (create_thread(g, spawned) != 0) {
+        atomic_store((_Atomic int32_t *)&spawned->hdr->state, ST_CREATED);
         ev_stats(s, i)->dropped++;
         return;
     }

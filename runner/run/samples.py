@@ -35,8 +35,8 @@ SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
 LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqq")
 _STATE_AT, _COUNT_AT, _LOOPS_AT = 4, 8, 96
-STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed"}
-_WORKING = (1, 2)  # ready, running
+STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed", 5: "starting"}  # _probe.c's enum slot_state
+_WORKING = (1, 2, 5)  # ready, running, and a spawned thread being created
 EV_HDR = 192
 PHASE_BYTES = 384
 _EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
@@ -483,7 +483,7 @@ class Buffer:
         return [struct.unpack_from("<Q", self.map, self.layout.slot(i) + _LOOPS_AT)[0] for i in range(self.layout.nthreads)]
 
     def working(self) -> bool:
-        """Whether a thread is at the gate or in its work: one created later, finished or failed is not."""
+        """Whether a thread is at the gate, in its work or being spawned: one never spawned, finished or failed is not."""
         return any(struct.unpack_from("<i", self.map, self.layout.slot(i) + _STATE_AT)[0] in _WORKING for i in range(self.layout.nthreads))
 
     def written(self, index: int) -> int:
