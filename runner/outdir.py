@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from runner.errors import UsageError, from_os_error
-from runner.results.files import written_through
+from runner.results.files import JOURNAL, written_through
 
 LOCK_NAME = ".runner.lock"
 REPORT_NAME = "report.md"  # what a run or a merge writes beside its results
@@ -67,6 +67,11 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
         os.close(fd)
         raise UsageError(
             f"runner: {what} {folder} already holds the results of another run; choose a new folder, or finish that run with --resume"
+        )
+    if not resume and os.path.lexists(os.path.join(folder, JOURNAL)):
+        os.close(fd)  # its cells would be read as this run's
+        raise UsageError(
+            f"runner: {what} {folder} holds the cells journal ({JOURNAL}) of a run whose results.json is gone; choose a new folder"
         )
     if not resume and os.path.lexists(os.path.join(folder, REPORT_NAME)):
         os.close(fd)  # a run writes its report.md after its results.json: this one is not a run's

@@ -520,14 +520,19 @@ def _one_cell(
     writer = SamplesWriter(os.path.join(folder, "samples.csv.gz")) if keep else None
     options = replace(options, samples=_SamplesFile(writer) if writer else None)
     try:
-        os.makedirs(folder, exist_ok=True)
-        raw = backend.run_cell(cell, folder, start, options)
-    except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
+        try:
+            os.makedirs(folder, exist_ok=True)
+            raw = backend.run_cell(cell, folder, start, options)
+        except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
+            if writer is not None:
+                writer.abort()
+            return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc, None
+        scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        result = evaluate(cell, scenario, raw, options.allow_degraded)
+    except BaseException:  # a defect: no half-written samples file or open descriptor is left behind
         if writer is not None:
             writer.abort()
-        return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc, None
-    scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
-    result = evaluate(cell, scenario, raw, options.allow_degraded)
+        raise
     end = raw.timeline.end_ns
     if writer is None:
         return result, None, end

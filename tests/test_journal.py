@@ -14,9 +14,10 @@ import pytest
 from fakebackend import Act, Died, FakeBackend
 from test_session import FIFO_CELLS, MATRIX, OTHER, preempted_other, run
 
+from runner import outdir
 from runner.cli import _run_parser
-from runner.errors import ScenarioError
-from runner.results import document, journal
+from runner.errors import ScenarioError, UsageError
+from runner.results import document, journal, read, samplesfile
 from runner.results.document import CellResult, RunDocument
 from runner.results.journal import JOURNAL, REWRITE_BELOW, ResultsStore, rewrite_due
 from runner.results.read import load
@@ -195,3 +196,74 @@ def test_a_runner_that_dies_between_rewrites_loses_no_finished_cell_and_resumes_
     results = json.loads((out / "results.json").read_text())
     assert [c["id"] for c in results["cells"]] == FIFO_CELLS + [OTHER] and results["status"] == "passed"
     assert not (out / JOURNAL).exists()
+
+
+def test_a_reader_of_a_run_still_going_never_misses_cells_a_rewrite_moved(tmp_path, monkeypatch):
+    """The run rewrites results.json (the journal's cells in it) and drops the journal between the reader's two reads."""
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    store = ResultsStore(str(tmp_path / "results.json"))
+    doc = _doc_with(store, 6)
+    assert (tmp_path / JOURNAL).exists(), "nothing journaled: this test proves nothing"
+    opened: list[str] = []
+    real_open = open
+
+    def open_and_rewrite_between(path, *args, **kwargs):  # the reader's second file is opened after the runner's rewrite
+        opened.append(os.path.basename(path))
+        if len(opened) == 2:
+            store.rewrite(doc)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(read, "open", open_and_rewrite_between, raising=False)
+    assert [c.id for c in load(str(tmp_path)).cells] == [f"c{n}" for n in range(6)]
+    assert sorted(opened) == sorted([JOURNAL, "results.json"])
+
+
+def test_the_journal_of_a_linked_results_json_is_where_readers_look(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "run").mkdir()
+    (tmp_path / "kept" / "results.json").write_text("{}")
+    os.symlink(tmp_path / "kept" / "results.json", tmp_path / "run" / "results.json")
+    store = ResultsStore(str(tmp_path / "run" / "results.json"))
+    _doc_with(store, 4)
+    assert (tmp_path / "kept" / JOURNAL).exists() and not (tmp_path / "run" / JOURNAL).exists()
+    assert [c.id for c in load(str(tmp_path / "run" / "results.json")).cells] == [f"c{n}" for n in range(4)]
+
+
+def test_a_folder_holding_a_journal_without_its_results_is_refused_unless_resumed(tmp_path):
+    (tmp_path / JOURNAL).write_text(_cell(0).model_dump_json() + "\n")  # a run's results.json was deleted; its cells were not
+    with pytest.raises(UsageError, match="holds the cells journal"):
+        outdir.claim(str(tmp_path))
+    outdir.claim(str(tmp_path), resume=True).release()
+
+
+class _DefectAfterTheCell(FakeBackend):
+    """Writes the cell's samples, then fails as a defect would (no OSError): nothing the run began may be left behind."""
+
+    def run_cell(self, cell, folder, start, options):
+        super().run_cell(cell, folder, start, options)
+        raise RuntimeError("a defect after the cell ran")
+
+
+def test_a_defect_during_a_cell_leaves_no_half_written_samples_file(tmp_path):
+    out = tmp_path / "r"
+    with pytest.raises(RuntimeError, match="a defect"):
+        run(MATRIX, out, _DefectAfterTheCell(preempted_other()))
+    cells = [p for p in out.rglob("*") if p.is_file() and "cells" in p.parts]
+    assert not [p for p in cells if p.name.endswith(".tmp")], cells
+
+
+def test_new_names_are_synced_with_their_folders_as_results_json_is(tmp_path, monkeypatch):
+    """A power cut must not leave results.json naming a samples file or a journal whose folder entry never reached the disk."""
+    synced: list[str] = []
+    monkeypatch.setattr(samplesfile, "sync_folder", synced.append)
+    monkeypatch.setattr(journal, "sync_folder", synced.append)
+    cell = tmp_path / "cells" / "c0"
+    cell.mkdir(parents=True)
+    writer = samplesfile.SamplesWriter(str(cell / "samples.csv.gz"))
+    writer.close()
+    assert synced == [str(cell), str(tmp_path / "cells")]
+    synced.clear()
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)
+    assert synced == [str(tmp_path)], "the journal's folder once, when the journal was made"

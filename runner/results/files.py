@@ -14,6 +14,7 @@ INT64 = 2**63
 
 
 SLUG_MAX = 120  # characters of the readable part; a file name stays well under NAME_MAX (255 bytes)
+JOURNAL = "cells.jsonl"  # beside results.json: the cells a run finished since it last wrote results.json whole (results/journal.py)
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.=,+-]")
 
 
@@ -97,7 +98,7 @@ def write_atomic(path: str, data: str | bytes) -> None:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
-    _sync_folder(folder)
+    sync_folder(folder)
 
 
 def written_through(path: str) -> bool:
@@ -112,8 +113,8 @@ def written_through(path: str) -> bool:
     return stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
 
 
-def _sync_folder(folder: str) -> None:
-    """Make a rename durable (best effort: some file systems cannot fsync a folder)."""
+def sync_folder(folder: str) -> None:
+    """Make a rename or a new file in `folder` durable (best effort: some file systems cannot fsync a folder)."""
     with contextlib.suppress(OSError):
         fd = os.open(folder, os.O_RDONLY)
         try:

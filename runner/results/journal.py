@@ -21,9 +21,8 @@ import os
 from dataclasses import dataclass
 
 from runner.results.document import CellResult, RunDocument
-from runner.results.files import FILE_MODE
+from runner.results.files import FILE_MODE, JOURNAL, sync_folder
 
-JOURNAL = "cells.jsonl"
 REWRITE_BELOW = 1 << 16
 """results.json is rewritten after every cell while it is smaller than this; beyond, at doubling.
 
@@ -73,7 +72,8 @@ class ResultsStore:
 
     @property
     def journal(self) -> str:
-        return journal_path(os.path.dirname(self.results_path) or os.curdir)
+        """Beside the file results.json is (its link's target, when it is a link), where readers look for it."""
+        return journal_path(os.path.dirname(os.path.realpath(self.results_path)))
 
     def begin(self, doc: RunDocument) -> None:
         """Write `doc` whole (it holds whatever an earlier segment of the run journaled) and start an empty journal."""
@@ -114,6 +114,8 @@ class ResultsStore:
                 while view:
                     view = view[os.write(fd, view) :]
                 os.fsync(fd)
+                if size == 0:  # a journal just made: its name in the folder must last too
+                    sync_folder(os.path.dirname(self.journal))
             except OSError:
                 with contextlib.suppress(OSError):  # a torn line must not be followed by the next one
                     os.ftruncate(fd, size)

@@ -38,6 +38,10 @@ def load(path: str) -> RunDocument:
     path = results_file(path)
     if kind := special_file(path):
         raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; expected a results file (results.json) or its folder")])
+    # The journal first: a run still going rewrites results.json with the journal's cells before it drops the
+    # journal, so a journal read first never lacks cells a results.json read after it misses (its own are skipped).
+    journal = journal_path(os.path.dirname(os.path.realpath(path)))
+    journal_data = _journal_bytes(journal)
     try:
         with open(path, "rb") as handle:
             raw = handle.read()
@@ -58,8 +62,7 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.realpath(path)), path  # where the file is: a link to it (/dev/stdin) is not its folder
-    journal = journal_path(doc.folder)
-    journaled = journal_cells(journal)
+    journaled = journal_cells(journal, journal_data)
     problems = [
         Problem(
             journal,
@@ -107,20 +110,30 @@ def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
     return out
 
 
-def journal_cells(path: str) -> list[CellResult]:
-    """The cells journaled at `path` (none if there is no journal), each line checked as strictly as results.json.
-
-    A last line without its newline was cut short by the run's death and is left out.
-    """
+def _journal_bytes(path: str) -> bytes | None:
+    """The journal at `path` as it is now; None when there is none."""
     if kind := special_file(path):
         raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; a cells journal is the file a run appends its cells to")])
     try:
         with open(path, "rb") as handle:
-            lines = handle.read().split(b"\n")
+            return handle.read()
     except FileNotFoundError:
-        return []
+        return None
     except OSError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read the cells journal: {exc.strerror}")]) from None
+
+
+def journal_cells(path: str, data: bytes | None = None) -> list[CellResult]:
+    """The cells journaled at `path` (none if there is no journal), each line checked as strictly as results.json.
+
+    `data`: the journal as read already.  A last line without its newline was cut short by the
+    run's death and is left out.
+    """
+    if data is None:
+        data = _journal_bytes(path)
+    if data is None:
+        return []
+    lines = data.split(b"\n")
     cells: list[CellResult] = []
     for number, line in enumerate(lines[:-1], start=1):  # the last item is what follows the last newline
         problems = _journal_line(path, number, line, cells)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any, BinaryIO, Optional
 
 from runner.errors import Problem, ScenarioError
-from runner.results.files import INT64, show_value
+from runner.results.files import INT64, show_value, sync_folder
 
 SAMPLE_COLUMNS = (
     "thread",
@@ -114,6 +114,9 @@ class SamplesWriter:
                 os.fsync(self._raw.fileno())
                 self._raw.close()
                 os.replace(self._tmp, self.path)
+                folder = os.path.dirname(os.path.abspath(self.path))
+                sync_folder(folder)  # the file's name, and its folder's (a cell's folder is made with it), last as results.json does
+                sync_folder(os.path.dirname(folder))
                 return
             except OSError as exc:
                 self.error = exc
