@@ -8,6 +8,7 @@ neither the folder a user runs from nor a stray `runner/` directory in it can sh
 from __future__ import annotations
 
 import os
+import signal
 import sys
 
 import runner
@@ -24,3 +25,13 @@ def child_env(**extra: str) -> dict[str, str]:
     """This process's environment, with the package's folder first on PYTHONPATH (and `extra`)."""
     path = os.environ.get("PYTHONPATH")
     return {**os.environ, "PYTHONPATH": PACKAGE_PARENT + (os.pathsep + path if path else ""), **extra}
+
+
+def signal_name(number: int) -> str:
+    """A signal as kill -l names it (`SIGKILL`, `SIGRTMIN+1`), or `signal N`: Python names only some real-time ones."""
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        if signal.SIGRTMIN <= number <= signal.SIGRTMAX:
+            return f"SIGRTMIN+{number - signal.SIGRTMIN}"
+        return f"signal {number}"

@@ -19,6 +19,7 @@ from typing import Optional
 from runner import units
 from runner.figures import Faults, Involuntary, ThreadFigures, Voluntary
 from runner.results.document import ProgramResult, SettingsSnapshot, ThreadResult
+from runner.run.child import signal_name
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
 from runner.scenario.model import SleepWork, Until
 from runner.scenario.plan import PlannedThread, Settings, program_settings, rule_settings
@@ -35,13 +36,6 @@ class ProgramOutcome:
     threads: list[tuple[PlannedThread, ThreadResult]]
     failures: list[str]  # the cell could not be measured as written: an error
     warnings: list[str]
-
-
-def _signal_name(number: int) -> str:
-    try:
-        return signal.Signals(number).name
-    except ValueError:
-        return f"signal {number}"
 
 
 def _per_second(count: int, ns: int) -> Optional[float]:
@@ -128,7 +122,7 @@ def outcome(
     if oom:
         how = f"was killed by the OOM killer (SIGKILL): its cgroup reached its memory_max of {units.format_size(raw.memory_limit or 0)}"
     elif raw.exit_signal is not None:
-        how = f"was killed by {_signal_name(raw.exit_signal)}"
+        how = f"was killed by {signal_name(raw.exit_signal)}"
     elif raw.exit_code is not None:
         how = f"exited with code {raw.exit_code}"
     last = f"; its last output: {' | '.join(raw.tail)}" if raw.tail else "; it wrote nothing"
@@ -182,7 +176,7 @@ def outcome(
         requested=main_wanted,
         degraded=degraded,
         exit_code=raw.exit_code,
-        exit_signal=_signal_name(raw.exit_signal) if raw.exit_signal is not None else None,
+        exit_signal=signal_name(raw.exit_signal) if raw.exit_signal is not None else None,
         stopped=raw.stopped,
         ran_ns=(raw.exited_ns - raw.released_ns) if raw.exited_ns is not None and raw.released_ns is not None else None,
         stdout=raw.stdout,

@@ -32,7 +32,7 @@ from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
 from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
-from runner.run.child import child_env, python_module
+from runner.run.child import child_env, python_module, signal_name
 from runner.run.external import Monitor, ProgramRun, sched_json
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
@@ -375,6 +375,16 @@ class Worker:
         except (BrokenPipeError, OSError, ValueError):
             pass
 
+    def hang_up(self) -> None:
+        """Close its input: a worker still waiting for its `go` (a cell that never started) reads the end of it and leaves.
+
+        A stop signal would not do: until `go`, the native core only notes it, and the worker
+        waited out the grace period for its SIGKILL.
+        """
+        if self.popen is not None and self.popen.stdin is not None:
+            with suppress(OSError):
+                self.popen.stdin.close()
+
     def signal(self, sig: int) -> None:
         """Signal the worker's process group, or the worker alone while it has none yet (forked, not yet setsid()).
 
@@ -390,7 +400,7 @@ class Worker:
         if code is None or (code == 0 and self.done):
             return None
         if code < 0:
-            return f"{self.label} (pid {self.pid}) was killed by {signal.Signals(-code).name}"
+            return f"{self.label} (pid {self.pid}) was killed by {signal_name(-code)}"
         tail = _tail(self.log_path)
         return f"{self.label} (pid {self.pid}) exited with code {code}" + (f": {tail}" if tail else "")
 
@@ -532,9 +542,15 @@ def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable
                 sel.unregister(key.fileobj)
                 del pending[key.fileobj]
                 if not line:
-                    w.popen.wait(timeout=5)
+                    try:
+                        w.popen.wait(timeout=5)
+                    except subprocess.TimeoutExpired:
+                        return f"{w.label} (pid {w.pid}) closed its output before getting ready, and did not exit"
                     return w.exit_reason() or f"{w.label} closed its output before getting ready"
-                msg = json.loads(line)
+                try:
+                    msg = json.loads(line)
+                except ValueError:
+                    return f"{w.label} said {line.strip()[:80]!r} where its ready report was expected"
                 if not msg.get("ready"):
                     return f"{w.label}: {msg.get('failed', 'could not get ready')}"
                 w.ready = msg
@@ -722,6 +738,8 @@ class _CellRun:
                     self.guard.watch(self.commands[-1].pid)
                 except OSError as exc:
                     self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+            if self.reason:
+                break
         for p in self.programs:
             if not self.reason:
                 p.launch(self.guard)
@@ -791,12 +809,13 @@ class _CellRun:
         grace = int(max(STOP_GRACE_S * 1e9, 2 * longest))
         # The programs are stopped one after another, each given its own grace between SIGTERM and SIGKILL.
         stopping = sum(p.spec.grace for p in self.programs)
-        self.watchdog.arm(t_end + grace + stopping + int(1e9), pids)
+        deadline = t_end + grace + stopping + int(1e9)
+        self.watchdog.arm(deadline, pids)
         for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
             w.send(f"go {t0} {t_end}")
             w.seen = [0] * w.nslots
         for h in hogs:
-            h.send(f"go {now} {t_end + grace}")
+            h.send(f"go {now} {deadline}")  # the cell's end stops them (_end_load) once no measured thread works
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
@@ -857,8 +876,8 @@ class _CellRun:
         for h in self.hogs:
             h.signal(signal.SIGTERM)
         for c in self.commands:
-            with suppress(ProcessLookupError):
-                os.killpg(c.pid, signal.SIGTERM)
+            if c.returncode is None:  # one reaped already: its pid may be another process's by now
+                _kill_group_or_process(c.pid, signal.SIGTERM)
 
     def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
         """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
@@ -918,7 +937,10 @@ class _CellRun:
         if wait:
             _unmap(maps)
         elif maps:
-            threading.Thread(target=_unmap, args=(maps,), name="unmap").start()
+            try:
+                threading.Thread(target=_unmap, args=(maps,), name="unmap").start()
+            except RuntimeError:  # no thread to be had: unmapped here, later than it could have been
+                _unmap(maps)
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -930,13 +952,13 @@ class _CellRun:
             assert h.popen is not None
             code = h.popen.poll()
             if code is not None and h.label not in self.incidents:
-                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
                 self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
         for n, c in enumerate(self.commands):
             code = c.poll()
             label = f"command {_argv(c)[0]}[{n}]"
             if code is not None and label not in self.incidents:
-                how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+                how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
                 self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
         for p in self.programs:
             p.watch_state()
@@ -957,6 +979,8 @@ class _CellRun:
         for p in self.programs:
             p.abandon()
             p.stop(self.guard)
+        for w in self.workers + self.hogs:
+            w.hang_up()
         self._end_load()
         stop_by = time.monotonic() + STOP_GRACE_S
         for proc in [w.popen for w in self.workers + self.hogs if w.popen] + self.commands:
@@ -965,10 +989,8 @@ class _CellRun:
             except subprocess.TimeoutExpired:
                 _kill_group_or_process(proc.pid)
                 proc.wait()
-            try:
+            with suppress(ProcessLookupError, PermissionError):
                 os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
-            except ProcessLookupError:
-                pass
             self.guard.forget(proc.pid)
         for group in self.command_groups:  # and what a command started outside its group
             group.kill_all()
@@ -1072,9 +1094,12 @@ class _Exits:
         if not self.fds:
             time.sleep(timeout_s)
             return
-        for fd, _ in self.poller.poll(timeout_s * 1000):
+        for fd, events in self.poller.poll(timeout_s * 1000):
             if fd != self.zygote_fd:  # the zygote's messages are taken by the caller's poll of its workers
                 self.poller.unregister(fd)
+            elif events & (select.POLLHUP | select.POLLERR | select.POLLNVAL):  # the zygote is gone: it would wake every poll
+                self.poller.unregister(fd)
+                self.zygote_fd = -1
 
     def close(self) -> None:
         for fd in self.fds:
@@ -1093,14 +1118,18 @@ def _ready_report(w: Worker) -> Optional[ReadyReport]:
 
 
 def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:
-    """Signal the process group `pid` leads, or the process alone while it leads none yet (forked, before its setsid())."""
+    """Signal the process group `pid` leads, or the process alone while it leads none yet (forked, before its setsid()).
+
+    A group the runner may signal none of (a command run through sudo) falls back to its leader, and
+    what the kernel refuses there too is left to the cgroup the command was started in.
+    """
     try:
         os.killpg(pid, sig)
-    except ProcessLookupError:
-        try:
-            os.kill(pid, sig)
-        except ProcessLookupError:
-            pass
+        return
+    except (ProcessLookupError, PermissionError):
+        pass
+    with suppress(ProcessLookupError, PermissionError):
+        os.kill(pid, sig)
 
 
 # The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.

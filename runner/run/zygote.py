@@ -37,7 +37,7 @@ import traceback
 from collections.abc import Sequence
 from typing import IO, TYPE_CHECKING, Any, Optional
 
-from runner.run.child import child_env, python_module
+from runner.run.child import child_env, python_module, signal_name
 
 if TYPE_CHECKING:
     from runner.run.guard import Watcher
@@ -179,7 +179,7 @@ class Zygote:
             code = self.proc.wait(timeout=1)
         except subprocess.TimeoutExpired:
             return "still running"
-        return f"killed by {signal.Signals(-code).name}" if code < 0 else f"code {code}"
+        return f"killed by {signal_name(-code)}" if code < 0 else f"code {code}"
 
     def _lost(self, why: str) -> None:
         if self.sock is not None:

@@ -1,0 +1,89 @@
+"""How a cell's processes are told to stop and how their ends are named: real processes, no measured work.
+
+A worker that never got its `go`, a command run through sudo whose group the runner may not
+signal, a process killed by a real-time signal, a dead zygote's socket: each once turned a
+cell's end into an internal error, a wait of the whole grace period, or a busy loop.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+
+import pytest
+from test_cell_end import _cell_run
+
+from runner.run import spawn
+from runner.run.child import signal_name
+from runner.run.spawn import Worker, _Exits, _kill_group_or_process
+
+
+@pytest.mark.parametrize(
+    ("number", "name"),
+    [(9, "SIGKILL"), (15, "SIGTERM"), (signal.SIGRTMIN, "SIGRTMIN"), (signal.SIGRTMIN + 1, "SIGRTMIN+1"), (200, "signal 200")],
+)
+def test_every_signal_a_process_can_die_of_has_a_name(number: int, name: str) -> None:
+    assert signal_name(number) == name
+
+
+def test_a_group_the_runner_may_not_signal_falls_back_to_its_leader(monkeypatch: pytest.MonkeyPatch) -> None:
+    sent: list[tuple[int, int]] = []
+
+    def refused(pid: int, sig: int) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(spawn.os, "killpg", refused)
+    monkeypatch.setattr(spawn.os, "kill", lambda pid, sig: sent.append((pid, sig)))
+    _kill_group_or_process(4242, signal.SIGTERM)
+    assert sent == [(4242, signal.SIGTERM)]
+    monkeypatch.setattr(spawn.os, "kill", refused)
+    _kill_group_or_process(4242, signal.SIGTERM)  # refused there too: left to the command's cgroup, never raised
+
+
+def test_the_end_of_the_load_spares_a_command_reaped_already(monkeypatch: pytest.MonkeyPatch) -> None:
+    signalled: list[int] = []
+    monkeypatch.setattr(spawn, "_kill_group_or_process", lambda pid, sig=signal.SIGKILL: signalled.append(pid))
+    done = subprocess.Popen([sys.executable, "-c", "pass"])
+    done.wait()  # its pid may be another process's by now
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
+    try:
+        _cell_run(commands=[done, running])._end_load()
+        assert signalled == [running.pid]
+    finally:
+        running.kill()
+        running.wait()
+
+
+def test_a_worker_still_waiting_for_its_go_leaves_when_the_runner_hangs_up() -> None:
+    """Until `go` a stop signal is only noted; the end of its input makes it leave at once, not after the grace period."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; sys.exit(0 if not sys.stdin.readline() else 3)"],
+        stdin=subprocess.PIPE,
+        text=True,
+    )
+    worker = Worker("w", {}, spawn.samples.Layout(1, 0), [], True, os.devnull, popen=proc)
+    worker.hang_up()
+    assert proc.wait(timeout=10) == 0
+    worker.hang_up()  # twice: nothing left to close, nothing raised
+
+
+def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    exits = _Exits([sleeper.pid])
+    try:
+        exits.zygote_fd = ours.fileno()
+        exits.poller.register(ours.fileno(), select.POLLIN)
+        theirs.close()  # the zygote died: its socket hangs up, and would at every poll
+        exits.wait(5.0)
+        assert exits.zygote_fd == -1
+        assert exits.poller.poll(0) == [], "something still wakes the loop though the sleeper lives"
+    finally:
+        exits.close()
+        ours.close()
+        sleeper.kill()
+        sleeper.wait()
