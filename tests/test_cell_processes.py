@@ -17,7 +17,7 @@ import sys
 import pytest
 from test_cell_end import _cell_run
 
-from runner.run import spawn
+from runner.run import kernel, spawn
 from runner.run.child import signal_name
 from runner.run.spawn import Worker, _Exits, _kill_group_or_process
 
@@ -87,3 +87,22 @@ def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:
         ours.close()
         sleeper.kill()
         sleeper.wait()
+
+
+def test_a_process_named_in_bytes_that_are_not_utf8_is_read_listed_and_shown() -> None:
+    """comm is any 15 bytes a process sets (a UTF-8 name cut mid-character): once an internal error, a dead monitor."""
+    named = subprocess.Popen(
+        [sys.executable, "-c", "import ctypes, sys; ctypes.CDLL(None).prctl(15, b'bad\\xff\\xfename', 0, 0, 0); print(); sys.stdin.read()"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert named.stdout is not None and named.stdout.readline() == "\n"  # named by now
+        assert kernel.thread_comm(named.pid, named.pid) == "bad\ufffd\ufffdname"
+        assert kernel.find_pids("bad") == []  # every process on the machine listed, this one too
+        assert kernel.thread_counters(named.pid, named.pid) is not None
+        assert [row.comm for row in kernel.thread_rows(named.pid)] == ["bad\ufffd\ufffdname"]
+    finally:
+        named.kill()
+        named.wait()

@@ -69,7 +69,8 @@ def current_settings() -> Settings:
 
 
 def _read(path: str) -> str:
-    with open(path) as handle:
+    """A /proc file as text; a name that is not UTF-8 (comm: any 15 bytes a process chose) is read with U+FFFD in it."""
+    with open(path, encoding="utf-8", errors="replace") as handle:
         return handle.read()
 
 

@@ -412,7 +412,7 @@ def _unmap(maps: list[samples.Buffer | mmap.mmap]) -> None:
 
 def _tail(path: str, lines: int = 3) -> str:
     try:
-        with open(path) as handle:
+        with open(path, encoding="utf-8", errors="replace") as handle:
             text = handle.read().strip().splitlines()
     except OSError:
         return ""
