@@ -24,7 +24,7 @@ from datetime import datetime, timezone
 from typing import Any, Optional
 
 from runner import outdir, units
-from runner.errors import ExitCode, Problem, ScenarioError, UsageError, from_os_error
+from runner.errors import ExitCode, Problem, RunnerError, ScenarioError, UsageError, from_os_error
 from runner.report.compare import Threshold, check_common, check_comparable, parse_threshold, thresholds_with
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
@@ -456,6 +456,11 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         )
     except OSError as exc:
         raise from_os_error(exc, "cannot write the report", before_run=False) from None
+    except RunnerError as refused:  # the baseline could not be compared with what ran (checked against the plan before)
+        if Status.INTERRUPTED not in statuses:
+            raise
+        note(f"{refused}\nrunner: the run was stopped before it could be compared with the baseline; no comparison was made")
+        regressions = 0
     say(f"{loaded.name}: {worst(statuses).value}; results: {results_path}")
     return int(exit_code(statuses, regressions))
 

@@ -423,3 +423,16 @@ def test_the_cyclic_collector_is_off_while_cells_run_and_on_again_after(tmp_path
         run(MATRIX, tmp_path / "r", backend)
     assert backend.collector_on and not any(backend.collector_on)
     assert gc.isenabled(), "the run left Python's collector off"
+
+
+def test_a_run_stopped_before_any_cell_the_baseline_holds_finished_exits_130_without_a_comparison(tmp_path, capsys):
+    """A CI job cancelled in its first cell is a stopped run (130), not invalid input (2): the baseline was fine."""
+    run(MATRIX, tmp_path / "base", FakeBackend(preempted_other()), "--duration", "1s", "--shard", "2/2")
+    base = json.loads((tmp_path / "base" / "results.json").read_text())
+    first = FIFO_CELLS[0]
+    assert first not in [c["id"] for c in base["cells"]], "the baseline holds the first cell: this test proves nothing"
+    backend = FakeBackend({**preempted_other(), first: Act(signals=1)})
+    code, results = run(MATRIX, tmp_path / "r", backend, "--duration", "1s", "--baseline", str(tmp_path / "base"))
+    assert code == 130 and results["status"] == "interrupted"
+    assert "no comparison was made" in capsys.readouterr().err
+    assert os.path.exists(tmp_path / "r" / "report.md")
