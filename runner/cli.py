@@ -116,6 +116,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if mistyped:
         _say(mistyped)
         return ExitCode.INVALID_INPUT
+    unreadable = [arg for arg in args if not _is_utf8(arg)]
+    if unreadable:  # results, reports and JUnit files name their files in UTF-8: they could not be written
+        for arg in unreadable:
+            _say(f"runner: {_shown(arg)}: not UTF-8; expected names and paths in UTF-8, as results and reports store them: rename it")
+        return ExitCode.INVALID_INPUT
     command = args[0] if args[0] in COMMANDS else "run"
     rest = args[1:] if args[0] in COMMANDS else args
     handlers: dict[str, Callable[[list[str]], int]] = {
@@ -131,6 +136,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "completion": _cmd_completion,
     }
     return _guarded(handlers[command], rest)
+
+
+def _is_utf8(arg: str) -> bool:
+    """Whether a command-line argument was valid UTF-8 (Python keeps other bytes as lone surrogates)."""
+    try:
+        arg.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _shown(arg: str) -> str:
+    """An argument as its bytes were, those that are not UTF-8 escaped (`x\\xff.yaml`)."""
+    return arg.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def _mistyped_command(word: str) -> str | None:
@@ -208,10 +227,10 @@ def _internal_error(exc: BaseException) -> int:
     where = os.environ.get("RUNNER_CRASH_DIR") or tempfile.gettempdir()
     path = os.path.join(where, f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.txt")
     try:
-        with open(path, "w", encoding="utf-8") as handle:
-            handle.write(f"runner {__version__}\ncommand: {' '.join(sys.argv)}\n\n{text}")
+        with open(path, "w", encoding="utf-8", errors="backslashreplace") as handle:
+            handle.write(f"runner {__version__}\ncommand: {' '.join(map(_shown, sys.argv))}\n\n{text}")
         saved = f"the traceback is in {path}"
-    except OSError:
+    except (OSError, ValueError):
         saved = f"the traceback could not be saved ({type(exc).__name__}: {exc})"
     _say(f"runner: internal error (a bug in the runner, please report it): {type(exc).__name__}: {exc}; {saved}")
     return ExitCode.INTERNAL_ERROR

@@ -43,6 +43,28 @@ def test_a_bug_prints_one_line_saves_the_traceback_and_exits_70(tmp_path, monkey
     assert "Traceback (most recent call last)" in saved[0].read_text() and "def broken" not in err
 
 
+def test_a_bug_under_a_command_line_that_is_not_utf8_still_saves_its_traceback(tmp_path, monkeypatch, capsys):
+    def broken(argv: list[str]) -> int:
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setenv("RUNNER_CRASH_DIR", str(tmp_path))
+    monkeypatch.setattr(sys, "argv", ["runner", os.fsdecode(b"x\xff.yaml")])
+    assert cli._guarded(broken, []) == 70
+    saved = list(tmp_path.glob("runner-bug-*.txt"))
+    assert len(saved) == 1 and "x\\xff.yaml" in saved[0].read_text() and str(saved[0]) in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [["validate"], ["report"], ["merge", POLICY, "--out"], ["--out"]])
+def test_a_path_that_is_not_utf8_is_refused_with_its_bytes_shown(tmp_path, command):
+    """Results, reports and JUnit files store their paths in UTF-8: such a path was a traceback when results.json was saved."""
+    bad = os.fsdecode(str(tmp_path).encode() + b"/x\xff.yaml")
+    fifo80 = os.path.join(SCENARIOS, "fifo80.yaml")
+    done = run_cli(*command, bad) if command != ["--out"] else run_cli(fifo80, "--out", bad)
+    assert done.code == 2 and "Traceback" not in done.err
+    said = "not UTF-8; expected names and paths in UTF-8, as results and reports store them: rename it"
+    assert done.err == f"runner: {tmp_path}/x\\xff.yaml: {said}\n"
+
+
 def test_sigterm_stops_any_command_as_ctrl_c_does(capsys):
     def slow(argv: list[str]) -> int:
         os.kill(os.getpid(), signal.SIGTERM)
