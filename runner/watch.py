@@ -90,10 +90,12 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
         run.attach(pid)
         runs.append(run)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    began = time.monotonic_ns()
     monitor = Monitor(runs)
-    monitor.window_start = began
     monitor.start()
+    # The window opens once every thread there is listed: one listed after its start counts as born in the window,
+    # from zero, and a process's whole life before the watch was reported as the watch's.
+    began = time.monotonic_ns()
+    monitor.window_start = began
     table: list[ThreadRow] = []
     interrupted = False
     end = began + duration_ns

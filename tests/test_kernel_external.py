@@ -336,3 +336,23 @@ def test_memory_max_holds_a_program_to_its_cgroup_and_the_oom_killer_ends_one_th
     assert big["exit_signal"] == "SIGKILL" and big["oom_kills"] >= 1 and big["memory_peak"] <= 32 << 20
     assert cell["status"] == "error" and "program big was killed by the OOM killer" in cell["reason"]
     assert not [name for name in os.listdir(where.folder) if name.startswith("runner-")], "a program's cgroup outlived its cell"
+
+
+def test_watch_counts_from_its_start_not_what_the_process_did_before(tmp_path):
+    """A process that burnt 0.6 s of CPU, then sleeps: its 0.3 s watch once said 0.5 s of CPU time and its startup's faults."""
+    code = "import time, sys\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass\nprint(flush=True)\ntime.sleep(30)"
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == "\n"  # done burning
+        out = tmp_path / "w"
+        done = finish(
+            start_runner("watch", str(proc.pid), "--duration", "300ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
+        )
+        assert done.code == 0, done.err
+    finally:
+        proc.kill()
+        proc.wait()
+    main = next(t for t in done.results["cells"][0]["threads"] if t["tid"] == proc.pid)
+    figures = main["figures"]
+    assert figures["cpu_time_ns"] < 50_000_000, figures  # asleep all the watch long
+    assert figures["faults"]["minor"] < 100, figures  # the interpreter's start faulted thousands of pages
