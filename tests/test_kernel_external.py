@@ -165,12 +165,17 @@ def test_a_script_whose_interpreter_is_missing_is_said_so(tmp_path):
     assert "No such file or directory (the file exists; the interpreter its #! line names, '/nonexistent/interp', does not)" in reason
 
 
+def _watch(tmp_path, target: str, duration: str, name: str = "w"):
+    """`runner watch TARGET --duration D` into its own folder, finished and read back."""
+    out = tmp_path / name
+    return finish(start_runner("watch", target, "--duration", duration, "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out))
+
+
 def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_path, program):
     proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
     try:
         pid = wait_for_threads(NAME, 5)
-        out = tmp_path / "watch"
-        done = finish(start_runner("watch", NAME, "--duration", "1s", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out))
+        done = _watch(tmp_path, NAME, "1s", "watch")
         assert done.code == 0, done.err
         ps = _ps_rows(pid)
     finally:
@@ -191,16 +196,10 @@ def test_watch_of_a_real_time_process_changes_and_checks_nothing_and_a_stopped_o
     proc = subprocess.Popen(["chrt", "-f", "30", "sleep", "30"], start_new_session=True)
     try:
         time.sleep(0.2)
-        out = tmp_path / "rt"
-        done = finish(
-            start_runner("watch", str(proc.pid), "--duration", "500ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
-        )
+        done = _watch(tmp_path, str(proc.pid), "500ms", "rt")
         assert done.code == 0 and done.results["cells"][0]["status"] == "passed", done.results["cells"][0]["reason"]
         os.kill(proc.pid, signal.SIGSTOP)
-        out = tmp_path / "stopped"
-        done = finish(
-            start_runner("watch", str(proc.pid), "--duration", "500ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
-        )
+        done = _watch(tmp_path, str(proc.pid), "500ms", "stopped")
         cell = done.results["cells"][0]
         assert done.code == 4 and cell["status"] == "error" and "was stopped (SIGSTOP or a debugger)" in cell["reason"]
     finally:
@@ -227,10 +226,7 @@ def test_watch_follows_a_process_whose_main_thread_has_exited(tmp_path):
         while kernel.process_state(proc.pid) != "Z" and time.monotonic() < until:
             time.sleep(0.02)
         assert kernel.process_state(proc.pid) == "Z" and kernel.process_alive(proc.pid)
-        out = tmp_path / "w"
-        done = finish(
-            start_runner("watch", str(proc.pid), "--duration", "300ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
-        )
+        done = _watch(tmp_path, str(proc.pid), "300ms")
         assert done.code == 0, done.err
     finally:
         proc.kill()
@@ -344,10 +340,7 @@ def test_watch_counts_from_its_start_not_what_the_process_did_before(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
         assert proc.stdout is not None and proc.stdout.readline() == "\n"  # done burning
-        out = tmp_path / "w"
-        done = finish(
-            start_runner("watch", str(proc.pid), "--duration", "300ms", "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out)
-        )
+        done = _watch(tmp_path, str(proc.pid), "300ms")
         assert done.code == 0, done.err
     finally:
         proc.kill()
