@@ -341,7 +341,13 @@ def _watch_parser() -> argparse.ArgumentParser:
     p.add_argument("targets", nargs="+", metavar="PID|NAME", help="a PID, or a process name (every live process whose COMMAND it is)")
     p.add_argument("--duration", default="10s", help="how long to watch (default 10s); Ctrl-C stops early and keeps what was measured")
     p.add_argument("--out", help="results folder (default reports/watch/<UTC time>)")
-    p.add_argument("--rule", action="append", default=[], help="a thread rule to apply to matching threads: PATTERN=SCHED@CPUS")
+    p.add_argument(
+        "--rule",
+        action="append",
+        default=[],
+        help="a thread rule to apply to matching threads: PATTERN=SCHED@CPUS (the threads keep it after the watch)",
+    )
+    p.add_argument("--allow-priority-99", action="store_true", help="let a rule ask for RT priority 99 (refused otherwise)")
     p.add_argument("--no-plots", action="store_true", help="write the report without plots")
     return p
 
@@ -358,6 +364,10 @@ def _cmd_watch(argv: list[str]) -> int:
 
     duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN)
     rules = [parse_rule(r) for r in ns.rule]
+    from runner.run.kernel import online_cpus
+    from runner.run.preflight import check_rules
+
+    check_rules(rules, ns.allow_priority_99, set(online_cpus()))
     pids = resolve_targets(ns.targets)
     held = outdir.claim(ns.out or default_folder())
     try:

@@ -120,6 +120,12 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
         cell.threads.extend(t for _, t in out.threads)
         failures += out.failures
         cell.warnings += out.warnings
+    ruled = sum(1 for t in cell.threads if t.rule is not None)
+    if ruled:
+        cell.warnings.append(
+            f"--rule changed the settings of {ruled} thread{'s' if ruled != 1 else ''}; they keep them after the watch "
+            "(the runner does not put back what they had)"
+        )
     cell.thread_table = ps_rows(table)
     statuses = [Status.INTERRUPTED] if interrupted else [Status.ERROR] if failures else [Status.PASSED]
     if any(t.degraded for t in cell.threads):

@@ -354,3 +354,14 @@ def test_a_folder_with_a_report_of_no_run_is_refused(tmp_path):
     assert (tmp_path / "report.md").read_text() == "# my notes\n"
     (tmp_path / "results.json").write_text("{}")
     outdir.claim(str(tmp_path), resume=True).release()  # a run's own report, beside its results: resumed over
+
+
+def test_watch_refuses_a_priority_99_rule_before_it_touches_the_process(tmp_path):
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        done = run_cli("watch", str(sleeper.pid), "--rule", "*=fifo:99", "--duration", "100ms", "--out", str(tmp_path / "w"))
+        assert done.code == 2 and "asks for RT priority 99" in done.err and "--allow-priority-99" in done.err
+        assert os.sched_getscheduler(sleeper.pid) == os.SCHED_OTHER and not (tmp_path / "w").exists()
+    finally:
+        sleeper.kill()
+        sleeper.wait()

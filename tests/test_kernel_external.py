@@ -165,10 +165,11 @@ def test_a_script_whose_interpreter_is_missing_is_said_so(tmp_path):
     assert "No such file or directory (the file exists; the interpreter its #! line names, '/nonexistent/interp', does not)" in reason
 
 
-def _watch(tmp_path, target: str, duration: str, name: str = "w"):
-    """`runner watch TARGET --duration D` into its own folder, finished and read back."""
+def _watch(tmp_path, target: str, duration: str, name: str = "w", extra: tuple[str, ...] = ()):
+    """`runner watch TARGET --duration D [EXTRA]` into its own folder, finished and read back."""
     out = tmp_path / name
-    return finish(start_runner("watch", target, "--duration", duration, "--out", str(out), "--no-plots", cwd=str(tmp_path)), str(out))
+    argv = ("watch", target, "--duration", duration, *extra, "--out", str(out), "--no-plots")
+    return finish(start_runner(*argv, cwd=str(tmp_path)), str(out))
 
 
 def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_path, program):
@@ -349,3 +350,18 @@ def test_watch_counts_from_its_start_not_what_the_process_did_before(tmp_path):
     figures = main["figures"]
     assert figures["cpu_time_ns"] < 50_000_000, figures  # asleep all the watch long
     assert figures["faults"]["minor"] < 100, figures  # the interpreter's start faulted thousands of pages
+
+
+def test_watch_says_the_settings_its_rules_gave_outlive_it(tmp_path):
+    """runner watch --rule changes a process the user runs, and nothing puts it back: the kernel keeps it, the report says so."""
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
+    try:
+        time.sleep(0.1)
+        done = _watch(tmp_path, str(sleeper.pid), "300ms", extra=("--rule", "*@0"))
+        assert done.code == 0, done.err
+        assert os.sched_getaffinity(sleeper.pid) == {0}  # after the watch
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    warnings = done.results["cells"][0]["warnings"]
+    assert any("--rule changed the settings of 1 thread; they keep them after the watch" in w for w in warnings), warnings

@@ -302,3 +302,16 @@ def test_a_program_is_stopped_when_two_ticks_find_it_so_and_a_tracers_stop_is_no
         run.watch_state()
         seen.append(run.halted_ns is not None)
     assert seen == [False, False, False, False, False, True], "strace's t, then T once, then T twice in a row"
+
+
+def test_watch_rules_are_refused_as_a_scenarios_are_priority_99_and_cpus_this_machine_lacks():
+    from runner.errors import UsageError
+    from runner.run.preflight import check_rules
+    from runner.watch import parse_rule
+
+    with pytest.raises(UsageError, match="--rule '\\*' asks for RT priority 99"):
+        check_rules([parse_rule("*=fifo:99")], False, {0, 1})
+    check_rules([parse_rule("*=fifo:99")], True, {0, 1})
+    with pytest.raises(UsageError, match="--rule 'ctl' asks for CPUs 7"):
+        check_rules([parse_rule("ctl=fifo:80@7")], False, {0, 1})
+    check_rules([parse_rule("ctl=rr:98@1")], False, {0, 1})

@@ -19,7 +19,7 @@ from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
 from runner.run import memcg
-from runner.scenario.model import PhasesWork, Policy, Scenario
+from runner.scenario.model import PhasesWork, Policy, Scenario, ThreadRule
 from runner.scenario.plan import Settings, plan_scenario, program_settings, rule_settings
 
 CAP_IPC_LOCK = 14
@@ -126,7 +126,7 @@ def _grant_rt(perm: Permissions, priority: int) -> str:
 
 
 def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
-    """Priority 99 is the watchdog's: a thread or hog above or beside it could keep it from stopping a runaway cell."""
+    """Priority 99 is the watchdog's (and the kernel's own per-CPU threads'): a thread at it could starve them."""
     if rt_priority == 99 and not allowed:
         raise UsageError(
             f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
@@ -170,6 +170,15 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
         out.uclamp = out.uclamp or _asks_uclamp(sc)
         out.memory_max = out.memory_max or next((f"program {prog.name}" for prog in sc.programs if prog.memory_max is not None), None)
     return out
+
+
+def check_rules(rules: list[ThreadRule], allow_priority_99: bool, online: set[int]) -> None:
+    """`runner watch --rule`: refused (exit 2) as a scenario's rules are, priority 99 and CPUs this machine does not allow."""
+    for rule in rules:
+        where = f"--rule {rule.match!r}"
+        sched = rule.sched
+        _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
+        _refuse_cpus(where, rule.cpus, online)
 
 
 def _asks_uclamp(sc: Scenario) -> str | None:
