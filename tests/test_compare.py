@@ -311,3 +311,23 @@ def test_comparison_numbers_read_as_the_report_writes_them_with_one_minus_sign()
     row = next(line for line in section.splitlines() if "other" in line and "wake-up latency p99" in line)
     assert [c.strip() for c in row.split("|")[3:7]] == ["wake-up latency p99 (µs)", "3,156", "2,100", "−1,056 (−33%)"]
     assert "-" not in "".join(c for line in section.splitlines() if line.startswith("| policy") for c in line.split("|")[4:7])
+
+
+def test_a_run_that_never_finished_is_never_green_against_its_baseline(tmp_path):
+    """A crashed run's results.json (running, 2 of 5 cells) compared as `✅ No regression in 2 cells`, exit 0."""
+    crashed = copy.deepcopy(matrix())
+    crashed.cells, crashed.status = crashed.cells[:2], "running"
+    done = run_cli("compare", MATRIX, save(crashed, tmp_path / "new"))
+    assert done.code == 4, done.err
+    assert "⚠️ This run is incomplete: its run never finished (results.json says running): 3 of its 5 cell runs are missing." in done.out
+    headline = next(line for line in done.out.splitlines() if "This run is incomplete" in line)
+    assert "✅" not in headline and "only the cells it holds were compared" in done.err
+
+
+def test_a_figure_the_baseline_has_and_this_run_lacks_is_in_the_headline():
+    base = matrix()
+    cell = base.cells[1].id
+    from runner.report.markdown import render_comparison
+
+    text = render_comparison(cmp.compare(base, with_figures(base, cell, invol_mean=float("nan"))), "b", "n")
+    assert f"1 figure of the baseline not measured now: involuntary.per_callback_mean ({cell})." in text.split("\n\n")[1]

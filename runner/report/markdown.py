@@ -46,6 +46,7 @@ from runner.results.document import (
     ThreadResult,
     Verdict,
 )
+from runner.results.merge import unfinished
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
@@ -1034,6 +1035,14 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         if regressed
         else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
+    unfinished_now = unfinished(cmp.new)
+    if unfinished_now:  # what it holds may compare well; what it lacks was never measured
+        headline = f"⚠️ This run is incomplete: {md_text(unfinished_now)}. " + headline.replace("✅ ", "", 1)
+    lost = [f for f in cmp.figures if f.verdict == "missing"]
+    if lost:
+        where = sorted({f"{f.figure.name} ({md_text(f.cell)})" for f in lost})
+        headline += f" {len(lost)} figure{'s' if len(lost) != 1 else ''} of the baseline not measured now: {', '.join(where[:5])}"
+        headline += f" and {len(where) - 5} more." if len(where) > 5 else "."
     gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
     if gone:
         headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(map(md_text, gone))}."
