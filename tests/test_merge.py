@@ -136,6 +136,9 @@ def test_mixed_specs_are_refused(tmp_path):
         ("duration_ns", 300_000_000, "ran its cells for another --duration"),
         ("scenario_hash", "ffffffffffffffff", "ran another version of the scenario file"),
         ("expect_hash", "ffffffffffffffff", "judged its cells by other expectations"),
+        ("trace", False, "traced the scheduler where the other did not (--no-trace)"),
+        ("dma_latency_us", 10, "held /dev/cpu_dma_latency otherwise (--dma-latency)"),
+        ("repeat", 2, "ran each cell another number of times (--repeat)"),
     ],
 )
 def test_shards_of_different_runs_are_refused(tmp_path, key, value, words):
@@ -143,10 +146,13 @@ def test_shards_of_different_runs_are_refused(tmp_path, key, value, words):
 
     def edit(doc):
         setattr(doc.plan, key, value)
+        if key == "repeat":  # every cell run twice, as such a shard holds them
+            doc.cells += [c.model_copy(update={"repeat": 1}) for c in doc.cells]
 
-    def recorded(doc):  # both shards record the hashes, as this runner writes them
+    def recorded(doc):  # both shards record the hashes and the trace, as this runner writes them
         doc.plan.scenario_hash = doc.plan.scenario_hash or "0123456789abcdef"
         doc.plan.expect_hash = doc.plan.expect_hash or "0123456789abcdef"
+        doc.plan.trace = True if doc.plan.trace is None else doc.plan.trace
 
     shards = split(tmp_path, [[0, 2, 4], [1, 3]])
     for n, shard in enumerate(shards):

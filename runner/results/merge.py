@@ -108,7 +108,7 @@ def conflicts(docs: list[tuple[str, RunDocument]]) -> list[Problem]:
 
 
 def _plan_differences(first: RunDocument, doc: RunDocument) -> list[tuple[str, str]]:
-    """How `doc`'s run differs from `first`'s in what decides its cells: its length, its scenario, its expectations.
+    """How `doc`'s run differs from `first`'s in what decides its cells: length, scenario, expectations, repeats, tracing.
 
     A hash that one of them does not record (an older runner's file) is not held against it.
     """
@@ -120,6 +120,13 @@ def _plan_differences(first: RunDocument, doc: RunDocument) -> list[tuple[str, s
         out.append(("scenario_hash", "ran another version of the scenario file"))
     if a.expect_hash and b.expect_hash and a.expect_hash != b.expect_hash:
         out.append(("expect_hash", "judged its cells by other expectations"))
+    if a.repeat != b.repeat:
+        out.append(("repeat", "ran each cell another number of times (--repeat)"))
+    if a.trace is not None and b.trace is not None:  # recorded by both (dma_latency_us since the same runner)
+        if a.trace != b.trace:
+            out.append(("trace", "traced the scheduler where the other did not (--no-trace)"))
+        if a.dma_latency_us != b.dma_latency_us:
+            out.append(("dma_latency_us", "held /dev/cpu_dma_latency otherwise (--dma-latency)"))
     return out
 
 
