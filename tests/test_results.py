@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -451,3 +452,20 @@ def test_a_report_of_results_given_on_standard_input_is_written_beside_the_file_
     assert done.returncode == 0 and (tmp_path / "report.md").exists(), done.stderr
     piped = subprocess.run(cmd, input=(tmp_path / "results.json").read_text(), capture_output=True, text=True, cwd=tmp_path)
     assert piped.returncode == 2 and "is not a file in a results folder (a pipe?)" in piped.stderr, piped.stderr
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda c: setattr(c.expectations[0], "passed", False), "says passed, but expectation"),
+        (lambda c: setattr(c.threads[0], "degraded", ["fifo:80 requested, other applied"]), "says passed, but thread .* did not get"),
+    ],
+)
+def test_a_cell_better_than_its_own_verdicts_is_refused(tmp_path, edit, words):
+    """A hand-edited cell said ✅ passed beside its own ❌ FAIL, and merge exited 0 with a failing JUnit case."""
+    doc = load(MATRIX)
+    cell = next(c for c in doc.cells if c.status == Status.PASSED and c.expectations and c.threads)
+    edit(cell)
+    doc.save(str(tmp_path / "results.json"))
+    with pytest.raises(ScenarioError, match=f"cells\\.{re.escape(cell.id)}\\.status: {words}"):
+        load(str(tmp_path))

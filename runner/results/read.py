@@ -98,6 +98,14 @@ def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
             which = f" (repeat {c.repeat + 1})" if c.repeat else ""
             out.append(Problem(path, 1, 1, f"cells.{c.id}", f"cell{which} is in the file twice; a run records each cell run once"))
         seen.add((c.id, c.repeat))
+    order = list(Status)
+    for c in doc.cells:  # a cell is never better than its own verdicts and settings say, as the runner judges it
+        failed = [v.metric + " of " + v.thread for v in c.expectations if not v.passed]
+        degraded = [t.name for t in c.threads if t.degraded]
+        floor = worst([Status.FAILED] * bool(failed) + [Status.DEGRADED] * bool(degraded) + [Status.PASSED])
+        if order.index(c.status) > order.index(floor):
+            why = f"expectation {failed[0]} failed" if failed else f"thread {degraded[0]} did not get its settings"
+            out.append(Problem(path, 1, 1, f"cells.{c.id}.status", f"says {c.status.value}, but {why}; a cell is never better than that"))
     finished = doc.status in (Status.PASSED.value, Status.DEGRADED.value, Status.FAILED.value)
     if finished and (lacking := doc.missing_runs()):  # a run that finished holds every cell run it was asked for
         why = f"the run says {doc.status}, but {lacking:,} of the {len(doc.planned_runs()):,} cell runs it was asked for are not in it"
