@@ -283,14 +283,14 @@ class _NoGuard:
         pass
 
 
-@pytest.mark.parametrize("by_events", [True, False], ids=["events", "listing"])
-def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing_and_the_thread_sees_it(tmp_path, program, by_events):
+def _renamer_monitored(tmp_path, program: str, open_events=None):
+    """rtprog --rename (its ctl_loop thread named 20 ms after it appears) with a FIFO 10 rule, followed 0.2 s; what it left."""
     spec = ProgramSpec.model_validate(
         {"name": "talker", "command": [program, "--rename"], "threads": [{"match": "ctl_*", "sched": "fifo:10"}], "grace": "100ms"}
     )
     run = ProgramRun(spec, str(tmp_path), kernel.current_settings(), kernel.online_cpus())
     run.launch(_NoGuard())
-    monitor = Monitor([run]) if by_events else Monitor([run], lambda pids: (None, "left out by the test"))
+    monitor = Monitor([run]) if open_events is None else Monitor([run], open_events)
     try:
         monitor.listen()
         run.release()
@@ -300,7 +300,12 @@ def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing
     finally:
         monitor.stop()
         run.stop(_NoGuard())
-    raw = run.raw(monitor.window_start, time.monotonic_ns())
+    return run.raw(monitor.window_start, time.monotonic_ns())
+
+
+@pytest.mark.parametrize("by_events", [True, False], ids=["events", "listing"])
+def test_a_rule_is_applied_as_the_kernel_reports_the_name_or_at_the_next_listing_and_the_thread_sees_it(tmp_path, program, by_events):
+    raw = _renamer_monitored(tmp_path, program, None if by_events else lambda pids: (None, "left out by the test"))
     if by_events and raw.seen_by != "events":
         pytest.skip(f"no process events here: {raw.seen_note}")
     assert (raw.seen_by, raw.seen_note) == (("events", "") if by_events else ("listing", "left out by the test"))
@@ -365,3 +370,21 @@ def test_watch_says_the_settings_its_rules_gave_outlive_it(tmp_path):
         sleeper.wait()
     warnings = done.results["cells"][0]["warnings"]
     assert any("--rule changed the settings of 1 thread; they keep them after the watch" in w for w in warnings), warnings
+
+
+class _FailingEvents:
+    """Process events whose socket fails at the first read, as a kernel's may (EIO, a netlink error)."""
+
+    def read(self, timeout_s: float):
+        raise OSError(5, "Input/output error")
+
+    def close(self) -> None:
+        pass
+
+
+def test_when_the_kernels_process_events_fail_the_listing_takes_over_and_the_results_say_so(tmp_path, program):
+    """The listener died with a traceback on stderr, the results still said `events`, and new threads waited a slow listing."""
+    raw = _renamer_monitored(tmp_path, program, lambda pids: (_FailingEvents(), ""))
+    assert raw.seen_by == "listing" and "process events failed (Input/output error" in raw.seen_note, raw.seen_note
+    ctl = next(t for t in raw.threads if t.comm == "ctl_loop")
+    assert ctl.rule == 0 and ctl.applied is not None and ctl.applied.policy is Policy.FIFO

@@ -404,6 +404,7 @@ class Monitor:
         self.events: Optional[ProcEvents] = None
         self.events_note = ""  # why there are no events, in words
         self.events_lost = 0  # times the kernel dropped events because the listener fell behind
+        self.events_failed = False  # the listener stopped on an error: the listing runs at its own pace again
         self._open_events = open_events
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="program-monitor", daemon=True)
@@ -446,9 +447,8 @@ class Monitor:
                 self._count(p, now)
 
     def _run(self) -> None:
-        every = LIST_EVERY_S if self.events is None else COUNT_EVERY_S
         next_count = 0.0
-        while not self._stop.wait(every):
+        while not self._stop.wait(LIST_EVERY_S if self.events is None or self.events_failed else COUNT_EVERY_S):
             now = time.monotonic_ns()
             with self._lock:
                 for p in self.programs:
@@ -465,6 +465,18 @@ class Monitor:
                     next_count = time.monotonic() + COUNT_EVERY_S
 
     def _listen(self) -> None:
+        """Follow the events; should the kernel's socket fail, the listing takes over at its own pace, and the results say so."""
+        try:
+            self._follow_events()
+        except Exception as error:  # whatever failed, the programs' threads are still found, by listing
+            why = error.strerror if isinstance(error, OSError) and error.strerror else f"{type(error).__name__}: {error}"
+            with self._lock:
+                self.events_failed = True
+                for p in self.programs:
+                    p.seen_by = SEEN_BY_LISTING
+                    p.seen_note = f"the kernel's process events failed ({why}); threads that appeared after were found by listing"
+
+    def _follow_events(self) -> None:
         """Apply the events as they come: a new thread (the kernel's instant of its creation), a new name (of its renaming)."""
         assert self.events is not None
         programs = {p.pid: p for p in self.programs}
