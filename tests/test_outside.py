@@ -315,3 +315,16 @@ def test_watch_rules_are_refused_as_a_scenarios_are_priority_99_and_cpus_this_ma
     with pytest.raises(UsageError, match="--rule 'ctl' asks for CPUs 7"):
         check_rules([parse_rule("ctl=fifo:80@7")], False, {0, 1})
     check_rules([parse_rule("ctl=rr:98@1")], False, {0, 1})
+
+
+def test_a_program_without_a_cgroup_of_its_own_is_a_warning_that_says_what_escapes():
+    """Where no cgroup could be made (a user's session folder is root's), a child that setsid()s outlived the cell unsaid."""
+    why = "cgroup v2: Permission denied"
+    raw = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), memory_note=why)
+    said = [w for w in outcome(raw, T0, T0 + SECOND, False, degradation).warnings if "no cgroup of its own" in w]
+    assert said == [
+        f"program talker has no cgroup of its own ({why}): what it starts in a session of its own (setsid, a daemon) "
+        "is neither measured nor stopped with it"
+    ]
+    held = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),))
+    assert not [w for w in outcome(held, T0, T0 + SECOND, False, degradation).warnings if "cgroup" in w]

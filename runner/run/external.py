@@ -152,7 +152,7 @@ class ProgramRun:
         self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
         self.seen_note = ""  # why not (or not always) by events, in words
         self.cgroup: Optional[memcg.MemoryCgroup] = None  # its cgroup while it runs: memory_max's, or one that only holds it
-        self.memory_note = ""  # why memory_max could not be applied, in words
+        self.memory_note = ""  # why it has no cgroup of its own (so no memory_max either), in words
         self.memory_limit: Optional[int] = None  # the limit as read back from the cgroup
         self.memory_peak: Optional[int] = None
         self.oom_kills: Optional[int] = None
@@ -278,14 +278,14 @@ class ProgramRun:
         """
         where, why = memcg.hierarchy(limit=limit is not None)
         if where is None:
-            self.memory_note = why if limit is not None else ""
+            self.memory_note = why
             return
         try:
             self.cgroup = memcg.MemoryCgroup.create(where, self.spec.name, limit)
             guard.watch_cgroup(self.cgroup.folder)
             self.cgroup.add(self.pid)
         except OSError as error:
-            self.memory_note = f"cgroup v{where.version}: {error.strerror}" if limit is not None else ""
+            self.memory_note = f"cgroup v{where.version}: {error.strerror}"
             self._close_cgroup(guard)
             return
         if limit is not None:

@@ -119,6 +119,11 @@ def outcome(
     oom = bool(raw.oom_kills) and raw.exit_signal == signal.SIGKILL and raw.stopped != "SIGKILL"
     if spec.memory_max is not None and raw.memory_note:
         degraded.append(f"memory_max {units.format_size(spec.memory_max)} not applied: {raw.memory_note}")
+    elif raw.memory_note and not raw.failure:
+        warnings.append(
+            f"program {spec.name} has no cgroup of its own ({raw.memory_note}): what it starts in a session of its own "
+            "(setsid, a daemon) is neither measured nor stopped with it"
+        )
     if oom:
         how = f"was killed by the OOM killer (SIGKILL): its cgroup reached its memory_max of {units.format_size(raw.memory_limit or 0)}"
     elif raw.exit_signal is not None:

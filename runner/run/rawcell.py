@@ -177,7 +177,7 @@ class RawProgram:
     memory_limit: Optional[int] = None  # memory_max as its cgroup holds it, read back
     memory_peak: Optional[int] = None  # the most its cgroup was charged with
     oom_kills: Optional[int] = None  # its tasks the OOM killer ended
-    memory_note: str = ""  # why memory_max could not be applied
+    memory_note: str = ""  # why it has no cgroup of its own, so memory_max could not be applied either
     halted_ns: Optional[int] = None  # when it was first seen stopped (state T: SIGSTOP, a debugger), if it was
 
 
