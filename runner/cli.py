@@ -426,7 +426,7 @@ def _report_parser() -> argparse.ArgumentParser:
 def _cmd_report(argv: list[str]) -> int:
     ns = _report_parser().parse_args(argv)
     from runner.outdir import REPORT_NAME, writable_file
-    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.compare import thresholds_for
     from runner.report.markdown import render_run
     from runner.report.publish import comparison_text, write_report
     from runner.results.read import load
@@ -441,8 +441,9 @@ def _cmd_report(argv: list[str]) -> int:
         if not ns.output:
             return 0
     section, regressions = None, 0
+    thresholds = thresholds_for(ns.threshold, ns.baseline)
     if ns.baseline:
-        section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds_with(parse_threshold(t) for t in ns.threshold))
+        section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds)
     if ns.output == "-":
         say(render_run(doc, None, section))
     else:
@@ -453,6 +454,7 @@ def _cmd_report(argv: list[str]) -> int:
             )
         target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, REPORT_NAME)
         try:
+            os.makedirs(os.path.dirname(target), exist_ok=True)  # as writable_file found it could be
             path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
@@ -462,8 +464,8 @@ def _cmd_report(argv: list[str]) -> int:
 
 def _export(doc: Any, ns: argparse.Namespace) -> None:
     """Write the cyclictest-format histogram and/or JSON summary of one cell."""
+    from runner.outdir import write_output
     from runner.report.export import histogram_text, json_summary, pick_cell
-    from runner.results.files import write_atomic
 
     if not 1 <= ns.histogram_max <= 1_000_000:
         raise UsageError(f"runner report: --histogram-max {ns.histogram_max} is out of range; expected 1 to 1000000 (us)")
@@ -478,7 +480,7 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
             put(text())
             continue
         try:
-            write_atomic(target, text().encode("utf-8"))
+            write_output(target, text().encode("utf-8"))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the export", path=target) from None
         say(f"wrote {target}")
@@ -496,11 +498,10 @@ def _compare_parser() -> argparse.ArgumentParser:
 
 def _cmd_compare(argv: list[str]) -> int:
     ns = _compare_parser().parse_args(argv)
-    from runner.outdir import writable_file
+    from runner.outdir import writable_file, write_output
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import append_step_summary, ci_outputs, compare_files
     from runner.results.document import Status
-    from runner.results.files import write_atomic
     from runner.results.merge import unfinished
     from runner.results.read import load
     from runner.session import exit_code
@@ -514,7 +515,7 @@ def _cmd_compare(argv: list[str]) -> int:
     say(section)
     if ns.output:
         try:
-            write_atomic(ns.output, section)
+            write_output(ns.output, section)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
@@ -539,14 +540,18 @@ def _merge_parser() -> argparse.ArgumentParser:
 def _cmd_merge(argv: list[str]) -> int:
     ns = _merge_parser().parse_args(argv)
     from runner.outdir import claim, writable_file
-    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.compare import thresholds_for
     from runner.report.publish import finish
     from runner.results.document import Status
     from runner.results.merge import merge
     from runner.session import exit_code
 
-    thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
+    thresholds = thresholds_for(ns.threshold, ns.baseline)
     junit = writable_file(ns.junit, "--junit") if ns.junit else None
+    if ns.baseline:
+        from runner.results.read import load
+
+        load(ns.baseline)  # a baseline that cannot be read is said before the merged folder is made, as a run's is
     held = claim(ns.out, "merge folder")
     try:
         try:
@@ -582,7 +587,7 @@ def _import_rtapp_parser() -> argparse.ArgumentParser:
 
 def _cmd_import_rtapp(argv: list[str]) -> int:
     ns = _import_rtapp_parser().parse_args(argv)
-    from runner.results.files import write_atomic
+    from runner.outdir import write_output
     from runner.scenario.limits import MachineLimits
     from runner.scenario.loader import parse_scenario
     from runner.scenario.rtapp import convert, read
@@ -597,7 +602,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
         put(scenario)
     else:
         try:
-            write_atomic(ns.output, scenario)
+            write_output(ns.output, scenario)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the scenario", path=ns.output) from None
         say(f"wrote {ns.output}")

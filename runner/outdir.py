@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from runner.errors import UsageError, from_os_error
-from runner.results.files import JOURNAL, written_through
+from runner.results.files import JOURNAL, write_atomic, written_through
 
 LOCK_NAME = ".runner.lock"
 REPORT_NAME = "report.md"  # what a run or a merge writes beside its results
@@ -111,6 +111,8 @@ def writable_file(path: str, option: str) -> str:
         return path
     if os.path.isdir(path):
         raise UsageError(f"runner: {option} {path}: a folder stands where a file is expected")
+    if path.endswith(os.sep):  # no folder there yet: it would have been written as a file of that name
+        raise UsageError(f"runner: {option} {path}: names a folder (it ends in {os.sep}); expected a file")
     folder = os.path.dirname(os.path.abspath(path))
     existing = folder
     while not os.path.exists(existing):
@@ -120,3 +122,10 @@ def writable_file(path: str, option: str) -> str:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(f"runner: {option} {path}: the folder {existing} may not be written; choose a folder you may write")
     return path
+
+
+def write_output(path: str, data: str | bytes) -> None:
+    """Write a file an option named, which writable_file checked: its folder made first, as the check found it could be."""
+    if not written_through(path):
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    write_atomic(path, data)

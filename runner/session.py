@@ -25,7 +25,7 @@ from typing import Any, Optional
 
 from runner import outdir, units
 from runner.errors import ExitCode, Problem, RunnerError, ScenarioError, UsageError, from_os_error
-from runner.report.compare import Threshold, check_common, check_comparable, parse_threshold, thresholds_with
+from runner.report.compare import Threshold, check_common, check_comparable, thresholds_for
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
 from runner.results.journal import ResultsStore
@@ -107,7 +107,7 @@ class RunOptions:
             shard=Shard.parse(ns.shard) if ns.shard else None,
             resume=ns.resume,
             baseline=ns.baseline,
-            thresholds=thresholds_with(parse_threshold(t) for t in ns.threshold),
+            thresholds=thresholds_for(ns.threshold, ns.baseline),
             report=not ns.no_report,
             plots=not ns.no_plots,
             live=not (ns.quiet or in_ci),

@@ -365,3 +365,32 @@ def test_watch_refuses_a_priority_99_rule_before_it_touches_the_process(tmp_path
     finally:
         sleeper.kill()
         sleeper.wait()
+
+
+def test_a_report_into_a_folder_yet_to_be_made_is_written_and_one_ending_in_a_slash_is_refused(tmp_path):
+    deep = tmp_path / "new dir ü" / "sub" / "r.md"
+    done = run_cli("report", POLICY, "-o", str(deep), "--no-plots")
+    assert done.code == 0 and deep.read_text().startswith("#"), done.err
+    done = run_cli("report", POLICY, "-o", str(tmp_path / "nodir") + "/", "--no-plots")
+    assert done.code == 2 and "names a folder (it ends in /); expected a file" in done.err
+    assert not (tmp_path / "nodir").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["report", POLICY, "--no-plots"],
+        ["merge", POLICY, "--out", "{out}", "--no-plots"],
+        [os.path.join(SCENARIOS, "fifo80.yaml"), "--out", "{out}"],
+    ],
+)
+def test_a_threshold_without_a_baseline_is_refused_not_ignored(tmp_path, argv):
+    done = run_cli(*[a.format(out=tmp_path / "out") for a in argv], "--threshold", "latency.p99=+5%")
+    assert done.code == 2 and "--threshold latency.p99=+5% sets a limit of a comparison; give --baseline RESULTS too" in done.err
+    assert not (tmp_path / "out").exists()
+
+
+def test_merge_with_a_baseline_that_cannot_be_read_makes_no_folder(tmp_path):
+    done = run_cli("merge", POLICY, "--out", str(tmp_path / "m"), "--baseline", str(tmp_path / "nope"), "--no-plots")
+    assert done.code == 2 and "cannot read results" in done.err, done.err
+    assert not (tmp_path / "m").exists(), "a rerun of the fixed command would be refused: the folder holds results"

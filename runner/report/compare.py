@@ -112,6 +112,14 @@ def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
     return list(out.values())
 
 
+def thresholds_for(texts: Iterable[str], baseline: str | None) -> list[Threshold]:
+    """The --threshold options, which only a comparison reads: refused without --baseline, never ignored."""
+    given = list(texts)
+    if given and not baseline:
+        raise UsageError(f"runner: --threshold {given[0]} sets a limit of a comparison; give --baseline RESULTS too")
+    return thresholds_with(parse_threshold(t) for t in given)
+
+
 class Verdict:
     REGRESSION = "regression"
     BETTER = "better"
