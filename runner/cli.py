@@ -74,7 +74,9 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress display")
     m = p.add_argument_group("matrix runs")
     m.add_argument("--repeat", type=int, metavar="N", help="run every cell N times; the report gives the spread")
-    m.add_argument("--shuffle", nargs="?", const="random", metavar="SEED", help="run cells in a random order (a SEED repeats an order)")
+    m.add_argument(
+        "--shuffle", nargs="?", const="random", type=_seed, metavar="SEED", help="run cells in a random order (a SEED repeats an order)"
+    )
     m.add_argument("--settle", metavar="D", help="pause between cells (default 500ms, at most 1h)")
     m.add_argument("--shard", metavar="K/N", help="run the K-th of N disjoint parts of the matrix (for CI matrix jobs)")
     m.add_argument("--resume", metavar="DIR", help="finish the interrupted run in DIR; finished cells are not run again")
@@ -136,6 +138,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "completion": _cmd_completion,
     }
     return _guarded(handlers[command], rest)
+
+
+def _seed(value: str) -> str:
+    """--shuffle's SEED: an integer or `random`; anything else (a scenario's path after it) is said as such."""
+    if value != "random" and not value.lstrip("-").isdecimal():
+        raise argparse.ArgumentTypeError(f"{value!r} is no seed (an integer); give the scenario before --shuffle, or write --shuffle=SEED")
+    return value
 
 
 def _is_utf8(arg: str) -> bool:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shutil
 import subprocess
@@ -83,3 +85,17 @@ def test_list_honours_the_options_a_run_would_honour():
     for bad in (["--cell", "nosuch"], ["--duration", "abc"], ["--repeat", "0"], ["--dma-latency", "x"], ["--shard", "9/2"]):
         done = run_cli(matrix, "--list", *bad)
         assert done.code == 2 and "Traceback" not in done.err, (bad, done.err)
+
+
+def test_a_scenario_after_a_bare_shuffle_is_said_to_be_no_seed():
+    """`runner run --shuffle s.yaml` took the path for the seed, then said only that the scenario was required."""
+    from runner.cli import main
+
+    fifo80 = os.path.join(SCENARIOS, "fifo80.yaml")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), pytest.raises(SystemExit) as caught:
+        main(["run", "--shuffle", fifo80])
+    assert caught.value.code == 2
+    assert f"{fifo80!r} is no seed (an integer); give the scenario before --shuffle, or write --shuffle=SEED" in err.getvalue()
+    assert run_cli(fifo80, "--shuffle", "7", "--list").code == 0
+    assert run_cli(fifo80, "--shuffle", "--list").code == 0
