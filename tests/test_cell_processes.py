@@ -7,12 +7,15 @@ cell's end into an internal error, a wait of the whole grace period, or a busy l
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import signal
 import socket
 import subprocess
 import sys
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
 from test_cell_end import _cell_run
@@ -20,6 +23,17 @@ from test_cell_end import _cell_run
 from runner.run import kernel, spawn
 from runner.run.child import signal_name
 from runner.run.spawn import Worker, _Exits, _kill_group_or_process
+
+
+@contextlib.contextmanager
+def _sleeping(**popen: Any) -> Iterator[subprocess.Popen[bytes]]:
+    """A process that sleeps 30 s, killed and reaped on the way out."""
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], **popen)
+    try:
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 @pytest.mark.parametrize(
@@ -49,13 +63,9 @@ def test_the_end_of_the_load_spares_a_command_reaped_already(monkeypatch: pytest
     monkeypatch.setattr(spawn, "_kill_group_or_process", lambda pid, sig=signal.SIGKILL: signalled.append(pid))
     done = subprocess.Popen([sys.executable, "-c", "pass"])
     done.wait()  # its pid may be another process's by now
-    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
-    try:
+    with _sleeping(start_new_session=True) as running:
         _cell_run(commands=[done, running])._end_load()
         assert signalled == [running.pid]
-    finally:
-        running.kill()
-        running.wait()
 
 
 def test_a_worker_still_waiting_for_its_go_leaves_when_the_runner_hangs_up() -> None:
@@ -73,20 +83,18 @@ def test_a_worker_still_waiting_for_its_go_leaves_when_the_runner_hangs_up() -> 
 
 def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
-    exits = _Exits([sleeper.pid])
-    try:
-        exits.zygote_fd = ours.fileno()
-        exits.poller.register(ours.fileno(), select.POLLIN)
-        theirs.close()  # the zygote died: its socket hangs up, and would at every poll
-        exits.wait(5.0)
-        assert exits.zygote_fd == -1
-        assert exits.poller.poll(0) == [], "something still wakes the loop though the sleeper lives"
-    finally:
-        exits.close()
-        ours.close()
-        sleeper.kill()
-        sleeper.wait()
+    with _sleeping() as sleeper:
+        exits = _Exits([sleeper.pid])
+        try:
+            exits.zygote_fd = ours.fileno()
+            exits.poller.register(ours.fileno(), select.POLLIN)
+            theirs.close()  # the zygote died: its socket hangs up, and would at every poll
+            exits.wait(5.0)
+            assert exits.zygote_fd == -1
+            assert exits.poller.poll(0) == [], "something still wakes the loop though the sleeper lives"
+        finally:
+            exits.close()
+            ours.close()
 
 
 def test_a_process_named_in_bytes_that_are_not_utf8_is_read_listed_and_shown() -> None:

@@ -1029,15 +1029,15 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
+    incomplete = unfinished(cmp.new)  # what it holds may compare well; what it lacks was never measured: never ✅
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
         f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}"
         if regressed
-        else f"✅ No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
+        else f"{'' if incomplete else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
-    unfinished_now = unfinished(cmp.new)
-    if unfinished_now:  # what it holds may compare well; what it lacks was never measured
-        headline = f"⚠️ This run is incomplete: {md_text(unfinished_now)}. " + headline.replace("✅ ", "", 1)
+    if incomplete:
+        headline = f"⚠️ This run is incomplete: {md_text(incomplete)}. {headline}"
     lost = [f for f in cmp.figures if f.verdict == "missing"]
     if lost:
         where = sorted({f"{f.figure.name} ({md_text(f.cell)})" for f in lost})
