@@ -426,7 +426,11 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         raise from_os_error(exc, "cannot write the results file") from None
     units_left = plan_units(list(run.by_id), options.repeat, options.shuffle_seed, [(c.id, c.repeat) for c in doc.cells])
     skipped = f", {len(doc.cells)} already done" if doc.cells else ""
-    say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
+    empty = _empty_shard(loaded, options, run.by_id)
+    if empty:
+        say(f"{loaded.name}: {empty}; nothing to run, results in {results_path}")
+    else:
+        say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
     with run.backend.hold_dma_latency(options.dma_latency_us) as dma:
         doc.machine.dma_latency = dma  # the cells this run records carry the hold they ran under
         if options.dma_latency_us is not None and not dma.held:
@@ -461,8 +465,21 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
             raise
         note(f"{refused}\nrunner: the run was stopped before it could be compared with the baseline; no comparison was made")
         regressions = 0
-    say(f"{loaded.name}: {worst(statuses).value}; results: {results_path}")
+    verdict = f"{empty}; nothing ran" if empty and worst(statuses) is Status.PASSED else worst(statuses).value
+    say(f"{loaded.name}: {verdict}; results: {results_path}")
     return int(exit_code(statuses, regressions))
+
+
+def _empty_shard(loaded: LoadedScenario, options: RunOptions, cells: Mapping[str, ResolvedCell]) -> str:
+    """Why a run has no cell at all: its shard holds none of the matrix (more shards than cells), or "".
+
+    A CI matrix of N jobs may well outnumber a scenario's cells; such a job stays green (exit 0),
+    but its words say nothing ran rather than a bare "passed" that reads as cells that passed.
+    """
+    if cells or options.shard is None:
+        return ""
+    count = len(loaded.cells)
+    return f"shard {options.shard} holds none of the scenario's {count} cell{'s' if count != 1 else ''}"
 
 
 def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:

@@ -122,6 +122,17 @@ def test_an_interrupt_stops_after_the_cell_and_exits_130_with_results_and_report
     assert os.path.exists(tmp_path / "r" / "report.md")
 
 
+def test_a_shard_that_holds_no_cell_exits_0_and_says_nothing_ran(tmp_path, capsys):
+    """More CI jobs than cells: the empty shard stays green, but never reads as cells that passed."""
+    backend = FakeBackend(preempted_other())
+    code, results = run(MATRIX, tmp_path / "r", backend, "--shard", "7/7")
+    assert code == 0 and backend.ran == [] and results["cells"] == []
+    out = capsys.readouterr().out
+    assert "policy_matrix: shard 7/7 holds none of the scenario's 5 cells; nothing to run, results in " in out
+    assert "policy_matrix: shard 7/7 holds none of the scenario's 5 cells; nothing ran; results: " in out
+    assert "0 cells to run" not in out and "passed" not in out
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_stop_while_the_runner_prepares_runs_no_cell_and_exits_130_with_results(tmp_path, sig):
     backend = FakeBackend(signal_on_prepare=sig)
