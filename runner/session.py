@@ -232,8 +232,18 @@ def select_cells(loaded: LoadedScenario, options: RunOptions) -> list[ResolvedCe
     ids = [c.id for c in loaded.cells]
     if options.shard:
         ids = options.shard.take(ids)
-    chosen = [c for c in loaded.cells if c.id in ids and (not options.cells or any(fnmatch.fnmatchcase(c.id, g) for g in options.cells))]
+
+    def wanted(cell_id: str) -> bool:
+        return not options.cells or any(fnmatch.fnmatchcase(cell_id, g) for g in options.cells)
+
+    chosen = [c for c in loaded.cells if c.id in ids and wanted(c.id)]
     if not chosen and options.cells:
+        elsewhere = [(n, c.id) for n, c in enumerate(loaded.cells) if wanted(c.id)]
+        if options.shard and elsewhere:  # a real cell, in another CI job's part of the matrix
+            shard = options.shard
+            where = ", ".join(f"{cell_id} is in shard {n % shard.count + 1}/{shard.count}" for n, cell_id in elsewhere)
+            held = f"holds: {', '.join(ids)}" if ids else f"holds none of the scenario's {len(loaded.cells)} cells"
+            raise UsageError(f"runner: no cell of shard {shard} matches {', '.join(options.cells)} ({where}); shard {shard} {held}")
         raise UsageError(f"runner: no cell matches {', '.join(options.cells)}; cells: {', '.join(c.id for c in loaded.cells)}")
     return chosen
 
