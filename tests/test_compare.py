@@ -224,6 +224,21 @@ def test_threshold_errors_say_what_is_expected(text, message):
         cmp.parse_threshold(text)
 
 
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("latency.p99=+5%,+10us,+50%", "two relative limits, +5% and +50%; expected at most one +N% and one +N with a unit (+10us)"),
+        ("latency.max=+1ms, +2ms", "two absolute limits, +1ms and +2ms; expected at most one +N% and one +N with a unit (+10us)"),
+        ("involuntary.per_callback_mean=+0.5,+20%,1", "two absolute limits, +0.5 and 1; expected at most one +N% and one +N"),
+    ],
+)
+def test_a_threshold_giving_one_kind_of_limit_twice_is_refused_not_the_last_one_kept(text, words):
+    """`latency.p99=+5%,+10us,+50%` once kept +50% without a word: which limit was meant is the user's to say."""
+    with pytest.raises(UsageError) as refused:
+        cmp.parse_threshold(text)
+    assert str(refused.value) == f"runner: --threshold {text!r}: {words}"
+
+
 def test_compare_appends_to_the_github_step_summary(tmp_path, monkeypatch):
     summary = tmp_path / "summary.md"
     monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(summary))

@@ -77,8 +77,16 @@ def parse_threshold(text: str) -> Threshold:
     duration = fg.figure(name).is_duration
     relative: float | None = None
     absolute: Number | None = None
-    for part in spec.split(","):
-        part = part.strip().lstrip("+")
+    given: dict[str, str] = {}  # each kind of limit (relative, absolute) as written: a second one would silently win
+    for item in spec.split(","):
+        part = item.strip().lstrip("+")
+        kind = "relative" if part.endswith("%") else "absolute"
+        if kind in given:
+            raise UsageError(
+                f"runner: --threshold {text!r}: two {kind} limits, {given[kind]} and {item.strip()}; "
+                "expected at most one +N% and one +N" + (" with a unit (+10us)" if duration else "")
+            )
+        given[kind] = item.strip()
         if fg.figure(name).worse is fg.Worse.LOWER:
             part = part.lstrip("-\u2212")  # slack.min=-10us: worse by 10 us, written either way
         try:
