@@ -401,14 +401,15 @@ def _cmd_run(argv: list[str]) -> int:
 
     loaded = load_scenario(ns.scenario)
     _print_warnings(loaded.warnings)
-    from runner.session import RunOptions, run_scenario, select_cells
+    from runner.session import RunOptions, checked_cells, run_scenario
 
     options = RunOptions.from_namespace(ns, env=dict(os.environ))  # --list checks every option as a run would
     if ns.list:
         from runner.run.kernel import current_settings, online_cpus
         from runner.scenario.listing import render
 
-        say(render(loaded, current_settings(), online_cpus(), select_cells(loaded, options), options.duration_ns))
+        _, cells = checked_cells(loaded, options)  # --baseline and --resume too: read and checked, as the run would
+        say(render(loaded, current_settings(), online_cpus(), cells, options.duration_ns))
         return ExitCode.OK
     return run_scenario(loaded, options)
 

@@ -345,7 +345,13 @@ def stopped_late(code: int) -> int:
     return int(exit_code([Status.INTERRUPTED] + ([Status.ERROR] if code == ExitCode.RUN_ERROR else [])))
 
 
-def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: StopSignals) -> int:
+def checked_cells(loaded: LoadedScenario, options: RunOptions) -> tuple[Optional[RunDocument], list[ResolvedCell]]:
+    """The cells a run would run, after every check it makes before it touches the machine or writes a file;
+    with --resume also the interrupted run, whose recorded plan then decides `options`.
+
+    `runner run --list` calls this too: a baseline that cannot be read or compared, or a --resume folder that
+    is no run of this scenario, is refused by the listing as by the run, not found only when it runs.
+    """
     baseline = load(options.baseline) if options.baseline else None
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
@@ -359,6 +365,11 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
             f"runner: --repeat {options.repeat:,} of {len(cells):,} cells is {len(cells) * options.repeat:,} cell runs; "
             f"at most {MAX_REPEAT:,} in one run"
         )
+    return doc, cells
+
+
+def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: StopSignals) -> int:
+    doc, cells = checked_cells(loaded, options)
     by_id = {c.id: c for c in cells}
     start = backend.start_settings()
     perms = backend.preflight([c.scenario for c in cells], start, options.allow_degraded, options.allow_priority_99)

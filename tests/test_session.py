@@ -231,6 +231,22 @@ def test_resume_runs_only_what_did_not_finish(tmp_path):
     assert results["status"] == "passed"
 
 
+def test_list_reads_and_checks_the_baseline_and_the_resumed_run_as_the_run_would(tmp_path):
+    """`--list --baseline X` and `--list --resume DIR` once listed every cell whatever X or DIR was."""
+    listed = run_cli(FIFO80, "--list", "--baseline", str(tmp_path / "nosuch.json"))
+    assert listed.code == 2 and "nosuch.json:1:1: cannot read results: No such file or directory" in listed.err
+    listed = run_cli(FIFO80, "--list", "--resume", str(tmp_path / "nosuch"))
+    assert listed.code == 2 and "cannot read results" in listed.err
+    out = tmp_path / "r"
+    run(MATRIX, out, FakeBackend({FIFO_CELLS[0]: Act(signals=1)}), "--cell", "policy=fifo*", "--duration", "1s")
+    listed = run_cli(FIFO80, "--list", "--baseline", str(out))
+    assert listed.code == 2 and "no cell in common with the baseline" in listed.err
+    listed = run_cli(FIFO80, "--list", "--resume", str(out))
+    assert listed.code == 2 and "scenario.name: is 'policy_matrix', but " in listed.err
+    listed = run_cli(MATRIX, "--list", "--resume", str(out))  # the cells and the length the resumed run would take
+    assert listed.code == 0 and "2 of 5 cells" in listed.out and listed.out.count("duration 1s)") == 2, listed.err
+
+
 def resume(scenario: str, out, backend: FakeBackend, *args: str) -> tuple[int, dict]:
     ns = _run_parser().parse_args([scenario, "--resume", str(out), "--quiet", "--no-plots", *args])
     code = run_scenario(load_scenario(scenario), RunOptions.from_namespace(ns, env={}), backend)
