@@ -899,3 +899,27 @@ def test_an_oversized_json_is_refused_unread_by_import_and_by_validate(tmp_path)
         assert done.code == 2 and "larger than 1048576 bytes" in done.err, (command, done.err)
     missing = run_cli("validate", str(tmp_path / "none.json"))
     assert missing.code == 2 and "none.json:1:1: cannot read file: No such file or directory" in missing.err
+
+
+def test_a_results_file_given_for_a_scenario_is_said_to_be_one_not_an_rt_app_workload(tmp_path):
+    """`runner validate results.json` once said the file lacked rt-app's "tasks" object."""
+    results = os.path.join(REPO, "tests", "data", "policy_matrix", "results.json")
+    report = f"`runner report {results}` re-renders its report\n"
+    where = f"{results}:2:3: schema: is 'runner.results/1': a runner results file"
+    for command, words in (
+        ("validate", "not a scenario; `runner validate` checks scenario files; "),
+        ("run", "not a scenario; `runner run` runs scenario files; "),
+        ("import-rtapp", "not an rt-app workload; `runner import-rtapp` converts rt-app workloads; "),
+    ):
+        done = run_cli(command, results)
+        assert done.code == 2 and done.err == f"{where}, {words}{report}", (command, done.err)
+    large = tmp_path / "large.json"  # a large matrix's results: past the size an rt-app file may have, said all the same
+    large.write_text(open(results).read() + " " * (1 << 20))
+    done = run_cli("validate", str(large))
+    assert done.code == 2 and "schema: is 'runner.results/1': a runner results file, not a scenario" in done.err
+    moved = tmp_path / "moved.json"  # its schema not first: found once the JSON is read
+    data = json.load(open(results))
+    moved.write_text(json.dumps({"tool": data.pop("tool"), **data}))
+    done = run_cli("validate", str(moved))
+    assert done.code == 2 and done.err.startswith(f"{moved}:1:") and "a runner results file, not a scenario" in done.err
+    assert "rt-app" not in done.err

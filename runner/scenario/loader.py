@@ -125,22 +125,23 @@ def load_scenario(path: str, machine: lim.MachineLimits | None = None, for_run: 
     the file is valid, it would run on a machine that has it.
     """
     notes: list[str] = []
-    doc = _rtapp_document(path, notes) if path.endswith(".json") else load_file(path)
+    doc = _rtapp_document(path, notes, for_run) if path.endswith(".json") else load_file(path)
     loaded = parse_scenario(doc, machine if machine is not None else lim.MachineLimits.read(), for_run)
     loaded.warnings[:0] = [Problem(path, 1, 1, "", note, severity="note") for note in notes]
     return loaded
 
 
-def _rtapp_document(path: str, notes: list[str]) -> Document:
+def _rtapp_document(path: str, notes: list[str], for_run: bool = True) -> Document:
     """A `.json` file is an rt-app workload: convert it as `runner import-rtapp` would, and load the result.
 
     What did not map exactly is added to `notes`.  Problems the scenario checks find are located
-    in the converted YAML (which `runner import-rtapp FILE` prints); the file name says so.
+    in the converted YAML (which `runner import-rtapp FILE` prints); the file name says so.  A runner
+    results file is said to be one, in words for the command that read it (`for_run` False: validate).
     """
     from runner.scenario import rtapp  # only for rt-app files: YAML scenarios do not pay for importing it
 
     text = rtapp.read(path)
-    conversion = rtapp.convert(text, path)
+    conversion = rtapp.convert(text, path, "run" if for_run else "validate")
     notes.extend(conversion.notes)
     return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")
 

@@ -539,15 +539,43 @@ def read(path: str) -> str:
         raise ScenarioError([Problem(path, line, col, "", f"not UTF-8 text: byte {raw[exc.start]:#04x} ({exc.reason})")]) from None
 
 
-def convert(text: str, name: str) -> Conversion:
+_RESULTS_HEAD = re.compile(r'\ufeff?\s*\{\s*"schema"\s*:\s*"(runner\.results/[^"\\]*)"')
+"""The start of a results file as the runner writes it: `schema` first, so found before a large one is parsed."""
+
+_READERS = {
+    "import-rtapp": ("an rt-app workload", "`runner import-rtapp` converts rt-app workloads"),
+    "validate": ("a scenario", "`runner validate` checks scenario files"),
+    "run": ("a scenario", "`runner run` runs scenario files"),
+}
+
+
+def convert(text: str, name: str, reader: str = "import-rtapp") -> Conversion:
     """Convert rt-app workload JSON `text` into a scenario.
 
     `name` is the file the text came from (a path or a base name): problems are reported as
     `name:line:col`, and the scenario and its process are named after its base name.  Raises
     ScenarioError with every problem found when the text is not a workload rt-app could run.
+    `reader` is the command that read the file (import-rtapp, validate, run): a runner results
+    file, JSON too, is said to be one in words for that command, not to lack rt-app's "tasks".
     """
+    head = _RESULTS_HEAD.match(text)  # before the size check: a results file of a large matrix is past MAX_BYTES
+    if head:
+        line, col = _line_col(text, text.index('"schema"'))
+        raise ScenarioError([Problem(name, line, col, "schema", _results_file(head.group(1), name, reader))])
     data, relaxed = parse_relaxed(text, name)
-    return _Converter(name, relaxed).convert(data)
+    converter = _Converter(name, relaxed)
+    if isinstance(data, Pairs):
+        schema = [(i, value) for i, (key, value) in enumerate(data) if key == "schema"]
+        if schema and isinstance(schema[-1][1], str) and schema[-1][1].startswith("runner.results/"):
+            converter.problem(_At().key(schema[-1][0], "schema"), _results_file(schema[-1][1], name, reader))
+            raise ScenarioError(converter.problems)
+    return converter.convert(data)
+
+
+def _results_file(schema: str, name: str, reader: str) -> str:
+    """What to say of a runner results file given where a scenario or an rt-app workload is read."""
+    expected, words = _READERS[reader]
+    return f"is {schema!r}: a runner results file, not {expected}; {words}; `runner report {name}` re-renders its report"
 
 
 class _Converter:
