@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 
 import pytest
+from conftest import run_cli
 
 from runner.errors import ScenarioError
 from runner.scenario import matrix as mx
@@ -30,6 +31,20 @@ def test_exclude_removes_partial_matches_and_warns_when_dead():
     cells, warnings = expand({"a": [1, 2], "b": ["x", "y"], "exclude": [{"a": 1}, {"b": "z"}]})
     assert [c.id for c in cells] == ["a=2,b=x", "a=2,b=y"]
     assert len(warnings) == 1 and "matches no cell" in str(warnings[0])
+
+
+def test_an_exclude_that_removes_every_cell_is_one_problem_at_the_exclude_key(write_scenario):
+    """It once left the `default` cell of no matrix, whose every reference was then said to have no value."""
+    path = write_scenario(
+        "name: allx\nduration: 1s\nmatrix:\n  policy: [fifo, rr]\n  exclude:\n    - policy: fifo\n    - policy: rr\n"
+        "processes:\n  - name: p\n    main:\n      sched: ${{ matrix.policy }}:10\n"
+        "      work: {kind: periodic, period: 100ms, burn: 1ms}\n"
+    )
+    done = run_cli("validate", path)
+    assert done.code == 2
+    assert done.err == f"{path}:5:3: matrix.exclude: excludes every cell of the matrix; nothing would run\n"
+    cells, _ = expand({"policy": ["fifo"], "exclude": [{"policy": "fifo"}], "include": [{"policy": "other"}]})
+    assert [c.id for c in cells] == ["policy=other"], "a cell include adds is something to run"
 
 
 def test_include_extends_matching_cells_and_adds_the_rest():

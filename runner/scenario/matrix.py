@@ -183,7 +183,8 @@ def _matching(masks: dict[tuple[str, str], int], every: int, rule: dict[str, Mat
 
 
 def expand(doc: Document, spec: MatrixSpec, problems: list[Problem], warnings: list[Problem]) -> list[Cell]:
-    """All cells of the matrix, in a deterministic order; dead excludes become warnings.
+    """All cells of the matrix, in a deterministic order; dead excludes become warnings, and excludes that
+    leave no cell (and no include adds one) a problem.
 
     The cap holds on the result, so include cannot grow a matrix past it; matching is by
     bit masks (one per axis value), O(entries x keys) big-integer operations.
@@ -220,6 +221,9 @@ def expand(doc: Document, spec: MatrixSpec, problems: list[Problem], warnings: l
             rest ^= low
         if not fitted:
             kept.append(dict(entry))
+    if combos and not kept:  # not `default`, the one cell of no matrix: its references would each be said to have no value
+        problems.append(doc.problem(("matrix", "exclude"), "excludes every cell of the matrix; nothing would run", key=True))
+        return []
     if len(kept) > MAX_CELLS:
         problems.append(
             doc.problem(("matrix", "include"), f"the matrix has {len(kept)} cells with its include entries; at most {MAX_CELLS}")
