@@ -425,11 +425,9 @@ def _report_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     x = p.add_argument_group("cyclictest formats (instead of the report, unless -o is given too)")
     x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
-    x.add_argument(
-        "--histogram-max", type=int, default=1000, metavar="US", help="histogram size in microseconds (cyclictest -h US; default 1000)"
-    )
+    x.add_argument("--histogram-max", type=int, metavar="US", help="--histogram's size in microseconds (cyclictest -h US; default 1000)")
     x.add_argument("--json", metavar="FILE", help="latency summary in the shape of `cyclictest --json`; - for stdout")
-    x.add_argument("--cell", metavar="ID", help="the cell to export, when the run has several")
+    x.add_argument("--cell", metavar="ID", help="the cell to export (with --histogram or --json), when the run has several")
     return p
 
 
@@ -442,6 +440,7 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.results.read import load
     from runner.session import exit_code
 
+    _check_export_options(ns)
     for option, target in (("-o", ns.output), ("--json", ns.json), ("--histogram", ns.histogram)):
         if target and target != "-":
             writable_file(target, option)
@@ -472,16 +471,26 @@ def _cmd_report(argv: list[str]) -> int:
     return int(exit_code([], regressions))
 
 
+def _check_export_options(ns: argparse.Namespace) -> None:
+    """Refuse --cell and --histogram-max without the export they shape: the report covers every cell, and
+    taking them silently would let a user believe the report was cut to one cell or one size."""
+    if ns.cell is not None and not (ns.histogram or ns.json):
+        raise UsageError(f"runner report: --cell {ns.cell} chooses the cell to export; give --histogram FILE or --json FILE too")
+    if ns.histogram_max is not None and not ns.histogram:
+        raise UsageError(f"runner report: --histogram-max {ns.histogram_max} sets the size of the histogram; give --histogram FILE too")
+
+
 def _export(doc: Any, ns: argparse.Namespace) -> None:
     """Write the cyclictest-format histogram and/or JSON summary of one cell."""
     from runner.outdir import write_output
     from runner.report.export import histogram_text, json_summary, pick_cell
 
-    if not 1 <= ns.histogram_max <= 1_000_000:
-        raise UsageError(f"runner report: --histogram-max {ns.histogram_max} is out of range; expected 1 to 1000000 (us)")
+    size = 1000 if ns.histogram_max is None else ns.histogram_max  # the default size of cyclictest -h
+    if not 1 <= size <= 1_000_000:
+        raise UsageError(f"runner report: --histogram-max {size} is out of range; expected 1 to 1000000 (us)")
     cell = pick_cell(doc, ns.cell)
     for target, text in (
-        (ns.histogram, lambda: histogram_text(cell, ns.histogram_max)),
+        (ns.histogram, lambda: histogram_text(cell, size)),
         (ns.json, lambda: json.dumps(json_summary(doc, cell), indent=2) + "\n"),
     ):
         if not target:

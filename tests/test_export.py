@@ -1,13 +1,16 @@
-"""cyclictest's formats from a cell's histograms (pure), and against a real cyclictest where one is installed."""
+"""cyclictest's formats from a cell's histograms (pure), `runner report`'s options for them, and against a real cyclictest
+where one is installed."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
 
 import pytest
+from conftest import run_cli
 
 from runner import histogram as hg
 from runner.errors import UsageError
@@ -109,3 +112,21 @@ def test_the_formats_match_a_real_cyclictests(tmp_path):
     trailer = [line.split(":")[0] for line in done.stdout.splitlines() if line.startswith("# ") and ":" in line]
     ours_trailer = [line.split(":")[0] for line in histogram_text(doc.cells[0], 50).splitlines() if line.startswith("# ") and ":" in line]
     assert [t for t in trailer if not t.startswith("# /dev")][:6] == ours_trailer[:6]
+
+
+def test_cell_and_histogram_max_without_the_export_they_shape_are_refused(tmp_path):
+    """`runner report RUN --cell X` or `--histogram-max US` alone once re-rendered the whole report, ignoring them."""
+    path = str(tmp_path / "results.json")
+    RunDocument(cells=[_cell("a=1"), _cell("a=2")]).save(path)
+    for given, words in (
+        (["--cell", "a=2"], "--cell a=2 chooses the cell to export; give --histogram FILE or --json FILE too"),
+        (["--histogram-max", "50", "-o", "-"], "--histogram-max 50 sets the size of the histogram; give --histogram FILE too"),
+        (["--json", "-", "--cell", "a=2", "--histogram-max", "50"], "--histogram-max 50 sets the size of the histogram; "),
+    ):
+        done = run_cli("report", path, *given)
+        assert done.code == 2 and done.out == "" and done.err.startswith(f"runner report: {words}"), (given, done.err)
+    assert not os.path.exists(tmp_path / "report.md")
+    done = run_cli("report", path, "--histogram", "-", "--cell", "a=2", "--histogram-max", "50")
+    assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 50), done.err
+    done = run_cli("report", path, "--histogram", "-", "--cell", "a=2")  # cyclictest -h's usual 1000 us
+    assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 1000), done.err
