@@ -19,7 +19,7 @@ from runner.run.evaluate import degradation
 from runner.run.rawcell import ApplyErrors, RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData, rows
 from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, work_tuple
-from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
+from runner.scenario.model import BurnClock, Event, EventKind, PeriodicWork, PhasesWork, Policy, Scenario, Sched
 from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
 
 
@@ -527,3 +527,25 @@ def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each
         assert s.period_ns == 2_000_000 and s.next_ns == s.scheduled_ns + 2_000_000
     written = rows("app[0]/locker #2", 1, locker, lock_slots(planned[2].work))
     assert set(json.loads(str(written[0][-1]))) == {"n", "m"}
+
+
+def test_a_callback_burning_at_the_runs_end_stops_there_not_at_the_end_of_its_burn() -> None:
+    """A periodic callback of a 2 s period burning 1.5 s of wall time, in a run that ends 0.25 s in,
+    ends with the run: it used to spin its whole burn past the end (at an RT priority, up to an hour)."""
+    layout = samples.Layout(1, 16)
+    fd = samples.create("burn-end", layout)
+    try:
+        group = _probe.Group(mmap.mmap(fd, layout.size), 1, 16, kernel.online_cpus(), False, 0, 0, None, 0)
+        work = work_tuple(PeriodicWork(period="2s", burn="1.5s", burn_clock=BurnClock.WALL))
+        group.spawn(0, "burner", work, None, None, None, None, False, None, False)
+        assert group.wait_ready(5.0)
+        now = time.monotonic_ns()
+        group.release(now + 1_000_000, now + 250_000_000)
+        group.join()
+        ended = time.monotonic_ns() - now
+        (callback,) = samples.Buffer(fd, layout).drain(0, stopped=True)
+    finally:
+        _probe.set_name("pytest")
+        os.close(fd)
+    assert ended < 1_000_000_000, f"joined {ended / 1e6:.0f} ms after the release, past the run's end at 250 ms"
+    assert callback.end_ns - now < 400_000_000 and callback.burn_wall_ns < 1_000_000_000
