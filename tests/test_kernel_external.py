@@ -9,6 +9,7 @@ involuntary switches per second against none), never exact timings.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -388,3 +389,33 @@ def test_when_the_kernels_process_events_fail_the_listing_takes_over_and_the_res
     assert raw.seen_by == "listing" and "process events failed (Input/output error" in raw.seen_note, raw.seen_note
     ctl = next(t for t in raw.threads if t.comm == "ctl_loop")
     assert ctl.rule == 0 and ctl.applied is not None and ctl.applied.policy is Policy.FIFO
+
+
+def test_a_program_abandoned_at_its_gate_exits_0_without_exec_even_beside_a_later_one() -> None:
+    """Closing a held program's gate makes it leave without exec: the child no longer holds the gate's
+    write end itself, nor does a program forked after it (it held the first one's gate open too)."""
+    from runner.run import _probe
+
+    out = os.open(os.devnull, os.O_WRONLY | os.O_CLOEXEC)
+    none = (None, None, None, None)
+    started = [_probe.spawn_program(b"/bin/true", [b"true"], [], None, none, False, out, out) for _ in range(2)]
+    first, report, gate = started[0]
+    opened = {report, gate, *started[1][1:]}
+    try:
+        assert len(os.read(report, 12)) == 12  # its settings applied: it is at its gate
+        for fd in (gate, report):
+            os.close(fd)
+            opened.discard(fd)
+        for _ in range(200):
+            pid, status = os.waitpid(first, os.WNOHANG)
+            if pid:
+                break
+            time.sleep(0.01)
+        assert pid == first and os.waitstatus_to_exitcode(status) == 0, "the abandoned program is still at its gate after 2 s"
+    finally:
+        for pid, _, _ in started:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+        for fd in (*opened, out):
+            os.close(fd)

@@ -1994,6 +1994,32 @@ static void close_others(int keep, long maxfd) {
     }
 }
 
+/* Close every descriptor from 3 up but the `n` in `keep` (at most 8): between fork and exec, so that a child
+ * holds no end of another pipe of the runner's (the write end of its own gate, or of another program's). */
+static void close_all_but(const int *keep, int n, long maxfd) {
+    int k[8], m = 0;
+    for (int i = 0; i < n && m < 8; i++) {
+        if (keep[i] < 3) continue;
+        int j = m++;
+        while (j > 0 && k[j - 1] > keep[i]) {
+            k[j] = k[j - 1];
+            j--;
+        }
+        k[j] = keep[i];
+    }
+    int from = 3;
+    for (int i = 0; i <= m; i++) {
+        int to = i < m ? k[i] - 1 : -1; /* -1: to the last descriptor */
+        if (to < 0 || to >= from) {
+#ifdef SYS_close_range
+            if (syscall(SYS_close_range, (unsigned)from, to < 0 ? ~0U : (unsigned)to, 0U) != 0)
+#endif
+                for (long fd = from; fd < (to < 0 ? maxfd : to + 1); fd++) close((int)fd);
+        }
+        if (i < m) from = k[i] + 1;
+    }
+}
+
 static void write_all(int fd, const void *buf, size_t len) {
     const char *p = buf;
     while (len) {
@@ -2051,6 +2077,9 @@ static PyObject *probe_spawn_program(PyObject *mod, PyObject *args) {
         setpgid(0, 0);
         prctl(PR_SET_PDEATHSIG, SIGKILL, 0, 0, 0);
         if (getppid() != parent) _exit(0); /* the runner died before the line above */
+        /* Its gate's write end, held here, would keep its read from ever seeing the runner close it. */
+        const int keep[] = {report[1], gate[0], devnull, out_fd, err_fd};
+        close_all_but(keep, 5, maxfd);
         struct sigaction dfl;
         memset(&dfl, 0, sizeof(dfl));
         dfl.sa_handler = SIG_DFL;
