@@ -13,6 +13,7 @@ import csv
 import gzip
 import json
 import os
+import signal
 import statistics
 import subprocess
 import time
@@ -20,6 +21,8 @@ import time
 import pytest
 import yaml
 from kernelrun import can_use_rt, finish, start_runner, thread
+
+from runner.run.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
 
@@ -558,3 +561,34 @@ def test_spawns_beyond_the_count_and_threads_never_spawned_are_reported(tmp_path
     assert any("1 `spawn few` found every instance taken" in w for w in c["warnings"]), c["warnings"]
     assert any("sp_limits/late: never spawned" in w for w in c["warnings"]), c["warnings"]
     assert not any("many" in w for w in c["warnings"]), c["warnings"]  # count is a bound: unused instances are fine
+
+
+def test_a_waiter_takes_over_a_mutex_whose_holder_was_killed_and_the_cell_says_so(tmp_path):
+    """The mutexes are robust: a worker killed while holding one leaves its waiter in another process free
+    to take it (it used to wait on it to the end of the run, a plain lock of a barrier or queue for good)."""
+    holder = [{"lock": "m"}, {"sleep": "5s"}, {"unlock": "m"}]
+    waiter = [{"sleep": "200ms"}, {"lock": "m"}, {"unlock": "m"}, {"sleep": "5s"}]
+    scenario = {
+        "name": "died_holding",
+        "resources": {"m": {"kind": "mutex"}},
+        "processes": [
+            {"name": "dieholder", "threads": [{"name": "holder", "work": {"kind": "phases", "events": holder}}]},
+            {"name": "diewaiter", "threads": [{"name": "waiter", "work": {"kind": "phases", "events": waiter}}]},
+        ],
+    }
+    path = tmp_path / "died_holding.yaml"
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    out = tmp_path / "out"
+    proc = start_runner(str(path), "--out", str(out), "--duration", "3s", "--no-trace", cwd=str(tmp_path))
+    until = time.monotonic() + 15
+    while not (pids := find_pids("dieholder")) and time.monotonic() < until:
+        time.sleep(0.02)
+    (pid,) = pids
+    time.sleep(0.6)  # past the waiter's 200 ms: it waits on the held mutex
+    os.kill(pid, signal.SIGKILL)
+    done = finish(proc, str(out))
+    assert done.results is not None, done.err
+    c = done.results["cells"][0]
+    lock = event(thread(done.results, "waiter"), "lock")
+    assert lock["count"] == 1 and lock["spread_ns"]["max"] < 1_500_000_000, lock  # taken when its holder died, not at the end
+    assert any("died holding it" in w and "mutex m" in w for w in c["warnings"]), c["warnings"]

@@ -412,10 +412,11 @@ struct resource {
     int64_t period;
     int64_t arrived, generation, pending, dropped, head, origin;
     uint64_t acquisitions, contended;
+    uint64_t owner_died; /* times a thread took the mutex from a holder that had died holding it (robust mutexes) */
     pthread_mutex_t m;
     pthread_cond_t c;
     int64_t q_origin[QDEPTH], q_time[QDEPTH];
-    uint8_t reserved[RES_BYTES - 176 - 2 * QDEPTH * 8];
+    uint8_t reserved[RES_BYTES - 184 - 2 * QDEPTH * 8];
 };
 
 _Static_assert(sizeof(struct event_stats) == EV_HDR, "event stats size");
@@ -711,6 +712,47 @@ static struct timespec slice_monotonic(const struct group *g) {
     return to_ts(t < g->end_ns ? t : g->end_ns);
 }
 
+/* A lock call's result with a dead holder's mutex made consistent and counted: the caller holds it then. */
+static int taken_over(struct resource *r, int rc) {
+    if (rc != EOWNERDEAD) return rc;
+    pthread_mutex_consistent(&r->m);
+    __atomic_add_fetch(&r->owner_died, 1, __ATOMIC_RELAXED);
+    return 0;
+}
+
+/* One slice's wait for the mutex: on CLOCK_MONOTONIC where the C library and kernel serve it (a step of the
+ * wall clock would stretch a CLOCK_REALTIME one), else on CLOCK_REALTIME. */
+static int lock_slice(struct resource *r, const struct group *g) {
+    static _Atomic int realtime_only;
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 30))
+    if (!atomic_load_explicit(&realtime_only, memory_order_relaxed)) {
+        struct timespec ts = slice_monotonic(g);
+        int rc = pthread_mutex_clocklock(&r->m, CLOCK_MONOTONIC, &ts);
+        if (rc != EINVAL) return taken_over(r, rc);
+        atomic_store_explicit(&realtime_only, 1, memory_order_relaxed); /* a PI mutex before FUTEX_LOCK_PI2 */
+    }
+#endif
+    (void)g;
+    struct timespec ts = slice_realtime();
+    return taken_over(r, pthread_mutex_timedlock(&r->m, &ts));
+}
+
+/* Take a resource's mutex, waiting in slices while the run lives: 0, or ETIMEDOUT once it ended (or a stop came). */
+static int res_lock(struct resource *r, const struct group *g) {
+    int rc = taken_over(r, pthread_mutex_trylock(&r->m));
+    while (rc == EBUSY || rc == ETIMEDOUT) {
+        if (!live(g)) return ETIMEDOUT;
+        rc = lock_slice(r, g);
+    }
+    return rc;
+}
+
+/* A condition's timed wait; the mutex it takes back may be a dead holder's. */
+static void res_wait(struct resource *c, struct resource *m, const struct group *g) {
+    struct timespec ts = slice_monotonic(g);
+    taken_over(m, pthread_cond_timedwait(&c->c, &m->m, &ts));
+}
+
 /* Burn thread CPU time (run) or wall time (runtime); gives up at the end of the run. */
 /* Burn `ns` of the thread's CPU time (of wall time if `wall`), cut short by the run's end or a stop:
  * a callback's burn may be as long as its period (an hour), and one begun just before the end,
@@ -836,7 +878,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
 static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, int slot) {
     struct resource *m = res_at(s, r);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
-    int rc = pthread_mutex_trylock(&m->m);
+    int rc = taken_over(m, pthread_mutex_trylock(&m->m));
     int32_t holder = -1;
     int busy = rc == EBUSY;
     if (busy) {
@@ -845,8 +887,7 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, in
         for (int k = 0; holder == -1 && k < 64; k++) holder = __atomic_load_n(&m->owner, __ATOMIC_RELAXED);
         s->hdr->blocked_since_ns = t0;
         for (;;) {
-            struct timespec ts = slice_realtime();
-            rc = pthread_mutex_timedlock(&m->m, &ts);
+            rc = lock_slice(m, s->group);
             if (rc != ETIMEDOUT || !live(s->group)) break;
         }
         /* Given up at the end of the run, or let through only by a thread that was leaving: the slot keeps where it stood. */
@@ -894,10 +935,7 @@ static void ev_wait(struct slot *s, struct program_state *ps, int i, const struc
     int64_t gen = c->generation;
     s->hdr->blocked_since_ns = t0;
     m->owner = -1;
-    while (c->generation == gen && live(s->group)) {
-        struct timespec ts = slice_monotonic(s->group);
-        pthread_cond_timedwait(&c->c, &m->m, &ts);
-    }
+    while (c->generation == gen && live(s->group)) res_wait(c, m, s->group);
     m->owner = s->prog->gid;
     if (c->generation == gen) return; /* the run ended while waiting: the slot keeps where it stood */
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
@@ -928,17 +966,14 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
     struct resource *b = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
     s->hdr->blocked_since_ns = t0;
-    pthread_mutex_lock(&b->m);
+    if (res_lock(b, s->group) != 0) return; /* the run ended before the barrier's count could be reached */
     int64_t gen = b->generation;
     if (++b->arrived >= b->parties) {
         b->arrived = 0;
         b->generation++;
         pthread_cond_broadcast(&b->c);
     } else {
-        while (b->generation == gen && live(s->group)) {
-            struct timespec ts = slice_monotonic(s->group);
-            pthread_cond_timedwait(&b->c, &b->m, &ts);
-        }
+        while (b->generation == gen && live(s->group)) res_wait(b, b, s->group);
         if (b->generation == gen) b->arrived--; /* gave up at the end of the run */
     }
     int passed = b->generation != gen;
@@ -953,7 +988,7 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
 static void ev_resume(struct slot *s, struct program_state *ps, int i, const struct event *e) {
     struct resource *q = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
-    pthread_mutex_lock(&q->m);
+    if (res_lock(q, s->group) != 0) return; /* the run ended before the queue could be reached */
     if (q->pending < QDEPTH) {
         int64_t at = (q->head + q->pending) % QDEPTH;
         q->q_origin[at] = ps->origin > 0 ? ps->origin : t0;
@@ -973,11 +1008,8 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
     if (s->prog->released) activation_close(s, ps, t0, 0);
     chain_close(s, ps, t0);
     s->hdr->blocked_since_ns = t0;
-    pthread_mutex_lock(&q->m);
-    while (q->pending == 0 && live(s->group)) {
-        struct timespec ts = slice_monotonic(s->group);
-        pthread_cond_timedwait(&q->c, &q->m, &ts);
-    }
+    if (res_lock(q, s->group) != 0) return; /* the run ended before the queue could be reached: the slot keeps where it stood */
+    while (q->pending == 0 && live(s->group)) res_wait(q, q, s->group);
     int64_t origin = 0, resumed = 0;
     int got = q->pending > 0;
     if (got) {
@@ -1820,6 +1852,8 @@ static PyObject *probe_init_resources(PyObject *mod, PyObject *args) {
         pthread_mutexattr_t ma;
         pthread_mutexattr_init(&ma);
         pthread_mutexattr_setpshared(&ma, PTHREAD_PROCESS_SHARED);
+        /* A worker that dies holding it (killed, crashed) must not leave its peers blocked on it for good. */
+        pthread_mutexattr_setrobust(&ma, PTHREAD_MUTEX_ROBUST);
         if (kind != RES_MUTEX || protocol == 1) rc = pthread_mutexattr_setprotocol(&ma, PTHREAD_PRIO_INHERIT);
         if (!rc) rc = pthread_mutex_init(&r->m, &ma);
         pthread_mutexattr_destroy(&ma);

@@ -460,6 +460,13 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             for r in raw.resources
             if r.dropped
         ]
+        + [
+            f"{r.kind} {r.name}: {r.owner_died:,} time{'s' if r.owner_died != 1 else ''} a thread found its mutex held by a thread"
+            " that had died holding it (its process was killed or crashed), and took it over; what that holder was doing"
+            " was left unfinished"
+            for r in raw.resources
+            if r.owner_died
+        ]
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
         + program_warnings
         + traced.warnings(result.trace)

@@ -119,6 +119,7 @@ class ResourceState:
     contended: int = 0  # mutex: locks that had to wait
     dropped: int = 0  # queue: resumes lost because its consumers were QDEPTH behind
     queued: int = 0  # queue: resumes still waiting to be taken at the end
+    owner_died: int = 0  # times a thread took its mutex over from a holder that had died holding it
 
 
 @dataclass(frozen=True)

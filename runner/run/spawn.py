@@ -1055,14 +1055,17 @@ class _CellRun:
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
-        """Counters of the shared resources: (kind, parties, owner, protocol, period, ..., dropped, ..., acquisitions, contended)."""
+        """Counters of the shared resources: (kind, parties, owner, protocol, period, ..., dropped, ..., acquisitions, contended,
+        owner_died)."""
         if self.resources is None:
             return ()
         out = []
         for i, (name, res) in enumerate(self.scenario.resources.items()):
-            f = struct.unpack_from("<iiiiq6q2Q", self.resources, i * _probe.RES_BYTES)
+            f = struct.unpack_from("<iiiiq6q3Q", self.resources, i * _probe.RES_BYTES)
             queued = f[7] if res.kind is ResourceKind.QUEUE else 0  # `pending`: resumes not taken yet
-            out.append(ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], queued=queued))
+            out.append(
+                ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], queued=queued, owner_died=f[13])
+            )
         return tuple(out)
 
 
