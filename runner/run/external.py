@@ -11,6 +11,12 @@ counters (switches, faults, CPU time, migrations, the CPU it ran on) are read fr
 /proc at the start gate and every few milliseconds, so a thread that exits mid-cell keeps
 what it did up to its last reading.  None of this costs the program anything but the
 reads of its /proc files.
+
+What the monitor keeps is bounded, so an hour of `runner watch` costs the runner no more
+memory than a minute: a thread's settings history keeps its first and latest snapshots and
+counts the changes between, and once a program holds MAX_THREADS thread records, its
+threads that exit are counted together (with their summed counters) instead of kept one by
+one.  Threads still alive are always kept and measured.
 """
 
 from __future__ import annotations
@@ -30,9 +36,9 @@ from typing import TYPE_CHECKING, Any, Optional
 from runner.run import _probe, kernel, memcg
 from runner.run.kernel import Counters
 from runner.run.procevents import Kind, ProcEvents
-from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread, Snapshot
+from runner.run.rawcell import ApplyErrors, FoldedRule, FoldedThreads, HistoryGap, RawProgram, RawProgramThread, Snapshot
 from runner.scenario.model import Policy, ProgramSpec, Sched
-from runner.scenario.plan import Settings, first_rule
+from runner.scenario.plan import Settings, first_rule, rule_settings
 
 if TYPE_CHECKING:
     from runner.run.guard import Watcher
@@ -46,6 +52,16 @@ OpenEvents = Callable[[frozenset[int]], tuple[Optional[ProcEvents], str]]  # sub
 RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
 TAIL_LINES = 10  # lines of a program's output shown when it fails
 TAIL_BYTES = 8192
+# A thread's settings history keeps its first snapshots (it appeared, its rule, what the program set as it started) and
+# its most recent (what it ended with, and the pattern of its changes): 64 in all, about 300 bytes each in the runner's
+# memory and 125 in results.json, so a thread that boosts its priority at every callback costs at most 20 KiB.
+HISTORY_FIRST = 16
+HISTORY_LAST = 48
+# Thread records a program keeps before threads that exit are folded into counts: far above what a program that creates
+# its threads as it starts holds (a ROS 2 node: tens), so only churn (a thread per request) reaches it, whose threads
+# hold a snapshot or two each (about 2 MiB for all 4,096).  The worst case, every record a full history, is 80 MiB of
+# memory and 32 MiB of results.json, however long the program runs.
+MAX_THREADS = 4096
 
 
 def sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
@@ -70,6 +86,59 @@ def settings_args(sched: Optional[Sched], cpus: Optional[tuple[int, ...]]) -> _p
     return policy, priority, nice, list(cpus) if cpus is not None else None, extra
 
 
+class SettingsHistory:
+    """A thread's snapshots of its settings, bounded: its first `first`, its latest `last`, and its rule's.
+
+    A program that changes its own priority at every callback would otherwise grow the
+    runner's memory, results.json and the report by a snapshot a change for as long as it
+    runs.  What falls between the first and the latest is counted, with the instants of
+    the first and the last left out, so the results say what they lack.  A snapshot that
+    is not a change (a thread appears once, a rule is applied to it once) is never left
+    out: the check of what a rule asked for reads its snapshot.
+    """
+
+    def __init__(self, first: int = HISTORY_FIRST, last: int = HISTORY_LAST) -> None:
+        if first < 0 or last < 1:
+            raise ValueError(f"a history keeps at least its latest snapshot: first={first}, last={last}")
+        self._first = first
+        self._head: list[Snapshot] = []
+        self._pinned: list[Snapshot] = []  # snapshots that are not changes, once they fell out of the latest
+        self._tail: deque[Snapshot] = deque()
+        self._last = last
+        self.left_out = 0
+        self._left_first_ns = 0
+        self._left_last_ns = 0
+
+    def append(self, snapshot: Snapshot) -> None:
+        """Keep `snapshot` as the latest; the oldest of the latest is left out (counted) once there are `last` of them."""
+        if len(self._head) < self._first:
+            self._head.append(snapshot)
+            return
+        if len(self._tail) == self._last:
+            old = self._tail.popleft()
+            if old.why != "changed":
+                self._pinned.append(old)
+            else:
+                if not self.left_out:
+                    self._left_first_ns = old.at_ns
+                self.left_out += 1
+                self._left_last_ns = old.at_ns
+        self._tail.append(snapshot)
+
+    def snapshots(self) -> tuple[Snapshot, ...]:
+        """The snapshots kept, in the order they were taken."""
+        return (*self._head, *self._pinned, *self._tail)
+
+    def gap(self) -> Optional[HistoryGap]:
+        """The changes left out; None when none were."""
+        if not self.left_out:
+            return None
+        return HistoryGap(self.left_out, self._left_first_ns, self._left_last_ns, self._first, self._last)
+
+    def __len__(self) -> int:
+        return len(self._head) + len(self._pinned) + len(self._tail)
+
+
 @dataclass
 class _Thread:
     tid: int
@@ -87,8 +156,54 @@ class _Thread:
     last_ns: int = 0
     gone_ns: Optional[int] = None
     cpus: set[int] = field(default_factory=set)
-    history: list[Snapshot] = field(default_factory=list)
+    history: SettingsHistory = field(default_factory=SettingsHistory)
     pid: int = 0  # its process: the program's, or one the program started (0: the program's)
+
+    def counters(self) -> Optional[Counters]:
+        """What it did from its base to its last reading; None when it was never read in the window."""
+        return self.last.minus(self.base) if self.last is not None and self.base is not None else None
+
+
+@dataclass
+class _Folded:
+    """A program's exited threads beyond its cap of thread records, as running sums (see FoldedThreads)."""
+
+    count: int = 0
+    measured: int = 0
+    voluntary: int = 0
+    involuntary: int = 0
+    minor_faults: int = 0
+    major_faults: int = 0
+    cpu_time_ns: int = 0
+    migrations: Optional[int] = 0
+    first_seen_ns: int = 0
+    last_gone_ns: int = 0
+    rules: dict[int, list[int]] = field(default_factory=dict)  # rule index: [applied, not as asked]
+
+    def add(self, t: _Thread, not_as_asked: bool) -> None:
+        """Count `t` (an exited thread) and add its counters, then forget it."""
+        self.first_seen_ns = t.seen_ns if not self.count else min(self.first_seen_ns, t.seen_ns)
+        self.last_gone_ns = max(self.last_gone_ns, t.gone_ns or t.seen_ns)
+        self.count += 1
+        if t.rule is not None:
+            counts = self.rules.setdefault(t.rule, [0, 0])
+            counts[0] += 1
+            counts[1] += not_as_asked
+        c = t.counters()
+        if c is None:
+            return
+        self.measured += 1
+        self.voluntary += c.voluntary
+        self.involuntary += c.involuntary
+        self.minor_faults += c.minor_faults
+        self.major_faults += c.major_faults
+        self.cpu_time_ns += c.cpu_time_ns
+        self.migrations = None if self.migrations is None or c.migrations is None else self.migrations + c.migrations
+
+    def raw(self) -> FoldedThreads:
+        counters = Counters(self.voluntary, self.involuntary, self.minor_faults, self.major_faults, self.cpu_time_ns, self.migrations, -1)
+        rules = tuple(FoldedRule(rule, applied, missed) for rule, (applied, missed) in sorted(self.rules.items()))
+        return FoldedThreads(MAX_THREADS, self.count, self.measured, counters, self.first_seen_ns, self.last_gone_ns, rules)
 
 
 def _environment(extra: dict[str, str]) -> dict[str, str]:
@@ -146,6 +261,9 @@ class ProgramRun:
         self.stdout = f"{spec.name}.stdout"
         self.stderr = f"{spec.name}.stderr"
         self.threads: dict[int, _Thread] = {}
+        self.threads_seen = 0  # thread records ever made here: the next one's index
+        self.folded = _Folded()
+        self._exemplars: set[int] = set()  # rules that did not take as asked on a thread kept for it beyond the cap
         self._report = -1
         self._gate = -1
         self.attached = False
@@ -302,6 +420,38 @@ class ProgramRun:
         guard.forget_cgroup(self.cgroup.folder)
         self.cgroup = None
 
+    def new_thread(self, tid: int, comm: str, seen_ns: int, pid: int) -> _Thread:
+        """Record a thread the monitor found (by an event or a listing) under the next index of appearance."""
+        t = self.threads[tid] = _Thread(tid, self.threads_seen, comm, seen_ns, seen_ns, pid=pid)
+        self.threads_seen += 1
+        return t
+
+    def exited(self, t: _Thread) -> None:
+        """`t` was found gone: once the program holds more than MAX_THREADS records, fold it into `folded` instead of keeping it.
+
+        Threads still alive keep their records whatever their number, and so does the main
+        thread, and, once per rule, a thread on which the rule did not take as asked, so the
+        results name one and the cell says it was degraded.  A folded thread's TID is free
+        again: should the kernel reuse it, the listing records a new thread.
+        """
+        if len(self.threads) <= MAX_THREADS or t.index == 0 or self.threads.get(t.tid) is not t:
+            return
+        missed = self._not_as_asked(t)
+        if missed and t.rule is not None and t.rule not in self._exemplars:
+            self._exemplars.add(t.rule)
+            return
+        del self.threads[t.tid]
+        self.folded.add(t, missed)
+
+    def _not_as_asked(self, t: _Thread) -> bool:
+        """A rule was applied to `t` and the kernel refused part of it, or read back other settings than it asked for."""
+        if t.rule is None:
+            return False
+        if t.rule_errors.failed():
+            return True
+        wanted = rule_settings(self.spec, self.spec.threads[t.rule], self.start_settings)
+        return any(s.why == "rule" and s.settings != wanted for s in t.history.snapshots())
+
     def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
         code = sig = None
         if self.status is not None:
@@ -334,10 +484,11 @@ class ProgramRun:
             self.oom_kills,
             self.memory_note,
             self.halted_ns,
+            self.folded.raw() if self.folded.count else None,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:
-        counters = t.last.minus(t.base) if t.last is not None and t.base is not None else None
+        counters = t.counters()
         end = t.gone_ns if t.gone_ns is not None else window_end
         begin = max(t.seen_ns, window_start) if window_start is not None else t.seen_ns
         return RawProgramThread(
@@ -353,9 +504,10 @@ class ProgramRun:
             counters,
             max(0, min(end, t.last_ns or end) - begin),
             tuple(sorted(t.cpus)),
-            tuple(t.history),
+            t.history.snapshots(),
             t.settings,
             t.pid or self.pid,
+            t.history.gap(),
         )
 
     def _tail(self) -> tuple[str, ...]:
@@ -513,7 +665,7 @@ class Monitor:
         comm = kernel.thread_comm(p.pid, tid)
         if comm is None:
             return
-        t = p.threads[tid] = _Thread(tid, len(p.threads), comm, at_ns, at_ns, pid=p.pid)
+        t = p.new_thread(tid, comm, at_ns, p.pid)
         self._snapshot(p, t, at_ns, "appeared")
         self._apply_rule(p, t)
 
@@ -538,7 +690,7 @@ class Monitor:
                     comm = kernel.thread_comm(pid, tid)
                     if comm is None:
                         continue
-                    t = p.threads[tid] = _Thread(tid, len(p.threads), comm, now, now, pid=pid)
+                    t = p.new_thread(tid, comm, now, pid)
                     self._snapshot(p, t, now, "appeared")
                 elif t.rule is None and now - t.seen_ns < RENAME_WATCH_NS:
                     comm = kernel.thread_comm(pid, tid)
@@ -570,12 +722,14 @@ class Monitor:
 
     def _count(self, p: ProgramRun, now: int) -> None:
         started = self.window_start is not None and now >= self.window_start
+        gone = []
         for t in p.threads.values():
             if t.gone_ns is not None:
                 continue
             counters = kernel.thread_counters(t.pid or p.pid, t.tid)
             if counters is None:
                 t.gone_ns = now
+                gone.append(t)
                 continue
             comm = kernel.thread_comm(t.pid or p.pid, t.tid)
             if comm is not None and comm != t.comm:
@@ -589,3 +743,5 @@ class Monitor:
             if t.base is not None:
                 t.last, t.last_ns = counters, now
                 t.cpus.add(counters.cpu)
+        for t in gone:
+            p.exited(t)

@@ -133,6 +133,43 @@ class Snapshot:
 
 
 @dataclass(frozen=True)
+class HistoryGap:
+    """The changes of a thread's settings its bounded history left out: how many, and from when to when.
+
+    A history keeps its first `kept_first` and its most recent `kept_last` snapshots (and
+    always the one of its rule); what came between is only counted.
+    """
+
+    count: int
+    first_ns: int  # CLOCK_MONOTONIC of the first change left out
+    last_ns: int  # and of the last
+    kept_first: int
+    kept_last: int
+
+
+@dataclass(frozen=True)
+class FoldedRule:
+    """A thread rule as applied to threads that were folded: to how many, and on how many it did not take as asked."""
+
+    rule: int  # its index in the program's rules
+    applied: int
+    not_as_asked: int  # the kernel refused part of it, or read back other settings than it asked for
+
+
+@dataclass(frozen=True)
+class FoldedThreads:
+    """A program's threads that exited once it had `cap` thread records: counted together, not kept one by one."""
+
+    cap: int  # the thread records a program keeps before exited threads are folded
+    count: int
+    measured: int  # those whose counters were read in the measured window: `counters` sums theirs
+    counters: Counters  # summed up to each one's last reading; migrations None unless every one had them; cpu -1
+    first_seen_ns: int
+    last_gone_ns: int
+    rules: tuple[FoldedRule, ...] = ()
+
+
+@dataclass(frozen=True)
 class RawProgramThread:
     """One thread of a program as the monitor saw it."""
 
@@ -151,6 +188,7 @@ class RawProgramThread:
     history: tuple[Snapshot, ...]
     applied: Optional[Settings]  # its settings when last read
     pid: int = 0  # its process: the program's, or one the program started
+    history_gap: Optional[HistoryGap] = None  # the changes `history` left out; None when it kept them all
 
 
 @dataclass(frozen=True)
@@ -180,6 +218,7 @@ class RawProgram:
     oom_kills: Optional[int] = None  # its tasks the OOM killer ended
     memory_note: str = ""  # why it has no cgroup of its own, so memory_max could not be applied either
     halted_ns: Optional[int] = None  # when it was first seen stopped (state T: SIGSTOP, a debugger), if it was
+    folded: Optional[FoldedThreads] = None  # exited threads counted beyond its cap of thread records; None when none were
 
 
 @dataclass(frozen=True)

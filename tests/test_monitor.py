@@ -1,0 +1,245 @@
+"""The monitor of a program's threads against a fake /proc: what it keeps of a long watch stays bounded, and says what it left out."""
+
+from __future__ import annotations
+
+import errno
+from typing import Any
+
+import pytest
+
+from runner.run import external, kernel
+from runner.run.external import HISTORY_FIRST, HISTORY_LAST, MAX_THREADS, Monitor, ProgramRun, SettingsHistory
+from runner.run.kernel import Counters
+from runner.run.rawcell import FoldedRule, HistoryGap, Snapshot
+from runner.scenario.model import Policy, ProgramSpec
+from runner.scenario.plan import Settings
+
+OTHER = Settings()
+PID = 500
+T0 = 10_000_000_000
+TICK = 50_000_000
+
+
+class FakeProc:
+    """/proc as the monitor reads it: the program's live threads, each with a name, settings and a switch count."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, rule_errno: int = 0, rule_gives: Settings | None = None):
+        """A rule's call fails with `rule_errno` (the thread keeps its settings), or the thread holds `rule_gives` after it."""
+        self.threads: dict[int, list[Any]] = {}  # tid: [comm, settings, voluntary switches]
+        self.rule_errno, self.rule_gives = rule_errno, rule_gives
+        monkeypatch.setattr(kernel, "task_ids", lambda pid: list(self.threads) if pid == PID else [])
+        monkeypatch.setattr(kernel, "thread_comm", lambda pid, tid: self.threads[tid][0] if tid in self.threads else None)
+        monkeypatch.setattr(kernel, "thread_counters", self._counters)
+        monkeypatch.setattr(kernel, "thread_settings", self._settings)
+        monkeypatch.setattr(external._probe, "apply_to", self._apply)
+
+    def add(self, tid: int, comm: str, settings: Settings = OTHER, switches: int = 10) -> None:
+        self.threads[tid] = [comm, settings, switches]
+
+    def _counters(self, pid: int, tid: int) -> Counters | None:
+        if tid not in self.threads:
+            return None
+        n = self.threads[tid][2]
+        return Counters(n, 1, 2, 0, 1000 * n, 3, 0)
+
+    def _settings(self, tid: int, online: object) -> Settings:
+        if tid not in self.threads:
+            raise OSError(errno.ESRCH, "No such process")
+        settings: Settings = self.threads[tid][1]
+        return settings
+
+    def _apply(self, tid: int, policy: int | None, priority: int | None, *rest: object) -> tuple[int, int, int]:
+        if self.rule_errno:
+            return self.rule_errno, 0, 0
+        self.threads[tid][1] = self.rule_gives or Settings(Policy.FIFO, priority or 0)
+        return 0, 0, 0
+
+
+def _monitored(rules: list[dict[str, str]] | None = None) -> tuple[ProgramRun, Monitor]:
+    spec = ProgramSpec.model_validate({"name": "server", "command": ["server"], "threads": rules or []})
+    run = ProgramRun(spec, "/tmp", OTHER, (0, 1))
+    run.pid = PID
+    monitor = Monitor([run], lambda pids: (None, "no process events in this test"))
+    monitor.window_start = T0
+    return run, monitor
+
+
+def _tick(monitor: Monitor, run: ProgramRun, n: int) -> int:
+    """One listing and reading of the monitor, `n` ticks into the cell; its instant."""
+    now = T0 + n * TICK
+    monitor._list(run, now)
+    monitor._count(run, now)
+    return now
+
+
+def test_a_history_keeps_its_first_and_latest_snapshots_and_its_rule_and_counts_the_changes_between():
+    history = SettingsHistory(first=1, last=2)
+    taken = [
+        Snapshot(1, "w", OTHER, "appeared"),
+        Snapshot(2, "w", Settings(nice=1), "changed"),
+        Snapshot(3, "w", Settings(Policy.FIFO, 10), "rule"),
+        Snapshot(4, "w", Settings(Policy.FIFO, 11), "changed"),
+        Snapshot(5, "w", Settings(Policy.FIFO, 12), "changed"),
+        Snapshot(6, "w", Settings(Policy.FIFO, 13), "changed"),
+    ]
+    for s in taken:
+        history.append(s)
+    assert [s.at_ns for s in history.snapshots()] == [1, 3, 5, 6], "the rule's snapshot outlives the latest two: its check reads it"
+    assert history.gap() == HistoryGap(count=2, first_ns=2, last_ns=4, kept_first=1, kept_last=2)
+    assert len(history) == 4
+    short = SettingsHistory(first=1, last=2)
+    for s in taken[:3]:
+        short.append(s)
+    assert short.gap() is None and len(short.snapshots()) == 3, "nothing left out: nothing said"
+    with pytest.raises(ValueError, match="at least its latest"):
+        SettingsHistory(first=4, last=0)
+
+
+def test_a_thread_that_changes_its_priority_at_every_reading_keeps_its_first_and_latest_changes_and_counts_the_rest(monkeypatch):
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored()
+    ticks = 1000
+    instants = []
+    for n in range(ticks):
+        proc.threads[PID][1] = Settings(Policy.FIFO, 1 + n % 90, 0)
+        instants.append(_tick(monitor, run, n))
+    history = run.threads[PID].history
+    assert len(history) == HISTORY_FIRST + HISTORY_LAST, "the runner's memory does not grow with the changes"
+    (main,) = run.raw(T0, instants[-1]).threads
+    assert [s.why for s in main.history[:2]] == ["appeared", "changed"]
+    taken = instants  # it appeared with the settings of the first reading, and changed at each one after
+    kept = taken[:HISTORY_FIRST] + taken[-HISTORY_LAST:]
+    assert [s.at_ns for s in main.history] == kept
+    assert main.history[-1].settings == Settings(Policy.FIFO, 1 + (ticks - 1) % 90, 0), "it ends with the settings it ended with"
+    assert main.history_gap == HistoryGap(
+        count=len(taken) - HISTORY_FIRST - HISTORY_LAST,
+        first_ns=taken[HISTORY_FIRST],
+        last_ns=taken[-HISTORY_LAST - 1],
+        kept_first=HISTORY_FIRST,
+        kept_last=HISTORY_LAST,
+    )
+
+
+def test_threads_that_exit_beyond_the_cap_are_folded_into_counts_and_live_ones_keep_being_measured(monkeypatch):
+    """A thread a request: each lives one reading; beyond the cap those that exit are counted together, the live keep records."""
+    cap = 4
+    monkeypatch.setattr(external, "MAX_THREADS", cap)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    for tid in (600, 601):
+        proc.add(tid, "pool", switches=5)  # a worker pool that lives throughout
+    run, monitor = _monitored()
+    _tick(monitor, run, 0)
+    requests = 30
+    most = 0
+    for n in range(1, requests + 1):
+        proc.threads.pop(1000 + n - 1, None)
+        proc.add(1000 + n, "request", switches=10)
+        for tid in (PID, 600, 601):
+            proc.threads[tid][2] += 1
+        end = _tick(monitor, run, n)
+        most = max(most, len(run.threads))
+    assert most <= cap + 1, "at most the cap, and the one thread that appeared since the last reading"
+    raw = run.raw(T0, end)
+    kept = [(t.tid, t.index, t.gone_ns is None) for t in raw.threads]
+    assert kept == [(PID, 0, True), (600, 1, True), (601, 2, True), (1000 + requests, requests + 2, True)], (
+        "the first request exited when the next one made five records: folded"
+    )
+    assert raw.threads[1].counters is not None and raw.threads[1].counters.voluntary == requests, "the pool is still measured"
+    folded = raw.folded
+    assert folded is not None
+    gone = requests - 1
+    assert (folded.cap, folded.count, folded.measured) == (cap, gone, gone)
+    born_in_the_window = Counters(10 * gone, gone, 2 * gone, 0, 10_000 * gone, 3 * gone, -1)  # each one's reading, from zero
+    assert folded.counters == born_in_the_window
+    assert (folded.first_seen_ns, folded.last_gone_ns) == (T0 + TICK, T0 + requests * TICK)
+    assert folded.rules == ()
+    proc.add(1001, "reused")  # the kernel gives a folded thread's TID to a new thread: a record of its own
+    _tick(monitor, run, requests + 1)
+    assert run.threads[1001].comm == "reused" and run.threads[1001].index == requests + 3
+
+
+def test_nothing_is_folded_below_the_cap_and_a_program_without_churn_says_nothing(monkeypatch):
+    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    proc.add(600, "a")
+    proc.add(601, "b")
+    run, monitor = _monitored()
+    _tick(monitor, run, 0)
+    del proc.threads[600]
+    proc.add(602, "c")
+    end = _tick(monitor, run, 1)
+    raw = run.raw(T0, end)
+    assert [t.tid for t in raw.threads] == [PID, 600, 601, 602] and raw.folded is None
+    assert all(t.history_gap is None for t in raw.threads)
+
+
+def test_a_rule_that_did_not_take_keeps_one_thread_beyond_the_cap_and_the_folded_say_how_many_it_missed(monkeypatch):
+    monkeypatch.setattr(external, "MAX_THREADS", 3)
+    proc = FakeProc(monkeypatch, rule_errno=errno.EPERM)
+    proc.add(PID, "server")
+    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
+    _tick(monitor, run, 0)
+    for n in range(1, 8):
+        proc.threads.pop(1000 + n - 1, None)
+        proc.add(1000 + n, "request")
+        end = _tick(monitor, run, n)
+    raw = run.raw(T0, end)
+    refused = [t.tid for t in raw.threads if t.rule == 0 and t.rule_errors.sched == errno.EPERM and t.gone_ns is not None]
+    assert refused == [1001, 1002], "the first one (under the cap) and one kept for the rule beyond it"
+    assert raw.folded is not None and raw.folded.rules == (FoldedRule(rule=0, applied=4, not_as_asked=4),)
+
+
+@pytest.mark.parametrize(("gives", "missed"), [(None, 0), (Settings(Policy.FIFO, 5), 3)])
+def test_folded_threads_a_rule_was_applied_to_count_those_that_read_back_other_settings(monkeypatch, gives, missed):
+    """A rule the kernel took without an error can still leave other settings (a priority clamped): that is not as asked."""
+    monkeypatch.setattr(external, "MAX_THREADS", 2)
+    proc = FakeProc(monkeypatch, rule_gives=gives)
+    proc.add(PID, "server")
+    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
+    _tick(monitor, run, 0)
+    for n in range(1, 6):
+        proc.threads.pop(1000 + n - 1, None)
+        proc.add(1000 + n, "request")
+        end = _tick(monitor, run, n)
+    raw = run.raw(T0, end)
+    assert raw.folded is not None and raw.folded.rules == (FoldedRule(rule=0, applied=4 - bool(missed), not_as_asked=missed),), (
+        "1001 to 1004 (1005 lives), but for the one kept for a rule that did not take"
+    )
+
+
+def test_an_hour_of_a_thread_per_request_stays_within_the_cap_of_records(monkeypatch):
+    """Churn at the real cap: 6,000 threads in batches of 500 a reading, with records that never pass the cap and a batch."""
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored()
+    _tick(monitor, run, 0)
+    batch, batches = 500, 12
+    most = 0
+    for n in range(1, batches + 1):
+        for tid in range(1000 + (n - 2) * batch, 1000 + (n - 1) * batch):
+            proc.threads.pop(tid, None)
+        for tid in range(1000 + (n - 1) * batch, 1000 + n * batch):
+            proc.add(tid, "request")
+        end = _tick(monitor, run, n)
+        most = max(most, len(run.threads))
+    assert most <= MAX_THREADS + batch
+    raw = run.raw(T0, end)
+    assert raw.folded is not None
+    assert len(raw.threads) + raw.folded.count == 1 + batch * batches, "every thread is either kept or counted"
+
+
+def test_the_main_thread_is_never_folded(monkeypatch):
+    """Its record is the program's main thread in the results (the process's settings are checked on it)."""
+    monkeypatch.setattr(external, "MAX_THREADS", 1)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    proc.add(600, "worker")
+    run, monitor = _monitored()
+    _tick(monitor, run, 0)
+    del proc.threads[PID]  # it called pthread_exit; its worker goes on
+    end = _tick(monitor, run, 1)
+    raw = run.raw(T0, end)
+    assert [(t.tid, t.gone_ns) for t in raw.threads] == [(PID, end), (600, None)] and raw.folded is None
