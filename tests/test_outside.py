@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
+import jsonschema
 import pytest
 
 from runner.report.markdown import program_lines
-from runner.results.document import CellResult, Status
+from runner.results.document import CellResult, RunDocument, Status, results_schema
+from runner.results.read import load
 from runner.run.evaluate import degradation, evaluate
 from runner.run.kernel import Counters
 from runner.run.outside import outcome
-from runner.run.rawcell import ApplyErrors, RawCell, RawProgram, RawProgramThread, Snapshot, Timeline
+from runner.run.rawcell import ApplyErrors, FoldedRule, FoldedThreads, HistoryGap, RawCell, RawProgram, RawProgramThread, Snapshot, Timeline
 from runner.scenario.loader import load_scenario
 from runner.scenario.model import Policy, ProgramSpec
 from runner.scenario.plan import Settings, first_rule, program_settings, rule_settings
@@ -328,3 +331,59 @@ def test_a_program_without_a_cgroup_of_its_own_is_a_warning_that_says_what_escap
     ]
     held = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),))
     assert not [w for w in outcome(held, T0, T0 + SECOND, False, degradation).warnings if "cgroup" in w]
+
+
+CHURN = FoldedThreads(
+    cap=4096,
+    count=12_000,
+    measured=11_990,
+    counters=Counters(36_000, 1_200, 48_000, 2, 9_000_000_000, 600, -1),
+    first_seen_ns=T0 + SECOND,
+    last_gone_ns=T0 + 58 * SECOND,
+    rules=(FoldedRule(rule=0, applied=11_000, not_as_asked=3),),
+)
+BOOSTED = HistoryGap(count=1_234, first_ns=T0 + 2_100_000_000, last_ns=T0 + 58 * SECOND, kept_first=16, kept_last=48)
+
+
+def _churned() -> RawProgram:
+    """A server that ran a thread a request (most of them folded) and boosted its main thread's priority at every callback."""
+    spec = _spec(threads=[{"match": "req*", "sched": "fifo:70"}])
+    return _program(spec, (_thread(500, 0, "rtprog", FIFO80, history_gap=BOOSTED),), folded=CHURN)
+
+
+def test_folded_threads_and_a_history_that_left_changes_out_are_in_the_results_from_the_start_gate():
+    out = outcome(_churned(), T0, T0 + 60 * SECOND, False, degradation)
+    folded = out.result.threads_folded
+    assert folded is not None
+    assert (folded.cap, folded.count, folded.measured) == (4096, 12_000, 11_990)
+    assert (folded.voluntary, folded.involuntary, folded.minor_faults, folded.major_faults) == (36_000, 1_200, 48_000, 2)
+    assert (folded.cpu_time_ns, folded.migrations) == (9_000_000_000, 600)
+    assert (folded.first_seen_ns, folded.last_gone_ns) == (SECOND, 58 * SECOND)
+    assert [(r.rule, r.applied, r.not_as_asked) for r in folded.rules] == [("req*", 11_000, 3)]
+    assert not [w for w in out.warnings if "no thread matched" in w], "the rule matched threads that were folded"
+    gap = out.threads[0][1].history_not_kept
+    assert gap is not None
+    assert (gap.count, gap.from_ns, gap.to_ns, gap.kept_first, gap.kept_last) == (1_234, 2_100_000_000, 58 * SECOND, 16, 48)
+    plain = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),)), T0, T0 + SECOND, False, degradation)
+    assert plain.result.threads_folded is None and plain.threads[0][1].history_not_kept is None
+
+
+def test_folded_threads_and_history_gaps_are_stored_read_back_and_absent_from_older_files(tmp_path):
+    out = outcome(_churned(), T0, T0 + 60 * SECOND, False, degradation)
+    cell = CellResult(
+        id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result], threads=[out.threads[0][1]]
+    )
+    doc = RunDocument(
+        scenario={"name": "s"}, started_at="t", cell_ids=["c"], matrix_cells=["c"], plan={"repeat": 1, "settle_ns": 0}, cells=[cell]
+    )
+    doc.save(str(tmp_path / "results.json"))
+    data = json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))
+    jsonschema.validate(data, results_schema())
+    again = load(str(tmp_path)).cells[0]
+    assert again.programs[0].threads_folded == out.result.threads_folded
+    assert again.threads[0].history_not_kept == out.threads[0][1].history_not_kept
+    del data["cells"][0]["programs"][0]["threads_folded"]
+    del data["cells"][0]["threads"][0]["history_not_kept"]
+    (tmp_path / "results.json").write_text(json.dumps(data), encoding="utf-8")
+    older = load(str(tmp_path)).cells[0]
+    assert older.programs[0].threads_folded is None and older.threads[0].history_not_kept is None

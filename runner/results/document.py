@@ -318,6 +318,56 @@ class SettingsSnapshot(_Record):
     why: str = Field(description="appeared, rule (a thread rule was applied) or changed (it changed, by itself or by another)")
 
 
+class HistoryGap(_Record):
+    """The changes of a program thread's settings its `history` left out: it keeps its first and its latest snapshots.
+
+    A thread that changes its priority at every callback would otherwise make results.json
+    grow with every change for as long as the program ran.
+    """
+
+    count: NonNegativeInt = Field(description="changes of its settings that were seen and not kept")
+    from_ns: int = Field(description="the first of them, since the cell's start gate")
+    to_ns: int = Field(description="the last of them, since the cell's start gate")
+    kept_first: NonNegativeInt = Field(description="the snapshots kept from its start (it appeared, its rule, its first changes)")
+    kept_last: NonNegativeInt = Field(description="the most recent snapshots kept (its rule's is kept wherever it falls)")
+
+
+class FoldedRule(_Record):
+    """A thread rule as applied to a program's folded threads."""
+
+    rule: str = Field(description="the rule's pattern")
+    applied: NonNegativeInt = Field(description="folded threads it was applied to")
+    not_as_asked: NonNegativeInt = Field(
+        description="of them, those where the kernel refused part of it or read back other settings (for each rule, one such "
+        "thread is kept in threads, where its degradation is said)"
+    )
+
+
+class FoldedThreads(_Record):
+    """A program's threads that exited once it had `cap` thread records: counted together here, not kept one by one in `threads`.
+
+    A program that starts a thread per request would otherwise add a thread to the
+    results (and to the runner's memory) for every request.  Threads still alive are
+    never folded: they are in `threads`, measured to the end.
+    """
+
+    cap: NonNegativeInt = Field(description="the thread records a program keeps before the threads that exit are folded")
+    count: NonNegativeInt = Field(description="threads that came and went and were not kept one by one")
+    measured: NonNegativeInt = Field(
+        description="of them, those whose counters were read in the measured window; the sums below are theirs, each up to its "
+        "last reading (every 50 ms), as a kept thread's are"
+    )
+    voluntary: NonNegativeInt = 0
+    involuntary: NonNegativeInt = 0
+    minor_faults: NonNegativeInt = 0
+    major_faults: NonNegativeInt = 0
+    cpu_time_ns: NonNegativeInt = 0
+    migrations: Optional[NonNegativeInt] = Field(None, description="null: the kernel did not give them for every one (CONFIG_SCHED_DEBUG)")
+    first_seen_ns: int = Field(description="the first of them appeared, since the cell's start gate")
+    last_gone_ns: int = Field(description="the last of them was found gone, since the cell's start gate")
+    rules: list[FoldedRule] = Field(default_factory=list, description="the thread rules applied to them")
+
+
 class Preemptor(_Record):
     """A task that took the CPU from a thread while it was runnable, from the scheduler's trace."""
 
@@ -370,6 +420,9 @@ class ThreadResult(_Record):
     rule: Optional[str] = Field(None, description="programs: the pattern of the thread rule applied to it")
     rule_after_ns: Optional[int] = Field(None, description="programs: from its matching name appearing to the rule applied")
     history: list[SettingsSnapshot] = Field(default_factory=list, description="programs: its settings when it appeared and changed")
+    history_not_kept: Optional[HistoryGap] = Field(
+        None, description="programs: the changes `history` left out, beyond its first and latest snapshots; null: it holds them all"
+    )
     preempted_by: list[Preemptor] = Field(
         default_factory=list, description="who took the CPU while it was runnable, most often first (scheduler trace)"
     )
@@ -443,6 +496,9 @@ class ProgramResult(_Record):
     memory_max: Optional[int] = Field(None, description="its memory limit (bytes) as its memory cgroup held it; null: none")
     memory_peak: Optional[int] = Field(None, description="the most memory (bytes) its cgroup was charged with, itself and all it started")
     oom_kills: Optional[int] = Field(None, description="its tasks (itself or what it started) the OOM killer ended at memory_max")
+    threads_folded: Optional[FoldedThreads] = Field(
+        None, description="its threads that exited beyond its cap of thread records, counted together; null: every thread is in threads"
+    )
 
 
 class Overhead(_Record):

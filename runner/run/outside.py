@@ -18,10 +18,12 @@ from typing import Optional
 
 from runner import units
 from runner.figures import Faults, Involuntary, ThreadFigures, Voluntary
-from runner.results.document import ProgramResult, SettingsSnapshot, ThreadResult
+from runner.results.document import FoldedRule, FoldedThreads, HistoryGap, ProgramResult, SettingsSnapshot, ThreadResult
 from runner.run.child import signal_name
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
-from runner.scenario.model import SleepWork, Until
+from runner.run.rawcell import FoldedThreads as RawFolded
+from runner.run.rawcell import HistoryGap as RawGap
+from runner.scenario.model import ProgramSpec, SleepWork, Until
 from runner.scenario.plan import PlannedThread, Settings, program_settings, rule_settings
 
 DegradationFn = Callable[[Settings, Optional[Settings], ApplyErrors], list[str]]
@@ -68,6 +70,35 @@ def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
     )
 
 
+def _gap(gap: Optional[RawGap], since: Callable[[int], int]) -> Optional[HistoryGap]:
+    """The changes a thread's history left out, their instants from the start gate."""
+    if gap is None:
+        return None
+    first, last = since(gap.first_ns), since(gap.last_ns)
+    return HistoryGap(count=gap.count, from_ns=first, to_ns=last, kept_first=gap.kept_first, kept_last=gap.kept_last)
+
+
+def _folded(spec: ProgramSpec, folded: Optional[RawFolded], since: Callable[[int], int]) -> Optional[FoldedThreads]:
+    """The threads a program's monitor counted together instead of keeping, their instants from the start gate."""
+    if folded is None:
+        return None
+    c = folded.counters
+    return FoldedThreads(
+        cap=folded.cap,
+        count=folded.count,
+        measured=folded.measured,
+        voluntary=c.voluntary,
+        involuntary=c.involuntary,
+        minor_faults=c.minor_faults,
+        major_faults=c.major_faults,
+        cpu_time_ns=c.cpu_time_ns,
+        migrations=c.migrations,
+        first_seen_ns=since(folded.first_seen_ns),
+        last_gone_ns=since(folded.last_gone_ns),
+        rules=[FoldedRule(rule=spec.threads[r.rule].match, applied=r.applied, not_as_asked=r.not_as_asked) for r in folded.rules],
+    )
+
+
 def _role(t: RawProgramThread, pid: int) -> str:
     """What the thread is to the program, in words (the results' `work`)."""
     if t.index == 0:
@@ -104,6 +135,10 @@ def outcome(
     `degradation` says how settings fell short of a request, in words (evaluate.degradation).
     """
     spec, start = raw.spec, raw.start
+
+    def since(ns: int) -> int:
+        return ns - (t0 if t0 is not None else ns)
+
     main_wanted, others_wanted = program_settings(spec, start)
     failures: list[str] = []
     warnings: list[str] = []
@@ -192,6 +227,7 @@ def outcome(
         memory_max=raw.memory_limit,
         memory_peak=raw.memory_peak,
         oom_kills=raw.oom_kills,
+        threads_folded=_folded(spec, raw.folded, since),
     )
     ordinal = _ordinals(raw.threads)
     threads = []
@@ -225,15 +261,14 @@ def outcome(
                     program=True,
                     rule=rule.match if rule else None,
                     rule_after_ns=(t.rule_ns - t.named_ns) if t.rule_ns is not None else None,
-                    history=[
-                        SettingsSnapshot(at_ns=s.at_ns - (t0 if t0 is not None else s.at_ns), comm=s.comm, settings=s.settings, why=s.why)
-                        for s in t.history
-                    ],
+                    history=[SettingsSnapshot(at_ns=since(s.at_ns), comm=s.comm, settings=s.settings, why=s.why) for s in t.history],
+                    history_not_kept=_gap(t.history_gap, since),
                 ),
             )
         )
+    folded_rules = {r.rule for r in raw.folded.rules} if raw.folded is not None else set()
     for i, rule in enumerate(spec.threads):
-        if not raw.failure and not any(t.rule == i for t in raw.threads):
+        if not raw.failure and not any(t.rule == i for t in raw.threads) and i not in folded_rules:
             seen = sorted({t.comm for t in raw.threads})
             warnings.append(f"program {spec.name}: no thread matched the rule {rule.match!r}; its threads: {', '.join(seen) or 'none'}")
     return ProgramOutcome(result, threads, failures, warnings)
