@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 
 import jsonschema
@@ -387,3 +388,44 @@ def test_folded_threads_and_history_gaps_are_stored_read_back_and_absent_from_ol
     (tmp_path / "results.json").write_text(json.dumps(data), encoding="utf-8")
     older = load(str(tmp_path)).cells[0]
     assert older.programs[0].threads_folded is None and older.threads[0].history_not_kept is None
+
+
+def test_the_report_says_how_many_threads_were_folded_and_which_history_changes_were_not_kept():
+    out = outcome(_churned(), T0, T0 + 60 * SECOND, False, degradation)
+    cell = CellResult(
+        id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result], threads=[out.threads[0][1]]
+    )
+    line = program_lines(cell)[0]
+    assert (
+        "; 12,000 threads that exited once it had 4,096 thread records were counted together, not kept one by one (between 1.00 s "
+        "and 58.00 s; the 11,990 measured: 1,200 involuntary and 36,000 voluntary switches, 48,000 minor and 2 major faults, "
+        "9.00 s of CPU time, 600 migrations); rule `req*` was applied to 11,000 of them, 3 not as asked" in line
+    )
+    assert line.endswith(
+        "; talker/rtprog (main): its settings history keeps its first 16 and last 48 snapshots; 1,234 further changes between "
+        "2.10 s and 58.00 s not kept"
+    )
+    plain = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),)), T0, T0 + SECOND, False, degradation)
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[plain.result])
+    assert "not kept" not in program_lines(cell)[0] and "counted together" not in program_lines(cell)[0]
+
+
+def test_the_report_names_a_few_threads_whose_history_left_changes_out_and_counts_the_others():
+    threads = tuple(_thread(500 + i, i, "rtprog" if i == 0 else "worker", FIFO80, history_gap=BOOSTED) for i in range(5))
+    out = outcome(_program(_spec(), threads), T0, T0 + 60 * SECOND, False, degradation)
+    kept = [t for _, t in out.threads]
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result], threads=kept)
+    line = program_lines(cell)[0]
+    named = re.findall(r"talker/\S+ (?:\(main\)|#\d)", line)
+    assert named == ["talker/rtprog (main)", "talker/worker #1", "talker/worker #2"]
+    assert line.endswith("; 2 more threads' histories the same way: 2,468 further changes not kept")
+
+
+def test_folded_threads_none_of_which_was_measured_claim_no_figures():
+    nothing = Counters(0, 0, 0, 0, 0, 0, -1)
+    unread = FoldedThreads(cap=4096, count=7, measured=0, counters=nothing, first_seen_ns=T0 - SECOND, last_gone_ns=T0)
+    out = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), folded=unread), T0, T0 + SECOND, False, degradation)
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result])
+    line = program_lines(cell)[0]
+    assert "; 7 threads that exited once it had 4,096 thread records were counted together, not kept one by one" in line
+    assert "(between -1.00 s and 0.00 s; none of them was read in the measured window)" in line and "switches" not in line

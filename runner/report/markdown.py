@@ -38,6 +38,7 @@ from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, thr
 from runner.results.document import (
     BackgroundKind,
     CellResult,
+    FoldedThreads,
     PreemptedRun,
     Preemptor,
     ProgramResult,
@@ -423,8 +424,57 @@ def _ended(p: ProgramResult) -> str:
     return f"exited with code {p.exit_code}" if p.exit_code is not None else "still running when the cell ended"
 
 
+GAPS_SHOWN = 3  # threads of a program whose settings history left changes out, named in its line; the rest are counted
+
+
+def _instant(ns: int) -> str:
+    """An instant of the cell, from its start gate, in seconds: `2.10 s`."""
+    return f"{ns / 1e9:.2f} s"
+
+
+def _folded_words(f: FoldedThreads) -> Markdown:
+    """`; 12,000 threads that exited once it had 4,096 thread records were counted together, not kept one by one (...)`."""
+    span = f"between {_instant(f.first_seen_ns)} and {_instant(f.last_gone_ns)}"
+    if f.measured:
+        cpu = f", {units.human_duration(f.cpu_time_ns)} of CPU time"
+        moved = f", {f.migrations:,} migrations" if f.migrations is not None else ""
+        sums = (
+            f"the {f.measured:,} measured: {f.involuntary:,} involuntary and {f.voluntary:,} voluntary switches, "
+            f"{f.minor_faults:,} minor and {f.major_faults:,} major faults{cpu}{moved}"
+        )
+    else:
+        sums = "none of them was read in the measured window"
+    out: str = md_text(
+        f"; {f.count:,} thread{'s' if f.count != 1 else ''} that exited once it had {f.cap:,} thread records "
+        f"{'were' if f.count != 1 else 'was'} counted together, not kept one by one ({span}; {sums})"
+    )
+    for r in f.rules:
+        missed = f", {r.not_as_asked:,} not as asked" if r.not_as_asked else ""
+        out += f"{md_text('; rule')} {md_code(r.rule)} {md_text(f'was applied to {r.applied:,} of them{missed}')}"
+    return Markdown(out)
+
+
+def _history_words(p: ProgramResult, threads: list[ThreadResult]) -> Markdown:
+    """`; talker/rtprog (main): its settings history keeps its first 16 and last 48 snapshots; 1,234 further changes ... not kept`."""
+    gaps = [(t, gap) for t in threads if t.program and t.process == p.name and (gap := t.history_not_kept) is not None]
+    out = ""
+    for t, gap in gaps[:GAPS_SHOWN]:
+        kept = f"its settings history keeps its first {gap.kept_first} and last {gap.kept_last} snapshots"
+        span = f"between {_instant(gap.from_ns)} and {_instant(gap.to_ns)}"
+        out += md_text(f"; {t.label(False)}: {kept}; {gap.count:,} further change{'s' if gap.count != 1 else ''} {span} not kept")
+    rest = gaps[GAPS_SHOWN:]
+    if rest:
+        changes = sum(gap.count for _, gap in rest)
+        out += md_text(f"; {len(rest):,} more threads' histories the same way: {changes:,} further changes not kept")
+    return Markdown(out)
+
+
 def program_lines(cell: CellResult) -> list[Markdown]:
-    """Per program: its command, the settings it was started with, how it ended, where its output is."""
+    """Per program: its command, the settings it was started with, how it ended, where its output is.
+
+    What the runner counted without keeping (threads folded beyond its cap, settings
+    changes a thread's history left out) is said here, with the span it covers.
+    """
     out = []
     for p in cell.programs:
         pid = f" (pid {p.pid})" if p.pid else ""
@@ -441,10 +491,11 @@ def program_lines(cell: CellResult) -> list[Markdown]:
             listed = f"; its threads were found by listing /proc every 2 ms, not by the kernel's process events{why}"
         elif p.threads_seen_note:
             listed = f"; {p.threads_seen_note}"
+        folded = _folded_words(p.threads_folded) if p.threads_folded is not None else ""
         out.append(
             Markdown(
                 f"{md_text(p.name)}: {md_code(shlex.join(p.argv))}{pid}, started as {md_text(policy_label(p.requested))}; "
-                f"{md_text(_ended(p))}{ran}{md_text(memory)}{output}{md_text(listed)}"
+                f"{md_text(_ended(p))}{ran}{md_text(memory)}{output}{md_text(listed)}{folded}{_history_words(p, cell.threads)}"
             )
         )
     return out
