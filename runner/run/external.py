@@ -59,8 +59,8 @@ HISTORY_FIRST = 16
 HISTORY_LAST = 48
 # Thread records a program keeps before threads that exit are folded into counts: far above what a program that creates
 # its threads as it starts holds (a ROS 2 node: tens), so only churn (a thread per request) reaches it, whose threads
-# hold a snapshot or two each (about 2 MiB for all 4,096).  The worst case, every record a full history, is 80 MiB of
-# memory and 32 MiB of results.json, however long the program runs.
+# hold a snapshot or two each: about 8 MiB of memory and 6 MiB of results.json for all 4,096.  The worst case, every
+# record a full history, is under 100 MiB of memory and 40 MiB of results.json, however long the program runs.
 MAX_THREADS = 4096
 
 
