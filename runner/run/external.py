@@ -181,7 +181,7 @@ class _Folded:
     rules: dict[int, list[int]] = field(default_factory=dict)  # rule index: [applied, not as asked]
 
     def add(self, t: _Thread, not_as_asked: bool) -> None:
-        """Count `t` (an exited thread) and add its counters, then forget it."""
+        """Count `t` (an exited thread) and add its counters, as measured to its last reading."""
         self.first_seen_ns = t.seen_ns if not self.count else min(self.first_seen_ns, t.seen_ns)
         self.last_gone_ns = max(self.last_gone_ns, t.gone_ns or t.seen_ns)
         self.count += 1
