@@ -419,3 +419,22 @@ def test_a_program_abandoned_at_its_gate_exits_0_without_exec_even_beside_a_late
                 os.waitpid(pid, 0)
         for fd in (*opened, out):
             os.close(fd)
+
+
+def test_the_watchdog_kills_every_process_it_holds_past_4096_and_refuses_a_pid_of_0() -> None:
+    """It kept the first 4,096 process ids and dropped the rest unsaid: a cell of more processes left them to run on."""
+    from runner.run import _probe
+
+    with open("/proc/sys/kernel/pid_max") as handle:
+        unused = int(handle.read()) + 1  # above the largest pid: no process has these
+    child = subprocess.Popen(["sleep", "30"], start_new_session=True)
+    watchdog = _probe.Watchdog(0)
+    try:
+        with pytest.raises(ValueError, match="pid 0"):
+            watchdog.arm(time.monotonic_ns() + 10**12, [child.pid, 0])  # kill(-0) would be the runner's own group
+        watchdog.arm(time.monotonic_ns() + 50_000_000, [*range(unused, unused + 5000), child.pid])
+        assert child.wait(timeout=5) == -signal.SIGKILL and watchdog.fired
+    finally:
+        watchdog.close()
+        child.kill()
+        child.wait()

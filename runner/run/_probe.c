@@ -2180,8 +2180,8 @@ typedef struct {
     pthread_mutex_t lock;
     pthread_cond_t cond;
     int64_t deadline_ns;   /* 0: disarmed */
-    int npids;
-    pid_t pids[4096];
+    Py_ssize_t npids;
+    pid_t *pids;           /* every process group it kills at the deadline, however many (malloc'd; NULL: none) */
     int fired;
     int quit;
     int running;
@@ -2200,8 +2200,8 @@ static void *watchdog_main(void *arg) {
         struct timespec ts = to_ts(w->deadline_ns);
         int rc = pthread_cond_timedwait(&w->cond, &w->lock, &ts);
         if (rc == ETIMEDOUT && w->deadline_ns && now_ns(CLOCK_MONOTONIC) >= w->deadline_ns) {
-            for (int i = 0; i < w->npids; i++) kill(-w->pids[i], SIGKILL);
-            for (int i = 0; i < w->npids; i++) kill(w->pids[i], SIGKILL);
+            for (Py_ssize_t i = 0; i < w->npids; i++) kill(-w->pids[i], SIGKILL);
+            for (Py_ssize_t i = 0; i < w->npids; i++) kill(w->pids[i], SIGKILL);
             w->fired = 1;
             w->deadline_ns = 0;
         }
@@ -2252,16 +2252,35 @@ static PyObject *Watchdog_arm(WatchdogObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "LO", &deadline, &pids)) return NULL;
     PyObject *seq = PySequence_Fast(pids, "pids must be a sequence");
     if (!seq) return NULL;
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    pid_t *list = PyMem_RawMalloc((size_t)(n ? n : 1) * sizeof(pid_t));
+    if (!list) {
+        Py_DECREF(seq);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        long pid = PyLong_AsLong(PySequence_Fast_GET_ITEM(seq, i));
+        if (pid == -1 && PyErr_Occurred()) break;
+        if (pid <= 0 || pid > INT_MAX) { /* kill(-0) or kill(-1) would signal far more than the cell */
+            PyErr_Format(PyExc_ValueError, "pid %ld: expected a process id above 0", pid);
+            break;
+        }
+        list[i] = (pid_t)pid;
+    }
+    Py_DECREF(seq);
+    if (PyErr_Occurred()) {
+        PyMem_RawFree(list);
+        return NULL;
+    }
     pthread_mutex_lock(&self->lock);
-    self->npids = 0;
-    for (Py_ssize_t i = 0; i < PySequence_Fast_GET_SIZE(seq) && self->npids < 4096; i++)
-        self->pids[self->npids++] = (pid_t)PyLong_AsLong(PySequence_Fast_GET_ITEM(seq, i));
+    pid_t *old = self->pids;
+    self->pids = list;
+    self->npids = n;
     self->deadline_ns = deadline;
     self->fired = 0;
     pthread_cond_broadcast(&self->cond);
     pthread_mutex_unlock(&self->lock);
-    Py_DECREF(seq);
-    if (PyErr_Occurred()) return NULL;
+    PyMem_RawFree(old);
     Py_RETURN_NONE;
 }
 
@@ -2269,8 +2288,11 @@ static PyObject *Watchdog_disarm(WatchdogObject *self, PyObject *Py_UNUSED(ignor
     pthread_mutex_lock(&self->lock);
     self->deadline_ns = 0;
     self->npids = 0;
+    pid_t *old = self->pids;
+    self->pids = NULL;
     pthread_cond_broadcast(&self->cond);
     pthread_mutex_unlock(&self->lock);
+    PyMem_RawFree(old);
     Py_RETURN_NONE;
 }
 
@@ -2294,6 +2316,7 @@ static PyObject *Watchdog_get_prio(WatchdogObject *self, void *closure) { return
 static void Watchdog_dealloc(WatchdogObject *self) {
     PyObject *r = Watchdog_close(self, NULL);
     Py_XDECREF(r);
+    PyMem_RawFree(self->pids);
     pthread_mutex_destroy(&self->lock);
     pthread_cond_destroy(&self->cond);
     Py_TYPE(self)->tp_free((PyObject *)self);

@@ -797,7 +797,7 @@ class _CellRun:
             if p.failure:
                 self.reason = p.failure
                 return
-        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs]
+        pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs if p.pid]
         now = time.monotonic_ns()
         head_start = COMMAND_HEAD_START_S if self.commands else 0.0
         t0 = now + int((head_start + start_margin(len(workers) + len(hogs), sum(w.nslots for w in workers))) * 1e9)
