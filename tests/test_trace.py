@@ -594,3 +594,18 @@ def test_the_guard_kills_before_it_waits_for_a_busy_trace_instance(monkeypatch):
     monkeypatch.setattr(guard.signal, "signal", lambda *args: None)  # the guard ignores Ctrl-C; this test process must not
     assert guard.main() == 0
     assert done == ["remove /t/instances/runner-1-0 wait=0.0", "kill 100", "remove /t/instances/runner-1-0 wait=2.0"]
+
+
+def test_a_full_histogram_bucket_halves_them_all_and_keeps_their_proportions() -> None:
+    """A thread woken every 10 us fills a bucket in half a day; it used to stop counting there, and the percentiles
+    of a long run skewed towards the buckets still counting, unsaid."""
+    from array import array
+
+    from runner.run import _trace
+
+    counts = array("I", [0] * _trace.BUCKETS)
+    counts[5], counts[7], counts[9] = 2**32 - 1, 2**31, 1
+    _trace.hist_add(counts, 5)
+    assert (counts[5], counts[7], counts[9]) == (2**31 + 1, 2**30, 1)  # halved, rounded up: no bucket empties
+    _trace.hist_add(counts, 9)
+    assert counts[9] == 2 and sum(counts) == 2**31 + 1 + 2**30 + 2

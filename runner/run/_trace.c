@@ -124,7 +124,7 @@ struct thread {
     uint64_t wakeups, preemptions, voluntary, migrations, cpu_changes, other_preemptors;
     uint64_t unseen_ins;      /* switch-outs with no switch-in traced before them */
     int64_t run_ns, lat_min, lat_max, lat_sum;
-    uint32_t *hist;           /* HIST_BUCKETS saturating counters, allocated at the first wake-up */
+    uint32_t *hist;           /* HIST_BUCKETS counters, halved together when one is full; allocated at the first wake-up */
     uint64_t cpus[CPU_WORDS];
     int npre, nworst;
     struct preemptor pre[MAX_PREEMPTORS];
@@ -308,16 +308,23 @@ static void heap_down(struct late *h, int n, int i) {
     }
 }
 
+/* Count a wake-up in bucket `i` of a thread's HIST_BUCKETS counters.  A full bucket (a thread woken every 10 us
+ * fills one in half a day) halves them all first, rounding up so that no bucket empties: the percentiles come from
+ * the counts' proportions, which this keeps (the wake-ups themselves are counted apart), where a saturated bucket
+ * would have skewed them unsaid. */
+static void hist_add(uint32_t *hist, int i) {
+    if (hist[i] == UINT32_MAX)
+        for (int k = 0; k < HIST_BUCKETS; k++) hist[k] = hist[k] / 2 + (hist[k] & 1);
+    hist[i]++;
+}
+
 static void add_wakeup(Reader *r, struct thread *t, int64_t lat, const struct rec *e) {
     t->wakeups++;
     t->lat_sum += lat;
     if (lat < t->lat_min) t->lat_min = lat;
     if (lat > t->lat_max) t->lat_max = lat;
     if (!t->hist && !(t->hist = calloc(HIST_BUCKETS, sizeof *t->hist))) r->nomem++;
-    if (t->hist) {
-        uint32_t *c = &t->hist[hist_index(lat)];
-        if (*c != UINT32_MAX) (*c)++;
-    }
+    if (t->hist) hist_add(t->hist, hist_index(lat));
     struct late w = {.latency = lat, .at = (int64_t)e->ts, .cpu = e->cpu, .tid = e->pid_a, .prio = e->prio_a};
     copy_comm(w.comm, e->comm_a);
     if (t->nworst < MAX_WORST) {
@@ -1204,8 +1211,27 @@ static PyTypeObject ReaderType = {
     .tp_methods = Reader_methods,
 };
 
+static PyObject *trace_hist_add(PyObject *mod, PyObject *args) {
+    Py_buffer view;
+    int i;
+    if (!PyArg_ParseTuple(args, "w*i", &view, &i)) return NULL;
+    if (view.len != (Py_ssize_t)(HIST_BUCKETS * sizeof(uint32_t)) || i < 0 || i >= HIST_BUCKETS) {
+        PyBuffer_Release(&view);
+        return PyErr_Format(PyExc_ValueError, "expected %d uint32 counters and a bucket among them", HIST_BUCKETS);
+    }
+    hist_add((uint32_t *)view.buf, i);
+    PyBuffer_Release(&view);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef trace_functions[] = {
+    {"hist_add", trace_hist_add, METH_VARARGS, "hist_add(counts, i): count one wake-up in bucket i as the reader does (tests)"},
+    {NULL, NULL, 0, NULL},
+};
+
 static struct PyModuleDef trace_module = {
-    PyModuleDef_HEAD_INIT, "runner.run._trace", "Native reader of the kernel's scheduler trace (tracefs ring-buffer pages).", -1, NULL,
+    PyModuleDef_HEAD_INIT, "runner.run._trace", "Native reader of the kernel's scheduler trace (tracefs ring-buffer pages).", -1,
+    trace_functions,
 };
 
 PyMODINIT_FUNC PyInit__trace(void) {

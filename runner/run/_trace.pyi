@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Optional
 
+from typing_extensions import Buffer
+
 # (kind, field names) in the order Reader takes its layouts
 FIELDS: tuple[tuple[str, tuple[str, ...]], ...]
 BUCKETS: int
@@ -21,6 +23,8 @@ FK_DATA_LOC: int
 TYPE_PADDING: int
 TYPE_TIME_EXTEND: int
 TYPE_TIME_STAMP: int
+
+def hist_add(counts: Buffer, i: int) -> None: ...  # HIST_BUCKETS uint32 counters, writable (an array("I"))
 
 # (event id, ((offset, size, kind), ...)) per kind of FIELDS; None: the kernel lacks the event
 Layout = Optional[tuple[int, Sequence[tuple[int, int, int]]]]
