@@ -66,13 +66,20 @@ class Scale:
         return f"{words} ({self.unit})" if self.unit else words
 
 
+_LONGEST_NUMBER = 10_000_000  # a duration column steps down to a smaller unit only while its largest stays below this
+
+
 def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
     """The one scale `values` of `unit` are written in.
 
     Durations in µs up to 10 ms (the unit of cyclictest and OSADL's plots), then ms up to 10 s,
     then s; with one decimal when the largest is below 100 in that unit and none above, so the
     largest keeps three significant digits (the histograms hold 0.78%) and all share its
-    precision.  Means of counts per callback with two decimals, counts whole.
+    precision.  But no value that is not zero may read as 0 or lose its first two digits: a
+    column of an OTHER cell's 142 ms beside a FIFO cell's 176 µs wrote the FIFO one as `0` ms.
+    Such a column steps down a unit (142,318 and 176 µs) while its largest stays under ten
+    million, then takes decimals (up to 3) for its smallest.  Means of counts per callback
+    with two decimals, counts whole.
     """
     if unit is Unit.COUNT:
         return Scale()
@@ -80,9 +87,25 @@ def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
         return Scale(decimals=2)
     if unit is Unit.PER_SECOND:
         return Scale(decimals=1)
-    largest = max((abs(v) for v in values if v is not None and math.isfinite(v)), default=0)
-    name, per = next(((n, p) for n, p in _DURATION_UNITS if largest < 10_000 * p), _DURATION_UNITS[-1])
-    return Scale(name, per, 1 if largest / per < 100 else 0)
+    sizes = [abs(v) for v in values if v is not None and math.isfinite(v) and v != 0]
+    largest, smallest = max(sizes, default=0), min(sizes, default=0)
+    at = next((i for i, (_, p) in enumerate(_DURATION_UNITS) if largest < 10_000 * p), len(_DURATION_UNITS) - 1)
+
+    def decimals(per: int) -> int:
+        return 1 if largest / per < 100 else 0
+
+    def too_coarse(per: int, places: int) -> bool:  # the smallest would show fewer than two significant digits
+        return bool(smallest) and smallest / per < 10 ** (1 - places)
+
+    while at > 0 and too_coarse(_DURATION_UNITS[at][1], decimals(_DURATION_UNITS[at][1])):
+        if largest / _DURATION_UNITS[at - 1][1] >= _LONGEST_NUMBER:
+            break
+        at -= 1
+    name, per = _DURATION_UNITS[at]
+    places = decimals(per)
+    while places < 3 and too_coarse(per, places) and at > 0:  # µs keeps whole microseconds, as cyclictest prints them
+        places += 1
+    return Scale(name, per, places)
 
 
 class Scope(str, enum.Enum):

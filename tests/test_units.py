@@ -4,6 +4,7 @@ import re
 
 import pytest
 
+from runner import figures as fg
 from runner import units
 
 
@@ -138,3 +139,18 @@ def test_the_duration_pattern_refuses_what_the_parser_refuses(text):
     assert not re.fullmatch(units.DURATION_PATTERN, text)
     with pytest.raises(units.UnitError):
         units.parse_duration(text)
+
+
+@pytest.mark.parametrize(
+    "values, shown",
+    [
+        ([142_318_000, 176_000], ["142,318", "176"]),  # OTHER's 142 ms beside FIFO's 176 µs: was `142` and `0` ms
+        ([142_318_000, 300_000_000], ["142", "300"]),  # nothing small: ms as before
+        ([20_000_000_000, 200_000], ["20,000.00", "0.20"]),  # µs would be too long a number: ms, with decimals
+        ([5_400, 176_000], ["5", "176"]),  # whole microseconds, as cyclictest prints them
+        ([0, 142_000_000], ["0", "142"]),  # a zero is a zero
+    ],
+)
+def test_a_duration_column_shows_no_value_that_is_not_zero_as_zero(values, shown):
+    column = fg.scale(fg.Unit.NS, values)
+    assert [column.number(v) for v in values] == shown
