@@ -117,18 +117,6 @@ def test_seed_inheritance_patterns_are_what_the_plan_says():
     assert [r[0] for r in expected_rows("callback_group") if r[1] is Policy.FIFO] == ["rt_sub"]
 
 
-def test_the_readme_format_example_validates(tmp_path):
-    import re
-
-    with open(os.path.join(REPO, "README.md")) as handle:
-        example = re.findall(r"```yaml\n(.*?)```", handle.read(), re.S)[0]
-    # its last expectation selects matrix cells; the example has no matrix, so drop it here
-    example = "\n".join(line for line in example.splitlines() if "cells: {policy" not in line)
-    path = tmp_path / "example.yaml"
-    path.write_text(example)
-    assert run_cli("validate", str(path)).code == 0
-
-
 @pytest.mark.parametrize("name", ["policy_matrix", "memory_lock"])
 def test_baselines_recorded_by_earlier_versions_still_compare(name):
     """A new scenario key left at its default must not change a cell's spec hash, or every stored baseline is refused."""

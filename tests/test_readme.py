@@ -1,0 +1,105 @@
+"""README's examples are checked against the tool, so the documentation cannot drift from it unseen.
+
+Every fenced ```yaml block of README.md that is a whole scenario (a top-level `processes:` key,
+the one key a scenario needs: `name` defaults to the file name) is validated as `runner validate`
+validates it.  Fragments (a few top-level keys shown on their own) have no `processes:` and are
+skipped; a block whose first line is `# fragment` is skipped too, and one whose first line is
+`# invalid` must be refused, so an example of a mistake stays one.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from conftest import REPO
+
+from runner.errors import ScenarioError
+from runner.scenario.loader import load_scenario
+
+README = os.path.join(REPO, "README.md")
+_FENCE = re.compile(r"^(?P<indent>[ \t]*)```yaml[ \t]*\n(?P<body>.*?)^(?P=indent)```", re.M | re.S)
+
+
+@dataclass(frozen=True)
+class Block:
+    """A fenced yaml block of a markdown text: its text, dedented, and the line its first line is on."""
+
+    line: int
+    text: str
+
+    @property
+    def marker(self) -> str:
+        """`fragment`, `invalid` or '' from a first line `# fragment` / `# invalid`: how the block is meant."""
+        first = self.text.split("\n", 1)[0].strip()
+        return first[1:].strip().split()[0] if re.fullmatch(r"#\s*(fragment|invalid)\b.*", first) else ""
+
+    @property
+    def is_scenario(self) -> bool:
+        """Whether the block is a whole scenario: it has a top-level `processes:` key."""
+        return re.search(r"^processes:", self.text, re.M) is not None
+
+
+def yaml_blocks(text: str) -> list[Block]:
+    """Every fenced ```yaml block of `text`, with the 1-based line of its first line of YAML."""
+    blocks = []
+    for match in _FENCE.finditer(text):
+        indent = match.group("indent")
+        body = "".join(line[len(indent) :] if line.startswith(indent) else line for line in match.group("body").splitlines(True))
+        blocks.append(Block(text.count("\n", 0, match.start("body")) + 1, body))
+    return blocks
+
+
+def scenario_blocks(text: str) -> list[Block]:
+    """The blocks of `text` that are whole scenarios and not marked as fragments."""
+    return [b for b in yaml_blocks(text) if b.is_scenario and b.marker != "fragment"]
+
+
+def problems_of(block: Block, folder: Path) -> list[str]:
+    """What `runner validate` reports for `block` (the same loader, with for_run False), at README's lines."""
+    path = folder / f"readme-line-{block.line}.yaml"
+    path.write_text(block.text, encoding="utf-8")
+    try:
+        load_scenario(str(path), for_run=False)
+    except ScenarioError as exc:
+        return [f"README.md:{block.line + p.line - 1}:{p.col}: {p.path}: {p.message}" for p in exc.problems if p.severity == "error"]
+    return []
+
+
+def _readme() -> str:
+    with open(README, encoding="utf-8") as handle:
+        return handle.read()
+
+
+BLOCKS = scenario_blocks(_readme())
+
+
+def test_readme_has_its_scenario_examples():
+    """The format, matrix, programs and command: examples are all found; an empty list would check nothing."""
+    assert len(BLOCKS) >= 4, [b.line for b in BLOCKS]
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=lambda b: f"README.md:{b.line}")
+def test_each_scenario_example_of_the_readme_is_valid_as_written(block, tmp_path):
+    problems = problems_of(block, tmp_path)
+    if block.marker == "invalid":
+        assert problems, f"the block at README.md:{block.line} is marked invalid, but runner validate accepts it"
+    else:
+        assert not problems, f"the scenario at README.md:{block.line} is invalid:\n" + "\n".join(problems)
+
+
+def test_blocks_are_found_at_their_line_and_fragments_are_told_apart():
+    text = "intro\n\n```yaml\nname: a\nprocesses: []\n```\n\n  ```yaml\n  latency_bound: 1ms\n  ```\n```yaml\n# fragment\nprocesses:\n```\n"
+    blocks = yaml_blocks(text)
+    assert [(b.line, b.is_scenario, b.marker) for b in blocks] == [(4, True, ""), (9, False, ""), (12, True, "fragment")]
+    assert blocks[1].text == "latency_bound: 1ms\n"
+    assert scenario_blocks(text) == blocks[:1]
+
+
+def test_a_problem_is_reported_at_its_readme_line(tmp_path):
+    (block,) = yaml_blocks("\n\n```yaml\nname: a\nprocesses:\n  - name: app\n    main: {sched: fifo:100}\n```\n")
+    (problem,) = problems_of(block, tmp_path)
+    assert problem.startswith("README.md:7:") and "priority 100 is out of range" in problem, problem
