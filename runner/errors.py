@@ -123,7 +123,13 @@ def special_file(path: str) -> str:
     return next((words for test, words in kinds if test(mode)), "")
 
 
+def closest(word: str, choices: Iterable[str]) -> str | None:
+    """The choice `word` is probably a typo of, or None: what `did_you_mean` suggests."""
+    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
 def did_you_mean(word: str, choices: Iterable[str]) -> str:
     """Return ` (did you mean 'x'?)` for the closest choice, or an empty string."""
-    close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1, cutoff=0.6)
-    return f"; did you mean {close[0]!r}?" if close else ""
+    close = closest(word, choices)
+    return f"; did you mean {close!r}?" if close is not None else ""

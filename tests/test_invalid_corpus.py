@@ -67,3 +67,20 @@ def test_one_invalid_process_hides_no_cross_reference_problem_and_invents_none()
         load_scenario(path)
     reported = sorted(str(p).removeprefix(f"{path}:") for p in caught.value.problems)
     assert reported == sorted(expectations(path)), "exactly the problems written in the file: none about t1 or p/t1"
+
+
+def test_a_typo_of_a_required_key_is_one_problem_not_two():
+    """`polcy:` for `policy:` is an unknown key with its "did you mean"; pydantic's "missing 'policy'" beside it says it again."""
+    path = os.path.join(REPO, "tests", "invalid", "unknown_key.yaml")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    assert [str(p).removeprefix(f"{path}:") for p in caught.value.problems] == expectations(path)
+
+
+def test_a_required_key_left_out_with_no_typo_near_it_is_still_missing(write_scenario):
+    path = write_scenario("name: x\nprocesses:\n  - name: app\n    main: {sched: {priority: 80, colour: red}, work: spin}\n")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    reported = [str(p).removeprefix(f"{path}:") for p in caught.value.problems]
+    assert "4:19: processes[0].main.sched.policy: missing required key 'policy'" in reported, reported
+    assert any("unknown key 'colour'" in r for r in reported), reported

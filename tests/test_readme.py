@@ -4,7 +4,8 @@ Every fenced ```yaml block of README.md that is a whole scenario (a top-level `p
 the one key a scenario needs: `name` defaults to the file name) is validated as `runner validate`
 validates it.  Fragments (a few top-level keys shown on their own) have no `processes:` and are
 skipped; a block whose first line is `# fragment` is skipped too, and one whose first line is
-`# invalid` must be refused, so an example of a mistake stays one.
+`# invalid` must be refused, so an example of a mistake stays one.  A ```text block that shows
+`$ runner validate FILE` shows what the tool prints for that file of the repository, exactly.
 """
 
 from __future__ import annotations
@@ -15,13 +16,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from conftest import REPO
+from conftest import REPO, run_cli
 
 from runner.errors import ScenarioError
 from runner.scenario.loader import load_scenario
 
 README = os.path.join(REPO, "README.md")
 _FENCE = re.compile(r"^(?P<indent>[ \t]*)```yaml[ \t]*\n(?P<body>.*?)^(?P=indent)```", re.M | re.S)
+_VALIDATE_SAMPLE = re.compile(r"^```text\n\$ runner validate (?P<args>[^\n]*)\n(?P<output>.*?)^```", re.M | re.S)
 
 
 @dataclass(frozen=True)
@@ -103,3 +105,18 @@ def test_a_problem_is_reported_at_its_readme_line(tmp_path):
     (block,) = yaml_blocks("\n\n```yaml\nname: a\nprocesses:\n  - name: app\n    main: {sched: fifo:100}\n```\n")
     (problem,) = problems_of(block, tmp_path)
     assert problem.startswith("README.md:7:") and "priority 100 is out of range" in problem, problem
+
+
+VALIDATE_SAMPLES = [(m.group("args"), m.group("output")) for m in _VALIDATE_SAMPLE.finditer(_readme())]
+
+
+def test_readme_shows_a_validate_sample():
+    assert VALIDATE_SAMPLES, "README's sample of runner validate's output was not found"
+
+
+@pytest.mark.parametrize("args, shown", VALIDATE_SAMPLES, ids=[a for a, _ in VALIDATE_SAMPLES])
+def test_readmes_validate_sample_is_what_the_tool_prints(args, shown, monkeypatch):
+    """The sample is run from the repository's root, as its relative paths are written."""
+    monkeypatch.chdir(REPO)
+    done = run_cli("validate", *args.split())
+    assert done.out + done.err == shown

@@ -14,7 +14,7 @@ from typing import Any, Union, cast, get_args, get_origin
 
 from pydantic import BaseModel, ValidationError
 
-from runner.errors import Problem, did_you_mean
+from runner.errors import Problem, closest, did_you_mean
 from runner.scenario.model import PROGRAM_TAG, WORKERS_TAG, KeyProblem, ProcessSpec, ProgramSpec
 from runner.scenario.yamlsource import Document, Path
 
@@ -132,11 +132,33 @@ def _fields_at(root: type[BaseModel], loc: tuple[Any, ...]) -> list[str] | None:
     return None
 
 
+def _typo_targets(errors: list[Any], root: type[BaseModel]) -> set[tuple[Any, ...]]:
+    """The required keys an unknown key is a typo of: each as the location pydantic says it is missing at.
+
+    `sched: {polcy: fifo}` is one mistake that pydantic reports twice: an unknown key `polcy` and a
+    missing key `policy` in the same mapping.  The unknown key's "did you mean 'policy'?" already
+    says both, so the missing key's error is redundant there (and only there: a required key left out
+    with no typo near it is still reported).
+    """
+    targets: set[tuple[Any, ...]] = set()
+    for err in errors:
+        if err["type"] == "extra_forbidden":
+            loc = tuple(err["loc"])
+            meant = closest(str(loc[-1]), _fields_at(root, loc[:-1]) or [])
+            if meant is not None:
+                targets.add((*loc[:-1], meant))
+    return targets
+
+
 def problems_from(exc: ValidationError, doc: Document, data: Any, root: type[BaseModel], prefix: Path = ()) -> list[Problem]:
-    """One Problem per pydantic error, located in `doc`."""
+    """One Problem per pydantic error, located in `doc`; a missing key that an unknown key is a typo of is left out."""
     out: list[Problem] = []
-    for err in exc.errors(include_url=False):
+    errors = exc.errors(include_url=False)
+    typos = _typo_targets(errors, root)
+    for err in errors:
         loc = tuple(err["loc"])
+        if err["type"] == "missing" and loc in typos:
+            continue  # said by the unknown key's "did you mean"
         path, value = _data_path(data, loc)
         full = prefix + path
         kind = err["type"]
