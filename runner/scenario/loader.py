@@ -3,8 +3,10 @@
 This is the one entry point the rest of the runner uses: YAML (with positions) ->
 matrix expansion -> per-cell substitution -> typed `Scenario` per cell -> checks
 that span fields (expectation targets, names, matrix selectors) -> limits (fixed
-ceilings, and this machine's when `load_scenario` reads them).  Every problem in the
-file is collected and raised at once.
+ceilings, and this machine's when `load_scenario` reads them).  Problems are collected
+and raised together, pass by pass: the YAML and the matrix, then the models of every cell,
+then the checks that span fields and the limits, which need a cell that validated (the
+processes that did validate are cross-checked beside an invalid one: _partial_cross_checks).
 
 Validation is linear in the number of cells: cells that resolve to the same data are
 validated once, and what spans the matrix (selector keys and values) is indexed once
