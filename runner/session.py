@@ -59,6 +59,7 @@ class RunOptions:
     command: list[str]
     repeat: int = 1
     shuffle_seed: Optional[int] = None
+    shuffle_drawn: bool = False  # --shuffle without a seed: the run drew it, so it prints it for the order to be run again
     settle_ns: int = DEFAULT_SETTLE_NS
     shard: Optional[Shard] = None
     resume: Optional[str] = None
@@ -103,6 +104,7 @@ class RunOptions:
             ["runner"] + sys.argv[1:],
             repeat=repeat,
             shuffle_seed=seed,
+            shuffle_drawn=ns.shuffle == "random",
             settle_ns=settle,
             shard=Shard.parse(ns.shard) if ns.shard else None,
             resume=ns.resume,
@@ -452,6 +454,8 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         say(f"{loaded.name}: {empty}; nothing to run, results in {results_path}")
     else:
         say(f"{loaded.name}: {len(units_left)} cell{'s' if len(units_left) != 1 else ''} to run{skipped}, results in {results_path}")
+    if options.shuffle_drawn and options.shuffle_seed is not None:
+        say(f"shuffled with seed {options.shuffle_seed}: --shuffle {options.shuffle_seed} runs the cells in this order again")
     with run.backend.hold_dma_latency(options.dma_latency_us) as dma:
         doc.machine.dma_latency = dma  # the cells this run records carry the hold they ran under
         if options.dma_latency_us is not None and not dma.held:

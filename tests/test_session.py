@@ -463,3 +463,16 @@ def test_a_run_stopped_before_any_cell_the_baseline_holds_finished_exits_130_wit
     assert code == 130 and results["status"] == "interrupted"
     assert "no comparison was made" in capsys.readouterr().err
     assert os.path.exists(tmp_path / "r" / "report.md")
+
+
+def test_a_drawn_shuffle_seed_is_printed_at_the_start_so_the_order_can_be_run_again(tmp_path, capsys):
+    """`--shuffle` alone draws a seed; printed on the terminal before the first cell, it is the one results.json records."""
+    backend = FakeBackend(preempted_other())
+    _, results = run(MATRIX, tmp_path / "r", backend, "--repeat", "2", "--shuffle")
+    seed = results["plan"]["shuffle_seed"]
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1] == f"shuffled with seed {seed}: --shuffle {seed} runs the cells in this order again", lines[:3]
+    again = FakeBackend(preempted_other())
+    run(MATRIX, tmp_path / "s", again, "--repeat", "2", "--shuffle", str(seed))
+    assert again.ran == backend.ran
+    assert "shuffled with seed" not in capsys.readouterr().out, "a seed the user gave is not said back"
