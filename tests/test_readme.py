@@ -120,3 +120,14 @@ def test_readmes_validate_sample_is_what_the_tool_prints(args, shown, monkeypatc
     monkeypatch.chdir(REPO)
     done = run_cli("validate", *args.split())
     assert done.out + done.err == shown
+
+
+def test_the_run_synopsis_of_commands_names_every_run_option():
+    """README's synopsis of `runner SCENARIO.yaml` left out --no-trace and --allow-priority-99; `runner run --help` is the list."""
+    from runner.cli import _run_parser
+
+    commands = _readme().split("\n## Commands\n", 1)[1]
+    block = commands.split("```text\n", 1)[1].split("```", 1)[0]
+    synopsis = block.split("\nrunner validate", 1)[0]  # the run's lines and --list's, not watch's options of the same names
+    options = {o for action in _run_parser()._actions for o in action.option_strings if o.startswith("--") and o != "--help"}
+    assert not sorted(o for o in options if not re.search(rf"{re.escape(o)}\b(?!-)", synopsis))
