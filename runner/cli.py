@@ -436,7 +436,7 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.outdir import REPORT_NAME, writable_file
     from runner.report.compare import thresholds_for
     from runner.report.markdown import render_run
-    from runner.report.publish import comparison_text, write_report
+    from runner.report.publish import comparison_text, report_files
     from runner.results.read import load
     from runner.session import exit_code
 
@@ -464,10 +464,14 @@ def _cmd_report(argv: list[str]) -> int:
         target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, REPORT_NAME)
         try:
             os.makedirs(os.path.dirname(target), exist_ok=True)  # as writable_file found it could be
-            path = write_report(doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target))
+            path, failed = report_files(
+                doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target), quiet_input_errors=True
+            )
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
         say(f"report: {path}")
+        if failed is not None:  # a samples file the plots could not read is this command's input: its error, report written
+            raise failed
     return int(exit_code([], regressions))
 
 

@@ -522,6 +522,8 @@ def test_bad_samples_files_are_one_line_errors(tmp_path, content, message):
     done = run_cli("report", str(tmp_path / "run"))
     assert done.code == 2, done.err
     assert done.err.startswith(f"{samples}:") and message in done.err and "Traceback" not in done.err
+    written = (tmp_path / "run" / "report.md").read_text(encoding="utf-8")  # said once the report is written, not instead of it
+    assert f"Plots skipped: drawing them failed ({samples}:" in written.replace("\\", "")
 
 
 def test_a_figure_that_is_not_a_number_is_written_as_null(tmp_path):
@@ -642,6 +644,55 @@ def test_plots_draw_any_name(tmp_path, name):
     assert os.path.exists(path)
     svgs = [n for n in os.listdir(tmp_path / "run" / "plots") if n.endswith(".svg")]
     assert len(svgs) == 5  # the renamed thread and the recorded one, two plots each, and the aggregate latency plot
+
+
+def _errored_with_a_thread_of_its_own(folder: str):
+    """The recorded matrix in `folder`, its first cell an error in which no callback ran, of a thread no other cell has."""
+    import shutil
+
+    from reportdata import main_thread
+
+    from runner.results.document import Status
+
+    shutil.copytree(MATRIX, folder)
+    doc = report_load(folder)
+    cell = doc.cells[0]
+    i = cell.threads.index(main_thread(cell))
+    t = cell.threads[i]
+    cell.threads[i] = t.model_copy(update={"name": "only_here", "figures": t.figures.model_copy(update={"callbacks": 0})})
+    cell.status, cell.reason, doc.status = Status.ERROR, "worker crashed", "error"
+    doc.save(os.path.join(folder, "results.json"))
+    return report_load(folder)
+
+
+def test_a_thread_only_a_cell_without_callbacks_has_is_not_plotted(tmp_path, capsys):
+    """Its key came from every cell, the plotted cells were those with callbacks: no entry, and entries[0] crashed the report."""
+    from runner.report.plots import write_plots
+
+    doc = _errored_with_a_thread_of_its_own(str(tmp_path / "run"))
+    drawn = write_plots(doc, str(tmp_path / "run"), report.thread_labels(doc.cells))
+    assert drawn and not any("only_here" in p.title for p in drawn)
+    text = Path(write_report(doc, str(tmp_path / "run"))).read_text(encoding="utf-8")
+    assert "Plots skipped" not in text and "warning" not in capsys.readouterr().err
+
+
+def test_a_plot_that_fails_to_draw_costs_neither_the_report_nor_the_junit_file(tmp_path, monkeypatch, capsys):
+    """A failure in the plots raised out of `finish` before JUnit was written: CI got exit 70 and no report, no JUnit."""
+    from runner.report import plots
+    from runner.report.publish import finish
+
+    def broken(*args: object, **kwargs: object) -> list[report.Plot]:
+        raise IndexError("list index out of range")
+
+    monkeypatch.setattr(plots, "write_plots", broken)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    junit = tmp_path / "junit.xml"
+    assert finish(matrix(), str(folder), None, [], True, True, {}, junit=str(junit)) == 0
+    text = (folder / "report.md").read_text(encoding="utf-8")
+    assert "Plots skipped: drawing them failed (a bug in the runner, please report it: IndexError: list index out of range)" in text
+    assert junit.exists() and "<testsuites" in junit.read_text()
+    assert "warning: Plots skipped: drawing them failed" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------- plots that do not grow with threads

@@ -34,8 +34,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from runner import histogram
+from runner.errors import RunnerError
 from runner.histogram import Histogram
-from runner.report.fmt import Markdown, md_code
+from runner.report.fmt import Markdown, md_code, md_text
 from runner.report.markdown import Plot, callback_threads, first_runs, matrix_order, threads_of_interest
 from runner.results.document import CellResult, RunDocument, ThreadResult
 from runner.results.files import slug, write_atomic
@@ -65,12 +66,23 @@ def available() -> bool:
     return importlib.util.find_spec("matplotlib") is not None
 
 
-def skipped_note() -> Markdown:
-    """The report's line when plots were asked for and matplotlib is not installed."""
-    return Markdown(
-        f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(install_hint())}, "
-        f"then {md_code('runner report')} draws them)."
-    )
+def skipped_note(failure: BaseException | None = None) -> Markdown:
+    """The report's line when plots were asked for and not drawn: matplotlib is not installed, or drawing failed.
+
+    A failure is said with what raised it, so the report and the JUnit file written after it are not
+    lost to a plot: an error the user can act on (a samples file outside the results folder) in its
+    own words, anything else as the bug in the runner it is.
+    """
+    if failure is None:
+        return Markdown(
+            f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(install_hint())}, "
+            f"then {md_code('runner report')} draws them)."
+        )
+    if isinstance(failure, RunnerError):
+        why = str(failure)
+    else:
+        why = f"a bug in the runner, please report it: {type(failure).__name__}: {failure}"
+    return Markdown(f"Plots skipped: drawing them failed ({md_text(why)}); the rest of the report is complete.")
 
 
 @dataclass(frozen=True)
@@ -248,7 +260,8 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
     labels = labels or {}
     ordered = matrix_order(doc)  # as the report orders them, so both pick the same threads of interest
     cells = [c for c in ordered if any(t.figures.callbacks for t in callback_threads(c))]
-    keys = threads_of_interest(first_runs(ordered))
+    # of the cells drawn only: a thread only a cell without callbacks has (one that errored) has nothing to draw
+    keys = threads_of_interest(first_runs(cells))
     if not cells or not keys:
         return []
     os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
@@ -278,6 +291,8 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
     shown = cells[:MAX_SERIES]
     for key in keys:
         entries = [(c, next(t for t in c.threads if t.key == key)) for c in cells if any(t.key == key for t in c.threads)]
+        if not entries:
+            continue
         series = [_series(_label(c), t, c, samples) for c, t in entries[:MAX_SERIES]]
         thread = entries[0][1]
         draw(plot_name(thread), labels.get(key, key), series, len(entries), "cells")

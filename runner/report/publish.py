@@ -29,21 +29,50 @@ def write_report(
     """Render `doc` to `folder`/report.md (with plots under `folder`/plots); return the report's path.
 
     Without matplotlib (plotting is an extra) the report says the plots were skipped and why,
-    and so does a warning; `plots=False` (`--no-plots`) draws none and says nothing.
+    and so does a warning; `plots=False` (`--no-plots`) draws none and says nothing.  Plots
+    that fail to draw are skipped the same way, saying why (`report_files`): the report, and
+    the JUnit file written after it, are the run's outcome, and a plot is never worth losing them.
+    """
+    path, _ = report_files(doc, folder, comparison, plots, pid_width, name)
+    return path
+
+
+def report_files(
+    doc: RunDocument,
+    folder: str,
+    comparison: Optional[str] = None,
+    plots: bool = True,
+    pid_width: int = 5,
+    name: str = REPORT_NAME,
+    quiet_input_errors: bool = False,
+) -> tuple[str, Optional[RunnerError]]:
+    """`write_report`, and the error the plots failed with when it is the input's (a samples file that cannot be read).
+
+    Whatever makes a plot fail (that error, or a bug in the runner) is caught here: the report
+    is written without plots and says why, and so does a warning.  `runner report`, whose output
+    the plots are, passes `quiet_input_errors` to say an input error itself, as its error, once
+    the report is written; a run's outcome is its cells, and the warning says it there.
     """
     from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
 
     links: list[report.Plot] = []
     note = None
+    failed: Optional[RunnerError] = None
     if plots and drawing.available():
-        links = drawing.write_plots(doc, folder, report.thread_labels(doc.cells))
+        try:
+            links = drawing.write_plots(doc, folder, report.thread_labels(doc.cells))
+        except Exception as exc:  # any failure: said in the report and a warning, never the report lost for it
+            note = drawing.skipped_note(exc)
+            failed = exc if isinstance(exc, RunnerError) else None
+            if failed is None or not quiet_input_errors:
+                warn(note)
     elif plots:
         note = drawing.skipped_note()
         warn(note)
     text = report.render_run(doc, links, comparison, pid_width, note)
     path = os.path.join(folder, name)
     write_atomic(path, text)
-    return path
+    return path, failed
 
 
 def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
