@@ -524,8 +524,6 @@ def _cmd_compare(argv: list[str]) -> int:
     from runner.outdir import writable_file, write_output
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import append_step_summary, ci_outputs, compare_files
-    from runner.results.document import Status
-    from runner.results.merge import unfinished
     from runner.results.read import load
     from runner.session import exit_code
 
@@ -543,10 +541,9 @@ def _cmd_compare(argv: list[str]) -> int:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
     ci_outputs(new, cmp, junit, dict(os.environ), run=False)
-    incomplete = unfinished(new)
-    if incomplete:  # never green: what it lacks was never compared
-        note(f"runner: {ns.new}: {incomplete}; only the cells it holds were compared")
-    return int(exit_code([Status.ERROR] if incomplete else [], regressions))
+    if cmp.incomplete:  # never green: what it lacks was never compared
+        note(f"runner: {ns.new}: {cmp.incomplete}; only the cells it holds were compared")
+    return int(exit_code(cmp.statuses(), regressions))
 
 
 def _merge_parser() -> argparse.ArgumentParser:

@@ -339,6 +339,22 @@ def test_a_run_that_never_finished_is_never_green_against_its_baseline(tmp_path)
     assert "✅" not in headline and "only the cells it holds were compared" in done.err
 
 
+def test_an_interrupted_run_is_never_green_and_exits_130_as_the_run_did(tmp_path):
+    """A run stopped between cells (interrupted, 2 of 5 cells, all passed) compared as `✅ No regression`, exit 0, a clean JUnit."""
+    stopped = copy.deepcopy(matrix())
+    stopped.cells, stopped.status = stopped.cells[:2], "interrupted"
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", MATRIX, save(stopped, tmp_path / "new"), "--junit", str(junit))
+    assert done.code == 130, done.err
+    headline = next(line for line in done.out.splitlines() if "This run is incomplete" in line)
+    assert headline.startswith(
+        "⚠️ This run is incomplete: its run was interrupted (results.json says interrupted): 3 of its 5 cell runs are missing."
+    )
+    assert "✅" not in headline and "only the cells it holds were compared" in done.err
+    xml = junit.read_text()
+    assert xml.count("<error") == 3 and "not run: the run ended before it (its status: interrupted)" in xml
+
+
 def test_a_figure_the_baseline_has_and_this_run_lacks_is_in_the_headline():
     base = matrix()
     cell = base.cells[1].id

@@ -26,6 +26,7 @@ from runner.figures import Figure, Number
 from runner.report.fmt import fmt_figure
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.files import show_value
+from runner.results.merge import incomplete
 
 
 @dataclass(frozen=True)
@@ -165,6 +166,14 @@ class Comparison:
     cells: list[CellChange] = field(default_factory=list)
     figures: list[FigureChange] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    incomplete: str = ""  # why the new run is not the whole run it was asked to be (`merge.incomplete`); "" when it is
+
+    def statuses(self) -> list[Status]:
+        """What decides the comparison's exit code beside its regressions (`session.exit_code`): the new run itself
+        when it is incomplete, interrupted (130) when it was asked to stop, an error (4) when it never finished."""
+        if not self.incomplete:
+            return []
+        return [Status.INTERRUPTED if self.new.status == Status.INTERRUPTED.value else Status.ERROR]
 
     def compared(self) -> list[str]:
         """Cells present in both runs, which are the ones actually compared."""
@@ -279,7 +288,7 @@ def compare(
     """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
     check_comparable(base, new, base_name, new_name)
     check_common(base, new, base_name, new_name)
-    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS))
+    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS), incomplete=incomplete(new))
     b, n = _groups(base), _groups(new)
     was, now = base.machine, new.machine
     if (was.hostname, was.kernel) != (now.hostname, now.kernel):

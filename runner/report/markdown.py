@@ -47,7 +47,6 @@ from runner.results.document import (
     ThreadResult,
     Verdict,
 )
-from runner.results.merge import unfinished
 from runner.results.pstable import render_ps
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
@@ -1080,7 +1079,7 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
-    incomplete = unfinished(cmp.new)  # what it holds may compare well; what it lacks was never measured: never ✅
+    incomplete = cmp.incomplete  # what it holds may compare well; what it lacks was never measured: never ✅
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
         f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}"

@@ -140,7 +140,8 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
     """Every cell run of `doc` with its checks; `comparison` adds each figure against the baseline.
 
     `run` False leaves out the runs and expectations (`runner compare`: only the comparison).
-    Cells `doc` was asked for but has no result of are skipped; so are cells only the baseline has.
+    Cells `doc` was asked for but has no result of are skipped (errors when the run did not finish,
+    and in a comparison alone of an incomplete run); so are cells only the baseline has.
     """
     repeated = any(c.repeat for c in doc.cells)
     labels = thread_labels(doc.cells + (comparison.base.cells if comparison else []))
@@ -173,9 +174,11 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
             out.append(item)
     ran = {c.id for c in doc.cells}
     lost = doc.status in ("running", Status.ERROR.value)  # killed, crashed, or stopped by an error: what it had not reached is lost
-    for cell_id in _unique(doc.cell_ids) if run else []:
+    # a comparison alone of an incomplete run (one asked to stop too): what it lacks was never compared, an error, never a pass
+    lacking = not run and comparison is not None and bool(comparison.incomplete)
+    for cell_id in _unique(doc.cell_ids) if run or lacking else []:
         if cell_id not in ran:
-            out.append(_lost(cell_id, doc.status) if lost else _skipped(cell_id, "not run"))
+            out.append(_lost(cell_id, doc.status) if lost or lacking else _skipped(cell_id, "not run"))
     unrun = {item.cell: item for item in out if item.cell not in ran}
     for c in comparison.cells if comparison else []:
         if c.verdict == Verdict.MISSING:  # one test suite per cell: beside its not-run check when it has one

@@ -34,6 +34,20 @@ def unfinished(doc: RunDocument) -> str:
     return ""
 
 
+def incomplete(doc: RunDocument) -> str:
+    """Why `doc` is not the whole run it was asked to be, in words, whatever ended it; "" when it is.
+
+    `unfinished`, and a run asked to stop too: its cells may compare well, but the cell runs it
+    lacks were never measured, so a comparison of it is never a pass (`runner compare` exits 130,
+    as the run did).  A merge asks for no runs of its own (`RunDocument.planned_runs`).
+    """
+    if doc.status != "interrupted":
+        return unfinished(doc)
+    lacking, planned = doc.missing_runs(), len(doc.planned_runs())
+    missing = f": {lacking} of its {planned} cell runs are missing" if lacking else ""
+    return f"its run was interrupted (results.json says interrupted){missing}"
+
+
 def merge(paths: list[str], out: str) -> tuple[RunDocument, list[str]]:
     """Merge the results in `paths` (folders or results.json files) into `out`; the merged document, and its errors.
 
