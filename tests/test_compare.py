@@ -12,6 +12,7 @@ from reportdata import MATRIX, main_thread, matrix, with_figures
 from runner.errors import ScenarioError, UsageError
 from runner.report import compare as cmp
 from runner.results.document import Status
+from runner.results.read import load
 
 
 def save(doc, folder) -> str:
@@ -120,6 +121,39 @@ def test_a_cell_that_now_fails_is_a_regression():
     new.cells[2].status = Status.ERROR
     result = cmp.compare(base, new)
     assert result.regressed_cells() == [base.cells[2].id]
+
+
+def test_a_cell_that_errs_in_both_runs_is_a_run_error_not_within_threshold(tmp_path):
+    """`error → error ✅ within threshold`, a ✅ headline and exit 0: the new run's own errors were never looked at."""
+    runs = []
+    for name in ("base", "new"):
+        doc = copy.deepcopy(matrix())
+        doc.cells[1].status, doc.cells[1].reason, doc.status = Status.ERROR, "worker killed", "error"
+        runs.append(save(doc, tmp_path / name))
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", *runs, "--junit", str(junit))
+    assert done.code == 4, done.err
+    headline = done.out.split("\n\n")[1]
+    assert headline.startswith("💥 **1 cell of this run could not run or was cut short**: policy=fifo,priority=80 (error).")
+    assert "✅" not in headline
+    row = next(line for line in done.out.splitlines() if line.startswith("| policy=fifo,priority=80") and "error" in line)
+    assert "💥 run error (error → error)" in row and "within threshold" not in row
+    assert 'message="the cell could not run or was cut short: error → error"' in junit.read_text()
+    result = cmp.compare(load(runs[0]), load(runs[1]))
+    assert [c.verdict for c in result.cells if c.cell == "policy=fifo,priority=80"] == [cmp.Verdict.ERROR]
+    assert result.statuses() == [Status.ERROR] and result.regressions == 0
+
+
+def test_a_cell_cut_short_now_is_a_run_error_and_the_comparison_exits_130():
+    from runner.session import exit_code
+
+    base = matrix()
+    new = copy.deepcopy(base)
+    new.cells[2].status = Status.INTERRUPTED
+    result = cmp.compare(base, new)
+    assert result.regressed_cells() == [base.cells[2].id]  # passed, now cut short: its status regressed, and it is an error
+    assert [c.verdict for c in result.cells if c.cell == base.cells[2].id] == [cmp.Verdict.ERROR]
+    assert result.statuses() == [Status.INTERRUPTED] and exit_code(result.statuses(), result.regressions) == 130
 
 
 def test_missing_and_new_cells_are_reported_not_failed():

@@ -136,6 +136,11 @@ class Verdict:
     OFF = "not checked"  # its threshold is off
     NEW = "no baseline"
     MISSING = "missing"
+    ERROR = "run error"  # a cell of this run that could not run or was cut short: an error whatever the baseline was
+
+
+_OK = (Status.PASSED, Status.DEGRADED)
+RUN_ERRORS = (Status.ERROR, Status.INTERRUPTED)  # a cell that could not run, or was cut short
 
 
 @dataclass(frozen=True)
@@ -157,6 +162,11 @@ class CellChange:
     verdict: str
     note: str = ""
 
+    @property
+    def regressed(self) -> bool:
+        """Its status got worse: it passed (or ran degraded) in the baseline and does not now."""
+        return self.base_status in _OK and self.new_status is not None and self.new_status not in _OK
+
 
 @dataclass
 class Comparison:
@@ -169,15 +179,17 @@ class Comparison:
     incomplete: str = ""  # why the new run is not the whole run it was asked to be (`merge.incomplete`); "" when it is
 
     def statuses(self) -> list[Status]:
-        """What decides the comparison's exit code beside its regressions (`session.exit_code`): the new run itself
-        when it is incomplete, interrupted (130) when it was asked to stop, an error (4) when it never finished."""
+        """What decides the comparison's exit code beside its regressions (`session.exit_code`): the new run's cells
+        that could not run or were cut short (`Verdict.ERROR`), and the new run itself when it is incomplete,
+        interrupted (130) when it was asked to stop, an error (4) when it never finished."""
+        errors = [c.new_status for c in self.cells if c.new_status in RUN_ERRORS]
         if not self.incomplete:
-            return []
-        return [Status.INTERRUPTED if self.new.status == Status.INTERRUPTED.value else Status.ERROR]
+            return errors
+        return errors + [Status.INTERRUPTED if self.new.status == Status.INTERRUPTED.value else Status.ERROR]
 
     def compared(self) -> list[str]:
         """Cells present in both runs, which are the ones actually compared."""
-        return [c.cell for c in self.cells if c.verdict in (Verdict.SAME, Verdict.REGRESSION)]
+        return [c.cell for c in self.cells if c.verdict in (Verdict.SAME, Verdict.REGRESSION, Verdict.ERROR)]
 
     def unmatched(self, verdict: str) -> list[str]:
         """Cells only in the baseline (`Verdict.MISSING`) or only in this run (`Verdict.NEW`)."""
@@ -185,11 +197,11 @@ class Comparison:
 
     @property
     def regressions(self) -> int:
-        return sum(c.verdict == Verdict.REGRESSION for c in self.cells) + sum(f.verdict == Verdict.REGRESSION for f in self.figures)
+        return sum(c.regressed for c in self.cells) + sum(f.verdict == Verdict.REGRESSION for f in self.figures)
 
     def regressed_cells(self) -> list[str]:
         """The cells with a regression, each once: those whose status regressed first, then those with a figure that did."""
-        cells = [c.cell for c in self.cells if c.verdict == Verdict.REGRESSION]
+        cells = [c.cell for c in self.cells if c.regressed]
         return list(dict.fromkeys(cells + [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION]))
 
 
@@ -271,9 +283,6 @@ def _median(values: list[Number | None]) -> Number | None:
     return statistics.median(present) if present else None
 
 
-_OK = (Status.PASSED, Status.DEGRADED)
-
-
 def check_common(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
     """Refuse runs without a cell in common: nothing of them could be compared."""
     b, n = _groups(base), _groups(new)
@@ -305,15 +314,12 @@ def compare(
             continue
         old_status, new_status = _status(b[cell_id]), _status(n[cell_id])
         worse = old_status in _OK and new_status not in _OK
-        out.cells.append(
-            CellChange(
-                cell_id,
-                old_status,
-                new_status,
-                Verdict.REGRESSION if worse else Verdict.SAME,
-                f"{old_status.value} → {new_status.value}" if worse else "",
-            )
-        )
+        if new_status in RUN_ERRORS:  # whatever the baseline was: an error in both runs is no pass
+            verdict = Verdict.ERROR
+        else:
+            verdict = Verdict.REGRESSION if worse else Verdict.SAME
+        note = f"{old_status.value} → {new_status.value}" if worse or verdict == Verdict.ERROR else ""
+        out.cells.append(CellChange(cell_id, old_status, new_status, verdict, note))
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
     return out
 

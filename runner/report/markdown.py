@@ -1061,6 +1061,7 @@ VERDICT_ICON = {
     "not checked": "⏸️ not checked (threshold off)",
     "no baseline": "🆕 no baseline",
     "missing": "➖ missing",
+    "run error": "💥 run error",
 }
 
 
@@ -1080,12 +1081,17 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     regressed = cmp.regressed_cells()
     total = len(cmp.compared())
     incomplete = cmp.incomplete  # what it holds may compare well; what it lacks was never measured: never ✅
+    errored = [c for c in cmp.cells if c.new_status in (Status.ERROR, Status.INTERRUPTED)]  # cells that did not run to the end: never ✅
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
         f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}"
         if regressed
-        else f"{'' if incomplete else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
+        else f"{'' if incomplete or errored else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
+    if errored:
+        shown = ", ".join(f"{md_text(c.cell)} ({c.new_status.value if c.new_status else '?'})" for c in errored)
+        which = "cell of this run could not run or was" if len(errored) == 1 else "cells of this run could not run or were"
+        headline = f"💥 **{len(errored)} {which} cut short**: {shown}. {headline}"
     if incomplete:
         headline = f"⚠️ This run is incomplete: {md_text(incomplete)}. {headline}"
     lost = [f for f in cmp.figures if f.verdict == "missing"]
@@ -1141,7 +1147,8 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
             c.cell,
             c.base_status.value if c.base_status else "–",
             c.new_status.value if c.new_status else "–",
-            VERDICT_ICON["regression" if c.cell in regressed else c.verdict] + (f" ({c.note})" if c.note else ""),
+            VERDICT_ICON["regression" if c.cell in regressed and c.verdict != "run error" else c.verdict]
+            + (f" ({c.note})" if c.note else ""),
         ]
         for c in cmp.cells
     ]

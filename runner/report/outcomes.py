@@ -111,6 +111,8 @@ def _figure_check(f: FigureChange, labels: dict[str, str]) -> Check:
 
 
 def _status_check(c: CellChange) -> Check:
+    if c.verdict == Verdict.ERROR:  # an error in this run, whatever the baseline was: never "within threshold"
+        return Check("status against the baseline", Kind.BASELINE, Outcome.ERROR, f"the cell could not run or was cut short: {c.note}")
     if c.verdict == Verdict.REGRESSION:
         return Check("status against the baseline", Kind.BASELINE, Outcome.FAILED, f"status regressed: {c.note}")
     if c.verdict == Verdict.NEW:
