@@ -389,6 +389,45 @@ def test_an_interrupted_run_is_never_green_and_exits_130_as_the_run_did(tmp_path
     assert xml.count("<error") == 3 and "not run: the run ended before it (its status: interrupted)" in xml
 
 
+def test_a_figure_the_baseline_has_and_this_run_lacks_fails_the_comparison(tmp_path):
+    """`latency_ns: null` now read `✅ No regression... 1 figure of the baseline not measured now`, a skipped test case, exit 0."""
+    new = copy.deepcopy(matrix())
+    cell = new.cells[1]
+    t = main_thread(cell)
+    cell.threads[cell.threads.index(t)] = t.model_copy(update={"figures": t.figures.model_copy(update={"latency_ns": None})})
+    path = save(new, tmp_path / "new")
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", MATRIX, path, "--junit", str(junit))
+    assert done.code == 1, done.err
+    headline = done.out.split("\n\n")[1]
+    assert "✅" not in headline and headline.startswith(f"❌ **1 regression** in 1 of 5 cells: {cell.id}.")
+    assert f"1 figure of the baseline not measured now: latency.p99 ({cell.id})." in headline
+    assert "<failure" in junit.read_text() and "wake-up latency p99: not measured in this run (baseline" in junit.read_text()
+    assert run_cli("compare", MATRIX, path, "--threshold", "latency.p99=off").code == 0  # a figure never judged is not judged missing
+
+
+def test_a_thread_only_the_baseline_has_is_compared_and_fails():
+    """The threads compared came from the new run alone: a thread that vanished was never looked at."""
+    from runner.report.markdown import render_comparison
+    from runner.report.outcomes import Outcome, cell_checks
+
+    base = matrix()
+    new = copy.deepcopy(base)
+    cell = new.cells[2]
+    gone = main_thread(cell)
+    cell.threads.remove(gone)
+    result = cmp.compare(base, new)
+    assert result.threads_gone == [(cell.id, gone.key)]
+    lost = [f for f in result.figures if f.cell == cell.id and f.thread == gone.key]
+    assert lost and {f.verdict for f in lost} == {cmp.Verdict.MISSING}
+    assert result.regressions == len(lost) and result.regressed_cells() == [cell.id]
+    headline = render_comparison(result, "b", "n").split("\n\n")[1]
+    assert "✅" not in headline
+    assert f"1 thread of the baseline not in this run: minimal_schedul/minimal_schedul (main) ({cell.id})." in headline
+    checks = [c for suite in cell_checks(new, result, run=False) for c in suite.checks if c.outcome is Outcome.FAILED]
+    assert len(checks) == len(lost) and all("the thread is not in this run" in c.message for c in checks)
+
+
 def test_a_figure_the_baseline_has_and_this_run_lacks_is_in_the_headline():
     base = matrix()
     cell = base.cells[1].id

@@ -2,9 +2,11 @@
 
 A figure regresses when it grows past its threshold: relative (`+20%` of the
 baseline), absolute (`+0.5` switches, `+10us`), or both (then it must exceed
-both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  Repeated
-cells are compared by their median.  Cells whose resolved scenario differs are
-not comparable: the comparison is refused, naming each differing setting.
+both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  A figure
+the baseline measured and this run did not (its thread gone, too) is a regression:
+what it would have shown is unknown.  Repeated cells are compared by their median.
+Cells whose resolved scenario differs are not comparable: the comparison is refused,
+naming each differing setting.
 
 Every figure of the registry (runner/figures.py) can be compared; the registry's
 default thresholds are the ones checked unless told otherwise.  Values and absolute
@@ -139,6 +141,7 @@ class Verdict:
     ERROR = "run error"  # a cell of this run that could not run or was cut short: an error whatever the baseline was
 
 
+REGRESSED = (Verdict.REGRESSION, Verdict.MISSING)  # a figure's verdicts that fail the comparison
 _OK = (Status.PASSED, Status.DEGRADED)
 RUN_ERRORS = (Status.ERROR, Status.INTERRUPTED)  # a cell that could not run, or was cut short
 
@@ -177,6 +180,7 @@ class Comparison:
     figures: list[FigureChange] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     incomplete: str = ""  # why the new run is not the whole run it was asked to be (`merge.incomplete`); "" when it is
+    threads_gone: list[tuple[str, str]] = field(default_factory=list)  # (cell, thread key) the baseline has and this run lacks
 
     def statuses(self) -> list[Status]:
         """What decides the comparison's exit code beside its regressions (`session.exit_code`): the new run's cells
@@ -197,12 +201,17 @@ class Comparison:
 
     @property
     def regressions(self) -> int:
-        return sum(c.regressed for c in self.cells) + sum(f.verdict == Verdict.REGRESSION for f in self.figures)
+        """Cells whose status got worse, figures worse than their threshold, and figures of the baseline this run lacks.
+
+        A figure the baseline measured and this run did not (a thread gone, a figure null or not a number)
+        is a regression: what it would have shown is unknown, so it is never a pass.
+        """
+        return sum(c.regressed for c in self.cells) + sum(f.verdict in REGRESSED for f in self.figures)
 
     def regressed_cells(self) -> list[str]:
         """The cells with a regression, each once: those whose status regressed first, then those with a figure that did."""
         cells = [c.cell for c in self.cells if c.regressed]
-        return list(dict.fromkeys(cells + [f.cell for f in self.figures if f.verdict == Verdict.REGRESSION]))
+        return list(dict.fromkeys(cells + [f.cell for f in self.figures if f.verdict in REGRESSED]))
 
 
 def spec_differences(base: Any, new: Any, path: str = "") -> list[str]:
@@ -321,6 +330,7 @@ def compare(
         note = f"{old_status.value} → {new_status.value}" if worse or verdict == Verdict.ERROR else ""
         out.cells.append(CellChange(cell_id, old_status, new_status, verdict, note))
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
+        out.threads_gone.extend((cell_id, key) for key in _compared_keys(b[cell_id]) if key not in _compared_keys(n[cell_id]))
     return out
 
 
@@ -329,20 +339,28 @@ def _status(cells: list[CellResult]) -> Status:
     return min((c.status for c in cells), key=order.index)
 
 
+def _compared_keys(cells: list[CellResult]) -> list[str]:
+    """The threads of a cell (all its repeats) whose figures are compared: those with callbacks, and a program's
+    threads (the figures measured from outside)."""
+    return list(dict.fromkeys(t.key for c in cells for t in c.threads if t.has_callbacks or t.program))
+
+
 def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
+    """Each figure of each thread of either run (a thread only the baseline has too: its figures are missing now)."""
     out = []
-    keys = [t.key for t in now[0].threads if t.has_callbacks or t.program]  # a program's threads: the figures measured from outside
-    for key in keys:
+    for key in dict.fromkeys(_compared_keys(now) + _compared_keys(old)):
         for th in thresholds:
             fig = fg.figure(th.figure)
             base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
             new = _median([fg.value(t.figures, fig) for c in now for t in c.threads if t.key == key])
             if base is None and new is None:
                 continue
-            if base is None or new is None:
-                verdict = Verdict.NEW if base is None else Verdict.MISSING
-            elif th.off:
+            if base is None:
+                verdict = Verdict.NEW
+            elif th.off:  # shown beside its baseline, never judged: not even when this run lacks it
                 verdict = Verdict.OFF
+            elif new is None:
+                verdict = Verdict.MISSING
             elif th.exceeded(base, new):
                 verdict = Verdict.REGRESSION
             elif th.exceeded(new, base):

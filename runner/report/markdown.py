@@ -1060,7 +1060,7 @@ VERDICT_ICON = {
     "within threshold": "✅ within threshold",
     "not checked": "⏸️ not checked (threshold off)",
     "no baseline": "🆕 no baseline",
-    "missing": "➖ missing",
+    "missing": "❌ missing",
     "run error": "💥 run error",
 }
 
@@ -1084,7 +1084,7 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     errored = [c for c in cmp.cells if c.new_status in (Status.ERROR, Status.INTERRUPTED)]  # cells that did not run to the end: never ✅
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
-        f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}"
+        f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}."
         if regressed
         else f"{'' if incomplete or errored else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
@@ -1094,7 +1094,12 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         headline = f"💥 **{len(errored)} {which} cut short**: {shown}. {headline}"
     if incomplete:
         headline = f"⚠️ This run is incomplete: {md_text(incomplete)}. {headline}"
-    lost = [f for f in cmp.figures if f.verdict == "missing"]
+    gone_threads = set(cmp.threads_gone)
+    if gone_threads:  # its figures are missing too: said once, as the thread
+        where = [f"{md_text(labels.get(key, key))} ({md_text(cell)})" for cell, key in cmp.threads_gone]
+        headline += f" {len(where)} thread{'s' if len(where) != 1 else ''} of the baseline not in this run: {', '.join(where[:5])}"
+        headline += f" and {len(where) - 5} more." if len(where) > 5 else "."
+    lost = [f for f in cmp.figures if f.verdict == "missing" and (f.cell, f.thread) not in gone_threads]
     if lost:
         where = sorted({f"{f.figure.name} ({md_text(f.cell)})" for f in lost})
         headline += f" {len(lost)} figure{'s' if len(lost) != 1 else ''} of the baseline not measured now: {', '.join(where[:5])}"
@@ -1141,7 +1146,7 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
 
     headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Verdict"]
     align = [LEFT, LEFT, LEFT, RIGHT, RIGHT, RIGHT, LEFT]
-    bad = [f for f in cmp.figures if f.verdict == "regression"]
+    bad = [f for f in cmp.figures if f.verdict in ("regression", "missing")]  # a figure of the baseline this run lacks fails too
     status_rows = [
         [
             c.cell,

@@ -4,8 +4,9 @@ JUnit XML (`junit.py`) and GitHub workflow annotations (`annotations.py`) show t
 things: each cell run, each expectation checked in it and each figure compared with the
 baseline, with an outcome (passed, failed, error, skipped) and a message in the words the
 report uses.  They are built here once, so the two cannot disagree with each other or with
-the exit code (a failed expectation or a regression is a failure; a cell that could not run
-or was cut short is an error; a cell the run was asked for but never ran is skipped).
+the exit code (a failed expectation or a regression, a figure of the baseline this run lacks
+included, is a failure; a cell that could not run or was cut short is an error; a cell the run
+was asked for but never ran is skipped).
 """
 
 from __future__ import annotations
@@ -86,8 +87,11 @@ def expectation_name(v: ExpectationVerdict) -> str:
     return f"{v.thread}: {v.metric} {v.limit}"
 
 
-def figure_message(f: FigureChange, labels: dict[str, str]) -> str:
-    """A compared figure as the comparison's row reads: thread, figure, baseline, this run, change, threshold."""
+def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = False) -> str:
+    """A compared figure as the comparison's row reads: thread, figure, baseline, this run, change, threshold.
+
+    `thread_gone`: this run has no such thread at all (its figures are missing for that reason).
+    """
     thread = labels.get(f.thread, f.thread)
     sc = scale(f.figure.unit, (f.base, f.new))  # the row's one unit and precision, as in the comparison table
     unit = f" {sc.unit}" if sc.unit else ""
@@ -95,7 +99,8 @@ def figure_message(f: FigureChange, labels: dict[str, str]) -> str:
     if f.verdict == Verdict.NEW:
         return f"{thread}: {f.figure.words}: no baseline (this run {new})"
     if f.verdict == Verdict.MISSING:
-        return f"{thread}: {f.figure.words}: not measured in this run (baseline {base})"
+        why = "the thread is not in this run" if thread_gone else "not measured in this run"
+        return f"{thread}: {f.figure.words}: {why} (baseline {base})"
     if f.verdict == Verdict.OFF:
         return f"{thread}: {f.figure.words} {base} → {new}: not checked (its threshold is off)"
     return (
@@ -103,11 +108,12 @@ def figure_message(f: FigureChange, labels: dict[str, str]) -> str:
     )
 
 
-def _figure_check(f: FigureChange, labels: dict[str, str]) -> Check:
-    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.MISSING: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED}
-    outcome = {Verdict.REGRESSION: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
+def _figure_check(f: FigureChange, labels: dict[str, str], thread_gone: bool = False) -> Check:
+    """A figure against its baseline: failed when worse, or when the baseline has it and this run does not (never a pass)."""
+    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED}
+    outcome = {Verdict.REGRESSION: Outcome.FAILED, Verdict.MISSING: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
     name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the baseline"
-    return Check(name, Kind.BASELINE, outcome, figure_message(f, labels) if outcome is not Outcome.PASSED else "")
+    return Check(name, Kind.BASELINE, outcome, figure_message(f, labels, thread_gone) if outcome is not Outcome.PASSED else "")
 
 
 def _status_check(c: CellChange) -> Check:
@@ -171,7 +177,8 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
             item.notes = _notes(cell)
         if cell.id in changes and cell.repeat == first_repeat[cell.id]:  # repeats are compared once, by their median
             item.checks.append(_status_check(changes[cell.id]))
-            item.checks.extend(_figure_check(f, labels) for f in figures.get(cell.id, []))
+            gone = set(comparison.threads_gone) if comparison else set()
+            item.checks.extend(_figure_check(f, labels, (f.cell, f.thread) in gone) for f in figures.get(cell.id, []))
         if item.checks:
             out.append(item)
     ran = {c.id for c in doc.cells}
