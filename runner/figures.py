@@ -147,6 +147,7 @@ class Figure:
     signed: bool = False  # may be negative (slack of a callback that overran)
     overload: bool = False  # tells whether a thread kept up: its column is shown when some thread did not
     needs_period: bool = False  # measured against a period's next release: a thread released by resumes has no such figure
+    traced: bool = False  # taken from the scheduler trace: undercounted when it lost events, so not compared then
 
     @property
     def is_duration(self) -> bool:
@@ -335,7 +336,14 @@ REGISTRY: tuple[Figure, ...] = (
     Figure("voluntary.per_second", "voluntary context switches per second", Unit.PER_SECOND, Scope.OUTSIDE, ("voluntary", "per_second")),
     Figure("cpu_time", "CPU time", Unit.NS, Scope.OUTSIDE, ("cpu_time_ns",)),
     Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",)),
-    Figure("preemptions", "preemptions (switched out while runnable, scheduler trace)", Unit.COUNT, Scope.OUTSIDE, ("preemptions",)),
+    Figure(
+        "preemptions",
+        "preemptions (switched out while runnable, scheduler trace)",
+        Unit.COUNT,
+        Scope.OUTSIDE,
+        ("preemptions",),
+        traced=True,
+    ),
     *(
         Figure(
             f"wakeup.{q}",
@@ -344,6 +352,7 @@ REGISTRY: tuple[Figure, ...] = (
             Scope.OUTSIDE,
             ("wakeup_ns", q),
             _LATENCY_THRESHOLD.get(q),
+            traced=True,
         )
         for q, words in _QUANTILE_WORDS.items()
         if q not in ("stddev",)

@@ -435,3 +435,101 @@ def test_a_figure_the_baseline_has_and_this_run_lacks_is_in_the_headline():
 
     text = render_comparison(cmp.compare(base, with_figures(base, cell, invol_mean=float("nan"))), "b", "n")
     assert f"1 figure of the baseline not measured now: involuntary.per_callback_mean ({cell})." in text.split("\n\n")[1]
+
+
+def _headline(result: cmp.Comparison) -> str:
+    from runner.report.markdown import render_comparison
+
+    return render_comparison(result, "b", "n").split("\n\n")[1]
+
+
+def test_another_version_of_the_scenario_is_said_first_in_the_headline_without_a_check_mark(tmp_path):
+    """A baseline of another scenario_hash compared as `✅ No regression`: report/ never looked at the plan's hashes."""
+    base, new = copy.deepcopy(matrix()), copy.deepcopy(matrix())
+    base.plan.scenario_hash, new.plan.scenario_hash = "1111111111111111", "2222222222222222"
+    done = run_cli("compare", save(base, tmp_path / "base"), save(new, tmp_path / "new"))
+    assert done.code == 0, done.err  # every cell's resolved settings agree: compared, and said
+    headline = done.out.split("\n\n")[1]
+    assert headline.startswith(
+        "⚠️ **Another version of the scenario**: the baseline ran another version of the scenario file "
+        "(plan.scenario_hash 1111111111111111 there, 2222222222222222 now); only its cells whose resolved settings are the same "
+        "were compared. No regression in 5 cells"
+    )
+    assert "✅" not in headline and "warning:" in done.err and "another version of the scenario file" in done.err
+    new.plan.scenario_hash = None  # a file that does not record it (an older runner's) is not held against it
+    assert _headline(cmp.compare(base, new)).startswith("✅ No regression in 5 cells")
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (
+            lambda doc: setattr(doc.plan, "expect_hash", "2222"),
+            "⚠️ The cells were judged by other expectations than the baseline's (plan.expect_hash 1111 there, 2222 now): "
+            "a status may differ for that alone.",
+        ),
+        (
+            lambda doc: setattr(doc.machine, "hostname", "other"),
+            "⚠️ The baseline ran on vm (kernel 6.18.44-fc-v669), this run on other (kernel 6.18.44-fc-v669): "
+            "figures may differ for that alone.",
+        ),
+    ],
+)
+def test_other_expectations_or_another_host_are_said_in_the_headline_without_a_check_mark(change, words):
+    """Another host or kernel was a note below the facts, under a ✅ headline; other expectations were not said at all."""
+    base = copy.deepcopy(matrix())
+    base.plan.expect_hash = "1111"
+    new = copy.deepcopy(base)
+    new.plan.expect_hash = "1111"
+    assert _headline(cmp.compare(base, new)).startswith("✅ No regression")
+    change(new)
+    headline = _headline(cmp.compare(base, new))
+    assert headline == f"No regression in 5 cells compared with the baseline. {words}"
+
+
+def _traced(lost: int = 0, untracked: int = 0, p99: int = 40_000):
+    """The recorded matrix as if traced: every periodic thread with trace figures, its first cell's trace losing events."""
+    from runner.figures import Spread
+    from runner.results.document import TraceInfo
+
+    doc = copy.deepcopy(matrix())
+    for n, cell in enumerate(doc.cells):
+        t = main_thread(cell)
+        wakeup = Spread(min=1_000, p50=2_000, p90=3_000, p99=p99, p999=p99, max=p99)
+        cell.threads[cell.threads.index(t)] = t.model_copy(
+            update={"figures": t.figures.model_copy(update={"wakeup_ns": wakeup, "preemptions": 3})}
+        )
+        cell.trace = TraceInfo(enabled=True, events=10_000, lost=lost if n == 0 else 0, untracked=untracked if n == 0 else 0)
+    return doc
+
+
+@pytest.mark.parametrize("loss", [{"lost": 7}, {"untracked": 7}])
+@pytest.mark.parametrize("lossy_run", ["new", "base"])
+def test_trace_figures_are_not_comparable_where_the_trace_lost_events_in_either_run(loss, lossy_run, tmp_path):
+    """A trace that lost events undercounts what it measured: wake-up p99 read as 10 times worse (or better) regardless."""
+    base = _traced(p99=4_000, **(loss if lossy_run == "base" else {}))
+    new = _traced(p99=40_000, **(loss if lossy_run == "new" else {}))
+    result = cmp.compare(base, new, [cmp.parse_threshold("wakeup.p99=+20%"), cmp.parse_threshold("preemptions=+0")])
+    verdicts = {(f.cell, f.figure.name): f.verdict for f in result.figures}
+    lossy, clean = base.cells[0].id, base.cells[1].id
+    assert verdicts[(lossy, "wakeup.p99")] == verdicts[(lossy, "preemptions")] == cmp.Verdict.UNCOMPARABLE
+    assert verdicts[(clean, "wakeup.p99")] == cmp.Verdict.REGRESSION  # where nothing was lost, compared as ever
+    assert lossy not in result.regressed_cells()
+    headline = _headline(result)
+    assert "✅" not in headline
+    now, there = (7, 0) if lossy_run == "new" else (0, 7)
+    assert (
+        f"⚠️ The scheduler trace lost events in 1 cell: {lossy} ({now} lost or untracked now, {there} in the baseline): "
+        "the figures taken from it there (wakeup.p99, preemptions) are not compared."
+    ) in headline
+    from runner.report.junit import junit_xml
+
+    xml = junit_xml(new, result, run=False).decode()
+    assert "wake-up latency from the scheduler trace p99 4.0 µs → 40.0 µs: not comparable (the scheduler trace lost events" in xml
+
+
+def test_the_registry_marks_the_figures_taken_from_the_scheduler_trace():
+    from runner import figures as fg
+
+    traced = {f.name for f in fg.REGISTRY if f.traced}
+    assert traced == {"preemptions"} | {f.name for f in fg.REGISTRY if f.path[0] == "wakeup_ns"}

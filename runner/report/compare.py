@@ -6,7 +6,10 @@ both, so a 3 µs wobble on a 10 µs baseline is not a 30% regression).  A figure
 the baseline measured and this run did not (its thread gone, too) is a regression:
 what it would have shown is unknown.  Repeated cells are compared by their median.
 Cells whose resolved scenario differs are not comparable: the comparison is refused,
-naming each differing setting.
+naming each differing setting.  What else differs between the runs (another version
+of the scenario file or of its expectations, another host, a trace that lost events:
+`run_differences`) is said instead of a ✅, and figures taken from a trace that lost
+events are not compared.
 
 Every figure of the registry (runner/figures.py) can be compared; the registry's
 default thresholds are the ones checked unless told otherwise.  Values and absolute
@@ -139,6 +142,7 @@ class Verdict:
     NEW = "no baseline"
     MISSING = "missing"
     ERROR = "run error"  # a cell of this run that could not run or was cut short: an error whatever the baseline was
+    UNCOMPARABLE = "not comparable"  # taken from a scheduler trace that lost events, in either run
 
 
 REGRESSED = (Verdict.REGRESSION, Verdict.MISSING)  # a figure's verdicts that fail the comparison
@@ -181,6 +185,13 @@ class Comparison:
     notes: list[str] = field(default_factory=list)
     incomplete: str = ""  # why the new run is not the whole run it was asked to be (`merge.incomplete`); "" when it is
     threads_gone: list[tuple[str, str]] = field(default_factory=list)  # (cell, thread key) the baseline has and this run lacks
+    other_version: str = ""  # how the scenario file the baseline ran differs from this run's, in words; "" when it does not
+    differences: list[str] = field(default_factory=list)  # other ways the runs differ, in words: expectations, host, trace lost
+
+    @property
+    def alike(self) -> bool:
+        """Whether the runs differ in nothing that could explain a change but the scheduling measured (never ✅ when not)."""
+        return not self.other_version and not self.differences
 
     def statuses(self) -> list[Status]:
         """What decides the comparison's exit code beside its regressions (`session.exit_code`): the new run's cells
@@ -308,12 +319,7 @@ def compare(
     check_common(base, new, base_name, new_name)
     out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS), incomplete=incomplete(new))
     b, n = _groups(base), _groups(new)
-    was, now = base.machine, new.machine
-    if (was.hostname, was.kernel) != (now.hostname, now.kernel):
-        out.notes.append(
-            f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
-            f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'})."
-        )
+    out.other_version, out.differences = run_differences(base, new)
     for cell_id in list(n) + [c for c in b if c not in n]:
         if cell_id not in n:
             out.cells.append(CellChange(cell_id, _status(b[cell_id]), None, Verdict.MISSING, "in the baseline, not run now"))
@@ -331,7 +337,52 @@ def compare(
         out.cells.append(CellChange(cell_id, old_status, new_status, verdict, note))
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
         out.threads_gone.extend((cell_id, key) for key in _compared_keys(b[cell_id]) if key not in _compared_keys(n[cell_id]))
+    lossy = list(dict.fromkeys(f.cell for f in out.figures if f.verdict == Verdict.UNCOMPARABLE))
+    if lossy:
+        names = ", ".join(dict.fromkeys(f.figure.name for f in out.figures if f.verdict == Verdict.UNCOMPARABLE))
+        base_lost = sum(_trace_loss(c) for cell_id in lossy for c in b.get(cell_id, []))
+        new_lost = sum(_trace_loss(c) for cell_id in lossy for c in n.get(cell_id, []))
+        out.differences.append(
+            f"The scheduler trace lost events in {_ids({c: [] for c in lossy})} ({new_lost:,} lost or untracked now, "
+            f"{base_lost:,} in the baseline): the figures taken from it there ({names}) are not compared."
+        )
     return out
+
+
+def run_differences(base: RunDocument, new: RunDocument) -> tuple[str, list[str]]:
+    """How the two runs differ besides what they measured: another version of the scenario file (said apart, first),
+    other expectations, another host or kernel.  A hash one of them does not record (an older runner's) is not held
+    against it, as merge does.
+
+    Unlike merge, which refuses shards of another version (they must be one run), a comparison is of two runs by
+    nature: each cell is compared when its resolved settings agree (`check_comparable` refuses those that do not),
+    and the headline says the rest of the difference instead of a ✅.
+    """
+    a, b = base.plan, new.plan
+    version = ""
+    if a.scenario_hash and b.scenario_hash and a.scenario_hash != b.scenario_hash:
+        version = (
+            f"the baseline ran another version of the scenario file (plan.scenario_hash {a.scenario_hash} there, "
+            f"{b.scenario_hash} now); only its cells whose resolved settings are the same were compared"
+        )
+    out = []
+    if a.expect_hash and b.expect_hash and a.expect_hash != b.expect_hash:
+        out.append(
+            f"The cells were judged by other expectations than the baseline's (plan.expect_hash {a.expect_hash} there, "
+            f"{b.expect_hash} now): a status may differ for that alone."
+        )
+    was, now = base.machine, new.machine
+    if (was.hostname, was.kernel) != (now.hostname, now.kernel):
+        out.append(
+            f"The baseline ran on {was.hostname or '?'} (kernel {was.kernel or '?'}), "
+            f"this run on {now.hostname or '?'} (kernel {now.kernel or '?'}): figures may differ for that alone."
+        )
+    return version, out
+
+
+def _trace_loss(cell: CellResult) -> int:
+    """Events the cell's scheduler trace lost or could not attribute (beyond its bounded table of threads)."""
+    return cell.trace.lost + cell.trace.untracked if cell.trace is not None else 0
 
 
 def _status(cells: list[CellResult]) -> Status:
@@ -346,8 +397,13 @@ def _compared_keys(cells: list[CellResult]) -> list[str]:
 
 
 def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
-    """Each figure of each thread of either run (a thread only the baseline has too: its figures are missing now)."""
+    """Each figure of each thread of either run (a thread only the baseline has too: its figures are missing now).
+
+    A figure taken from the scheduler trace is not comparable where the trace lost events in either run:
+    it is undercounted by an unknown amount, so neither better nor worse can be told.
+    """
     out = []
+    lossy = any(_trace_loss(c) for c in old + now)
     for key in dict.fromkeys(_compared_keys(now) + _compared_keys(old)):
         for th in thresholds:
             fig = fg.figure(th.figure)
@@ -361,6 +417,8 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
                 verdict = Verdict.OFF
             elif new is None:
                 verdict = Verdict.MISSING
+            elif fig.traced and lossy:
+                verdict = Verdict.UNCOMPARABLE
             elif th.exceeded(base, new):
                 verdict = Verdict.REGRESSION
             elif th.exceeded(new, base):

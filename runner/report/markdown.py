@@ -1062,6 +1062,7 @@ VERDICT_ICON = {
     "no baseline": "🆕 no baseline",
     "missing": "❌ missing",
     "run error": "💥 run error",
+    "not comparable": "⚠️ not comparable (trace events lost)",
 }
 
 
@@ -1086,14 +1087,19 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
         f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}."
         if regressed
-        else f"{'' if incomplete or errored else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
+        else f"{'' if incomplete or errored or not cmp.alike else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} "
+        "compared with the baseline."
     )
+    for difference in cmp.differences:  # what could explain a change (or hide one) besides the scheduling: never ✅
+        headline += f" ⚠️ {md_text(difference)}"
     if errored:
         shown = ", ".join(f"{md_text(c.cell)} ({c.new_status.value if c.new_status else '?'})" for c in errored)
         which = "cell of this run could not run or was" if len(errored) == 1 else "cells of this run could not run or were"
         headline = f"💥 **{len(errored)} {which} cut short**: {shown}. {headline}"
     if incomplete:
         headline = f"⚠️ This run is incomplete: {md_text(incomplete)}. {headline}"
+    if cmp.other_version:  # first: every figure below is of another version of the scenario
+        headline = f"⚠️ **Another version of the scenario**: {md_text(cmp.other_version)}. {headline}"
     gone_threads = set(cmp.threads_gone)
     if gone_threads:  # its figures are missing too: said once, as the thread
         where = [f"{md_text(labels.get(key, key))} ({md_text(cell)})" for cell, key in cmp.threads_gone]

@@ -103,6 +103,8 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
         return f"{thread}: {f.figure.words}: {why} (baseline {base})"
     if f.verdict == Verdict.OFF:
         return f"{thread}: {f.figure.words} {base} → {new}: not checked (its threshold is off)"
+    if f.verdict == Verdict.UNCOMPARABLE:
+        return f"{thread}: {f.figure.words} {base} → {new}: not comparable (the scheduler trace lost events in this cell)"
     return (
         f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: {f.verdict}"
     )
@@ -110,7 +112,7 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
 
 def _figure_check(f: FigureChange, labels: dict[str, str], thread_gone: bool = False) -> Check:
     """A figure against its baseline: failed when worse, or when the baseline has it and this run does not (never a pass)."""
-    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED}
+    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED, Verdict.UNCOMPARABLE: Outcome.SKIPPED}
     outcome = {Verdict.REGRESSION: Outcome.FAILED, Verdict.MISSING: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
     name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the baseline"
     return Check(name, Kind.BASELINE, outcome, figure_message(f, labels, thread_gone) if outcome is not Outcome.PASSED else "")

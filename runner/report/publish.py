@@ -97,6 +97,8 @@ def compare_files(base_path: str, doc: RunDocument, new_path: str, thresholds: l
     """Compare `doc` with the results at `base_path`: the markdown section and the comparison itself."""
     base = load(base_path)
     cmp = compare(base, doc, thresholds, base_name=base_path, new_name=new_path)
+    if cmp.other_version:  # every figure compared is of another version of the scenario: said where it is run too
+        warn(f"{new_path}: {cmp.other_version}")
     return report.render_comparison(cmp, base_path, new_path), cmp
 
 
