@@ -436,7 +436,7 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.outdir import REPORT_NAME, writable_file
     from runner.report.compare import thresholds_for
     from runner.report.markdown import render_run
-    from runner.report.publish import comparison_text, report_files
+    from runner.report.publish import compare_files, comparison_statuses, report_files
     from runner.results.read import load
     from runner.session import exit_code
 
@@ -449,10 +449,11 @@ def _cmd_report(argv: list[str]) -> int:
         _export(doc, ns)
         if not ns.output:
             return 0
-    section, regressions = None, 0
+    section, regressions, statuses = None, 0, []
     thresholds = thresholds_for(ns.threshold, ns.baseline)
-    if ns.baseline:
-        section, regressions = comparison_text(ns.baseline, doc, ns.results, thresholds)
+    if ns.baseline:  # decided as `runner compare` decides on the same files
+        section, cmp = compare_files(ns.baseline, doc, ns.results, thresholds)
+        regressions, statuses = cmp.regressions, comparison_statuses(cmp, ns.results)
     if ns.output == "-":
         say(render_run(doc, None, section))
     else:
@@ -472,7 +473,7 @@ def _cmd_report(argv: list[str]) -> int:
         say(f"report: {path}")
         if failed is not None:  # a samples file the plots could not read is this command's input: its error, report written
             raise failed
-    return int(exit_code([], regressions))
+    return int(exit_code(statuses, regressions))
 
 
 def _check_export_options(ns: argparse.Namespace) -> None:
@@ -523,7 +524,7 @@ def _cmd_compare(argv: list[str]) -> int:
     ns = _compare_parser().parse_args(argv)
     from runner.outdir import writable_file, write_output
     from runner.report.compare import parse_threshold, thresholds_with
-    from runner.report.publish import append_step_summary, ci_outputs, compare_files
+    from runner.report.publish import append_step_summary, ci_outputs, compare_files, comparison_statuses
     from runner.results.read import load
     from runner.session import exit_code
 
@@ -541,9 +542,7 @@ def _cmd_compare(argv: list[str]) -> int:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
     ci_outputs(new, cmp, junit, dict(os.environ), run=False)
-    if cmp.incomplete:  # never green: what it lacks was never compared
-        note(f"runner: {ns.new}: {cmp.incomplete}; only the cells it holds were compared")
-    return int(exit_code(cmp.statuses(), regressions))
+    return int(exit_code(comparison_statuses(cmp, ns.new), regressions))
 
 
 def _merge_parser() -> argparse.ArgumentParser:

@@ -389,6 +389,31 @@ def test_an_interrupted_run_is_never_green_and_exits_130_as_the_run_did(tmp_path
     assert xml.count("<error") == 3 and "not run: the run ended before it (its status: interrupted)" in xml
 
 
+def _never_finished(doc):
+    doc.cells, doc.status = doc.cells[:2], "running"
+
+
+def _stopped(doc):
+    doc.cells, doc.status = doc.cells[:2], "interrupted"
+
+
+def _errored(doc):
+    doc.cells[1].status, doc.status = Status.ERROR, "error"
+
+
+@pytest.mark.parametrize("change, code", [(_never_finished, 4), (_stopped, 130), (_errored, 4)])
+def test_report_with_a_baseline_decides_as_compare_does(tmp_path, change, code):
+    """`runner report NEW --baseline BASE` exited 0 for a run that never finished, where `runner compare` exited 4."""
+    new = copy.deepcopy(matrix())
+    change(new)
+    path = save(new, tmp_path / "new")
+    compared = run_cli("compare", MATRIX, path)
+    reported = run_cli("report", path, "--baseline", MATRIX, "--no-plots")
+    assert compared.code == reported.code == code, (compared.err, reported.err)
+    if new.status != "error":
+        assert "only the cells it holds were compared" in reported.err
+
+
 def test_a_figure_the_baseline_has_and_this_run_lacks_fails_the_comparison(tmp_path):
     """`latency_ns: null` now read `✅ No regression... 1 figure of the baseline not measured now`, a skipped test case, exit 0."""
     new = copy.deepcopy(matrix())

@@ -15,10 +15,10 @@ from runner.report import github
 from runner.report import markdown as report
 from runner.report.compare import Comparison, Threshold, compare
 from runner.report.junit import junit_xml
-from runner.results.document import RunDocument
+from runner.results.document import RunDocument, Status
 from runner.results.files import write_atomic
 from runner.results.read import load
-from runner.terminal import say, warn
+from runner.terminal import note, say, warn
 
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
@@ -56,20 +56,20 @@ def report_files(
     from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
 
     links: list[report.Plot] = []
-    note = None
+    skipped = None
     failed: Optional[RunnerError] = None
     if plots and drawing.available():
         try:
             links = drawing.write_plots(doc, folder, report.thread_labels(doc.cells))
         except Exception as exc:  # any failure: said in the report and a warning, never the report lost for it
-            note = drawing.skipped_note(exc)
+            skipped = drawing.skipped_note(exc)
             failed = exc if isinstance(exc, RunnerError) else None
             if failed is None or not quiet_input_errors:
-                warn(note)
+                warn(skipped)
     elif plots:
-        note = drawing.skipped_note()
-        warn(note)
-    text = report.render_run(doc, links, comparison, pid_width, note)
+        skipped = drawing.skipped_note()
+        warn(skipped)
+    text = report.render_run(doc, links, comparison, pid_width, skipped)
     path = os.path.join(folder, name)
     write_atomic(path, text)
     return path, failed
@@ -102,10 +102,15 @@ def compare_files(base_path: str, doc: RunDocument, new_path: str, thresholds: l
     return report.render_comparison(cmp, base_path, new_path), cmp
 
 
-def comparison_text(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, int]:
-    """Compare `doc` with the results at `base_path`: the markdown section and the number of regressions."""
-    section, cmp = compare_files(base_path, doc, new_path, thresholds)
-    return section, cmp.regressions
+def comparison_statuses(cmp: Comparison, new_path: str) -> list[Status]:
+    """What decides a comparison's exit code beside its regressions (`Comparison.statuses`), an incomplete run said on stderr.
+
+    `runner compare` and `runner report --baseline` both take it, so they decide alike on the same files
+    (README, "Exit codes"): a run that never finished is never green, whichever command compares it.
+    """
+    if cmp.incomplete:  # never green: what it lacks was never compared
+        note(f"runner: {new_path}: {cmp.incomplete}; only the cells it holds were compared")
+    return cmp.statuses()
 
 
 def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Optional[str], env: dict[str, str], run: bool = True) -> None:
