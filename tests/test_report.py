@@ -637,6 +637,64 @@ def test_hostile_names_do_not_change_the_report_structure(name):
     assert structure(section) == structure(report.render_comparison(compare(plain, plain), "plain", "plain"))
 
 
+def unescaped_pipes(line: str) -> int:
+    """The `|` of a table row that split it into cells: those not escaped by a backslash (GFM escapes them so in code spans too)."""
+    count, i = 0, 0
+    while i < len(line):
+        if line[i] == "\\":
+            i += 2
+            continue
+        count += line[i] == "|"
+        i += 1
+    return count
+
+
+def table_rows_off_their_header(markdown: str) -> list[tuple[str, str]]:
+    """Each table row (with its header) whose count of cell-splitting `|` is not its header's: a name that split a cell."""
+    out = []
+    header = None
+    for line in markdown.splitlines():
+        if not line.startswith("|"):
+            header = None
+        elif header is None:
+            header = line
+        elif unescaped_pipes(line) != unescaped_pipes(header):
+            out.append((header, line))
+    return out
+
+
+def test_every_table_row_has_as_many_cells_as_its_header_whatever_the_names():
+    """A `|` in a phase's name, a lock holder's or a thread rule split their rows: those cells were escaped for text, not tables."""
+    from runner.figures import Spread
+    from runner.report.compare import compare
+    from runner.results.document import EventResult, Holder, PhaseResult
+
+    name = "a|b"
+    doc = _hostile_doc(name, cells=2)
+    for cell in doc.cells:
+        t = next(t for t in cell.threads if t.periodic)
+        lock = EventResult(
+            phase=f"phase {name}",
+            index=0,
+            event=f"lock m{name}",
+            kind="lock",
+            measures="wait",
+            count=3,
+            spread_ns=Spread(min=1, p50=2, p90=3, p99=4, p999=5, max=6),
+            contended=1,
+            holders=[Holder(thread=f"holder {name}", contentions=1, wait_ns=1_000)],
+        )
+        phase = PhaseResult(name=f"phase {name}", passes=2, time_ns=1_000_000, cpus_seen=[0])
+        cell.threads[cell.threads.index(t)] = t.model_copy(
+            update={"program": True, "rule": f"rule*{name}", "rule_after_ns": 1_000, "events": [lock], "phases": [phase]}
+        )
+    text = report.render_run(doc) + report.render_comparison(compare(doc, doc), name, name)
+    assert table_rows_off_their_header(text) == []
+    assert "phase a\\|b" in text and "holder a\\|b" in text and "`rule*a\\|b`" in text  # the tables are there, escaped
+    for golden_file in os.listdir(GOLDEN):  # and the reports the golden files hold
+        assert table_rows_off_their_header(Path(GOLDEN, golden_file).read_text(encoding="utf-8")) == [], golden_file
+
+
 @pytest.mark.parametrize("name", ["$\\foo$", "_hidden", "a\nb", "线程", "<b>x</b>", "$x^2", "\\"])
 def test_plots_draw_any_name(tmp_path, name):
     doc = renamed(str(tmp_path / "run"), [(name, name)] * 2, cell_ids=[f"v={name}", f"v={name}2", "c", "d", "e"])

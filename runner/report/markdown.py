@@ -316,7 +316,7 @@ def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
     out = [
         [
             label,
-            md_code(t.rule) if t.rule else "–",
+            md_code(t.rule, in_table=True) if t.rule else "–",
             after.number(t.rule_after_ns),
             rate.number(t.figures.involuntary.per_second),
             rate.number(t.figures.voluntary.per_second),
@@ -565,7 +565,7 @@ def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
                 fmt_int(e.count),
                 *(sc.number(getattr(sp, q)) if sp is not None else "–" for q in ("p50", "p99", "max")),
                 fmt_int(e.contended) if e.kind == "lock" else "",
-                md_text(held),
+                md_text(held, in_table=True),
             ]
         )
     headers = EVENT_HEADERS[:4] + [sc.header(h) for h in EVENT_HEADERS[4:7]] + EVENT_HEADERS[7:]
@@ -587,7 +587,7 @@ def phases_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
         rows.append(
             [
                 labels[t.key],
-                md_text(p.name),
+                md_text(p.name, in_table=True),
                 fmt_int(p.passes),
                 sc.number(p.time_ns),
                 applied + (" ⚠️" if p.degraded else ""),
