@@ -323,6 +323,24 @@ def test_runs_with_no_cell_in_common_are_refused_naming_both_files(tmp_path):
     assert run_cli("compare", save(empty, tmp_path / "empty"), MATRIX).code == 2
 
 
+def test_a_run_killed_before_its_first_cell_is_incomplete_not_another_scenario(tmp_path):
+    """It read `no cell in common... compare runs of the same scenario` (exit 2): wrong advice for a run that never got going."""
+    killed = copy.deepcopy(matrix())
+    killed.cells, killed.status = [], "running"
+    path = save(killed, tmp_path / "killed")
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", MATRIX, path, "--junit", str(junit))
+    assert done.code == 4, done.err
+    assert "no cell in common" not in done.err
+    headline = done.out.split("\n\n")[1]
+    assert headline.startswith("⚠️ This run is incomplete: its run never finished (results.json says running): 5 of its 5 cell runs")
+    assert junit.read_text().count("<error") == 5
+    as_baseline = run_cli("compare", path, MATRIX)  # nothing to compare with: refused, saying why
+    assert as_baseline.code == 2, as_baseline.err
+    assert f"the baseline {path} holds no cell: its run never finished" in as_baseline.err
+    assert "compare runs of the same scenario" not in as_baseline.err
+
+
 def test_a_partial_comparison_says_which_cells_were_not_compared():
     base = matrix()
     new = copy.deepcopy(base)

@@ -304,8 +304,15 @@ def _median(values: list[Number | None]) -> Number | None:
 
 
 def check_common(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
-    """Refuse runs without a cell in common: nothing of them could be compared."""
+    """Refuse runs without a cell in common: nothing of them could be compared.
+
+    A baseline whose run stopped before its first cell is said to be that, not another scenario's.
+    """
     b, n = _groups(base), _groups(new)
+    lacking = incomplete(base)
+    if not b and lacking:
+        why = f"the baseline {base_name} holds no cell: {lacking}; compare with a baseline whose run finished"
+        raise ScenarioError([Problem(base_name, 1, 1, "cells", why)])
     if not any(cell_id in b for cell_id in n):
         why = f"no cell in common with the baseline {base_name} ({_ids(n)} here, {_ids(b)} there); compare runs of the same scenario"
         raise ScenarioError([Problem(new_name, 1, 1, "cells", why)])
@@ -316,8 +323,10 @@ def compare(
 ) -> Comparison:
     """Align cells by id and compare status and figures; raises ScenarioError when cells are not comparable."""
     check_comparable(base, new, base_name, new_name)
-    check_common(base, new, base_name, new_name)
-    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS), incomplete=incomplete(new))
+    lacking = incomplete(new)
+    if new.cells or not lacking:  # a run stopped before its first cell is incomplete (exit 4 or 130), not another scenario's
+        check_common(base, new, base_name, new_name)
+    out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS), incomplete=lacking)
     b, n = _groups(base), _groups(new)
     out.other_version, out.differences = run_differences(base, new)
     for cell_id in list(n) + [c for c in b if c not in n]:
