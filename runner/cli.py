@@ -27,6 +27,7 @@ usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its mat
        runner validate FILE...             check scenario files, print every problem
        runner schema [--results]           print the JSON Schema of the scenario format (or of results.json)
        runner ps PID|NAME                  ps-style thread table of a live process
+       runner watch PID|NAME...            measure running processes from outside, write results and a report
        runner report RESULTS [-o FILE]     re-render the markdown report (and plots) of a run
        runner compare BASE NEW             compare two runs; exit 1 on a regression
        runner merge DIR... --out DIR       combine shard results into one results file and report

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
 import shutil
 import subprocess
 
@@ -40,6 +41,26 @@ def test_an_existing_file_without_extension_runs_as_a_scenario(tmp_path, monkeyp
 
 def test_every_command_has_its_parser_for_completion():
     assert set(_PARSERS) == set(COMMANDS)
+
+
+def _help_of(*argv: str) -> str:
+    """What `runner ARGV --help` prints: argparse exits 0 after printing it."""
+    from runner.cli import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit) as exited:
+        main([*argv, "--help"])
+    assert exited.value.code == 0
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_the_dispatcher_accepts_is_listed_in_the_top_help(command):
+    top = run_cli("--help")
+    assert top.code == 0
+    named = set(re.findall(r"`?runner ([a-z][a-z-]*)", top.out))  # `runner run --help` names run
+    assert command in named, f"runner --help does not list {command!r}"
+    assert _help_of(command).startswith(f"usage: runner {command} "), f"{command!r} is listed but not dispatched to its own parser"
 
 
 @pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
