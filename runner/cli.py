@@ -81,14 +81,15 @@ def _run_parser() -> argparse.ArgumentParser:
     m.add_argument("--settle", metavar="D", help="pause between cells (default 500ms, at most 1h)")
     m.add_argument("--shard", metavar="K/N", help="run the K-th of N disjoint parts of the matrix (for CI matrix jobs)")
     m.add_argument("--resume", metavar="DIR", help="finish the interrupted run in DIR; finished cells are not run again")
-    d = p.add_argument_group("machine").add_mutually_exclusive_group()
+    machine = p.add_argument_group("machine")  # one group: argparse prints a group per call, even under the same title
+    d = machine.add_mutually_exclusive_group()
     d.add_argument(
         "--dma-latency",
         metavar="US",
         help="hold /dev/cpu_dma_latency at US microseconds while cells run, as cyclictest does (default 0: no deep CPU idle states)",
     )
     d.add_argument("--no-dma-latency", action="store_true", help="leave /dev/cpu_dma_latency alone")
-    p.add_argument_group("machine").add_argument(
+    machine.add_argument(
         "--no-trace",
         action="store_true",
         help="do not trace the scheduler (no wake-up latency per wake-up, no preemption attribution; /proc figures stay)",

@@ -63,6 +63,12 @@ def test_every_command_the_dispatcher_accepts_is_listed_in_the_top_help(command)
     assert _help_of(command).startswith(f"usage: runner {command} "), f"{command!r} is listed but not dispatched to its own parser"
 
 
+@pytest.mark.parametrize("command", COMMANDS)
+def test_no_group_title_appears_twice_in_a_commands_help(command):
+    titles = [line for line in _help_of(command).splitlines() if line.endswith(":") and not line.startswith(" ")]
+    assert titles and len(titles) == len(set(titles)), f"runner {command} --help repeats a group: {titles}"
+
+
 @pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
 def test_bash_completion_completes_commands_options_and_files(tmp_path):
     outcome = run_cli("completion", "bash")
