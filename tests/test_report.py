@@ -818,6 +818,13 @@ def test_plot_lines_never_share_a_colour_and_style():
     assert len(set(looks)) == 40 >= MAX_SERIES
 
 
+def test_the_readme_names_the_plots_extra_in_the_words_of_the_skipped_note():
+    from runner.report.plots import PLOTS_EXTRA_INSTALL, skipped_note
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
+    assert f"`{PLOTS_EXTRA_INSTALL}`" in readme and f"`{PLOTS_EXTRA_INSTALL}`" in skipped_note()
+
+
 def test_plots_skipped_without_matplotlib_say_so_and_no_plots_says_nothing(tmp_path, monkeypatch, capsys):
     from runner.report import plots
 
@@ -825,7 +832,8 @@ def test_plots_skipped_without_matplotlib_say_so_and_no_plots_says_nothing(tmp_p
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     text = Path(write_report(matrix(), str(tmp_path / "a"))).read_text(encoding="utf-8")
-    assert "Plots skipped: matplotlib is not installed" in text and "pip install 'matplotlib>=3.7'" in text
+    assert "Plots skipped: matplotlib is not installed (plotting is the plots extra, `pip install '.[plots]'` in runner's clone" in text
+    assert "`pip install 'matplotlib>=3.7'` into its environment" in text  # installed otherwise (pipx, a wheel)
     assert not (tmp_path / "a" / "plots").exists() and "![" not in text
     assert "warning: Plots skipped" in capsys.readouterr().err
     text = Path(write_report(matrix(), str(tmp_path / "b"), plots=False)).read_text(encoding="utf-8")

@@ -17,7 +17,7 @@ file for results written before those existed.  Each line has its own colour and
 so lines stay apart past ten cells.  The switch plots put each series in its own panel, so
 threads at 0 switches do not hide behind one another.
 
-matplotlib is an extra (`pip install '.[plots]'` from a clone): `available()` says whether it is
+matplotlib is an extra (`PLOTS_EXTRA_INSTALL` from a clone): `available()` says whether it is
 installed, and the report says plots were skipped when it is not.  Output is deterministic
 (no dates, a fixed SVG id salt) so re-rendering the same results gives the same files.
 """
@@ -47,18 +47,26 @@ MAX_BINS = 200  # bins of a latency histogram at most: the bin width is the firs
 LINE_STYLES = ("-", "--", ":", "-.")  # with the ten colours of tab10: 40 lines, no two alike
 
 
-def install_hint() -> str:
-    """How to add what the plots extra adds, as the installed package declares it (`pip install 'matplotlib>=3.7'`).
+PLOTS_EXTRA_INSTALL = "pip install '.[plots]'"
+"""How the README tells a user to add the plots extra (from runner's clone); the skipped note says the same words.
 
-    Said as the requirement itself so it works however runner was installed (a clone, pipx, a wheel):
-    `pip install 'runner[plots]'` would fetch an unrelated package of that name from PyPI.
+The README cannot import it: tests/test_report.py checks that the README still says it.
+"""
+
+
+def install_hint() -> str:
+    """How to add what the plots extra adds: the extra as the README names it, then its requirement for other installs.
+
+    The extra works from runner's clone (`.[plots]`); installed otherwise (pipx, a wheel), the
+    requirement itself as the installed package declares it (`pip install 'matplotlib>=3.7'`)
+    is what works: `pip install 'runner[plots]'` would fetch an unrelated package of that name from PyPI.
     """
     try:
         requires = importlib.metadata.requires("runner") or []
     except importlib.metadata.PackageNotFoundError:
         requires = []
     spec = next((r.split(";")[0].strip() for r in requires if r.startswith("matplotlib") and "plots" in r), "matplotlib")
-    return f"pip install '{spec}'"
+    return f"the plots extra, {md_code(PLOTS_EXTRA_INSTALL)} in runner's clone, or {md_code(f'pip install {spec!r}')} into its environment"
 
 
 def available() -> bool:
@@ -75,8 +83,7 @@ def skipped_note(failure: BaseException | None = None) -> Markdown:
     """
     if failure is None:
         return Markdown(
-            f"Plots skipped: matplotlib is not installed (plotting is an extra: {md_code(install_hint())}, "
-            f"then {md_code('runner report')} draws them)."
+            f"Plots skipped: matplotlib is not installed (plotting is {install_hint()}; then {md_code('runner report')} draws them)."
         )
     if isinstance(failure, RunnerError):
         why = str(failure)
