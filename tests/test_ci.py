@@ -372,6 +372,43 @@ def test_rights_advice_covers_login_services_and_containers_and_never_setcap():
     assert "'rt  -  memlock  unlimited'" in memlock and "LimitMEMLOCK=infinity" in memlock
 
 
+@pytest.mark.parametrize("uid", [0, 1000])
+def test_rights_advice_to_root_without_the_capability_says_it_is_missing_not_sudo(monkeypatch, uid):
+    """Root in a container without CAP_SYS_NICE: sudo would change nothing; a user without it is told of sudo."""
+    import errno
+
+    from runner.run import preflight
+    from runner.run.preflight import Needs, Permissions
+    from runner.scenario.model import Policy
+
+    monkeypatch.setattr(preflight, "_try_on_thread", lambda action: errno.EPERM)  # the kernel refuses, as it would
+    wanted = Needs(rt={(Policy.FIFO, 80): "p/t"}, min_nice=(-5, "p/n"), lock="p")
+    missing = preflight.missing_rights(Permissions("root" if uid == 0 else "rt", uid, False, False, 0, 65536), wanted)
+    assert len(missing) == 3
+    for line, cap, container in zip(
+        missing, ("CAP_SYS_NICE", "CAP_SYS_NICE", "CAP_IPC_LOCK"), ("--cap-add SYS_NICE", "--cap-add SYS_NICE", "--cap-add IPC_LOCK")
+    ):
+        if uid == 0:
+            assert "run as root" not in line and "(sudo " not in line, line
+            assert f"this user is root but lacks {cap}" in line and container in line, line
+            assert "limits.d" not in line, line  # pam_limits is for logins of other users
+        else:
+            assert "run as root (sudo " in line and "limits.d" in line and "is root" not in line, line
+
+
+def test_rights_advice_to_root_with_the_capability_names_what_else_refuses(monkeypatch):
+    import errno
+
+    from runner.run import preflight
+    from runner.run.preflight import Needs, Permissions
+    from runner.scenario.model import Policy
+
+    monkeypatch.setattr(preflight, "_try_on_thread", lambda action: errno.EPERM)
+    (line,) = preflight.missing_rights(Permissions("root", 0, True, True, 0, -1), Needs(rt={(Policy.FIFO, 80): "p/t"}))
+    assert "this user is root and has CAP_SYS_NICE, so sudo would change nothing" in line and "cpu.rt_runtime_us" in line
+    assert "run as root" not in line and "--cap-add" not in line
+
+
 def test_no_message_of_the_runner_suggests_setcap():
     import runner
 

@@ -116,13 +116,49 @@ def how_to_grant(user: str, limit: str, value: str, service: str, container: str
     )
 
 
+def root_advice(cap: str, has_cap: bool, service: str, container: str, refused_anyway: str) -> str:
+    """What to say to a user who is root (euid 0) already: sudo would change nothing, so it is not offered.
+
+    Root without `cap` is what a container gives by default (Docker and Podman grant neither
+    CAP_SYS_NICE nor CAP_IPC_LOCK) or what a service's bounding set leaves: the capability is
+    what is missing.  Root with it and still refused is something else (`refused_anyway`: the
+    RT budget of its cgroup, a security policy).
+    """
+    if not has_cap:
+        return (
+            f"this user is root but lacks {cap} (as in a container that does not grant it), so sudo would change nothing; "
+            f"grant it: in a container, {container}; in a systemd service, {service} or AmbientCapabilities={cap} (README, Permissions)"
+        )
+    return f"this user is root and has {cap}, so sudo would change nothing; {refused_anyway} (README, Permissions)"
+
+
+_REFUSED_ANYWAY = "a security policy (seccomp, SELinux, AppArmor) may be refusing it"
+
+
 def _sudo() -> str:
     return runner_command(sys.executable, sys.prefix, sys.base_prefix)
 
 
+def _grant(perm: Permissions, cap: str, limit: str, value: str, service: str, container: str, refused_anyway: str = _REFUSED_ANYWAY) -> str:
+    """How to grant one right to this user: the ways for a user, or for root (who needs no sudo) what is missing."""
+    if perm.uid == 0:
+        has_cap = perm.cap_sys_nice if cap == "CAP_SYS_NICE" else perm.cap_ipc_lock
+        return root_advice(cap, has_cap, service, container, refused_anyway)
+    return how_to_grant(perm.user, limit, value, service, container, _sudo())
+
+
 def _grant_rt(perm: Permissions, priority: int) -> str:
     value = str(max(priority, 98))
-    return how_to_grant(perm.user, "rtprio", value, f"LimitRTPRIO={value}", f"--cap-add SYS_NICE --ulimit rtprio={value}", _sudo())
+    return _grant(
+        perm,
+        "CAP_SYS_NICE",
+        "rtprio",
+        value,
+        f"LimitRTPRIO={value}",
+        f"--cap-add SYS_NICE --ulimit rtprio={value}",
+        "the RT budget of the runner's cgroup may be 0 (a kernel with CONFIG_RT_GROUP_SCHED: cpu.rt_runtime_us; "
+        "docker run --cpu-rt-runtime=950000)",
+    )
 
 
 def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
@@ -221,7 +257,7 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
         if err:
             missing.append(
                 f"{where} needs nice {nice}, which this user may not set ({os.strerror(err)}); "
-                + how_to_grant(perm.user, "nice", str(nice), f"LimitNICE={nice}", "--cap-add SYS_NICE", _sudo())
+                + _grant(perm, "CAP_SYS_NICE", "nice", str(nice), f"LimitNICE={nice}", "--cap-add SYS_NICE")
             )
     if wanted.uclamp is not None and not os.path.exists(UCLAMP_KNOB):
         missing.append(
@@ -240,7 +276,8 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
         # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
         missing.append(
             f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
-            "CAP_IPC_LOCK; " + how_to_grant(perm.user, "memlock", "unlimited", "LimitMEMLOCK=infinity", "--ulimit memlock=-1", _sudo())
+            "CAP_IPC_LOCK; "
+            + _grant(perm, "CAP_IPC_LOCK", "memlock", "unlimited", "LimitMEMLOCK=infinity", "--cap-add IPC_LOCK or --ulimit memlock=-1")
         )
     return missing
 
