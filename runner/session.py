@@ -71,7 +71,7 @@ class RunOptions:
     dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
     junit: Optional[str] = None  # --junit FILE: the run as JUnit XML, for CI test reporters
     trace: bool = True  # trace the scheduler (tracefs) while cells run, where the kernel lets the runner
-    resume_options: tuple[str, ...] = ()  # with --resume: the run-shaping options given, for a file that may not record them
+    resume_options: dict[str, Any] = field(default_factory=dict)  # with --resume: the run-shaping options given, as _shaping_values
 
     @classmethod
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
@@ -88,11 +88,22 @@ class RunOptions:
                 raise UsageError(f"runner: --shuffle {ns.shuffle!r}: expected a seed (an integer) or 'random'") from None
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
-        shaping = _run_shaping(ns) if ns.resume else []
-        if recorded := [option for option in shaping if option not in _RECORDED_SINCE]:
-            raise _recorded_options_given(recorded)
         in_ci = env.get("CI", "") not in ("", "0", "false")
         dma_latency = None if ns.no_dma_latency else _dma_latency(ns.dma_latency)
+        shard = Shard.parse(ns.shard) if ns.shard else None
+        given = {
+            "--duration": duration,
+            "--cell": ns.cell,
+            "--repeat": repeat,
+            "--shuffle": "random" if ns.shuffle == "random" else seed,  # a random seed is no recorded one
+            "--settle": settle,
+            "--shard": str(shard) if shard else None,
+            "--dma-latency": dma_latency,
+            "--no-dma-latency": dma_latency,
+            "--no-trace": not ns.no_trace,
+        }
+        values = _shaping_values(given)
+        shaping = {option: values[option] for option in _run_shaping(ns)} if ns.resume else {}
         return cls(
             duration,
             ns.cell,
@@ -106,7 +117,7 @@ class RunOptions:
             shuffle_seed=seed,
             shuffle_drawn=ns.shuffle == "random",
             settle_ns=settle,
-            shard=Shard.parse(ns.shard) if ns.shard else None,
+            shard=shard,
             resume=ns.resume,
             baseline=ns.baseline,
             thresholds=thresholds_for(ns.threshold, ns.baseline),
@@ -116,12 +127,8 @@ class RunOptions:
             dma_latency_us=dma_latency,
             junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
             trace=not ns.no_trace,
-            resume_options=tuple(shaping),
+            resume_options=shaping,
         )
-
-
-_RECORDED_SINCE = ("--dma-latency", "--no-dma-latency", "--no-trace")
-"""Options a run's plan records only since plan.trace: a file without it may be resumed with them, as it began."""
 
 
 def _run_shaping(ns: argparse.Namespace) -> list[str]:
@@ -278,9 +285,48 @@ def _new_document(
     )
 
 
-def _recorded_options_given(options: Sequence[str]) -> UsageError:
-    """The refusal of options given with --resume that the run's plan already decides."""
-    return UsageError(f"runner: --resume DIR finishes DIR's run with the options it recorded; leave out {', '.join(options)}")
+def _shaping_values(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The run-shaping options' values in one form, given or recorded, so that equal means the same run.
+
+    Durations in ns, --cell as its set of globs, --shard as K/N, --dma-latency and
+    --no-dma-latency both as the latency held (None: left alone), --no-trace as whether
+    the run traces.  `values` has each option's value as RunOptions or the plan holds it.
+    """
+    return {option: tuple(sorted(set(value))) if option == "--cell" else value for option, value in values.items()}
+
+
+def _shown(option: str, value: Any) -> str:
+    """A run-shaping option's value as a user would have written it, or what its absence meant."""
+    if option == "--duration":
+        return f"--duration {units.format_duration(value)}" if value is not None else "no --duration (the scenario's)"
+    if option == "--cell":
+        return " ".join(f"--cell {glob}" for glob in value) if value else "no --cell (every cell)"
+    if option == "--shuffle":
+        return "no --shuffle" if value is None else "--shuffle (a random seed)" if value == "random" else f"--shuffle {value}"
+    if option == "--settle":
+        return f"--settle {units.format_duration(value)}"
+    if option == "--shard":
+        return f"--shard {value}" if value else "no --shard"
+    if option in ("--dma-latency", "--no-dma-latency"):
+        return "--no-dma-latency" if value is None else f"--dma-latency {value}"
+    if option == "--no-trace":
+        return "tracing (no --no-trace)" if value else "--no-trace"
+    return f"{option} {value}"
+
+
+def _recorded_options_differ(given: Mapping[str, Any], recorded: Mapping[str, Any]) -> None:
+    """Refuse options given with --resume whose value differs from the one the run recorded, saying both.
+
+    An option equal to the recorded one (`--duration 1s` given again to a 1 s run) changes
+    nothing and is taken: a user may repeat the command line that started the run.
+    """
+    differ = [option for option in given if option in recorded and given[option] != recorded[option]]
+    if differ:
+        said = "; ".join(f"{_shown(o, given[o])} was given, but the run recorded {_shown(o, recorded[o])}" for o in differ)
+        raise UsageError(
+            f"runner: --resume DIR finishes DIR's run with the options it recorded: {said}; "
+            f"leave out {', '.join(differ)}, or start a new run"
+        )
 
 
 def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocument:
@@ -307,6 +353,17 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     if problems:
         raise ScenarioError(problems)
     doc.cells = [c for c in doc.cells if c.status is not Status.INTERRUPTED and not c.unwritten]  # redo what was cut short
+    recorded = {
+        "--duration": plan.duration_ns,
+        "--cell": plan.cells,
+        "--repeat": plan.repeat,
+        "--shuffle": plan.shuffle_seed,
+        "--settle": DEFAULT_SETTLE_NS if plan.settle_ns is None else plan.settle_ns,
+        "--shard": str(Shard.parse(doc.shard)) if doc.shard else None,
+    }
+    if plan.trace is not None:  # recorded since plan.trace; an older file may be resumed with the options its start had
+        recorded |= {"--dma-latency": plan.dma_latency_us, "--no-dma-latency": plan.dma_latency_us, "--no-trace": plan.trace}
+    _recorded_options_differ(options.resume_options, _shaping_values(recorded))
     options.repeat = plan.repeat
     options.shuffle_seed = plan.shuffle_seed
     options.settle_ns = options.settle_ns if plan.settle_ns is None else plan.settle_ns
@@ -314,8 +371,6 @@ def _resumed_document(loaded: LoadedScenario, options: RunOptions) -> RunDocumen
     options.duration_ns = plan.duration_ns
     options.shard = Shard.parse(doc.shard) if doc.shard else None
     if plan.trace is not None:  # recorded since this runner: the rest of the run traces, and holds the latency, as its start did
-        if options.resume_options:
-            raise _recorded_options_given(options.resume_options)
         options.trace, options.dma_latency_us = plan.trace, plan.dma_latency_us
     doc.status, doc.finished_at = "running", None
     doc.command = options.command

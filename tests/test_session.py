@@ -255,16 +255,37 @@ def resume(scenario: str, out, backend: FakeBackend, *args: str) -> tuple[int, d
 
 
 @pytest.mark.parametrize(
-    "given",
-    [["--duration", "1s"], ["--cell", "*"], ["--repeat", "1"], ["--shuffle"], ["--settle", "0"], ["--shard", "1/2"], ["--no-trace"]]
-    + [["--dma-latency", "5"], ["--no-dma-latency"]],
+    ("given", "said"),
+    [
+        (["--duration", "1s"], "--duration 1s was given, but the run recorded no --duration (the scenario's)"),
+        (["--cell", "*"], "--cell * was given, but the run recorded no --cell (every cell)"),
+        (["--repeat", "2"], "--repeat 2 was given, but the run recorded --repeat 1"),
+        (["--shuffle"], "--shuffle (a random seed) was given, but the run recorded no --shuffle"),
+        (["--settle", "1s"], "--settle 1s was given, but the run recorded --settle 0s"),
+        (["--shard", "1/2"], "--shard 1/2 was given, but the run recorded no --shard"),
+        (["--no-trace"], "--no-trace was given, but the run recorded tracing (no --no-trace)"),
+        (["--dma-latency", "5"], "--dma-latency 5 was given, but the run recorded --dma-latency 0"),
+        (["--no-dma-latency"], "--no-dma-latency was given, but the run recorded --dma-latency 0"),
+    ],
 )
-def test_resume_refuses_options_that_would_run_the_rest_differently(tmp_path, given):
+def test_resume_refuses_options_that_would_run_the_rest_differently(tmp_path, given, said):
     out = tmp_path / "r"
     run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)}))
     done = run_cli(MATRIX, "--resume", str(out), "--quiet", *given)
     assert done.code == 2 and "Traceback" not in done.err, done.err
-    assert f"finishes DIR's run with the options it recorded; leave out {given[0]}" in done.err
+    assert f"finishes DIR's run with the options it recorded: {said}; leave out {given[0]}, or start a new run" in done.err
+
+
+def test_resume_takes_options_equal_to_the_recorded_ones(tmp_path):
+    """The command line that started the run, given again with --resume, finishes it (1000ms is the 1s recorded)."""
+    out = tmp_path / "r"
+    started = ["--duration", "1s", "--cell", "policy=*", "--cell", "policy=fifo*", "--shuffle", "7", "--dma-latency", "10"]
+    run(MATRIX, out, FakeBackend({**preempted_other(), FIFO_CELLS[1]: Act(signals=1)}), *started)
+    again = ["--duration", "1000ms", "--cell", "policy=fifo*", "--cell", "policy=*", "--shuffle", "7", "--dma-latency", "10"]
+    backend = FakeBackend(preempted_other())
+    code, results = resume(MATRIX, out, backend, *again, "--settle", "0", "--repeat", "1")
+    assert code == 0 and FIFO_CELLS[1] in backend.ran and len(backend.ran) < 5 and backend.dma_requests == [10]
+    assert sorted(c["id"] for c in results["cells"]) == sorted(FIFO_CELLS + [OTHER]) and results["status"] == "passed"
 
 
 def test_resume_runs_the_rest_traced_and_held_as_the_run_began(tmp_path):
