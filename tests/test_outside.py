@@ -157,6 +157,69 @@ def test_how_a_program_ended_decides_whether_the_cell_was_measured_as_written(un
         assert len(out.failures) == 1 and failure in out.failures[0], out.failures
 
 
+MISSING = "program 'nosuch' is not in PATH (/usr/bin)"
+
+
+def test_a_program_the_cell_left_at_its_gate_did_not_start_and_claims_no_duration_nor_signal():
+    """A second program missing from PATH stopped the cell before its start: the first, held at its gate, never ran."""
+    gated = _program(_spec(until="exit"), (), released_ns=None, exited_ns=T0, tail=())  # stopped with SIGTERM, as the shell once said
+    out = outcome(gated, None, T0, False, degradation, MISSING)
+    assert out.failures == [] and out.warnings == []
+    assert not out.result.started and out.result.failure == f"did not start: the cell stopped before its start because {MISSING}"
+    never_launched = _program(_spec(), (), pid=0, path="", released_ns=None, exited_ns=None, exit_signal=None, stopped="", tail=())
+    assert outcome(never_launched, None, T0, False, degradation).result.failure == "did not start: the cell stopped before its start"
+    released = _program(_spec(until="exit"), (_thread(500, 0, "rtprog", FIFO80),))  # exec'd, then stopped with the cell, unstarted
+    assert outcome(released, None, T0 + SECOND, False, degradation, MISSING).failures == []
+
+
+def test_a_cell_stopped_before_its_start_by_a_missing_program_says_only_that(tmp_path):
+    path = tmp_path / "two.yaml"
+    path.write_text(
+        "name: two\nduration: 1s\nprocesses:\n  - {name: quitter, command: [sleep, '1'], until: exit}\n"
+        "  - {name: missing, command: [nosuch]}\n"
+    )
+    cell = load_scenario(os.fspath(path)).cells[0]
+    quitter, missing = cell.scenario.programs
+    raw = RawCell(
+        "2026-01-01T00:00:00+00:00",
+        (),
+        0,
+        Timeline(0, None, None, None, T0),
+        failures=(MISSING,),
+        programs=(
+            _program(quitter, (), released_ns=None, exited_ns=T0, exit_signal=None, stopped="", tail=()),
+            _program(missing, (), pid=0, path="", failure=MISSING, released_ns=None, exited_ns=None, exit_signal=None, stopped=""),
+        ),
+    )
+    result = evaluate(cell, cell.scenario, raw, allow_degraded=False)
+    assert result.status is Status.ERROR and result.reason == MISSING
+    lines = program_lines(result)
+    assert f"did not start: the cell stopped before its start because {MISSING}" in lines[0] and "SIGTERM" not in lines[0]
+    assert f"could not start: {MISSING}" in lines[1]
+
+
+def test_a_program_stopped_at_its_gate_is_not_said_to_have_been_stopped_with_sigterm(monkeypatch, tmp_path):
+    """A short real fork: the child waits at its gate, never execs; stopping it records no signal and no exit of the program."""
+    from runner.run import external, memcg
+
+    class Guard:
+        def watch(self, pgid: int) -> None: ...
+        def forget(self, pgid: int) -> None: ...
+        def watch_cgroup(self, path: str) -> None: ...
+        def forget_cgroup(self, path: str) -> None: ...
+
+    monkeypatch.setattr(memcg, "hierarchy", lambda limit=True: (None, "no cgroup in this test"))
+    spec = ProgramSpec.model_validate({"name": "quitter", "command": ["true"], "until": "exit"})
+    run = external.ProgramRun(spec, str(tmp_path), OTHER, (0,))
+    run.launch(Guard())
+    assert run.pid and not run.failure
+    run.stop(Guard())  # the cell stopped before releasing it
+    raw = run.raw(None, T0)
+    assert run.stopped == "" and raw.stopped == "" and raw.exit_code is None and raw.exit_signal is None and raw.released_ns is None
+    with pytest.raises(ChildProcessError):
+        os.waitpid(run.pid, os.WNOHANG)  # reaped
+
+
 def test_a_program_that_ignored_sigterm_is_a_warning_and_a_rule_that_matched_nothing_too():
     raw = _program(
         _spec(threads=[{"match": "rt_*", "sched": "fifo:70"}]),

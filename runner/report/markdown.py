@@ -37,6 +37,7 @@ from runner.report.fmt import (
 )
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
 from runner.results.document import (
+    NOT_STARTED,
     BackgroundKind,
     CellResult,
     FoldedThreads,
@@ -412,8 +413,8 @@ def trace_line(cell: CellResult) -> str | None:
 
 
 def _ended(p: ProgramResult) -> str:
-    if p.failure:
-        return f"could not start: {p.failure}"
+    if p.failure:  # its own failure, or its cell's, which stopped before the program's start (said in words already)
+        return p.failure if p.failure.startswith(NOT_STARTED) else f"could not start: {p.failure}"
     if p.stopped:
         how = "stopped with SIGTERM" if p.stopped == "SIGTERM" else "killed with SIGKILL after ignoring SIGTERM"
         return f"{how} at the end of the cell"

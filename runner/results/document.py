@@ -468,6 +468,10 @@ class TraceInfo(_Record):
     notes: list[str] = Field(default_factory=list)
 
 
+NOT_STARTED = "did not start: the cell stopped before its start"
+"""A program's `failure` when it never exec'd because its cell stopped first (followed by ` because ...`, when known)."""
+
+
 class ProgramResult(_Record):
     """A user's program (command:) in one cell: how it started and ended, and where its output went."""
 

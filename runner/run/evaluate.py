@@ -409,8 +409,12 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         measured.append((p, fig))
     program_failures: list[str] = []
     program_warnings: list[str] = []
+    before_start = ""  # why the cell stopped before its start gate, for the programs it left there
+    if raw.timeline.start_ns is None:
+        before_start = "the run was interrupted" if raw.interrupted else (raw.failures[0] if raw.failures else "")
     for prog in raw.programs:
-        out = outside.outcome(prog, raw.timeline.start_ns, raw.timeline.stopped_ns or raw.timeline.ended_ns, raw.interrupted, degradation)
+        end = raw.timeline.stopped_ns or raw.timeline.ended_ns
+        out = outside.outcome(prog, raw.timeline.start_ns, end, raw.interrupted, degradation, before_start)
         result.programs.append(out.result)
         result.threads.extend(t for _, t in out.threads)
         measured.extend((planned, t.figures) for planned, t in out.threads)

@@ -367,11 +367,22 @@ class ProgramRun:
             self.halted_ns = self._stopped_seen
 
     def stop(self, guard: Watcher) -> None:
-        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too."""
+        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too.
+
+        One never released (the cell stopped while it waited at its gate) never ran: its gate is
+        closed and what is left of it is killed, and `stopped` stays empty, as nothing of the
+        program was stopped (its results would otherwise say it ran the cell and ignored SIGTERM).
+        """
         if not self.pid or self.attached:
             self._close_cgroup(guard)
             return
-        if not self.poll():
+        if self.released_ns is None:
+            self.abandon()
+            if not self.poll():
+                _killpg(self.pid, signal.SIGKILL)
+                _, self.status = os.waitpid(self.pid, 0)
+                self.exited_ns = time.monotonic_ns()
+        elif not self.poll():
             _killpg(self.pid, signal.SIGTERM)
             self.stopped = "SIGTERM"
             until = time.monotonic() + self.spec.grace / 1e9
@@ -454,7 +465,7 @@ class ProgramRun:
 
     def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
         code = sig = None
-        if self.status is not None:
+        if self.status is not None and self.released_ns is not None:  # a child that never exec'd: its exit is not the program's
             if os.WIFSIGNALED(self.status):
                 sig = os.WTERMSIG(self.status)
             else:

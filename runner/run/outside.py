@@ -18,7 +18,7 @@ from typing import Optional
 
 from runner import units
 from runner.figures import Faults, Involuntary, ThreadFigures, Voluntary
-from runner.results.document import FoldedRule, FoldedThreads, HistoryGap, ProgramResult, SettingsSnapshot, ThreadResult
+from runner.results.document import NOT_STARTED, FoldedRule, FoldedThreads, HistoryGap, ProgramResult, SettingsSnapshot, ThreadResult
 from runner.run.child import signal_name
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
 from runner.run.rawcell import FoldedThreads as RawFolded
@@ -99,6 +99,11 @@ def _folded(spec: ProgramSpec, folded: Optional[RawFolded], since: Callable[[int
     )
 
 
+def _not_started(why: str) -> str:
+    """A program's record when it never exec'd because the cell stopped first (`why`: the cell's reason, if known)."""
+    return NOT_STARTED + (f" because {why}" if why else "")
+
+
 def _role(t: RawProgramThread, pid: int) -> str:
     """What the thread is to the program, in words (the results' `work`)."""
     if t.index == 0:
@@ -129,12 +134,17 @@ def outcome(
     end_ns: int,
     interrupted: bool,
     degradation: DegradationFn,
+    before_start: str = "",
 ) -> ProgramOutcome:
     """A program's result, its threads and its failures; `start` is what it inherited from the runner.
 
     `degradation` says how settings fell short of a request, in words (evaluate.degradation).
+    `before_start` is why the cell stopped before its start gate, when it did (another program
+    not found, an interrupt): a program it left at its gate, or never launched, did not start,
+    and its record says so and why; it adds no failure of its own, nor claims a duration or a signal.
     """
     spec, start = raw.spec, raw.start
+    never_ran = not raw.attached and not raw.failure and raw.released_ns is None
 
     def since(ns: int) -> int:
         return ns - (t0 if t0 is not None else ns)
@@ -154,7 +164,7 @@ def outcome(
     oom = bool(raw.oom_kills) and raw.exit_signal == signal.SIGKILL and raw.stopped != "SIGKILL"
     if spec.memory_max is not None and raw.memory_note:
         degraded.append(f"memory_max {units.format_size(spec.memory_max)} not applied: {raw.memory_note}")
-    elif raw.memory_note and not raw.failure:
+    elif raw.memory_note and not raw.failure and not never_ran:
         warnings.append(
             f"program {spec.name} has no cgroup of its own ({raw.memory_note}): what it starts in a session of its own "
             "(setsid, a daemon) is neither measured nor stopped with it"
@@ -166,8 +176,10 @@ def outcome(
     elif raw.exit_code is not None:
         how = f"exited with code {raw.exit_code}"
     last = f"; its last output: {' | '.join(raw.tail)}" if raw.tail else "; it wrote nothing"
-    if raw.failure or interrupted:
+    if raw.failure or interrupted or never_ran:
         pass  # the shell could not start it (that is the cell's failure already), or the user stopped the cell
+    elif t0 is None and not exited_by_itself:
+        pass  # released, then stopped with the cell before its start (another program could not exec): the cell's failure says why
     elif raw.attached:
         if raw.exited_ns is not None:
             failures.append(f"process {spec.name} (pid {raw.pid}) exited {at(raw.exited_ns)}; its threads were measured until then")
@@ -204,7 +216,7 @@ def outcome(
             f"program {spec.name}: the OOM killer ended {raw.oom_kills} of its tasks at its memory_max of "
             f"{units.format_size(raw.memory_limit or 0)}"
         )
-    if raw.stopped == "SIGKILL" and not raw.failure:
+    if raw.stopped == "SIGKILL" and not raw.failure and not never_ran:
         warnings.append(f"program {spec.name} did not exit within {units.format_duration(spec.grace)} of SIGTERM and was killed (SIGKILL)")
     result = ProgramResult(
         name=spec.name,
@@ -212,7 +224,7 @@ def outcome(
         path=raw.path,
         pid=raw.pid or None,
         started=raw.released_ns is not None and not raw.failure,
-        failure=raw.failure,
+        failure=raw.failure or (_not_started(before_start) if never_ran else ""),
         requested=main_wanted,
         degraded=degraded,
         exit_code=raw.exit_code,
@@ -268,7 +280,7 @@ def outcome(
         )
     folded_rules = {r.rule for r in raw.folded.rules} if raw.folded is not None else set()
     for i, rule in enumerate(spec.threads):
-        if not raw.failure and not any(t.rule == i for t in raw.threads) and i not in folded_rules:
+        if not raw.failure and not never_ran and not any(t.rule == i for t in raw.threads) and i not in folded_rules:
             seen = sorted({t.comm for t in raw.threads})
             warnings.append(f"program {spec.name}: no thread matched the rule {rule.match!r}; its threads: {', '.join(seen) or 'none'}")
     return ProgramOutcome(result, threads, failures, warnings)
