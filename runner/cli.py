@@ -438,7 +438,7 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.outdir import REPORT_NAME, writable_file
     from runner.report.compare import thresholds_for
     from runner.report.markdown import render_run
-    from runner.report.publish import compare_files, comparison_statuses, report_files
+    from runner.report.publish import compare_files, comparison_statuses, report_files, say_comparison
     from runner.results.read import load
     from runner.session import exit_code
 
@@ -451,7 +451,7 @@ def _cmd_report(argv: list[str]) -> int:
         _export(doc, ns)
         if not ns.output:
             return 0
-    section, regressions, statuses = None, 0, []
+    section, regressions, statuses, cmp = None, 0, [], None
     thresholds = thresholds_for(ns.threshold, ns.baseline)
     if ns.baseline:  # decided as `runner compare` decides on the same files
         section, cmp = compare_files(ns.baseline, doc, ns.results, thresholds)
@@ -473,6 +473,8 @@ def _cmd_report(argv: list[str]) -> int:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
         say(f"report: {path}")
+        if cmp is not None:
+            say_comparison(cmp, ns.baseline, ns.results, path)
         if failed is not None:  # a samples file the plots could not read is this command's input: its error, report written
             raise failed
     return int(exit_code(statuses, regressions))

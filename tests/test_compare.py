@@ -576,3 +576,22 @@ def test_the_registry_marks_the_figures_taken_from_the_scheduler_trace():
 
     traced = {f.name for f in fg.REGISTRY if f.traced}
     assert traced == {"preemptions"} | {f.name for f in fg.REGISTRY if f.path[0] == "wakeup_ns"}
+
+
+def test_a_regression_against_the_baseline_is_said_on_the_terminal_not_only_in_report_md(tmp_path):
+    """A run (or merge, or report) with --baseline printed `passed` and exit 1, the regressions only in report.md: a CI
+    log read as a pass that failed.  The terminal now has the comparison's headline, in plain words."""
+    new = copy.deepcopy(matrix())
+    cell = new.cells[1]
+    t = main_thread(cell)
+    cell.threads[cell.threads.index(t)] = t.model_copy(update={"figures": t.figures.model_copy(update={"latency_ns": None})})
+    path = save(new, tmp_path / "new")
+    done = run_cli("report", path, "--baseline", MATRIX, "--no-plots")
+    assert done.code == 1, done.err
+    line = next(x for x in done.out.splitlines() if x.startswith(f"compared with {MATRIX}: "))
+    assert f"❌ 1 regression in 1 of 5 cells: {cell.id}." in line and "**" not in line and line.endswith("report.md)")
+    same = run_cli("report", MATRIX, "--baseline", MATRIX, "--no-plots", "-o", str(tmp_path / "r.md"))
+    assert same.code == 0 and f"compared with {MATRIX}: ✅ No regression in 5 cells compared with the baseline." in same.out, same.out
+    merged = run_cli("merge", path, "--out", str(tmp_path / "merged"), "--baseline", MATRIX, "--no-plots")  # as a run does
+    said = next(x for x in merged.out.splitlines() if x.startswith(f"compared with {MATRIX}: "))
+    assert merged.code == 1 and "❌ 1 regression" in said and said.endswith(f"{tmp_path / 'merged' / 'comparison.md'})"), merged.out

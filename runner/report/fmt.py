@@ -117,6 +117,11 @@ def _escape_line_start(text: str) -> str:
     return text
 
 
+def terminal_text(value: Markdown) -> str:
+    """Inline markdown as a terminal shows it: emphasis marks and code ticks dropped, escapes undone."""
+    return re.sub(r"\\(.)", r"\1", value.replace("**", "").replace("`", ""))
+
+
 def md_code(value: object, in_table: bool = False) -> Markdown:
     """Plain text as an inline code span that shows it verbatim (a fence longer than any backtick run in it).
 

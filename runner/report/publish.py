@@ -14,6 +14,7 @@ from runner.outdir import REPORT_NAME
 from runner.report import github
 from runner.report import markdown as report
 from runner.report.compare import Comparison, Threshold, compare
+from runner.report.fmt import terminal_text
 from runner.report.junit import junit_xml
 from runner.results.document import RunDocument, Status
 from runner.results.files import write_atomic
@@ -113,6 +114,16 @@ def comparison_statuses(cmp: Comparison, new_path: str) -> list[Status]:
     return cmp.statuses()
 
 
+def say_comparison(cmp: Comparison, base_name: str, new_name: str, where: str) -> None:
+    """The comparison's headline on the terminal, in plain words, and the file that holds the rest (`where`).
+
+    A CI log must say how the comparison went, not only report.md: a run's `passed` above an
+    exit code of 1 read as a pass that failed.
+    """
+    headline = report.build_comparison(cmp, base_name, new_name).headline
+    say(f"compared with {base_name}: {terminal_text(headline)} ({where})")
+
+
 def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Optional[str], env: dict[str, str], run: bool = True) -> None:
     """What CI systems read: the JUnit XML file (`--junit FILE`), and in GitHub Actions the workflow annotations.
 
@@ -158,6 +169,7 @@ def finish(
             refused = exc
         else:
             write_atomic(os.path.join(folder, "comparison.md"), section)
+            say_comparison(cmp, baseline, results_path, os.path.join(folder, "comparison.md"))
     if write:
         path = write_report(doc, folder, section, plots)
         say(f"report: {path}")
