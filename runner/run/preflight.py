@@ -116,18 +116,21 @@ def how_to_grant(user: str, limit: str, value: str, service: str, container: str
     )
 
 
-def root_advice(cap: str, has_cap: bool, service: str, container: str, refused_anyway: str) -> str:
+def root_advice(cap: str, has_cap: bool, service: str, container: str, refused_anyway: str, limit: str = "", value: str = "") -> str:
     """What to say to a user who is root (euid 0) already: sudo would change nothing, so it is not offered.
 
     Root without `cap` is what a container gives by default (Docker and Podman grant neither
     CAP_SYS_NICE nor CAP_IPC_LOCK) or what a service's bounding set leaves: the capability is
-    what is missing.  Root with it and still refused is something else (`refused_anyway`: the
-    RT budget of its cgroup, a security policy).
+    what is missing, or root's own resource limit (`limit`, raised to `value`), which binds it
+    as any user once the capability is gone.  Root with it and still refused is something else
+    (`refused_anyway`: the RT budget of its cgroup, a security policy).
     """
     if not has_cap:
+        rlimit = f"add the line 'root  -  {limit}  {value}' to a file in /etc/security/limits.d/ and log in again; " if limit else ""
         return (
             f"this user is root but lacks {cap} (as in a container that does not grant it), so sudo would change nothing; "
-            f"grant it: in a container, {container}; in a systemd service, {service} or AmbientCapabilities={cap} (README, Permissions)"
+            f"grant it, or raise root's own limit, with one of: {rlimit}in a container, {container}; in a systemd service, "
+            f"{service} or AmbientCapabilities={cap} (README, Permissions)"
         )
     return f"this user is root and has {cap}, so sudo would change nothing; {refused_anyway} (README, Permissions)"
 
@@ -143,7 +146,7 @@ def _grant(perm: Permissions, cap: str, limit: str, value: str, service: str, co
     """How to grant one right to this user: the ways for a user, or for root (who needs no sudo) what is missing."""
     if perm.uid == 0:
         has_cap = perm.cap_sys_nice if cap == "CAP_SYS_NICE" else perm.cap_ipc_lock
-        return root_advice(cap, has_cap, service, container, refused_anyway)
+        return root_advice(cap, has_cap, service, container, refused_anyway, limit, value)
     return how_to_grant(perm.user, limit, value, service, container, _sudo())
 
 
