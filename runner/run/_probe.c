@@ -497,7 +497,18 @@ struct group {
     Py_ssize_t nres;
 };
 
-static void burn_until_end(const struct group *g, int64_t ns, int wall);
+/* A periodic callback's burn: `ns` of the thread's CPU time (of wall time if `wall`), cut short only by a stop
+ * (SIGTERM, SIGINT, the runner's stop).  A callback under way at the run's end runs to its own end, measured, and
+ * the background load stays beside it; but one of a long period (up to an hour) at an RT priority must end when
+ * the runner stops the cell, not spin on through it. */
+static void burn(const struct work *w) {
+    clockid_t clock = w->burn_wall ? CLOCK_MONOTONIC : CLOCK_THREAD_CPUTIME_ID;
+    int64_t until = now_ns(clock) + w->burn_ns;
+    unsigned k = 0;
+    while (now_ns(clock) < until) {
+        if ((++k & 255) == 0 && g_stop) break;
+    }
+}
 
 static int touch_memory(int64_t bytes, long page) {
     volatile uint8_t *p = malloc((size_t)bytes);
@@ -604,7 +615,7 @@ static void run_periodic(struct slot *s) {
             if (err) h->err_other = err;
         }
         int64_t b0 = now_ns(CLOCK_MONOTONIC);
-        if (w->burn_ns > 0) burn_until_end(g, w->burn_ns, w->burn_wall);
+        if (w->burn_ns > 0) burn(w);
         int64_t b1 = now_ns(CLOCK_MONOTONIC);
         read_ru(ru1);
         int cpu1 = sched_getcpu();
@@ -754,9 +765,6 @@ static void res_wait(struct resource *c, struct resource *m, const struct group 
 }
 
 /* Burn thread CPU time (run) or wall time (runtime); gives up at the end of the run. */
-/* Burn `ns` of the thread's CPU time (of wall time if `wall`), cut short by the run's end or a stop:
- * a callback's burn may be as long as its period (an hour), and one begun just before the end,
- * at an RT priority, must not spin on for that long after the run (nor past SIGTERM). */
 static void burn_until_end(const struct group *g, int64_t ns, int wall) {
     clockid_t clock = wall ? CLOCK_MONOTONIC : CLOCK_THREAD_CPUTIME_ID;
     int64_t until = now_ns(clock) + ns;
