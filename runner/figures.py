@@ -78,7 +78,8 @@ def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
     precision.  But no value that is not zero may read as 0 or lose its first two digits: a
     column of an OTHER cell's 142 ms beside a FIFO cell's 176 µs wrote the FIFO one as `0` ms.
     Such a column steps down a unit (142,318 and 176 µs) while its largest stays under ten
-    million, then takes decimals (up to 3) for its smallest.  Means of counts per callback
+    million, then takes decimals (up to 3) for its smallest; in µs, only a value under half a
+    microsecond takes them (a lock wait of 117 ns beside 7 ms).  Means of counts per callback
     with two decimals, counts whole.
     """
     if unit is Unit.COUNT:
@@ -103,8 +104,8 @@ def scale(unit: Unit, values: Iterable[Optional[Number]] = ()) -> Scale:
         at -= 1
     name, per = _DURATION_UNITS[at]
     places = decimals(per)
-    while places < 3 and too_coarse(per, places) and at > 0:  # µs keeps whole microseconds, as cyclictest prints them
-        places += 1
+    while places < 3 and too_coarse(per, places) and (at > 0 or round(smallest / per, places) == 0):
+        places += 1  # in µs only what would read 0 takes decimals: whole microseconds otherwise, as cyclictest prints them
     return Scale(name, per, places)
 
 

@@ -149,6 +149,8 @@ def test_the_duration_pattern_refuses_what_the_parser_refuses(text):
         ([20_000_000_000, 200_000], ["20,000.00", "0.20"]),  # µs would be too long a number: ms, with decimals
         ([5_400, 176_000], ["5", "176"]),  # whole microseconds, as cyclictest prints them
         ([0, 142_000_000], ["0", "142"]),  # a zero is a zero
+        ([7_156_000, 117], ["7,156.0", "0.1"]),  # a lock wait of 117 ns beside 7 ms: was `0` µs
+        ([150_000, 400], ["150.0", "0.4"]),
     ],
 )
 def test_a_duration_column_shows_no_value_that_is_not_zero_as_zero(values, shown):
