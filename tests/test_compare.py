@@ -595,3 +595,10 @@ def test_a_regression_against_the_baseline_is_said_on_the_terminal_not_only_in_r
     merged = run_cli("merge", path, "--out", str(tmp_path / "merged"), "--baseline", MATRIX, "--no-plots")  # as a run does
     said = next(x for x in merged.out.splitlines() if x.startswith(f"compared with {MATRIX}: "))
     assert merged.code == 1 and "❌ 1 regression" in said and said.endswith(f"{tmp_path / 'merged' / 'comparison.md'})"), merged.out
+
+
+def test_a_figure_given_two_thresholds_is_refused_not_the_last_one_kept(tmp_path):
+    """`--threshold latency.p99=+20% --threshold latency.p99=off` judged nothing: the last one silently won."""
+    done = run_cli("compare", MATRIX, MATRIX, "--threshold", "latency.p99=+20%", "--threshold", "latency.p99=off")
+    assert done.code == 2 and "--threshold latency.p99 is given twice" in done.err, done.err
+    assert run_cli("compare", MATRIX, MATRIX, "--threshold", "latency.p99=+20%", "--threshold", "latency.max=off").code == 0

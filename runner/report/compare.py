@@ -120,9 +120,17 @@ def _finite(text: str) -> float:
 
 
 def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
-    """The defaults, with `overrides` replacing or adding figures."""
+    """The defaults, with `overrides` replacing or adding figures; a figure given twice is refused, not the last kept."""
     out = {t.figure: t for t in DEFAULT_THRESHOLDS}
-    out.update({t.figure: t for t in overrides})
+    given: set[str] = set()
+    for t in overrides:
+        if t.figure in given:
+            raise UsageError(
+                f"runner: --threshold {t.figure} is given twice, and one would silently win; expected one --threshold per "
+                "figure, with both its limits in it if need be (latency.p99=+20%,+10us)"
+            )
+        given.add(t.figure)
+        out[t.figure] = t
     return list(out.values())
 
 
