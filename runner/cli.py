@@ -487,6 +487,13 @@ def _check_export_options(ns: argparse.Namespace) -> None:
         raise UsageError(f"runner report: --cell {ns.cell} chooses the cell to export; give --histogram FILE or --json FILE too")
     if ns.histogram_max is not None and not ns.histogram:
         raise UsageError(f"runner report: --histogram-max {ns.histogram_max} sets the size of the histogram; give --histogram FILE too")
+    exports = [option for option, given in (("--histogram", ns.histogram), ("--json", ns.json)) if given]
+    if exports and not ns.output and (ns.baseline or ns.threshold):
+        option = "--baseline" if ns.baseline else "--threshold"
+        raise UsageError(
+            f"runner report: {option} compares the report with a baseline, but {' and '.join(exports)} alone write no report "
+            "(and decide no exit code); give -o FILE too, or run runner compare"
+        )
 
 
 def _export(doc: Any, ns: argparse.Namespace) -> None:

@@ -130,3 +130,15 @@ def test_cell_and_histogram_max_without_the_export_they_shape_are_refused(tmp_pa
     assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 50), done.err
     done = run_cli("report", path, "--histogram", "-", "--cell", "a=2")  # cyclictest -h's usual 1000 us
     assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 1000), done.err
+
+
+def test_a_baseline_with_only_an_export_is_refused_not_ignored(tmp_path):
+    """`runner report RUN --json FILE --baseline BASE` exported and exited 0, the baseline never read, where `runner
+    compare` on the same files failed: an export writes no report and decides no exit code."""
+    path = str(tmp_path / "results.json")
+    RunDocument(cells=[_cell("a=1")]).save(path)
+    for given in (["--baseline", path], ["--threshold", "latency.p99=+1%"]):
+        done = run_cli("report", path, "--json", str(tmp_path / "j.json"), *given)
+        assert done.code == 2 and "alone write no report" in done.err and not os.path.exists(tmp_path / "j.json"), done.err
+    done = run_cli("report", path, "--json", str(tmp_path / "j.json"), "-o", str(tmp_path / "r.md"), "--baseline", path)
+    assert done.code != 2 and os.path.exists(tmp_path / "j.json") and "compared" in done.err, done.err  # with -o: compared
