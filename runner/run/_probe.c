@@ -734,13 +734,14 @@ static int taken_over(struct resource *r, int rc) {
 /* One slice's wait for the mutex: on CLOCK_MONOTONIC where the C library and kernel serve it (a step of the
  * wall clock would stretch a CLOCK_REALTIME one), else on CLOCK_REALTIME. */
 static int lock_slice(struct resource *r, const struct group *g) {
-    static _Atomic int realtime_only;
+    static _Atomic int pi_realtime_only; /* PI mutexes only: plain ones take CLOCK_MONOTONIC from glibc 2.30 on */
 #if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 30))
-    if (!atomic_load_explicit(&realtime_only, memory_order_relaxed)) {
+    int pi = r->kind != RES_MUTEX || r->protocol == 1; /* as init_resources made them */
+    if (!pi || !atomic_load_explicit(&pi_realtime_only, memory_order_relaxed)) {
         struct timespec ts = slice_monotonic(g);
         int rc = pthread_mutex_clocklock(&r->m, CLOCK_MONOTONIC, &ts);
-        if (rc != EINVAL) return taken_over(r, rc);
-        atomic_store_explicit(&realtime_only, 1, memory_order_relaxed); /* a PI mutex before FUTEX_LOCK_PI2 */
+        if (rc != EINVAL || !pi) return taken_over(r, rc);
+        atomic_store_explicit(&pi_realtime_only, 1, memory_order_relaxed); /* before glibc 2.35 or FUTEX_LOCK_PI2 */
     }
 #endif
     (void)g;
