@@ -7,10 +7,13 @@ from typing import Any
 
 import pytest
 
+from runner.results.document import Verdict
 from runner.run import external, kernel
+from runner.run.evaluate import evaluate
 from runner.run.external import HISTORY_FIRST, HISTORY_LAST, MAX_THREADS, Monitor, ProgramRun, SettingsHistory
 from runner.run.kernel import Counters
-from runner.run.rawcell import FoldedRule, HistoryGap, Snapshot
+from runner.run.rawcell import FoldedRule, HistoryGap, RawCell, Snapshot, Timeline
+from runner.scenario.loader import load_scenario
 from runner.scenario.model import Policy, ProgramSpec
 from runner.scenario.plan import Settings
 
@@ -243,3 +246,76 @@ def test_the_main_thread_is_never_folded(monkeypatch):
     end = _tick(monitor, run, 1)
     raw = run.raw(T0, end)
     assert [(t.tid, t.gone_ns) for t in raw.threads] == [(PID, end), (600, None)] and raw.folded is None
+
+
+def _judged(tmp_path: Any, monkeypatch: pytest.MonkeyPatch, churn: list[tuple[str, int]], limit: float = 1000) -> list[Verdict]:
+    """The verdicts of `expect: server/flush involuntary.total <= limit` on a program whose threads come and go.
+
+    `churn` is (name, how many) in order: each such thread appears, is read once and exits,
+    with MAX_THREADS at 4, so the first few are kept and the rest folded.
+    """
+    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    path = tmp_path / "churn.yaml"
+    path.write_text(
+        "name: churn\nduration: 1s\nprocesses:\n  - name: server\n    command: [server]\n"
+        f"expect:\n  - {{thread: server/flush, metric: involuntary.total, max: {limit}}}\n"
+    )
+    cell = load_scenario(str(path)).cells[0]
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run = ProgramRun(cell.scenario.programs[0], "/tmp", OTHER, (0, 1))
+    run.pid = PID
+    monitor = Monitor([run], lambda pids: (None, "no process events in this test"))
+    monitor.window_start = T0
+    n = 0
+    end = _tick(monitor, run, n)
+    tid = 700
+    for name, count in churn:
+        for _ in range(count):
+            proc.add(tid, name)
+            _tick(monitor, run, n := n + 1)
+            del proc.threads[tid]
+            end = _tick(monitor, run, n := n + 1)
+            tid += 1
+    raw = RawCell("2026-01-01T00:00:00+00:00", (), 0, Timeline(0, T0, end, end, end), programs=(run.raw(T0, end),))
+    result = evaluate(cell, cell.scenario, raw, allow_degraded=False)
+    return [v for v in result.expectations if v.thread.startswith("server/flush")]
+
+
+def test_an_expectation_on_a_name_whose_threads_were_all_folded_is_not_measured_and_says_they_were_folded(tmp_path, monkeypatch):
+    """Every flush thread came after the cap was full and was folded: they ran, so "no thread of that name ran" would be false."""
+    verdicts = _judged(tmp_path, monkeypatch, [("request", 10), ("flush", 20)])
+    assert [(v.passed, v.measured, v.note) for v in verdicts] == [
+        (False, None, "not measured (20 threads of that name were folded (beyond 4 thread records) and not checked)")
+    ]
+
+
+def test_an_expectation_kept_threads_pass_does_not_pass_the_cell_when_others_of_that_name_were_folded(tmp_path, monkeypatch):
+    """Two flush threads were kept and pass; eighteen more were folded unchecked: the cell must not read as passed."""
+    verdicts = _judged(tmp_path, monkeypatch, [("flush", 20)])
+    kept = [v for v in verdicts if v.measured is not None]
+    assert kept and all(v.passed for v in kept), "the kept ones are checked as before"
+    unchecked = [v for v in verdicts if v.measured is None]
+    assert [(v.passed, v.note) for v in unchecked] == [
+        (
+            False,
+            f"not measured ({20 - len(kept)} threads of that name were folded (beyond 4 thread records) and not checked; "
+            "the verdicts of the kept threads of that name do not speak for them)",
+        )
+    ]
+
+
+def test_an_expectation_on_a_name_no_thread_had_still_says_none_ran_beside_folded_threads_of_other_names(tmp_path, monkeypatch):
+    verdicts = _judged(tmp_path, monkeypatch, [("request", 20)])
+    assert [(v.passed, v.note) for v in verdicts] == [(False, "not measured (no thread of that name ran)")]
+
+
+def test_folded_names_are_bounded_and_a_name_beyond_them_is_said_to_be_possibly_among_the_folded(tmp_path, monkeypatch):
+    monkeypatch.setattr(external, "MAX_FOLDED_NAMES", 3)
+    verdicts = _judged(tmp_path, monkeypatch, [("request", 4), ("a", 1), ("b", 1), ("c", 1), ("flush", 2), ("d", 1)])
+    assert [(v.passed, v.note) for v in verdicts] == [
+        (
+            False,
+            "not measured (4 folded threads (beyond 4 thread records) whose names were not kept may be of that name, and were not checked)",
+        )
+    ]

@@ -345,6 +345,31 @@ def _overhead(raw: RawCell) -> Overhead:
     )
 
 
+def _unchecked(exp: Expectation, folded: list[tuple[PlannedThread, int]], unnamed: list[tuple[str, int]], cap: int) -> str:
+    """Why threads an expectation names were not checked, in words: they exited beyond a program's cap of thread records
+    and were folded into counts; "" when none were (or the metric applies only to callbacks, which a program's thread has not).
+
+    A folded thread's figures are not kept, so an expectation cannot be checked on it: a
+    cell must neither pass on the kept threads of a name alone nor say none of it ran.
+    """
+    if metric_figure(exp.metric).needs_callbacks:
+        return ""
+    matched = {id(t) for t in match_threads([planned for planned, _ in folded], exp.thread)}
+    count = sum(n for planned, n in folded if id(planned) in matched)
+    records = f"beyond {cap:,} thread records"
+    if count:
+        were = "threads of that name were" if count != 1 else "thread of that name was"
+        return f"{count} {were} folded ({records}) and not checked"
+    process, sep, _ = exp.thread.rpartition("/")
+    maybe = sum(n for program, n in unnamed if not sep or program == process)
+    if maybe:
+        return (
+            f"{maybe} folded thread{'s' if maybe != 1 else ''} ({records}) whose names were not kept may be of that name, "
+            "and were not checked"
+        )
+    return ""
+
+
 def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> CellResult:
     """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
     result = CellResult(
@@ -412,9 +437,16 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     before_start = ""  # why the cell stopped before its start gate, for the programs it left there
     if raw.timeline.start_ns is None:
         before_start = "the run was interrupted" if raw.interrupted else (raw.failures[0] if raw.failures else "")
+    folded: list[tuple[PlannedThread, int]] = []  # programs' threads folded beyond their cap, by name: never checked
+    unnamed: list[tuple[str, int]] = []  # (program, folded threads whose names were not kept)
+    cap = 0
     for prog in raw.programs:
         end = raw.timeline.stopped_ns or raw.timeline.ended_ns
         out = outside.outcome(prog, raw.timeline.start_ns, end, raw.interrupted, degradation, before_start)
+        folded += out.folded
+        if out.folded_unnamed:
+            unnamed.append((prog.spec.name, out.folded_unnamed))
+        cap = max(cap, out.folded_cap)
         result.programs.append(out.result)
         result.threads.extend(t for _, t in out.threads)
         measured.extend((planned, t.figures) for planned, t in out.threads)
@@ -426,14 +458,20 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         exp = scenario.expect[i]
         mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
-        if not targets and raw.programs and not raw.interrupted:  # a program's thread that never appeared: never a silent pass
+        unchecked = _unchecked(exp, folded, unnamed, cap)
+        if (not targets and raw.programs and not raw.interrupted) or unchecked:
+            # a program's thread that never appeared, or threads of that name folded unchecked: never a silent pass
+            if not targets:
+                why = unchecked or "no thread of that name ran"
+            else:
+                why = f"{unchecked}; the verdicts of the kept threads of that name do not speak for them"
             verdict = Verdict(
                 thread=exp.thread,
                 metric=exp.metric.value,
                 limit=exp.describe_limit(),
                 measured=None,
                 passed=False,
-                note="not measured (no thread of that name ran)",
+                note=f"not measured ({why})",
             )
             if mark is not None:
                 verdict.line, verdict.col = mark.line, mark.col

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Optional
 from runner.run import _probe, kernel, memcg
 from runner.run.kernel import Counters
 from runner.run.procevents import Kind, ProcEvents
-from runner.run.rawcell import ApplyErrors, FoldedRule, FoldedThreads, HistoryGap, RawProgram, RawProgramThread, Snapshot
+from runner.run.rawcell import ApplyErrors, FoldedName, FoldedRule, FoldedThreads, HistoryGap, RawProgram, RawProgramThread, Snapshot
 from runner.scenario.model import Policy, ProgramSpec, Sched
 from runner.scenario.plan import Settings, first_rule, rule_settings
 
@@ -62,6 +62,9 @@ HISTORY_LAST = 48
 # hold a snapshot or two each: about 8 MiB of memory and 6 MiB of results.json for all 4,096.  The worst case, every
 # record a full history, is under 100 MiB of memory and 40 MiB of results.json, however long the program runs.
 MAX_THREADS = 4096
+# Distinct (name, rule) pairs of folded threads counted by name, so an expectation on a name knows how many of its threads
+# were folded and not checked; folded threads of further names are only counted together.
+MAX_FOLDED_NAMES = 256
 
 
 def sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
@@ -179,12 +182,23 @@ class _Folded:
     first_seen_ns: int = 0
     last_gone_ns: int = 0
     rules: dict[int, list[int]] = field(default_factory=dict)  # rule index: [applied, not as asked]
+    names: dict[tuple[str, Optional[int]], int] = field(default_factory=dict)  # (name, rule index): folded threads, bounded
+    names_not_kept: int = 0  # folded threads of a (name, rule) beyond MAX_FOLDED_NAMES of them
 
     def add(self, t: _Thread, not_as_asked: bool) -> None:
-        """Count `t` (an exited thread) and add its counters, as measured to its last reading."""
+        """Count `t` (an exited thread) and add its counters, as measured to its last reading, and its name.
+
+        The name is counted so that an expectation naming it can say its folded threads
+        were not checked rather than pass on the kept ones, or say none ran.
+        """
         self.first_seen_ns = t.seen_ns if not self.count else min(self.first_seen_ns, t.seen_ns)
         self.last_gone_ns = max(self.last_gone_ns, t.gone_ns or t.seen_ns)
         self.count += 1
+        key = (t.comm, t.rule)
+        if key in self.names or len(self.names) < MAX_FOLDED_NAMES:
+            self.names[key] = self.names.get(key, 0) + 1
+        else:
+            self.names_not_kept += 1
         if t.rule is not None:
             counts = self.rules.setdefault(t.rule, [0, 0])
             counts[0] += 1
@@ -203,7 +217,10 @@ class _Folded:
     def raw(self) -> FoldedThreads:
         counters = Counters(self.voluntary, self.involuntary, self.minor_faults, self.major_faults, self.cpu_time_ns, self.migrations, -1)
         rules = tuple(FoldedRule(rule, applied, missed) for rule, (applied, missed) in sorted(self.rules.items()))
-        return FoldedThreads(MAX_THREADS, self.count, self.measured, counters, self.first_seen_ns, self.last_gone_ns, rules)
+        names = tuple(FoldedName(comm, rule, count) for (comm, rule), count in self.names.items())
+        return FoldedThreads(
+            MAX_THREADS, self.count, self.measured, counters, self.first_seen_ns, self.last_gone_ns, rules, names, self.names_not_kept
+        )
 
 
 def _environment(extra: dict[str, str]) -> dict[str, str]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import signal
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 from runner import units
@@ -38,6 +38,10 @@ class ProgramOutcome:
     threads: list[tuple[PlannedThread, ThreadResult]]
     failures: list[str]  # the cell could not be measured as written: an error
     warnings: list[str]
+    # Threads folded beyond the cap of thread records, by name (as expectations match them) with how many: never checked.
+    folded: list[tuple[PlannedThread, int]] = field(default_factory=list)
+    folded_unnamed: int = 0  # folded threads whose names were not kept (beyond MAX_FOLDED_NAMES pairs): any name may be among them
+    folded_cap: int = 0  # the thread records kept before threads that exit were folded
 
 
 def _per_second(count: int, ns: int) -> Optional[float]:
@@ -278,9 +282,16 @@ def outcome(
                 ),
             )
         )
+    folded: list[tuple[PlannedThread, int]] = []
+    for group in raw.folded.names if raw.folded is not None else ():
+        rule = spec.threads[group.rule] if group.rule is not None else None
+        wanted = rule_settings(spec, rule, start) if rule is not None else others_wanted
+        name = rule.match if rule is not None else group.comm
+        folded.append((PlannedThread(spec.name, 0, 0, group.comm, name, SleepWork(), wanted, ORIGIN), group.count))
     folded_rules = {r.rule for r in raw.folded.rules} if raw.folded is not None else set()
     for i, rule in enumerate(spec.threads):
         if not raw.failure and not never_ran and not any(t.rule == i for t in raw.threads) and i not in folded_rules:
             seen = sorted({t.comm for t in raw.threads})
             warnings.append(f"program {spec.name}: no thread matched the rule {rule.match!r}; its threads: {', '.join(seen) or 'none'}")
-    return ProgramOutcome(result, threads, failures, warnings)
+    unnamed, cap = (raw.folded.names_not_kept, raw.folded.cap) if raw.folded is not None else (0, 0)
+    return ProgramOutcome(result, threads, failures, warnings, folded, unnamed, cap)

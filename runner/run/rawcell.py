@@ -157,6 +157,15 @@ class FoldedRule:
 
 
 @dataclass(frozen=True)
+class FoldedName:
+    """Folded threads of one name and rule: what an expectation on that name would have checked, had they been kept."""
+
+    comm: str
+    rule: Optional[int]  # the index of the rule applied to them; None: none was
+    count: int
+
+
+@dataclass(frozen=True)
 class FoldedThreads:
     """A program's threads that exited once it had `cap` thread records: counted together, not kept one by one."""
 
@@ -167,6 +176,8 @@ class FoldedThreads:
     first_seen_ns: int
     last_gone_ns: int
     rules: tuple[FoldedRule, ...] = ()
+    names: tuple[FoldedName, ...] = ()  # the first distinct (name, rule) pairs folded, with their counts
+    names_not_kept: int = 0  # folded threads whose (name, rule) came after those: their names are unknown
 
 
 @dataclass(frozen=True)
