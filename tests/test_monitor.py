@@ -9,15 +9,17 @@ import pytest
 
 from runner.results.document import Verdict
 from runner.run import external, kernel
-from runner.run.evaluate import evaluate
+from runner.run.evaluate import degradation, evaluate
 from runner.run.external import HISTORY_FIRST, HISTORY_LAST, MAX_THREADS, Monitor, ProgramRun, SettingsHistory
 from runner.run.kernel import Counters
+from runner.run.outside import outcome
 from runner.run.rawcell import FoldedRule, HistoryGap, RawCell, Snapshot, Timeline
 from runner.scenario.loader import load_scenario
 from runner.scenario.model import Policy, ProgramSpec
 from runner.scenario.plan import Settings
 
 OTHER = Settings()
+FIFO10 = Settings(Policy.FIFO, 10)
 PID = 500
 T0 = 10_000_000_000
 TICK = 50_000_000
@@ -319,3 +321,62 @@ def test_folded_names_are_bounded_and_a_name_beyond_them_is_said_to_be_possibly_
             "not measured (4 folded threads (beyond 4 thread records) whose names were not kept may be of that name, and were not checked)",
         )
     ]
+
+
+@pytest.mark.parametrize("later", [1, 40], ids=["within the rename watch", "seconds later"])
+def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_gets_its_rule(monkeypatch, later):
+    """Below the cap an exited thread's record is kept; the kernel may give its TID to a new thread, which is a thread of its own."""
+    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored([{"match": "worker", "sched": "fifo:10"}])
+    _tick(monitor, run, 0)
+    proc.add(700, "request")
+    _tick(monitor, run, 1)
+    del proc.threads[700]
+    _tick(monitor, run, 2)
+    assert run.threads[700].gone_ns == T0 + 2 * TICK, "below the cap: kept, gone"
+    for n in range(3, 2 + later):
+        _tick(monitor, run, n)
+    proc.add(700, "worker", switches=5)
+    end = _tick(monitor, run, 2 + later)
+    worker = run.threads[700]
+    assert (worker.comm, worker.gone_ns, worker.rule, worker.index) == ("worker", None, 0, 2)
+    assert proc.threads[700][1] == FIFO10, "its rule was applied"
+    raw = run.raw(T0, end)
+    records = [(t.tid, t.comm, t.gone_ns) for t in raw.threads]
+    assert records == [(PID, "server", None), (700, "request", T0 + 2 * TICK), (700, "worker", None)], "both, in order of appearance"
+    assert [t.index for _, t in outcome(raw, T0, end, False, degradation).threads] == [0, 1, 1], "each first of its name"
+
+
+def test_a_reused_tid_announced_by_an_event_is_a_new_thread_and_a_late_event_of_the_old_one_is_not(monkeypatch):
+    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored([{"match": "worker", "sched": "fifo:10"}])
+    _tick(monitor, run, 0)
+    proc.add(700, "request")
+    _tick(monitor, run, 1)
+    del proc.threads[700]
+    _tick(monitor, run, 2)
+    monitor._appeared(run, 700, T0 + TICK - 1)  # the old thread's creation, read late: its record, still
+    assert run.threads[700].comm == "request" and not run.retired
+    proc.add(700, "worker")
+    monitor._renamed(run, 700, "worker", T0 + 3 * TICK)
+    assert (run.threads[700].comm, run.threads[700].rule) == ("worker", 0) and [t.comm for t in run.retired] == ["request"]
+
+
+def test_records_out_of_their_tid_count_toward_the_cap(monkeypatch):
+    monkeypatch.setattr(external, "MAX_THREADS", 3)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored()
+    _tick(monitor, run, 0)
+    n = 0
+    for _ in range(6):  # one TID reused again and again
+        proc.add(700, "request")
+        _tick(monitor, run, n := n + 1)
+        del proc.threads[700]
+        end = _tick(monitor, run, n := n + 1)
+    raw = run.raw(T0, end)
+    assert len(raw.threads) <= 3 + 1 and raw.folded is not None and len(raw.threads) + raw.folded.count == 7

@@ -277,7 +277,8 @@ class ProgramRun:
         self.stopped = ""
         self.stdout = f"{spec.name}.stdout"
         self.stderr = f"{spec.name}.stderr"
-        self.threads: dict[int, _Thread] = {}
+        self.threads: dict[int, _Thread] = {}  # by TID: the records a TID found in a listing or an event leads to
+        self.retired: list[_Thread] = []  # exited threads kept whose TID the kernel gave to a new thread: no longer found by it
         self.threads_seen = 0  # thread records ever made here: the next one's index
         self.folded = _Folded()
         self._exemplars: set[int] = set()  # rules that did not take as asked on a thread kept for it beyond the cap
@@ -454,6 +455,16 @@ class ProgramRun:
         self.threads_seen += 1
         return t
 
+    def retire(self, t: _Thread) -> None:
+        """`t` exited and its TID now names a new thread: keep its record (in the results, under the cap) but out of the TIDs.
+
+        The monitor finds a thread's record by its TID; left there, the old record would
+        swallow the new thread, which would never get its rule, its snapshot or its counters.
+        """
+        if self.threads.get(t.tid) is t:
+            del self.threads[t.tid]
+            self.retired.append(t)
+
     def exited(self, t: _Thread) -> None:
         """`t` was found gone: once the program holds more than MAX_THREADS records, fold it into `folded` instead of keeping it.
 
@@ -462,7 +473,7 @@ class ProgramRun:
         results name one and the cell says it was degraded.  A folded thread's TID is free
         again: should the kernel reuse it, the listing records a new thread.
         """
-        if len(self.threads) <= MAX_THREADS or t.index == 0 or self.threads.get(t.tid) is not t:
+        if len(self.threads) + len(self.retired) <= MAX_THREADS or t.index == 0 or self.threads.get(t.tid) is not t:
             return
         missed = self._not_as_asked(t)
         if missed and t.rule is not None and t.rule not in self._exemplars:
@@ -487,7 +498,8 @@ class ProgramRun:
                 sig = os.WTERMSIG(self.status)
             else:
                 code = os.WEXITSTATUS(self.status)
-        threads = tuple(self._raw_thread(t, window_start, window_end) for t in sorted(self.threads.values(), key=lambda t: t.index))
+        records = sorted([*self.threads.values(), *self.retired], key=lambda t: t.index)
+        threads = tuple(self._raw_thread(t, window_start, window_end) for t in records)
         return RawProgram(
             self.spec,
             self.start_settings,
@@ -684,6 +696,9 @@ class Monitor:
 
     def _appeared(self, p: ProgramRun, tid: int, at_ns: int) -> None:
         t = p.threads.get(tid)
+        if t is not None and t.gone_ns is not None and at_ns >= t.gone_ns:  # the kernel reused an exited thread's TID
+            p.retire(t)
+            t = None
         if t is not None:
             if at_ns < t.seen_ns:  # listed before its creation's event was read: it was there since the event
                 if t.named_ns == t.seen_ns:
@@ -699,7 +714,7 @@ class Monitor:
 
     def _renamed(self, p: ProgramRun, tid: int, comm: str, at_ns: int) -> None:
         t = p.threads.get(tid)
-        if t is None:
+        if t is None or t.gone_ns is not None:  # a new thread (on a reused TID, when its old thread's record is still there)
             self._appeared(p, tid, at_ns)
             return
         if comm != t.comm:
@@ -714,6 +729,9 @@ class Monitor:
         for pid in p.family():
             for tid in kernel.task_ids(pid):
                 t = p.threads.get(tid)
+                if t is not None and t.gone_ns is not None:  # listed again after it was found gone: the kernel reused its TID
+                    p.retire(t)
+                    t = None
                 if t is None:
                     comm = kernel.thread_comm(pid, tid)
                     if comm is None:

@@ -122,13 +122,13 @@ def _ordinals(threads: tuple[RawProgramThread, ...]) -> dict[int, int]:
     a program's threads happen to be created is not stable, their names are.
     """
     seen: dict[str, int] = {}
-    out = {}
+    out = {}  # by the thread's index of appearance: a TID the kernel reused names two threads
     for t in threads:
         if t.index == 0:
-            out[t.tid] = 0
+            out[t.index] = 0
             continue
         seen[t.comm] = seen.get(t.comm, 0) + 1
-        out[t.tid] = seen[t.comm]
+        out[t.index] = seen[t.comm]
     return out
 
 
@@ -257,14 +257,14 @@ def outcome(
             wanted, errors, checked = others_wanted, ApplyErrors(), False  # only where the runner asked for something
         first = next((s.settings for s in t.history if s.why == ("rule" if rule is not None else "appeared")), None)
         thread_degraded = degradation(wanted, first, errors) if checked and first is not None else []
-        planned = PlannedThread(spec.name, 0, ordinal[t.tid], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, ORIGIN)
+        planned = PlannedThread(spec.name, 0, ordinal[t.index], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, ORIGIN)
         threads.append(
             (
                 planned,
                 ThreadResult(
                     process=spec.name,
                     instance=0,
-                    index=ordinal[t.tid],
+                    index=ordinal[t.index],
                     name=t.comm,
                     pid=t.pid or raw.pid,
                     tid=t.tid,
