@@ -380,3 +380,26 @@ def test_records_out_of_their_tid_count_toward_the_cap(monkeypatch):
         end = _tick(monitor, run, n := n + 1)
     raw = run.raw(T0, end)
     assert len(raw.threads) <= 3 + 1 and raw.folded is not None and len(raw.threads) + raw.folded.count == 7
+
+
+def test_a_folded_thread_gone_before_its_rule_landed_is_not_counted_as_not_as_asked(monkeypatch):
+    """The rule's call found the thread gone (ESRCH) and nothing was read back: a kept one shows no degradation, nor does the count."""
+    monkeypatch.setattr(external, "MAX_THREADS", 2)
+    proc = FakeProc(monkeypatch)
+    proc.add(PID, "server")
+    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
+    _tick(monitor, run, 0)
+
+    def exits_as_the_rule_lands(tid: int, *settings: object) -> tuple[int, int, int]:
+        proc.threads.pop(tid, None)
+        return errno.ESRCH, errno.ESRCH, 0
+
+    monkeypatch.setattr(external._probe, "apply_to", exits_as_the_rule_lands)
+    for n in range(1, 8):
+        proc.add(1000 + n, "request")
+        end = _tick(monitor, run, n)
+    raw = run.raw(T0, end)
+    out = outcome(raw, T0, end, False, degradation)
+    assert all(not t.degraded for _, t in out.threads)
+    assert raw.folded is not None and raw.folded.rules == (FoldedRule(rule=0, applied=raw.folded.count, not_as_asked=0),)
+    assert [t.tid for t in raw.threads if t.rule == 0] == [1001], "no thread kept as the rule's example of not taking"

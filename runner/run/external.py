@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Optional
 
 from runner.run import _probe, kernel, memcg
+from runner.run.evaluate import degradation
 from runner.run.kernel import Counters
 from runner.run.procevents import Kind, ProcEvents
 from runner.run.rawcell import ApplyErrors, FoldedName, FoldedRule, FoldedThreads, HistoryGap, RawProgram, RawProgramThread, Snapshot
@@ -483,13 +484,19 @@ class ProgramRun:
         self.folded.add(t, missed)
 
     def _not_as_asked(self, t: _Thread) -> bool:
-        """A rule was applied to `t` and the kernel refused part of it, or read back other settings than it asked for."""
+        """A rule was applied to `t` and the kernel refused part of it, or read back other settings than it asked for.
+
+        Decided as the results decide it for a kept thread (outside.outcome): from the
+        settings read back after the rule.  A thread gone before they could be read (the
+        rule's call said ESRCH) was gone before its rule, not degraded by it.
+        """
         if t.rule is None:
             return False
-        if t.rule_errors.failed():
-            return True
+        read_back = next((s.settings for s in t.history.snapshots() if s.why == "rule"), None)
+        if read_back is None:
+            return False
         wanted = rule_settings(self.spec, self.spec.threads[t.rule], self.start_settings)
-        return any(s.why == "rule" and s.settings != wanted for s in t.history.snapshots())
+        return bool(degradation(wanted, read_back, t.rule_errors))
 
     def raw(self, window_start: Optional[int], window_end: int) -> RawProgram:
         code = sig = None
