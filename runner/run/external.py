@@ -54,14 +54,17 @@ RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (pro
 TAIL_LINES = 10  # lines of a program's output shown when it fails
 TAIL_BYTES = 8192
 # A thread's settings history keeps its first snapshots (it appeared, its rule, what the program set as it started) and
-# its most recent (what it ended with, and the pattern of its changes): 64 in all, about 300 bytes each in the runner's
-# memory and 125 in results.json, so a thread that boosts its priority at every callback costs at most 20 KiB.
+# its most recent (what it ended with, and the pattern of its changes): 64 in all, each about 375 bytes of the runner's
+# memory (measured with tracemalloc) plus 8 to 13 bytes per CPU of an affinity narrower than all CPUs, and 125 bytes of
+# results.json, so a thread that boosts its priority at every callback costs about 24 KiB, plus 0.5 to 0.8 KiB per CPU
+# of its affinity.
 HISTORY_FIRST = 16
 HISTORY_LAST = 48
 # Thread records a program keeps before threads that exit are folded into counts: far above what a program that creates
 # its threads as it starts holds (a ROS 2 node: tens), so only churn (a thread per request) reaches it, whose threads
 # hold a snapshot or two each: about 8 MiB of memory and 6 MiB of results.json for all 4,096.  The worst case, every
-# record a full history, is under 100 MiB of memory and 40 MiB of results.json, however long the program runs.
+# record a full history, is about 95 MiB of memory plus 2 to 3 MiB per CPU of the threads' affinity (120 MiB with 8 CPUs,
+# 230 MiB with 64), and 40 MiB of results.json, however long the program runs.
 MAX_THREADS = 4096
 # Distinct (name, rule) pairs of folded threads counted by name, so an expectation on a name knows how many of its threads
 # were folded and not checked; folded threads of further names are only counted together.
