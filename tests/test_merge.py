@@ -276,3 +276,25 @@ def test_shards_of_one_file_on_machines_of_different_sizes_agree_on_its_hash(tmp
     assert small.source_hash == large.source_hash != ""
     path.write_text(path.read_text().replace("count: cpus", "count: 3"))
     assert load_scenario(str(path), lim.MachineLimits(cpus=(0, 1))).source_hash != small.source_hash
+
+
+def test_a_merge_of_an_unfinished_shard_is_never_green_against_a_baseline(tmp_path):
+    """A shard killed before its first cell (running, no cells) merged, then compared: `✅ No regression in 3 cells`, exit 0.
+
+    A merge asks for no cell runs of its own, so its incompleteness is its status: merge --baseline,
+    compare and report --baseline all say it is incomplete and exit 4, never with a ✅.
+    """
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    killed = load(shards[1])
+    killed.status, killed.cells = "running", []
+    killed.save(os.path.join(shards[1], "results.json"))
+    merged = str(tmp_path / "m1")
+    done = run_cli("merge", *shards, "--out", merged, "--no-plots", "--baseline", MATRIX)
+    line = next(line for line in done.out.splitlines() if line.startswith("compared with"))
+    assert done.code == 4 and "✅" not in line, (line, done.err)
+    assert "the merge's inputs did not finish (results.json says error): 2 of its 5 cells are missing" in line, line
+    compared = run_cli("compare", MATRIX, merged)
+    headline = next(line for line in compared.out.splitlines() if "This run is incomplete" in line)
+    assert compared.code == 4 and "✅" not in headline, (compared.out, compared.err)
+    reported = run_cli("report", merged, "--baseline", MATRIX, "--no-plots")
+    assert reported.code == 4 and "✅" not in next(line for line in reported.out.splitlines() if line.startswith("compared with"))

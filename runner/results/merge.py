@@ -22,9 +22,12 @@ def unfinished(doc: RunDocument) -> str:
 
     A run killed outright (SIGKILL, a crash, the machine lost) leaves its status `running`
     and the cells it had not reached out; one that stopped for an error says `error`.
+    A merge asks for no runs of its own, so its status says it (`_merge_unfinished`).
     """
     if doc.status == "interrupted":
         return ""
+    if doc.merged_from:
+        return _merge_unfinished(doc)
     lacking, planned = doc.missing_runs(), len(doc.planned_runs())
     if doc.status == "running":
         missing = f": {lacking} of its {planned} cell runs are missing" if lacking else ""
@@ -34,15 +37,42 @@ def unfinished(doc: RunDocument) -> str:
     return ""
 
 
+def _missing_cells(doc: RunDocument) -> str:
+    """`: N of its M cells are missing`, the cells of a merge's matrix (`cell_ids`) it holds no result of; "" when none."""
+    held = {c.id for c in doc.cells}
+    lacking = [c for c in doc.cell_ids if c not in held]
+    return f": {len(lacking)} of its {len(doc.cell_ids)} cells are missing" if lacking else ""
+
+
+def _merge_unfinished(doc: RunDocument) -> str:
+    """Why a merged run is not whole, in words; "" when it is.
+
+    A merge has no runs of its own to count (`RunDocument.planned_runs`), but `merge` makes it an
+    error when one of its inputs did not finish (and a merge can be cut short itself, `running`).
+    Such a status is the merge's inputs not finishing, unless a cell's own error explains it and
+    every cell is there: a comparison of it would otherwise pass on the cells the finished inputs hold.
+    A merge that lacks a shard but whose inputs all finished stays a pass with a warning, as before.
+    """
+    if doc.status not in ("error", "running"):
+        return ""
+    missing = _missing_cells(doc)
+    if not missing and any(c.status == Status.ERROR for c in doc.cells):
+        return ""  # the error is a cell's, counted as that cell's run error
+    return f"the merge's inputs did not finish (results.json says {doc.status}){missing}"
+
+
 def incomplete(doc: RunDocument) -> str:
     """Why `doc` is not the whole run it was asked to be, in words, whatever ended it; "" when it is.
 
     `unfinished`, and a run asked to stop too: its cells may compare well, but the cell runs it
     lacks were never measured, so a comparison of it is never a pass (`runner compare` exits 130,
-    as the run did).  A merge asks for no runs of its own (`RunDocument.planned_runs`).
+    as the run did).  A merge asks for no runs of its own (`RunDocument.planned_runs`): the cells of
+    its matrix it holds no result of are counted instead.
     """
     if doc.status != "interrupted":
         return unfinished(doc)
+    if doc.merged_from:
+        return f"its run was interrupted (results.json says interrupted){_missing_cells(doc)}"
     lacking, planned = doc.missing_runs(), len(doc.planned_runs())
     missing = f": {lacking} of its {planned} cell runs are missing" if lacking else ""
     return f"its run was interrupted (results.json says interrupted){missing}"
