@@ -118,9 +118,9 @@ def test_a_programs_threads_are_compared_by_what_is_measured_of_them():
 def test_a_cell_that_now_fails_is_a_regression():
     base = matrix()
     new = copy.deepcopy(base)
-    new.cells[2].status = Status.ERROR
+    new.cells[2].status = Status.FAILED
     result = cmp.compare(base, new)
-    assert result.regressed_cells() == [base.cells[2].id]
+    assert result.regressed_cells() == [base.cells[2].id] and result.regressions == 1
 
 
 def test_a_cell_that_errs_in_both_runs_is_a_run_error_not_within_threshold(tmp_path):
@@ -144,16 +144,23 @@ def test_a_cell_that_errs_in_both_runs_is_a_run_error_not_within_threshold(tmp_p
     assert result.statuses() == [Status.ERROR] and result.regressions == 0
 
 
-def test_a_cell_cut_short_now_is_a_run_error_and_the_comparison_exits_130():
+def test_a_cell_cut_short_now_is_a_run_error_not_a_regression_and_the_comparison_exits_130(tmp_path):
+    """`💥 1 cell ... cut short ... ❌ 1 regression in 1 of 5 cells` though every figure was within its threshold:
+    a cell cut short is a run error (exit 130, or 4), its own outcome; regressions are what got worse."""
     from runner.session import exit_code
 
     base = matrix()
     new = copy.deepcopy(base)
     new.cells[2].status = Status.INTERRUPTED
     result = cmp.compare(base, new)
-    assert result.regressed_cells() == [base.cells[2].id]  # passed, now cut short: its status regressed, and it is an error
+    assert result.regressed_cells() == [] and result.regressions == 0  # passed, now cut short, figures equal
     assert [c.verdict for c in result.cells if c.cell == base.cells[2].id] == [cmp.Verdict.ERROR]
     assert result.statuses() == [Status.INTERRUPTED] and exit_code(result.statuses(), result.regressions) == 130
+    new.status = "interrupted"  # as the run would have written it
+    done = run_cli("compare", MATRIX, save(new, tmp_path / "new"))
+    headline = done.out.split("\n\n")[1]
+    assert done.code == 130 and "regression**" not in headline and "✅" not in headline, headline
+    assert "No regression in 5 cells" in headline, headline
 
 
 def test_missing_and_new_cells_are_reported_not_failed():

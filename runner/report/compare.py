@@ -179,8 +179,14 @@ class CellChange:
 
     @property
     def regressed(self) -> bool:
-        """Its status got worse: it passed (or ran degraded) in the baseline and does not now."""
-        return self.base_status in _OK and self.new_status is not None and self.new_status not in _OK
+        """Its status got worse: it passed (or ran degraded) in the baseline and its expectations fail now.
+
+        A cell that could not run or was cut short (`Verdict.ERROR`) is not a regression: it is its own
+        outcome (`Comparison.statuses`, exit 4 or 130), and its figures, compared on their own, say whether
+        anything measured got worse.  Counted as a regression too, `💥 cut short` read `❌ 1 regression`
+        though every figure was within its threshold.
+        """
+        return self.base_status in _OK and self.new_status is not None and self.new_status not in _OK + RUN_ERRORS
 
 
 @dataclass
@@ -220,7 +226,8 @@ class Comparison:
 
     @property
     def regressions(self) -> int:
-        """Cells whose status got worse, figures worse than their threshold, and figures of the baseline this run lacks.
+        """Cells whose expectations fail now and passed in the baseline (`CellChange.regressed`), figures worse than
+        their threshold, and figures of the baseline this run lacks.  A cell cut short is a run error, not counted here.
 
         A figure the baseline measured and this run did not (a thread gone, a figure null or not a number)
         is a regression: what it would have shown is unknown, so it is never a pass.
