@@ -414,7 +414,7 @@ def checked_cells(loaded: LoadedScenario, options: RunOptions) -> tuple[Optional
     doc = _resumed_document(loaded, options) if options.resume else None
     cells = select_cells(loaded, options)
     if baseline is not None:
-        _check_baseline(baseline, cells, options, loaded.path)
+        _check_baseline(baseline, cells, loaded.cells, options, loaded.path)
     late = {why for c in cells if options.duration_ns for _, why in never_released(c.scenario.processes, options.duration_ns)}
     if late:
         raise UsageError(f"runner: --duration {units.format_duration(options.duration_ns or 0)}: " + "; ".join(sorted(late)))
@@ -448,18 +448,25 @@ def _run(loaded: LoadedScenario, options: RunOptions, backend: Backend, stop: St
         held.release()
 
 
-def _check_baseline(baseline: RunDocument, cells: list[ResolvedCell], options: RunOptions, path: str) -> None:
+def _check_baseline(
+    baseline: RunDocument, cells: list[ResolvedCell], loaded_cells: list[ResolvedCell], options: RunOptions, path: str
+) -> None:
     """Refuse, before any cell runs, a baseline the finished run could not be compared with (the comparison's own refusals).
 
     The cells this run will record are known now, with their resolved scenarios and length:
     a baseline of another scenario, or whose cells ran another spec or for another duration,
     is found here rather than after the whole run, whose JUnit would then say nothing of it.
     """
-    planned = RunDocument(plan=Plan(duration_ns=options.duration_ns))
+    planned = RunDocument(
+        plan=Plan(duration_ns=options.duration_ns),
+        shard=str(options.shard) if options.shard else None,
+        cell_ids=[c.id for c in cells],
+        matrix_cells=[c.id for c in loaded_cells],
+    )
     planned.cells = [CellResult(id=c.id, spec_hash=c.spec_hash, spec=spec_json(c.scenario), status=Status.PASSED) for c in cells]
     assert options.baseline is not None
     check_comparable(baseline, planned, options.baseline, path)
-    check_common(baseline, planned, options.baseline, path)
+    check_common(baseline, planned, options.baseline, path)  # a shard that holds no cell is refused only for another scenario
 
 
 @dataclass

@@ -133,6 +133,24 @@ def test_a_shard_that_holds_no_cell_exits_0_and_says_nothing_ran(tmp_path, capsy
     assert "0 cells to run" not in out and "passed" not in out
 
 
+def test_a_shard_that_holds_no_cell_with_a_baseline_has_nothing_to_compare_and_exits_0(tmp_path, capsys):
+    """`--shard 7/7 --baseline B` exited 2 (no cell in common ... compare runs of the same scenario), listed or run,
+    though such a job stays green; a baseline of another scenario is still refused."""
+    run(MATRIX, tmp_path / "base", FakeBackend(preempted_other()), "--duration", "1s")
+    base = str(tmp_path / "base")
+    listed = run_cli(MATRIX, "--shard", "7/7", "--baseline", base, "--list")
+    assert listed.code == 0, listed.err
+    capsys.readouterr()
+    code, results = run(MATRIX, tmp_path / "r", FakeBackend(), "--shard", "7/7", "--duration", "1s", "--baseline", base)
+    out = capsys.readouterr().out
+    assert code == 0 and results["cells"] == [], out
+    assert f"compared with {base}: Nothing to compare: this run holds no cell (shard 7/7 holds none of the scenario's 5 cells)." in out
+    for done in (run_cli("compare", base, str(tmp_path / "r")), run_cli("report", str(tmp_path / "r"), "--baseline", base, "--no-plots")):
+        assert done.code == 0 and "Nothing to compare" in done.out and "✅" not in done.out, (done.out, done.err)
+    other = run_cli(FIFO80, "--shard", "2/2", "--baseline", base, "--list")  # fifo80's one cell is in shard 1/2
+    assert other.code == 2 and "no cell in common with the baseline" in other.err, other.err
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_stop_while_the_runner_prepares_runs_no_cell_and_exits_130_with_results(tmp_path, sig):
     backend = FakeBackend(signal_on_prepare=sig)

@@ -201,6 +201,7 @@ class Comparison:
     threads_gone: list[tuple[str, str]] = field(default_factory=list)  # (cell, thread key) the baseline has and this run lacks
     other_version: str = ""  # how the scenario file the baseline ran differs from this run's, in words; "" when it does not
     differences: list[str] = field(default_factory=list)  # other ways the runs differ, in words: expectations, host, trace lost
+    nothing: str = ""  # why there was nothing to compare (`empty_shard`): this run was asked for no cell; "" when it was
 
     @property
     def alike(self) -> bool:
@@ -318,12 +319,30 @@ def _median(values: list[Number | None]) -> Number | None:
     return statistics.median(present) if present else None
 
 
+def empty_shard(doc: RunDocument) -> str:
+    """Why `doc` holds no cell though its run is whole: its shard holds none of the matrix (more CI jobs than cells); or "".
+
+    Such a job stays green (README, `--shard`): it is not another scenario's run, and there is
+    nothing of it to compare with a baseline, so the comparison says that instead of refusing it.
+    """
+    if doc.cells or doc.cell_ids or not doc.shard:  # one cut short is incomplete too (`Comparison.incomplete`), said apart
+        return ""
+    count = len(doc.matrix_cells)
+    return f"shard {doc.shard} holds none of the scenario's {count} cell{'s' if count != 1 else ''}"
+
+
 def check_common(base: RunDocument, new: RunDocument, base_name: str, new_name: str) -> None:
     """Refuse runs without a cell in common: nothing of them could be compared.
 
     A baseline whose run stopped before its first cell is said to be that, not another scenario's.
+    A run whose shard holds no cell (`empty_shard`) has nothing to compare; it is refused only when
+    its scenario's matrix (`matrix_cells`) shares no cell with the baseline: another scenario's.
     """
     b, n = _groups(base), _groups(new)
+    if empty_shard(new):
+        if not b or any(cell_id in b for cell_id in new.matrix_cells):
+            return
+        n = {cell_id: [] for cell_id in new.matrix_cells}  # said as the scenario's cells
     lacking = incomplete(base)
     if not b and lacking:
         why = f"the baseline {base_name} holds no cell: {lacking}; compare with a baseline whose run finished"
@@ -342,6 +361,9 @@ def compare(
     if new.cells or not lacking:  # a run stopped before its first cell is incomplete (exit 4 or 130), not another scenario's
         check_common(base, new, base_name, new_name)
     out = Comparison(base, new, list(thresholds if thresholds is not None else DEFAULT_THRESHOLDS), incomplete=lacking)
+    out.nothing = empty_shard(new)
+    if out.nothing:  # the baseline's cells are other shards', not missing from this one
+        return out
     b, n = _groups(base), _groups(new)
     out.other_version, out.differences = run_differences(base, new)
     for cell_id in list(n) + [c for c in b if c not in n]:

@@ -1092,6 +1092,8 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         else f"{'' if incomplete or errored or not cmp.alike else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} "
         "compared with the baseline."
     )
+    if cmp.nothing:  # a shard with no cell: nothing compared is neither a pass nor a failure
+        headline = f"Nothing to compare: this run holds no cell ({md_text(cmp.nothing)})."
     for difference in cmp.differences:  # what could explain a change (or hide one) besides the scheduling: never ✅
         headline += f" ⚠️ {md_text(difference)}"
     if errored:
