@@ -609,3 +609,21 @@ def test_a_figure_given_two_thresholds_is_refused_not_the_last_one_kept(tmp_path
     done = run_cli("compare", MATRIX, MATRIX, "--threshold", "latency.p99=+20%", "--threshold", "latency.p99=off")
     assert done.code == 2 and "--threshold latency.p99 is given twice" in done.err, done.err
     assert run_cli("compare", MATRIX, MATRIX, "--threshold", "latency.p99=+20%", "--threshold", "latency.max=off").code == 0
+
+
+def test_the_headline_names_at_most_five_cells_of_each_kind():
+    """A 1,000-cell matrix's headline (and the terminal line `compared with BASE: ...`) listed every regressed,
+    missing and new cell: thousands of characters.  Each list is cut at five, `and N more`, as threads and figures are."""
+    from runner.report.markdown import build_comparison
+
+    base = matrix()
+    template = base.cells[0]
+    extra = [template.model_copy(update={"id": f"z{i}"}, deep=True) for i in range(8)]
+    base.cells += [template.model_copy(update={"id": f"gone{i}"}, deep=True) for i in range(8)] + extra
+    new = copy.deepcopy(matrix())
+    new.cells += [c.model_copy(update={"id": f"added{i}"}, deep=True) for i, c in enumerate(extra)]
+    new.cells += [c.model_copy(update={"id": c.id, "status": Status.FAILED}, deep=True) for c in extra]
+    headline = str(build_comparison(cmp.compare(base, new), "base", "new").headline)
+    assert "z0, z1, z2, z3, z4 and 3 more." in headline and "z5" not in headline, headline
+    assert "8 cells of the baseline not in this run: gone0, gone1, gone2, gone3, gone4 and 3 more." in headline, headline
+    assert "8 cells not in the baseline: added0, added1, added2, added3, added4 and 3 more." in headline, headline

@@ -1078,6 +1078,19 @@ class ComparisonModel:
     notes: list[str]
 
 
+HEADLINE_NAMES = 5  # names a headline lists of each kind (cells, threads, figures) before "and N more"
+
+
+def _capped(names: Sequence[str], most: int = HEADLINE_NAMES) -> str:
+    """`a, b, c, d, e and 995 more`: a headline names a few of each kind; the tables below name them all.
+
+    The headline is also the terminal line `compared with BASE: ...` (`publish.say_comparison`), which
+    on a matrix of a thousand cells listed every one of them.
+    """
+    shown = ", ".join(names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
 def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> ComparisonModel:
     """What the comparison section shows: a headline, regressions first, then every figure compared."""
     labels = thread_labels(cmp.base.cells + cmp.new.cells)
@@ -1085,19 +1098,20 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     total = len(cmp.compared())
     incomplete = cmp.incomplete  # what it holds may compare well; what it lacks was never measured: never ✅
     errored = [c for c in cmp.cells if c.new_status in (Status.ERROR, Status.INTERRUPTED)]  # cells that did not run to the end: never ✅
+    gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
-        f"cell{'s' if total != 1 else ''}: {', '.join(md_text(c) for c in regressed)}."
+        f"cell{'s' if total != 1 else ''}: {_capped([md_text(c) for c in regressed])}."
         if regressed
-        else f"{'' if incomplete or errored or not cmp.alike else '✅ '}No regression in {total} cell{'s' if total != 1 else ''} "
-        "compared with the baseline."
+        else f"{'' if incomplete or errored or not cmp.alike else '✅ '}"
+        f"No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
     if cmp.nothing:  # a shard with no cell: nothing compared is neither a pass nor a failure
         headline = f"Nothing to compare: this run holds no cell ({md_text(cmp.nothing)})."
     for difference in cmp.differences:  # what could explain a change (or hide one) besides the scheduling: never ✅
         headline += f" ⚠️ {md_text(difference)}"
     if errored:
-        shown = ", ".join(f"{md_text(c.cell)} ({c.new_status.value if c.new_status else '?'})" for c in errored)
+        shown = _capped([f"{md_text(c.cell)} ({c.new_status.value if c.new_status else '?'})" for c in errored])
         which = "cell of this run could not run or was" if len(errored) == 1 else "cells of this run could not run or were"
         headline = f"💥 **{len(errored)} {which} cut short**: {shown}. {headline}"
     if incomplete:
@@ -1107,18 +1121,17 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     gone_threads = set(cmp.threads_gone)
     if gone_threads:  # its figures are missing too: said once, as the thread
         where = [f"{md_text(labels.get(key, key))} ({md_text(cell)})" for cell, key in cmp.threads_gone]
-        headline += f" {len(where)} thread{'s' if len(where) != 1 else ''} of the baseline not in this run: {', '.join(where[:5])}"
-        headline += f" and {len(where) - 5} more." if len(where) > 5 else "."
+        headline += f" {len(where)} thread{'s' if len(where) != 1 else ''} of the baseline not in this run: {_capped(where)}."
     lost = [f for f in cmp.figures if f.verdict == "missing" and (f.cell, f.thread) not in gone_threads]
     if lost:
         where = sorted({f"{f.figure.name} ({md_text(f.cell)})" for f in lost})
-        headline += f" {len(lost)} figure{'s' if len(lost) != 1 else ''} of the baseline not measured now: {', '.join(where[:5])}"
-        headline += f" and {len(where) - 5} more." if len(where) > 5 else "."
-    gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
+        headline += f" {len(lost)} figure{'s' if len(lost) != 1 else ''} of the baseline not measured now: {_capped(where)}."
     if gone:
-        headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {', '.join(map(md_text, gone))}."
+        shown = _capped(list(map(md_text, gone)))
+        headline += f" {len(gone)} cell{'s' if len(gone) != 1 else ''} of the baseline not in this run: {shown}."
     if new_cells:
-        headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {', '.join(map(md_text, new_cells))}."
+        shown = _capped(list(map(md_text, new_cells)))
+        headline += f" {len(new_cells)} cell{'s' if len(new_cells) != 1 else ''} not in the baseline: {shown}."
     facts = Table(
         ["", "Baseline", "This run"],
         [
