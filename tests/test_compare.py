@@ -627,3 +627,21 @@ def test_the_headline_names_at_most_five_cells_of_each_kind():
     assert "z0, z1, z2, z3, z4 and 3 more." in headline and "z5" not in headline, headline
     assert "8 cells of the baseline not in this run: gone0, gone1, gone2, gone3, gone4 and 3 more." in headline, headline
     assert "8 cells not in the baseline: added0, added1, added2, added3, added4 and 3 more." in headline, headline
+
+
+def test_a_thread_or_a_cell_of_the_baseline_not_in_this_run_is_never_a_check_mark():
+    """A thread gone whose figures' thresholds are all off read `✅ No regression ... 1 thread of the baseline not in this run`."""
+    base = matrix()
+    new = copy.deepcopy(base)
+    new.cells[1].threads = [t for t in new.cells[1].threads if not t.has_callbacks]  # its one compared thread gone
+    off = [cmp.Threshold(t.figure) for t in cmp.DEFAULT_THRESHOLDS]
+    result = cmp.compare(base, new, off)
+    assert result.threads_gone and result.regressions == 0
+    from runner.report.markdown import build_comparison
+
+    headline = str(build_comparison(result, "base", "new").headline)
+    assert "1 thread of the baseline not in this run" in headline and "✅" not in headline, headline
+    fewer = copy.deepcopy(base)
+    fewer.cells = fewer.cells[:-1]
+    headline = str(build_comparison(cmp.compare(base, fewer), "base", "new").headline)
+    assert "1 cell of the baseline not in this run" in headline and "✅" not in headline, headline

@@ -1099,11 +1099,12 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     incomplete = cmp.incomplete  # what it holds may compare well; what it lacks was never measured: never ✅
     errored = [c for c in cmp.cells if c.new_status in (Status.ERROR, Status.INTERRUPTED)]  # cells that did not run to the end: never ✅
     gone, new_cells = cmp.unmatched("missing"), cmp.unmatched("no baseline")
+    # a thread or a cell of the baseline this run lacks was never compared (even with every threshold off): never ✅
     headline = (
         f"❌ **{cmp.regressions} regression{'s' if cmp.regressions != 1 else ''}** in {len(regressed)} of {total} "
         f"cell{'s' if total != 1 else ''}: {_capped([md_text(c) for c in regressed])}."
         if regressed
-        else f"{'' if incomplete or errored or not cmp.alike else '✅ '}"
+        else f"{'' if incomplete or errored or not cmp.alike or cmp.threads_gone or gone else '✅ '}"
         f"No regression in {total} cell{'s' if total != 1 else ''} compared with the baseline."
     )
     if cmp.nothing:  # a shard with no cell: nothing compared is neither a pass nor a failure
