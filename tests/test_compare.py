@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 
 import pytest
 from conftest import run_cli
@@ -645,3 +646,21 @@ def test_a_thread_or_a_cell_of_the_baseline_not_in_this_run_is_never_a_check_mar
     fewer.cells = fewer.cells[:-1]
     headline = str(build_comparison(cmp.compare(base, fewer), "base", "new").headline)
     assert "1 cell of the baseline not in this run" in headline and "✅" not in headline, headline
+
+
+def test_a_cell_failed_in_both_runs_fails_the_merge_not_the_comparison_as_the_readme_says(tmp_path):
+    """README's "Exit codes" said run, merge, compare and report --baseline decide alike, yet a cell whose expectation
+    failed in both runs made merge exit 1 and compare exit 0: compare judges regressions, not the run's own expectations."""
+    from conftest import REPO
+
+    runs = []
+    for name in ("base", "new"):
+        doc = copy.deepcopy(matrix())
+        doc.cells[1].status, doc.status = Status.FAILED, "failed"
+        runs.append(save(doc, tmp_path / name))
+    assert run_cli("merge", runs[1], "--out", str(tmp_path / "m"), "--no-plots", "--baseline", runs[0]).code == 1
+    assert run_cli("compare", *runs).code == 0
+    assert run_cli("report", runs[1], "--baseline", runs[0], "--no-plots").code == 0
+    with open(os.path.join(REPO, "README.md"), encoding="utf-8") as handle:
+        words = " ".join(handle.read().split("### Exit codes")[1].split("|")[0].split())
+    assert "a cell that failed in both runs exits 0 there while the run or merge that produced it exited 1" in words, words
