@@ -323,9 +323,8 @@ def test_folded_names_are_bounded_and_a_name_beyond_them_is_said_to_be_possibly_
     ]
 
 
-@pytest.mark.parametrize("later", [1, 40], ids=["within the rename watch", "seconds later"])
-def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_gets_its_rule(monkeypatch, later):
-    """Below the cap an exited thread's record is kept; the kernel may give its TID to a new thread, which is a thread of its own."""
+def _request_gone(monkeypatch):
+    """A program (cap of 4 records, a rule for `worker`) whose `request` thread, TID 700, came at tick 1 and was gone at 2."""
     monkeypatch.setattr(external, "MAX_THREADS", 4)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
@@ -335,6 +334,13 @@ def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_
     _tick(monitor, run, 1)
     del proc.threads[700]
     _tick(monitor, run, 2)
+    return proc, run, monitor
+
+
+@pytest.mark.parametrize("later", [1, 40], ids=["within the rename watch", "seconds later"])
+def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_gets_its_rule(monkeypatch, later):
+    """Below the cap an exited thread's record is kept; the kernel may give its TID to a new thread, which is a thread of its own."""
+    proc, run, monitor = _request_gone(monkeypatch)
     assert run.threads[700].gone_ns == T0 + 2 * TICK, "below the cap: kept, gone"
     for n in range(3, 2 + later):
         _tick(monitor, run, n)
@@ -350,15 +356,7 @@ def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_
 
 
 def test_a_reused_tid_announced_by_an_event_is_a_new_thread_and_a_late_event_of_the_old_one_is_not(monkeypatch):
-    monkeypatch.setattr(external, "MAX_THREADS", 4)
-    proc = FakeProc(monkeypatch)
-    proc.add(PID, "server")
-    run, monitor = _monitored([{"match": "worker", "sched": "fifo:10"}])
-    _tick(monitor, run, 0)
-    proc.add(700, "request")
-    _tick(monitor, run, 1)
-    del proc.threads[700]
-    _tick(monitor, run, 2)
+    proc, run, monitor = _request_gone(monkeypatch)
     monitor._appeared(run, 700, T0 + TICK - 1)  # the old thread's creation, read late: its record, still
     assert run.threads[700].comm == "request" and not run.retired
     proc.add(700, "worker")
