@@ -181,17 +181,23 @@ def test_nothing_is_folded_below_the_cap_and_a_program_without_churn_says_nothin
     assert all(t.history_gap is None for t in raw.threads)
 
 
+def _requests_one_after_another(proc, count):
+    """A program with a rule for `req*` whose `request` threads (TIDs 1001 on) come one a tick, each gone when the next
+    comes; what its monitor recorded at the end."""
+    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
+    end = _tick(monitor, run, 0)
+    for n in range(1, count + 1):
+        proc.threads.pop(1000 + n - 1, None)
+        proc.add(1000 + n, "request")
+        end = _tick(monitor, run, n)
+    return run.raw(T0, end)
+
+
 def test_a_rule_that_did_not_take_keeps_one_thread_beyond_the_cap_and_the_folded_say_how_many_it_missed(monkeypatch):
     monkeypatch.setattr(external, "MAX_THREADS", 3)
     proc = FakeProc(monkeypatch, rule_errno=errno.EPERM)
     proc.add(PID, "server")
-    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
-    _tick(monitor, run, 0)
-    for n in range(1, 8):
-        proc.threads.pop(1000 + n - 1, None)
-        proc.add(1000 + n, "request")
-        end = _tick(monitor, run, n)
-    raw = run.raw(T0, end)
+    raw = _requests_one_after_another(proc, 7)
     refused = [t.tid for t in raw.threads if t.rule == 0 and t.rule_errors.sched == errno.EPERM and t.gone_ns is not None]
     assert refused == [1001, 1002], "the first one (under the cap) and one kept for the rule beyond it"
     assert raw.folded is not None and raw.folded.rules == (FoldedRule(rule=0, applied=4, not_as_asked=4),)
@@ -203,13 +209,7 @@ def test_folded_threads_a_rule_was_applied_to_count_those_that_read_back_other_s
     monkeypatch.setattr(external, "MAX_THREADS", 2)
     proc = FakeProc(monkeypatch, rule_gives=gives)
     proc.add(PID, "server")
-    run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])
-    _tick(monitor, run, 0)
-    for n in range(1, 6):
-        proc.threads.pop(1000 + n - 1, None)
-        proc.add(1000 + n, "request")
-        end = _tick(monitor, run, n)
-    raw = run.raw(T0, end)
+    raw = _requests_one_after_another(proc, 5)
     assert raw.folded is not None and raw.folded.rules == (FoldedRule(rule=0, applied=4 - bool(missed), not_as_asked=missed),), (
         "1001 to 1004 (1005 lives), but for the one kept for a rule that did not take"
     )
