@@ -110,16 +110,70 @@ def test_a_last_line_cut_short_is_the_cell_in_flight_and_left_out(tmp_path, monk
     assert [c.id for c in load(str(tmp_path)).cells] == ["c0", "c1", "c2"]
 
 
-def test_a_damaged_journal_line_is_refused_with_its_place(tmp_path, monkeypatch):
+@pytest.mark.parametrize("line", [2, 3], ids=["in the middle", "the last, whole JSON: no crash writes that"])
+def test_a_damaged_journal_line_is_refused_with_its_place(tmp_path, monkeypatch, line):
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)
     lines = (tmp_path / JOURNAL).read_text().splitlines(keepends=True)
-    lines[1] = lines[1].replace('"status":"passed"', '"status":"splendid"')
+    lines[line - 1] = lines[line - 1].replace('"status":"passed"', '"status":"splendid"')
     (tmp_path / JOURNAL).write_text("".join(lines))
     with pytest.raises(ScenarioError) as caught:
         load(str(tmp_path))
     text = str(caught.value)
-    assert f"{tmp_path / JOURNAL}:2:1: status:" in text and "splendid" in text
+    assert f"{tmp_path / JOURNAL}:{line}:1: status:" in text and "splendid" in text
+
+
+@pytest.mark.parametrize(
+    ("tail", "said"),
+    [
+        (lambda cell: cell[: len(cell) // 2] + b"\n", "cell 'c3'"),  # the line's start reached the disk, and a newline after it
+        (lambda cell: b"\0" * len(cell) + b"\n", "a cell whose id cannot be read"),  # its blocks allocated, never written
+        (lambda cell: b"\n", "a cell whose id cannot be read"),
+    ],
+    ids=["half a line", "zeros", "an empty line"],
+)
+def test_a_damaged_last_line_ending_in_a_newline_is_left_out_with_a_warning(tmp_path, monkeypatch, capsys, tail, said):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)
+    with open(tmp_path / JOURNAL, "ab") as handle:
+        handle.write(tail(_cell(3).model_dump_json(by_alias=True).encode()))
+    assert [c.id for c in load(str(tmp_path)).cells] == ["c0", "c1", "c2"]
+    warning = capsys.readouterr().err
+    assert warning.startswith(f"runner: warning: {tmp_path / JOURNAL}:4: the last line is damaged (not valid JSON"), warning
+    assert f"left out: {said}, which runs again when the run is resumed (--resume)" in warning and warning.count("\n") == 1
+
+
+def test_a_damaged_line_before_the_last_is_refused_saying_what_to_do(tmp_path, monkeypatch):
+    """A torn line then a whole one: the torn one was not the last written, so no crash explains it."""
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 2)
+    cell = _cell(2).model_dump_json(by_alias=True).encode()
+    with open(tmp_path / JOURNAL, "ab") as handle:
+        handle.write(cell[:30] + b"\n" + cell[:30])
+    with pytest.raises(ScenarioError) as caught:
+        load(str(tmp_path))
+    text = str(caught.value)
+    assert text.startswith(f"{tmp_path / JOURNAL}:3:") and "not valid JSON" in text and "\n" not in text
+    assert "delete the line and resume the run (--resume)" in text
+
+
+def test_a_cell_whose_journal_line_was_damaged_runs_again_on_resume(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    out = tmp_path / "r"
+    acts = preempted_other()
+    with pytest.raises(Died):
+        run(MATRIX, out, FakeBackend({**acts, FIFO_CELLS[3]: Act(dies=True)}))
+    lines = (out / JOURNAL).read_bytes().splitlines(keepends=True)
+    assert lines[-1].startswith(b'{"id":' + json.dumps(FIFO_CELLS[2]).encode()), "the third cell not journaled: this test proves nothing"
+    (out / JOURNAL).write_bytes(b"".join(lines[:-1]) + lines[-1][:50] + b"\n")  # the third cell's line, damaged
+    backend = FakeBackend(acts)
+    ns = _run_parser().parse_args([MATRIX, "--resume", str(out), "--quiet", "--no-plots"])
+    code = run_scenario(load_scenario(MATRIX), RunOptions.from_namespace(ns, env={}), backend)
+    assert code == 0 and backend.ran == FIFO_CELLS[2:] + [OTHER]
+    assert f"left out: cell {FIFO_CELLS[2]!r}" in capsys.readouterr().err
+    results = json.loads((out / "results.json").read_text())
+    assert [c["id"] for c in results["cells"]] == FIFO_CELLS + [OTHER] and results["status"] == "passed"
+    assert not (out / JOURNAL).exists()
 
 
 def test_a_journal_of_cells_another_run_was_asked_for_is_refused(tmp_path, monkeypatch):

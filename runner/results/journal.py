@@ -9,9 +9,14 @@ results.json last held, so the bytes written stay within a few times the final f
 last save of a run writes results.json whole and removes the journal.
 
 Readers (`runner.results.read.load`) add the journal's cells that results.json does not hold
-yet, so a run killed between two rewrites still shows every finished cell.  A last line
-without its newline is the cell that was being written when the run died: it is left out,
-as the cell in flight always was.
+yet, so a run killed between two rewrites still shows every finished cell.  Each line is synced
+before the next is written, so a crash can damage the last line only: without its newline, or
+with one but not JSON, it is the cell that was being written when the run died and is left out
+(the second with a warning), as the cell in flight always was; `--resume` runs it again.  Damage
+anywhere before the last line is no crash's, and is refused at its line (`read.journal_cells`).
+
+No line is ever appended to such a tail: a run (resumed or not) begins by writing results.json
+whole and removing the journal.
 """
 
 from __future__ import annotations

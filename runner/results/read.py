@@ -18,6 +18,7 @@ from runner.errors import Problem, ScenarioError, special_file
 from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument, Status, worst
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
 from runner.results.journal import journal_path, merge_journal
+from runner.terminal import warn
 
 # ---------------------------------------------------------------- reading a results file
 
@@ -134,36 +135,76 @@ def _journal_bytes(path: str) -> bytes | None:
 def journal_cells(path: str, data: bytes | None = None) -> list[CellResult]:
     """The cells journaled at `path` (none if there is no journal), each line checked as strictly as results.json.
 
-    `data`: the journal as read already.  A last line without its newline was cut short by the
-    run's death and is left out.
+    `data`: the journal as read already.  A run appends one line at a time and syncs it before it
+    writes the next, so a crash can damage the last line only, and nothing before it:
+    - a last line without its newline was being written when the run died (or is being written
+      now, by a run still going) and is left out, as the cell in flight always was;
+    - a last line that is not JSON although it ends in a newline is what a crash can leave too (the
+      line's blocks lost, the newline of a later write not): it is left out with a warning saying
+      which cell, which `--resume` runs again;
+    - any other line that cannot be read, and a last line that is JSON but not a cell (no crash
+      writes that), is refused at its place: the journal was changed by something else than a run.
     """
     if data is None:
         data = _journal_bytes(path)
     if data is None:
         return []
-    lines = data.split(b"\n")
+    *lines, torn = data.split(b"\n")  # `torn`: what follows the last newline, b"" when the journal ends with one
     cells: list[CellResult] = []
-    for number, line in enumerate(lines[:-1], start=1):  # the last item is what follows the last newline
-        problems = _journal_line(path, number, line, cells)
+    for number, line in enumerate(lines, start=1):
+        try:
+            parsed = parse_json(path, line)
+        except ScenarioError as exc:
+            if number == len(lines) and not torn:
+                warn(f"{path}:{number}: {_dropped(line, exc.problems[0].message)}")
+                break
+            raise ScenarioError([dataclasses.replace(p, line=number, message=p.message + _CHANGED) for p in exc.problems]) from None
+        problems = _journal_cell(path, parsed, cells)
         if problems:
-            raise ScenarioError(problems)
+            raise ScenarioError([dataclasses.replace(p, line=number) for p in problems])  # key paths are within the line's cell
     return cells
 
 
-def _journal_line(path: str, number: int, line: bytes, cells: list[CellResult]) -> list[Problem]:
-    """Check one journal line and add its cell to `cells`; the problems found, placed on that line."""
+_CHANGED = (
+    "; a run damages only the journal's last line, so this one was changed after it was written: restore the file, "
+    "or delete the line and resume the run (--resume), which runs its cell again"
+)
+
+
+def _dropped(line: bytes, why: str) -> str:
+    """What a warning says of a damaged last journal line: what is wrong, which cell it held (when its id can be read), what happens."""
+    return (
+        f"the last line is damaged ({why}; {len(line):,} bytes), as a run that died while writing it leaves it; "
+        f"left out: {_damaged_cell(line)}, which runs again when the run is resumed (--resume)"
+    )
+
+
+_JOURNAL_ID = re.compile(rb'^\{"id":("(?:[^"\\]|\\.){1,240}")')  # a journal line starts with its cell's id (CellResult's first field)
+_JOURNAL_REPEAT = re.compile(rb'"repeat":([0-9]{1,6}),"status":')
+
+
+def _damaged_cell(line: bytes) -> str:
+    """The cell a damaged journal line held, as far as its start can still be read (best effort: the rest may be gone)."""
     try:
-        data = parse_json(path, line)
-    except ScenarioError as exc:
-        return [dataclasses.replace(p, line=number) for p in exc.problems]
+        named = _JOURNAL_ID.search(line)
+        cell_id = json.loads(named.group(1)) if named else None
+    except ValueError:
+        cell_id = None
+    if not isinstance(cell_id, str):
+        return "a cell whose id cannot be read"
+    repeat = _JOURNAL_REPEAT.search(line)
+    return f"cell {cell_id!r}" + (f" (repeat {int(repeat.group(1)) + 1})" if repeat and int(repeat.group(1)) else "")
+
+
+def _journal_cell(path: str, data: Any, cells: list[CellResult]) -> list[Problem]:
+    """Check one journal line's JSON as a cell and add it to `cells`; the problems found (on line 1: the caller places them)."""
     try:
         cells.append(CellResult.model_validate_json(_checked_text(path, data), strict=True))
-        problems: list[Problem] = []
     except ScenarioError as exc:
-        problems = exc.problems
+        return exc.problems
     except ValidationError as exc:
-        problems = validation_problems(path, exc)
-    return [dataclasses.replace(p, line=number) for p in problems]  # the line is the cell; key paths are within it
+        return validation_problems(path, exc)
+    return []
 
 
 def _schema_version(path: str, data: Any) -> int:
