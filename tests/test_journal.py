@@ -176,6 +176,34 @@ def test_a_cell_whose_journal_line_was_damaged_runs_again_on_resume(tmp_path, mo
     assert not (out / JOURNAL).exists()
 
 
+def test_a_line_is_never_appended_to_a_torn_one(tmp_path, monkeypatch):
+    """A write that failed and whose truncation failed too leaves a torn tail; the next line must start a line of its own."""
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    store = ResultsStore(str(tmp_path / "results.json"))
+    doc = _doc_with(store, 2)
+    real_write = os.write
+
+    def half_then_full(fd: int, data: bytes) -> int:
+        if len(data) > 20:
+            return real_write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def cannot_truncate(fd: int, length: int) -> None:
+        raise OSError(errno.EIO, "Input/output error")
+
+    with monkeypatch.context() as failing:
+        failing.setattr(journal.os, "write", half_then_full)
+        failing.setattr(journal.os, "ftruncate", cannot_truncate)
+        big = CellResult(id="c9", spec_hash="h", status="error", reason="x" * 300_000)  # torn past a chunk of the backward scan
+        with pytest.raises(OSError):
+            store.add(doc, big)
+    assert not (tmp_path / JOURNAL).read_bytes().endswith(b"\n"), "no torn tail left: this test proves nothing"
+    doc.cells.append(_cell(2))
+    store.add(doc, doc.cells[-1])
+    assert (tmp_path / JOURNAL).read_bytes().endswith(b"}\n" + _cell(2).model_dump_json(by_alias=True).encode() + b"\n")
+    assert [c.id for c in load(str(tmp_path)).cells] == ["c0", "c1", "c2"]
+
+
 def test_a_journal_of_cells_another_run_was_asked_for_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     store = ResultsStore(str(tmp_path / "results.json"))

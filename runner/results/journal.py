@@ -16,7 +16,8 @@ with one but not JSON, it is the cell that was being written when the run died a
 anywhere before the last line is no crash's, and is refused at its line (`read.journal_cells`).
 
 No line is ever appended to such a tail: a run (resumed or not) begins by writing results.json
-whole and removing the journal.
+whole and removing the journal, and an append that finds the journal not ending in a newline
+(a failed write whose truncation failed too) cuts the torn bytes first.
 """
 
 from __future__ import annotations
@@ -109,11 +110,11 @@ class ResultsStore:
     def _append(self, cell: CellResult) -> int:
         line = (cell.model_dump_json(by_alias=True) + "\n").encode("utf-8")
         try:
-            fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
+            fd = os.open(self.journal, os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc), self.journal) from exc
         try:
-            size = os.fstat(fd).st_size
+            size = _whole_lines(fd, os.fstat(fd).st_size)
             try:
                 view = memoryview(line)
                 while view:
@@ -130,3 +131,19 @@ class ResultsStore:
         finally:
             os.close(fd)
         return len(line)
+
+
+def _whole_lines(fd: int, size: int) -> int:
+    """The journal open at `fd` cut back to its last newline (its size, `size` bytes now, after that).
+
+    A torn line followed by the next one would be one damaged line in the middle of the journal,
+    which readers refuse: its bytes, never a cell any reader took, are dropped instead.
+    """
+    end = size
+    while end and os.pread(fd, 1, end - 1) != b"\n":
+        chunk = os.pread(fd, min(end, 1 << 16), max(0, end - (1 << 16)))
+        newline = chunk.rfind(b"\n")
+        end = end - len(chunk) + newline + 1 if newline >= 0 else end - len(chunk)
+    if end != size:
+        os.ftruncate(fd, end)
+    return end
