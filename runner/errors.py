@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import enum
+import errno
 import os
 import stat
 from collections.abc import Iterable
@@ -79,31 +80,48 @@ class OutputError(RunnerError):
     """A file or folder the runner must write could not be written (permission, full disk, not a folder).
 
     During a run this is a run error (exit 4): what finished is kept, the cell in flight is
-    marked `error`.  Before anything ran it is an input mistake (exit 2), see `from_os_error`.
+    marked `error`.  Before anything ran a path the user chose wrongly is an input mistake
+    (exit 2), but a full disk never is, see `from_os_error`.
     """
 
     exit_code = ExitCode.RUN_ERROR
 
 
+FULL_DISK = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
+"""Write errors that say the disk, not the path, is the problem: no space, a quota used up, the device failing.
+
+Always a run error (exit 4), whatever was being written (results, journal, samples, report, plots,
+an export, the --out folder itself) and whenever (before the first cell, during the run, after it):
+the command and its paths were right, and the same command succeeds once there is room.  Invalid
+input (exit 2) is what the user must change in the command: a path that is a file, a folder that
+may not be written.  The run's own write errors (`session._run_units`) say 4 the same way.
+"""
+
+
+def output_hint(error_number: int | None) -> str:
+    """What to do about an OSError writing a file, as the end of its one-line message ("" when there is nothing to add)."""
+    return {
+        errno.ENOSPC: "; the disk is full: free some space, or write somewhere else (another --out or file)",
+        errno.EDQUOT: "; the disk quota is used up: free some space, or write somewhere else (another --out or file)",
+        errno.EIO: "; the disk failed to write it (an I/O error): check the disk, or write somewhere else (another --out or file)",
+        errno.EACCES: "; choose a folder you may write, or fix its permissions",
+        errno.EROFS: "; choose a folder on a writable file system",
+        errno.ENOTDIR: "; a file stands where a folder is expected",
+        errno.EEXIST: "; a file of that name is in the way",
+        errno.EISDIR: "; a folder stands where a file is expected",
+    }.get(error_number or 0, "")
+
+
 def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | None = None) -> RunnerError:
-    """A user-facing error for an OSError on a path the user chose: `runner: <what> <path>: <reason>`.
+    """A user-facing error for an OSError on a path the user chose: `runner: <what> <path>: <reason>; <what to do>`.
 
     `before_run` errors (an --out that is a file, an unwritable -o) are invalid input (exit 2);
-    errors once measuring has started (a disk that fills up) are run errors (exit 4).  `path` names
-    the file the user knows when the error came from a temporary one beside it.
+    errors once measuring has started are run errors (exit 4), and so is a full disk at any time
+    (`FULL_DISK`).  `path` names the file the user knows when the error came from a temporary one beside it.
     """
     path = path or (exc.filename if exc.filename is not None else "")
-    reason = exc.strerror or str(exc)
-    hint = {
-        28: "; free some space or write somewhere else",  # ENOSPC: on --out, -o or --junit alike
-        13: "; choose a folder you may write, or fix its permissions",  # EACCES
-        30: "; choose a folder on a writable file system",  # EROFS
-        20: "; a file stands where a folder is expected",  # ENOTDIR
-        17: "; a file of that name is in the way",  # EEXIST
-        21: "; a folder stands where a file is expected",  # EISDIR
-    }.get(exc.errno or 0, "")
-    error = UsageError(f"runner: {what} {path}: {reason}{hint}") if before_run else OutputError(f"runner: {what} {path}: {reason}{hint}")
-    return error
+    message = f"runner: {what} {path}: {exc.strerror or exc}{output_hint(exc.errno)}"
+    return UsageError(message) if before_run and exc.errno not in FULL_DISK else OutputError(message)
 
 
 def special_file(path: str) -> str:

@@ -9,6 +9,7 @@ them, not taken from the code under test.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import signal
@@ -21,7 +22,7 @@ import pytest
 from conftest import SCENARIOS, run_cli
 
 from runner import cli, outdir
-from runner.errors import UsageError
+from runner.errors import ExitCode, UsageError, from_os_error
 from runner.run import guard
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
@@ -394,3 +395,39 @@ def test_merge_with_a_baseline_that_cannot_be_read_makes_no_folder(tmp_path):
     done = run_cli("merge", POLICY, "--out", str(tmp_path / "m"), "--baseline", str(tmp_path / "nope"), "--no-plots")
     assert done.code == 2 and "cannot read results" in done.err, done.err
     assert not (tmp_path / "m").exists(), "a rerun of the fixed command would be refused: the folder holds results"
+
+
+@pytest.mark.parametrize("error", [errno.ENOSPC, errno.EDQUOT, errno.EIO])
+@pytest.mark.parametrize("before_run", [True, False])
+def test_a_full_disk_is_a_run_error_whenever_it_comes(error, before_run):
+    """Not invalid input: the command and its paths were right, and run again once there is room."""
+    made = from_os_error(OSError(error, os.strerror(error), "/r/results.json"), "cannot write the results file", before_run)
+    assert made.exit_code == ExitCode.RUN_ERROR
+    assert str(made).startswith(f"runner: cannot write the results file /r/results.json: {os.strerror(error)}; ")
+    assert "write somewhere else (another --out or file)" in str(made) and "\n" not in str(made)
+
+
+def test_a_path_the_user_chose_wrongly_is_still_invalid_input_before_the_run():
+    made = from_os_error(OSError(errno.EACCES, "Permission denied", "/r"), "results folder")
+    assert made.exit_code == ExitCode.INVALID_INPUT and "choose a folder you may write" in str(made)
+
+
+@pytest.mark.parametrize(
+    ("argv", "what"),
+    [
+        (["report", POLICY, "-o", "/dev/full"], "cannot write the report"),
+        (["compare", POLICY, POLICY, "-o", "/dev/full"], "cannot write the comparison"),
+        (["compare", POLICY, POLICY, "--junit", "/dev/full"], "cannot write the JUnit file"),
+        (["import-rtapp", os.path.join(os.path.dirname(DATA), "rtapp", "example2.json"), "-o", "/dev/full"], "cannot write the scenario"),
+    ],
+    ids=["report -o", "compare -o", "compare --junit", "import-rtapp -o"],
+)
+def test_every_output_file_on_a_full_disk_exits_4_naming_it(argv, what):
+    """/dev/full takes every write with ENOSPC: a file a command was asked to write, on a full disk (these once exited 2).
+
+    The exports are tested with the other export options (test_export.py)."""
+    done = run_cli(*argv)
+    assert done.code == 4, done.err
+    said = done.err.strip().splitlines()[-1]
+    assert said.startswith(f"runner: {what} /dev/full: No space left on device; the disk is full: free some space"), said
+    assert "Traceback" not in done.err

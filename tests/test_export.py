@@ -132,6 +132,16 @@ def test_cell_and_histogram_max_without_the_export_they_shape_are_refused(tmp_pa
     assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 1000), done.err
 
 
+@pytest.mark.parametrize("export", ["--json", "--histogram"])
+def test_an_export_to_a_full_disk_exits_4_naming_it(tmp_path, export):
+    """/dev/full refuses every write with ENOSPC: not invalid input (it once exited 2), but a disk to free or another file."""
+    path = str(tmp_path / "results.json")
+    RunDocument(cells=[_cell("a=1")]).save(path)
+    done = run_cli("report", path, export, "/dev/full")
+    assert done.code == 4 and "Traceback" not in done.err, done.err
+    assert done.err.startswith("runner: cannot write the export /dev/full: No space left on device; the disk is full: free some space")
+
+
 def test_a_baseline_with_only_an_export_is_refused_not_ignored(tmp_path):
     """`runner report RUN --json FILE --baseline BASE` exported and exited 0, the baseline never read, where `runner
     compare` on the same files failed: an export writes no report and decides no exit code."""
