@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import fnmatch
 import gc
 import os
@@ -24,7 +25,7 @@ from datetime import datetime, timezone
 from typing import Any, Optional
 
 from runner import outdir, units
-from runner.errors import ExitCode, Problem, RunnerError, ScenarioError, UsageError, from_os_error
+from runner.errors import ExitCode, OutputError, Problem, RunnerError, ScenarioError, UsageError, from_os_error
 from runner.report.compare import Threshold, check_common, check_comparable, thresholds_for
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
@@ -536,10 +537,11 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     if loop.write_error is not None:
         error = loop.write_error
         note(
-            f"runner: {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
-            "every cell that finished before; the cell in flight is marked error where it could be written"
+            f"runner: cannot write {error.filename or results_path}: {error.strerror or error}; the run stopped. {results_path} keeps "
+            f"every cell that finished before; the cell in flight is marked error where it could be written; {_remedy(error)}, "
+            f"then finish the run with --resume {folder}"
         )
-        return int(ExitCode.RUN_ERROR)
+        return int(ExitCode.RUN_ERROR)  # a write error during the run, a full disk too (errors.FULL_DISK)
     from runner.report.publish import finish
 
     try:
@@ -549,13 +551,22 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
     except OSError as exc:
         raise from_os_error(exc, "cannot write the report", before_run=False) from None
     except RunnerError as refused:  # the baseline could not be compared with what ran (checked against the plan before)
-        if Status.INTERRUPTED not in statuses:
+        if Status.INTERRUPTED not in statuses or isinstance(refused, OutputError):  # a plot a full disk refused, say
             raise
         note(f"{refused}\nrunner: the run was stopped before it could be compared with the baseline; no comparison was made")
         regressions = 0
     verdict = f"{empty}; nothing ran" if empty and worst(statuses) is Status.PASSED else worst(statuses).value
     say(f"{loaded.name}: {verdict}; results: {results_path}")
     return int(exit_code(statuses, regressions))
+
+
+def _remedy(error: OSError) -> str:
+    """What lets a run a write error stopped be finished in its own folder (`--resume` writes there again)."""
+    return {
+        errno.ENOSPC: "free some space",
+        errno.EDQUOT: "free some space (the disk quota is used up)",
+        errno.EIO: "check the disk (an I/O error)",
+    }.get(error.errno or 0, "make it writable")
 
 
 def _empty_shard(loaded: LoadedScenario, options: RunOptions, cells: Mapping[str, ResolvedCell]) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import errno
 import json
 import os
 from pathlib import Path
@@ -37,6 +38,22 @@ def split(tmp_path, parts):
         doc.save(str(folder / "results.json"))
         out.append(str(folder))
     return out
+
+
+def test_a_samples_file_a_full_disk_refused_is_named_and_exits_4(tmp_path, monkeypatch):
+    """shutil's copy names no file when the write fails: the message once ended in `results :` and nothing else."""
+    from runner.results import merge
+
+    def no_space(source: str, target: str) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(merge.shutil, "copyfile", no_space)
+    shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots")
+    assert done.code == 4 and "Traceback" not in done.err, done.err
+    target = tmp_path / "merged" / "cells" / "policy=fifo,priority=10" / "samples.csv.gz"
+    assert done.err.startswith(f"runner: cannot write the merged results {target}: No space left on device; the disk is full"), done.err
+    assert not (tmp_path / "merged" / "results.json").exists()
 
 
 def test_merged_shards_equal_the_full_run(tmp_path):

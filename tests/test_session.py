@@ -7,6 +7,7 @@ Exit codes are written as the numbers README documents, not taken from the code.
 
 from __future__ import annotations
 
+import errno
 import gc
 import json
 import os
@@ -17,7 +18,7 @@ from conftest import SCENARIOS, run_cli
 from fakebackend import Act, Died, FakeBackend
 
 from runner.cli import _run_parser
-from runner.errors import ScenarioError, UsageError
+from runner.errors import RunnerError, ScenarioError, UsageError
 from runner.scenario.loader import load_scenario
 from runner.session import RunOptions, run_scenario
 
@@ -515,3 +516,87 @@ def test_a_drawn_shuffle_seed_is_printed_at_the_start_so_the_order_can_be_run_ag
     run(MATRIX, tmp_path / "s", again, "--repeat", "2", "--shuffle", str(seed))
     assert again.ran == backend.ran
     assert "shuffled with seed" not in capsys.readouterr().out, "a seed the user gave is not said back"
+
+
+def _no_space(path: object = None, *args: object, **kwargs: object) -> None:
+    """os.makedirs, os.fsync or os.write on a full disk."""
+    raise OSError(errno.ENOSPC, "No space left on device", path if isinstance(path, str) else None)
+
+
+@pytest.mark.parametrize("where", ["the --out folder", "the first results.json"])
+def test_a_full_disk_before_the_first_cell_is_a_run_error_not_invalid_input(tmp_path, monkeypatch, where):
+    """The command was right and runs once there is room: exit 4, as a disk that fills later (it once was 2)."""
+    from runner import outdir
+    from runner.results import files
+
+    monkeypatch.setattr(*((outdir.os, "makedirs") if where == "the --out folder" else (files.os, "fsync")), _no_space)
+    backend = FakeBackend(preempted_other())
+    with pytest.raises(RunnerError) as caught:
+        run(MATRIX, tmp_path / "r", backend)
+    assert caught.value.exit_code == 4 and backend.ran == []
+    said = str(caught.value)
+    named = tmp_path / "r" if where == "the --out folder" else tmp_path / "r" / "results.json"
+    assert f" {named}: No space left on device; the disk is full: free some space" in said and "\n" not in said
+
+
+def test_a_journal_line_a_full_disk_refused_stops_the_run_keeping_every_cell_before_it(tmp_path, monkeypatch, capsys):
+    from runner.results import journal
+
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)  # a large run: cells are journaled, not rewritten
+    real_open = journal.os.open
+    opened = []
+
+    def full_at_the_second_line(path, *args):  # os.open is everyone's: only the journal's opens are counted
+        if path.endswith("cells.jsonl"):
+            opened.append(path)
+            if len(opened) == 2:
+                raise OSError(errno.ENOSPC, "No space left on device", path)
+        return real_open(path, *args)
+
+    monkeypatch.setattr(journal.os, "open", full_at_the_second_line)
+    out = tmp_path / "r"
+    backend = FakeBackend(preempted_other())
+    code, results = run(MATRIX, out, backend)
+    assert code == 4 and len(opened) == 2 and backend.ran == FIFO_CELLS[:3], "no journal line refused: this test proves nothing"
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said.startswith(f"runner: cannot write {out / 'cells.jsonl'}: No space left on device; the run stopped.")
+    assert said.endswith(f"free some space, then finish the run with --resume {out}")
+    kept = [c["id"] for c in results["cells"]]
+    assert kept == FIFO_CELLS[:2] and results["status"] == "error", "the cells rewritten or journaled before it are all kept"
+    monkeypatch.setattr(journal.os, "open", real_open)  # space freed
+    backend = FakeBackend(preempted_other())
+    code, results = resume(MATRIX, out, backend)
+    assert code == 0 and backend.ran == FIFO_CELLS[2:] + [OTHER] and [c["id"] for c in results["cells"]] == FIFO_CELLS + [OTHER]
+
+
+def test_a_samples_file_a_full_disk_refused_is_the_file_named(tmp_path, monkeypatch, capsys):
+    """Its writes name no file: the run's last line once said results.json could not be written."""
+    from runner.results import samplesfile
+
+    def compressed_rows_refused(self: samplesfile.SamplesWriter) -> None:  # gzip's write fails as a file's does: naming nothing
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(samplesfile.SamplesWriter, "_flush", compressed_rows_refused)
+    out = tmp_path / "r"
+    code, results = run(MATRIX, out, FakeBackend(preempted_other()))
+    assert code == 4 and [c["status"] for c in results["cells"]] == ["error"]
+    samples = out / "cells" / FIFO_CELLS[0] / "samples.csv.gz"
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said.startswith(f"runner: cannot write {samples}: No space left on device; the run stopped."), said
+    assert f"could not be written to {samples}: No space left on device" in results["cells"][0]["reason"]
+
+
+def test_plots_a_full_disk_refused_leave_the_report_and_junit_and_exit_4(tmp_path, monkeypatch):
+    """A plot is never worth the report, but a full disk is no bug in the runner (as the report once said) and no pass."""
+    from runner.report import plots
+
+    monkeypatch.setattr(plots, "write_atomic", _no_space)
+    out, junit = tmp_path / "r", tmp_path / "junit.xml"
+    ns = _run_parser().parse_args([MATRIX, "--out", str(out), "--quiet", "--settle", "0", "--junit", str(junit)])
+    with pytest.raises(RunnerError) as caught:
+        run_scenario(load_scenario(MATRIX), RunOptions.from_namespace(ns, env={}), FakeBackend(preempted_other()))
+    assert caught.value.exit_code == 4
+    assert str(caught.value).startswith(f"runner: cannot write the plot {out / 'plots'}/") and "free some space" in str(caught.value)
+    report = (out / "report.md").read_text()
+    assert "Plots skipped: drawing them failed (runner: cannot write the plot" in report and "a bug in the runner" not in report
+    assert junit.exists() and json.loads((out / "results.json").read_text())["status"] == "passed"

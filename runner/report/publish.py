@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from runner.errors import RunnerError, from_os_error
+from runner.errors import OutputError, RunnerError, from_os_error
 from runner.outdir import REPORT_NAME
 from runner.report import github
 from runner.report import markdown as report
@@ -33,8 +33,12 @@ def write_report(
     and so does a warning; `plots=False` (`--no-plots`) draws none and says nothing.  Plots
     that fail to draw are skipped the same way, saying why (`report_files`): the report, and
     the JUnit file written after it, are the run's outcome, and a plot is never worth losing them.
+    A plot that could not be written (a full disk) is raised as the OutputError it is, once the
+    report is written.
     """
-    path, _ = report_files(doc, folder, comparison, plots, pid_width, name)
+    path, failed = report_files(doc, folder, comparison, plots, pid_width, name)
+    if isinstance(failed, OutputError):
+        raise failed
     return path
 
 
@@ -47,12 +51,14 @@ def report_files(
     name: str = REPORT_NAME,
     quiet_input_errors: bool = False,
 ) -> tuple[str, Optional[RunnerError]]:
-    """`write_report`, and the error the plots failed with when it is the input's (a samples file that cannot be read).
+    """`write_report`, and the error the plots failed with when it is the input's (a samples file that cannot be read)
+    or the output's (an OutputError: a plot file that could not be written, a full disk).
 
-    Whatever makes a plot fail (that error, or a bug in the runner) is caught here: the report
+    Whatever makes a plot fail (those errors, or a bug in the runner) is caught here: the report
     is written without plots and says why, and so does a warning.  `runner report`, whose output
     the plots are, passes `quiet_input_errors` to say an input error itself, as its error, once
-    the report is written; a run's outcome is its cells, and the warning says it there.
+    the report is written; a run's outcome is its cells, and the warning says it there.  An output
+    error is never a warning: every caller raises it once what it writes after the plots is written.
     """
     from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
 
@@ -63,9 +69,12 @@ def report_files(
         try:
             links = drawing.write_plots(doc, folder, report.thread_labels(doc.cells))
         except Exception as exc:  # any failure: said in the report and a warning, never the report lost for it
-            skipped = drawing.skipped_note(exc)
-            failed = exc if isinstance(exc, RunnerError) else None
-            if failed is None or not quiet_input_errors:
+            failure: Exception = exc
+            if isinstance(exc, OSError) and exc.filename is not None:  # a plot file, or the plots folder, that could not be written
+                failure = from_os_error(exc, "cannot write the plot", before_run=False)
+            skipped = drawing.skipped_note(failure)
+            failed = failure if isinstance(failure, RunnerError) else None
+            if failed is None or not (quiet_input_errors or isinstance(failed, OutputError)):
                 warn(skipped)
     elif plots:
         skipped = drawing.skipped_note()
@@ -157,7 +166,8 @@ def finish(
 
     Returns the number of regressions against the baseline (0 without one).  A baseline that
     cannot be read or compared (another scenario's) raises its error once the run's own report
-    and JUnit file are written: a refused comparison never costs the run its report.
+    and JUnit file are written: a refused comparison never costs the run its report.  So does a
+    plot that could not be written (a full disk, exit 4), which is raised first.
     """
     results_path = os.path.join(folder, "results.json")
     section, cmp = None, None
@@ -170,14 +180,20 @@ def finish(
         else:
             write_atomic(os.path.join(folder, "comparison.md"), section)
             say_comparison(cmp, baseline, results_path, os.path.join(folder, "comparison.md"))
+    unwritten: Optional[RunnerError] = None
     if write:
-        path = write_report(doc, folder, section, plots)
+        path, failed = report_files(doc, folder, section, plots)
+        unwritten = failed if isinstance(failed, OutputError) else None
         say(f"report: {path}")
         with open(path, encoding="utf-8") as handle:
             append_step_summary(handle.read(), env)
     elif section:
         append_step_summary(section, env)
     ci_outputs(doc, cmp, junit, env)
+    if unwritten is not None:  # a full disk: the code says it (4), the refused comparison is said too
+        if refused is not None:
+            note(str(refused))
+        raise unwritten
     if refused is not None:
         raise refused
     return cmp.regressions if cmp else 0

@@ -183,5 +183,8 @@ def _copy_samples(doc: RunDocument, cell: CellResult, out: str, repeated: bool) 
     target = os.path.join(out, rel)
     if os.path.abspath(source) != os.path.abspath(target):
         os.makedirs(os.path.dirname(target), exist_ok=True)
-        shutil.copyfile(source, target)
+        try:
+            shutil.copyfile(source, target)
+        except OSError as exc:  # a failed write (a full disk) names no file: the caller says which
+            raise OSError(exc.errno, exc.strerror or str(exc), exc.filename or target) from exc
     return rel

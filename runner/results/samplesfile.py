@@ -102,7 +102,7 @@ class SamplesWriter:
             self._discard()
 
     def close(self) -> None:
-        """Finish the file and move it into place; raise the write error if there was one (nothing is left behind)."""
+        """Finish the file and move it into place; raise the write error if there was one, naming the file (nothing is left behind)."""
         if self.error is None:
             try:
                 if self._csv is None:
@@ -121,7 +121,7 @@ class SamplesWriter:
             except OSError as exc:
                 self.error = exc
         self._discard()
-        raise self.error
+        raise OSError(self.error.errno, self.error.strerror or str(self.error), self.path) from self.error  # named: its writes do not
 
     def _flush(self) -> None:
         """The rows written since the last call, compressed."""
