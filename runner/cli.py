@@ -11,9 +11,7 @@ import json
 import os
 import signal
 import sys
-import tempfile
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -234,6 +232,9 @@ def _say(text: str) -> None:
 
 def _internal_error(exc: BaseException) -> int:
     """A bug: one line for the user, the whole traceback in a file for the bug report."""
+    import tempfile  # here, not at the top: only a bug needs them, and every command would pay for both
+    import traceback
+
     text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     where = os.environ.get("RUNNER_CRASH_DIR") or tempfile.gettempdir()
     path = os.path.join(where, f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.txt")
