@@ -540,8 +540,8 @@ def test_other_expectations_or_another_host_are_said_in_the_headline_without_a_c
 
 def _traced(lost: int = 0, untracked: int = 0, p99: int = 40_000):
     """The recorded matrix as if traced: every periodic thread with trace figures, its first cell's trace losing events."""
-    from runner.figures import Spread
     from runner.results.document import TraceInfo
+    from runner.results.threadfigures import Spread
 
     doc = copy.deepcopy(matrix())
     for n, cell in enumerate(doc.cells):

@@ -181,7 +181,7 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
 
 
 def test_a_deadline_thread_whose_callbacks_outlast_its_runtime_is_said_to_be_throttled():
-    from runner.figures import ThreadFigures
+    from runner.results.threadfigures import ThreadFigures
     from runner.run.evaluate import throttled
 
     def figures(wall_max: int) -> ThreadFigures:

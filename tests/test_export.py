@@ -14,9 +14,9 @@ from conftest import run_cli
 
 from runner import histogram as hg
 from runner.errors import UsageError
-from runner.figures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
 from runner.report.export import histogram_text, json_summary, pick_cell
 from runner.results.document import CellResult, RunDocument, Status, ThreadHistograms, ThreadResult
+from runner.results.threadfigures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
 from runner.scenario.plan import Settings
 
 LATENCIES = [3_400, 3_900, 12_000, 250_000, 2_000_000]  # ns: 3 us twice, 12 us, 250 us (a wide bucket), 2 ms

@@ -665,9 +665,9 @@ def table_rows_off_their_header(markdown: str) -> list[tuple[str, str]]:
 
 def test_every_table_row_has_as_many_cells_as_its_header_whatever_the_names():
     """A `|` in a phase's name, a lock holder's or a thread rule split their rows: those cells were escaped for text, not tables."""
-    from runner.figures import Spread
     from runner.report.compare import compare
     from runner.results.document import EventResult, Holder, PhaseResult
+    from runner.results.threadfigures import Spread
 
     name = "a|b"
     doc = _hostile_doc(name, cells=2)
@@ -856,6 +856,29 @@ def test_the_core_import_path_imports_no_plotting_and_no_numpy():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     # tabulate (with wcwidth and importlib.metadata, about 50 ms) only when a listing is printed, rt-app's converter for rt-app files
     assert done.stdout.splitlines() == ["[]", "[]", "False"], done.stdout
+
+
+def test_validate_builds_the_scenario_models_and_no_results_record(tmp_path):
+    """`runner validate` builds the scenario's pydantic models only: a thread's measured figures (the results'
+    records, about 5 ms of its start) wait for a command that measures or reads results."""
+    import subprocess
+    import sys
+
+    from conftest import SCENARIOS
+
+    code = (
+        "import io, contextlib, pydantic, runner.cli\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        f"    code = runner.cli.main(['validate', {os.path.join(SCENARIOS, 'fifo80.yaml')!r}])\n"
+        "def subclasses(cls):\n"
+        "    for sub in cls.__subclasses__():\n"
+        "        yield sub\n"
+        "        yield from subclasses(sub)\n"
+        "built = {c.__module__ for c in subclasses(pydantic.BaseModel) if c.__module__.split('.')[0] == 'runner'}\n"
+        "print(code, sorted(m for m in built if not m.startswith('runner.scenario.')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines() == ["0 []"], done.stdout
 
 
 def test_preemption_lines_name_who_preempted_and_for_periodic_threads_which_callbacks():

@@ -17,13 +17,14 @@ from hypothesis import strategies as st
 from reportdata import DATA, MATRIX, MEMORY, matrix
 
 from runner.errors import ScenarioError
-from runner.figures import REGISTRY, Faults, Involuntary, Spread, ThreadFigures, Voluntary
+from runner.figures import REGISTRY
 from runner.report import markdown as report
 from runner.report.compare import compare
 from runner.results.document import SCHEMA, CellResult, RunDocument, Status, ThreadResult, Verdict, results_schema, thread_label
 from runner.results.legacy import upgrade_v1
 from runner.results.pstable import ThreadRow
 from runner.results.read import load
+from runner.results.threadfigures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
 from runner.scenario.model import Metric, Policy
 from runner.scenario.plan import Settings
 

@@ -20,7 +20,7 @@ import jinja2
 
 from runner import figures as fg
 from runner import units
-from runner.figures import Number, ThreadFigures
+from runner.figures import Number
 from runner.report import system
 from runner.report.fmt import (
     LEFT,
@@ -50,6 +50,7 @@ from runner.results.document import (
     Verdict,
 )
 from runner.results.pstable import render_ps
+from runner.results.threadfigures import ThreadFigures
 from runner.scenario.model import Policy
 from runner.scenario.plan import Settings
 

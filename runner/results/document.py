@@ -20,7 +20,7 @@ The shape of `runner.results/2`, top down:
   `expectations`, `background`, `overhead_ns`, `samples_file` (relative to the results folder);
 - a thread: `key` (derived), `process`, `instance`, `index`, `name`, `pid`, `tid`, `work`,
   `periodic`, `requested` and `applied` {`policy`, `priority`, `nice`, `cpus`}, `degraded`,
-  `figures` (figures.ThreadFigures: every duration an integer in ns, e.g. `latency_ns.p99`);
+  `figures` (threadfigures.ThreadFigures: every duration an integer in ns, e.g. `latency_ns.p99`);
 - a verdict: `thread`, `metric` (a figure's name from figures.REGISTRY), `limit` (as the
   scenario wrote it), `measured` (in the figure's unit: ns for durations), `passed`, `note`,
   `line` and `col` (where the expectation is written in the scenario; added within /2, so
@@ -64,10 +64,10 @@ from pydantic.json_schema import SkipJsonSchema
 from runner import __version__, units
 from runner import figures as fg
 from runner.errors import Problem, ScenarioError, did_you_mean
-from runner.figures import ThreadFigures
 from runner.histogram import Histogram
 from runner.results.files import samples_path_problem, write_atomic
 from runner.results.pstable import CLS, TableRow
+from runner.results.threadfigures import Spread, ThreadFigures
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
 
@@ -286,7 +286,7 @@ class EventResult(_Record):
     measures: str = Field(description="what its figures are: wait (lock, wait, barrier), latency (timer, suspend) or wall time")
     count: NonNegativeInt
     total_ns: int = 0
-    spread_ns: Optional[fg.Spread] = None
+    spread_ns: Optional[Spread] = None
     contended: NonNegativeInt = Field(0, description="lock: acquisitions that had to wait")
     holders: list[Holder] = Field(default_factory=list, description="lock: who held the mutex when this thread waited")
     dropped: NonNegativeInt = Field(0, description="spawn: spawns that found every instance of the thread taken, or the kernel refused")

@@ -13,7 +13,6 @@ import os
 from typing import Optional
 
 from runner import units
-from runner.figures import ThreadFigures
 from runner.results.document import (
     Background,
     BackgroundKind,
@@ -29,6 +28,7 @@ from runner.results.document import (
     thread_label,
     worst,
 )
+from runner.results.threadfigures import ThreadFigures
 from runner.run import outside, programs, traced
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ResourceState, Timeline

@@ -10,9 +10,9 @@ import math
 from typing import Optional
 
 from runner import figures as fg
-from runner.figures import ThreadFigures
 from runner.histogram import QUANTILES, Histogram
 from runner.results.document import Verdict
+from runner.results.threadfigures import Faults, Involuntary, Slack, Spread, ThreadFigures, Voluntary
 from runner.run.samples import CallbackStats, SlotData
 from runner.scenario.model import Expectation
 
@@ -46,17 +46,17 @@ def thread_figures(
         missed_releases=max(slot.missed, releases_due - callbacks) if periodic else 0,
         releases=max(releases_due, callbacks + slot.missed) if periodic else 0,
         overruns=st.overruns if periodic else 0,
-        involuntary=fg.Involuntary(
+        involuntary=Involuntary(
             total=totals[0],
             per_callback_mean=_round(st.nivcsw_sum / callbacks) if has else None,
             per_callback_max=st.nivcsw_max if has else None,
             callbacks_with_any=st.with_nivcsw if has else None,
         ),
-        voluntary=fg.Voluntary(total=totals[1]),
+        voluntary=Voluntary(total=totals[1]),
         latency_ns=spread(st.latency, st.lat_mean, st.lat_m2, st.releases, st.above_bound if bound else None) if has else None,
         callback_wall_ns=spread(st.wall) if has else None,
         slack_ns=_slack(st) if has else None,
-        faults=fg.Faults(
+        faults=Faults(
             minor=totals[2],
             major=totals[3],
             minor_first_callback=st.minflt_first if has else None,
@@ -70,7 +70,7 @@ def thread_figures(
 
 def spread(
     hist: Optional[Histogram], mean: Optional[float] = None, m2: Optional[float] = None, n: int = 0, above: Optional[int] = None
-) -> Optional[fg.Spread]:
+) -> Optional[Spread]:
     """Order statistics of a histogram (ns): min and max exact, percentiles to the bucket.
 
     The mean when `mean` of `n` values is known; the standard deviation when their sum of
@@ -80,7 +80,7 @@ def spread(
         return None
     p50, p90, p99, p999 = hist.quantiles(_QUANTILES)
     mean_ns = round(mean) if mean is not None and n > 0 else None
-    return fg.Spread(
+    return Spread(
         min=hist.min,
         p50=p50,
         p90=p90,
@@ -93,13 +93,11 @@ def spread(
     )
 
 
-def _slack(st: CallbackStats) -> Optional[fg.Slack]:
+def _slack(st: CallbackStats) -> Optional[Slack]:
     hist = st.slack
     if hist is None or not hist.count:
         return None
-    return fg.Slack(
-        min=hist.min, **dict(zip(("p1", "p50"), hist.quantiles((0.01, 0.5), low=True))), max=hist.max, mean=round(st.slack_mean)
-    )
+    return Slack(min=hist.min, **dict(zip(("p1", "p50"), hist.quantiles((0.01, 0.5), low=True))), max=hist.max, mean=round(st.slack_mean))
 
 
 def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:

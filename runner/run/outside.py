@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from runner import units
-from runner.figures import Faults, Involuntary, ThreadFigures, Voluntary
 from runner.results.document import NOT_STARTED, FoldedRule, FoldedThreads, HistoryGap, ProgramResult, SettingsSnapshot, ThreadResult
+from runner.results.threadfigures import Faults, Involuntary, ThreadFigures, Voluntary
 from runner.run.child import signal_name
 from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
 from runner.run.rawcell import FoldedThreads as RawFolded

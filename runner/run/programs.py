@@ -16,10 +16,10 @@ import os
 from collections.abc import Sequence
 from typing import Optional
 
-from runner import figures as fg
 from runner import histogram as hg
 from runner import units
 from runner.results.document import EventResult, Holder, PhaseResult
+from runner.results.threadfigures import Spread
 from runner.run.measure import spread
 from runner.run.rawcell import RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData
@@ -77,7 +77,7 @@ def settings_of(ph: PhaseStats, every: tuple[int, ...]) -> Optional[Settings]:
 
 def program_results(
     work: PhasesWork, slot: SlotData, base: Settings, names: dict[int, str], every: tuple[int, ...]
-) -> tuple[list[EventResult], list[PhaseResult], dict[str, Optional[fg.Spread]]]:
+) -> tuple[list[EventResult], list[PhaseResult], dict[str, Optional[Spread]]]:
     """Per event, per phase, and the thread's event figures (by ThreadFigures field)."""
     events: list[EventResult] = []
     by_figure: dict[str, list[EventStats]] = {}
@@ -91,7 +91,7 @@ def program_results(
             if ev.event in _FIGURE_OF:
                 by_figure.setdefault(_FIGURE_OF[ev.event], []).append(st)
             n += 1
-    figures: dict[str, Optional[fg.Spread]] = {}
+    figures: dict[str, Optional[Spread]] = {}
     for field, stats in by_figure.items():
         figures[field] = _merged(stats)
     chain = slot.events[n] if n < len(slot.events) else EventStats()
@@ -124,7 +124,7 @@ def program_results(
     return events, phases, figures
 
 
-def _merged(stats: list[EventStats]) -> Optional[fg.Spread]:
+def _merged(stats: list[EventStats]) -> Optional[Spread]:
     """One spread over several events of a kind (every lock of the thread): histograms merged, mean and variance pooled."""
     hist = hg.merge(s.histogram for s in stats)
     total = sum(s.count for s in stats)
