@@ -492,3 +492,21 @@ def test_folded_threads_none_of_which_was_measured_claim_no_figures():
     line = program_lines(cell)[0]
     assert "; 7 threads that exited once it had 4,096 thread records were counted together, not kept one by one" in line
     assert "(between -1.00 s and 0.00 s; none of them was read in the measured window)" in line and "switches" not in line
+
+
+def test_a_watched_process_that_exited_is_over_even_when_its_pid_lives_on_in_another(monkeypatch, tmp_path):
+    """`runner watch` holds a pidfd: once the process exits, a newcomer given its PID is not followed as the program."""
+    import subprocess
+    import sys
+
+    from runner.run import external, kernel
+
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE, cwd=tmp_path)
+    run = external.ProgramRun(_spec(), str(tmp_path), OTHER, (0, 1))
+    run.attach(child.pid)
+    assert not run.poll(), "alive: followed"
+    monkeypatch.setattr(kernel, "process_alive", lambda pid: True)  # /proc finds a process there, whoever it is
+    assert child.stdin is not None
+    child.stdin.close()
+    child.wait(timeout=10)
+    assert run.poll() and run.exited_ns is not None, "its own exit, not a PID that lives on"

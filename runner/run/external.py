@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import errno
 import os
+import select
 import shutil
 import signal
 import struct
@@ -289,6 +290,7 @@ class ProgramRun:
         self._report = -1
         self._gate = -1
         self.attached = False
+        self._pidfd = -1  # an attached process's pidfd: its exit, never a later process given its PID
         self.seen_by = ""  # how its new threads were found: SEEN_BY_EVENTS or SEEN_BY_LISTING
         self.seen_note = ""  # why not (or not always) by events, in words
         self.cgroup: Optional[memcg.MemoryCgroup] = None  # its cgroup while it runs: memory_max's, or one that only holds it
@@ -300,8 +302,25 @@ class ProgramRun:
         self._stopped_seen: Optional[int] = None  # when a tick first found it stopped (one more says it stayed so)
 
     def attach(self, pid: int) -> None:
-        """Follow a process the runner did not start (`runner watch`): never signalled, never reaped."""
+        """Follow a process the runner did not start (`runner watch`): never signalled, never reaped.
+
+        Held by a pidfd where the kernel has them: a PID is free for another process once its own
+        has exited, and /proc alone would then follow the newcomer for an exited program."""
         self.pid, self.attached = pid, True
+        try:
+            self._pidfd = os.pidfd_open(pid)
+        except (OSError, AttributeError):  # gone already (found so by /proc), or no pidfds here: /proc alone says
+            self._pidfd = -1
+
+    def _attached_exited(self) -> bool:
+        """Whether the attached process has exited: its pidfd readable, or without one, /proc finding it gone."""
+        if self._pidfd < 0:
+            return not kernel.process_alive(self.pid)
+        if not select.select([self._pidfd], [], [], 0)[0]:
+            return False
+        os.close(self._pidfd)
+        self._pidfd = -1
+        return True
 
     def launch(self, guard: Watcher) -> None:
         """Fork it with its settings applied, held before exec; `failure` says why when it cannot start."""
@@ -356,7 +375,7 @@ class ProgramRun:
         if self.status is not None or not self.pid:
             return True
         if self.attached:
-            if self.exited_ns is None and not kernel.process_alive(self.pid):
+            if self.exited_ns is None and self._attached_exited():
                 self.exited_ns = time.monotonic_ns()
             return self.exited_ns is not None
         pid, status = os.waitpid(self.pid, os.WNOHANG)
