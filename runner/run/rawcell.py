@@ -203,6 +203,23 @@ class RawProgramThread:
 
 
 @dataclass(frozen=True)
+class OutputCount:
+    """What one stream of a program took: bytes written to it, those kept in its file, and why fewer than the limit, if so."""
+
+    written: int  # bytes the program (and what it started) wrote, kept or not
+    kept: int  # of them, the bytes in the file: the first ones
+    limit: int  # the bytes the file was to keep at most
+    error: str = ""  # why the file stopped taking bytes before the limit (a full disk), in words; "" when it did not
+    held_open: bool = False  # a process still held the stream at the cell's end: what it wrote after was neither kept nor counted
+    tail: bytes = b""  # the last bytes read, kept or not
+
+    @property
+    def dropped(self) -> int:
+        """Bytes written but not kept: beyond the limit, or after the file could not be written."""
+        return self.written - self.kept
+
+
+@dataclass(frozen=True)
 class RawProgram:
     """A program of the cell: how it started and ended, its output, and its threads."""
 
@@ -230,6 +247,7 @@ class RawProgram:
     memory_note: str = ""  # why it has no cgroup of its own, so memory_max could not be applied either
     halted_ns: Optional[int] = None  # when it was first seen stopped (state T: SIGSTOP, a debugger), if it was
     folded: Optional[FoldedThreads] = None  # exited threads counted beyond its cap of thread records; None when none were
+    output: tuple[OutputCount, ...] = ()  # what its stdout and stderr took, in that order; () when not captured (runner watch)
 
 
 @dataclass(frozen=True)
