@@ -166,6 +166,26 @@ def test_a_script_whose_interpreter_is_missing_is_said_so(tmp_path):
     assert "No such file or directory (the file exists; the interpreter its #! line names, '/nonexistent/interp', does not)" in reason
 
 
+def test_output_past_its_limit_is_counted_and_dropped_and_the_program_runs_on_to_its_exit(tmp_path):
+    """3,000,000 bytes through a 1 MiB output_limit: the file holds the first MiB, the results count the rest and say so."""
+    command = ["sh", "-c", "yes | head -c 3000000; echo last words >&2"]
+    path = _scenario(tmp_path, {"command": command, "until": "exit", "output_limit": "1MiB"})
+    started = time.monotonic()
+    done = _run(tmp_path, path, "--duration", "5s", "--no-report")
+    assert time.monotonic() - started < 4.5, "the program was held up: the cell ran to its limit instead of its exit"
+    cell = done.results["cells"][0]
+    assert cell["status"] == "passed", cell["reason"]
+    prog = cell["programs"][0]
+    folder = tmp_path / "out" / "cells" / cell["id"]
+    assert (folder / "talker.stdout").read_bytes() == b"y\n" * (1 << 19)
+    assert (folder / "talker.stderr").read_bytes() == b"last words\n"
+    assert (prog["output_limit"], prog["stdout_bytes"], prog["stdout_dropped"]) == (1 << 20, 3_000_000, 3_000_000 - (1 << 20))
+    assert (prog["stderr_bytes"], prog["stderr_dropped"]) == (11, 0)
+    assert [w for w in cell["warnings"] if "talker wrote" in w] == [
+        "program talker wrote 2.9MiB to stdout; the first 1MiB are in talker.stdout, the rest (1.9MiB) was dropped (output_limit: 1MiB)"
+    ]
+
+
 def _watch(tmp_path, target: str, duration: str, name: str = "w", extra: tuple[str, ...] = ()):
     """`runner watch TARGET --duration D [EXTRA]` into its own folder, finished and read back."""
     out = tmp_path / name

@@ -16,7 +16,18 @@ from runner.results.read import load
 from runner.run.evaluate import degradation, evaluate
 from runner.run.kernel import Counters
 from runner.run.outside import outcome
-from runner.run.rawcell import ApplyErrors, FoldedRule, FoldedThreads, HistoryGap, RawCell, RawProgram, RawProgramThread, Snapshot, Timeline
+from runner.run.rawcell import (
+    ApplyErrors,
+    FoldedRule,
+    FoldedThreads,
+    HistoryGap,
+    OutputCount,
+    RawCell,
+    RawProgram,
+    RawProgramThread,
+    Snapshot,
+    Timeline,
+)
 from runner.scenario.loader import load_scenario
 from runner.scenario.model import Policy, ProgramSpec
 from runner.scenario.plan import Settings, first_rule, program_settings, rule_settings
@@ -510,3 +521,70 @@ def test_a_watched_process_that_exited_is_over_even_when_its_pid_lives_on_in_ano
     child.stdin.close()
     child.wait(timeout=10)
     assert run.poll() and run.exited_ns is not None, "its own exit, not a PID that lives on"
+
+
+def test_output_limit_is_64mib_by_default_a_size_with_a_unit_and_never_unlimited():
+    assert _spec().output_limit == 64 << 20 and _spec(output_limit="1MiB").output_limit == 1 << 20
+    assert _spec(output_limit="0B").output_limit == 0
+    assert _spec(output_limit="1MiB").model_dump(mode="json")["output_limit"] == "1MiB"
+    for wrong, words in ((None, "expected a size"), (1000, "bare number 1000 has no unit"), ("-1MiB", "cannot read")):
+        with pytest.raises(ValueError, match=words):
+            _spec(output_limit=wrong)
+
+
+def test_output_beyond_the_limit_is_counted_in_the_results_and_said_in_a_warning():
+    gib = 1 << 30
+    counts = (OutputCount(gib + (gib // 5), 64 << 20, 64 << 20), OutputCount(4096, 4096, 64 << 20))
+    raw = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), output=counts)
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert out.warnings == [
+        "program talker wrote 1.2GiB to stdout; the first 64MiB are in talker.stdout, the rest (1.1GiB) was dropped (output_limit: 64MiB)"
+    ]
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result])
+    assert "; output: `talker.stdout` (the first 64 MiB of 1.2 GiB), `talker.stderr`" in program_lines(cell)[0]
+    r = out.result
+    assert (r.output_limit, r.stdout_bytes, r.stdout_dropped, r.stderr_bytes, r.stderr_dropped) == (
+        64 << 20,
+        gib + gib // 5,
+        gib + gib // 5 - (64 << 20),
+        4096,
+        0,
+    )
+
+
+def test_output_the_disk_refused_none_kept_and_a_stream_held_past_the_end_are_said_too():
+    counts = (OutputCount(5000, 0, 0, held_open=True), OutputCount(3 << 20, 1 << 20, 64 << 20, error="the disk is full"))
+    out = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), output=counts), T0, T0 + SECOND, False, degradation)
+    assert out.warnings == [
+        "program talker wrote 4.9KiB to stdout; none of it was kept (output_limit: 0B)",
+        "program talker: a process it started still held its stdout at the cell's end (it had no cgroup to stop it with); "
+        "what that process wrote after was neither kept nor counted",
+        "program talker wrote 3MiB to stderr; talker.stderr took only the first 1MiB (the disk is full), the rest was dropped",
+    ]
+
+
+def test_output_counts_are_stored_read_back_and_null_in_older_files_and_for_a_watched_process(tmp_path):
+    counts = (OutputCount(3 << 20, 1 << 20, 1 << 20), OutputCount(10, 10, 1 << 20))
+    out = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), output=counts), T0, T0 + SECOND, False, degradation)
+    cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result])
+    doc = RunDocument(
+        scenario={"name": "s"}, started_at="t", cell_ids=["c"], matrix_cells=["c"], plan={"repeat": 1, "settle_ns": 0}, cells=[cell]
+    )
+    doc.save(str(tmp_path / "results.json"))
+    data = json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))
+    jsonschema.validate(data, results_schema())
+    again = load(str(tmp_path)).cells[0].programs[0]
+    assert (again.output_limit, again.stdout_bytes, again.stdout_dropped, again.stderr_bytes, again.stderr_dropped) == (
+        1 << 20,
+        3 << 20,
+        2 << 20,
+        10,
+        0,
+    )
+    for key in ("output_limit", "stdout_bytes", "stdout_dropped", "stderr_bytes", "stderr_dropped"):
+        del data["cells"][0]["programs"][0][key]
+    (tmp_path / "results.json").write_text(json.dumps(data), encoding="utf-8")
+    older = load(str(tmp_path)).cells[0].programs[0]
+    assert (older.output_limit, older.stdout_bytes, older.stdout_dropped, older.stderr_bytes, older.stderr_dropped) == (None,) * 5
+    watched = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), attached=True), T0, T0 + SECOND, False, degradation)
+    assert watched.result.stdout_bytes is None and watched.result.output_limit is None

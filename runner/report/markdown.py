@@ -471,6 +471,13 @@ def _history_words(p: ProgramResult, threads: list[ThreadResult]) -> Markdown:
     return Markdown(out)
 
 
+def _stream(file: str, written: int | None, dropped: int | None) -> str:
+    """A program's output file, with how much of what it wrote the file holds when not all (its output_limit)."""
+    if not dropped or written is None:
+        return md_code(file)
+    return f"{md_code(file)} (the first {fmt_bytes(written - dropped)} of {fmt_bytes(written)})"
+
+
 def program_lines(cell: CellResult) -> list[Markdown]:
     """Per program: its command, the settings it was started with, how it ended, where its output is.
 
@@ -481,7 +488,8 @@ def program_lines(cell: CellResult) -> list[Markdown]:
     for p in cell.programs:
         pid = f" (pid {p.pid})" if p.pid else ""
         ran = f" after {units.human_duration(p.ran_ns)}" if p.ran_ns is not None and not p.stopped else ""
-        output = f"; output: {md_code(p.stdout)}, {md_code(p.stderr)}" if p.stdout else ""
+        output = f"; output: {_stream(p.stdout, p.stdout_bytes, p.stdout_dropped)}, {_stream(p.stderr, p.stderr_bytes, p.stderr_dropped)}"
+        output = output if p.stdout else ""
         memory = ""
         if p.memory_max is not None:
             peak = f", peak {fmt_bytes(p.memory_peak)}" if p.memory_peak is not None else ""

@@ -489,6 +489,17 @@ class ProgramResult(_Record):
     ran_ns: Optional[int] = Field(None, description="from its exec to its exit")
     stdout: str = Field("", description="file of its standard output, in the cell's folder")
     stderr: str = ""
+    output_limit: Optional[int] = Field(
+        None, description="bytes each of stdout and stderr kept at most (output_limit); null: not captured (runner watch) or not recorded"
+    )
+    stdout_bytes: Optional[NonNegativeInt] = Field(
+        None, description="bytes it (and what it started) wrote to its standard output, kept or not; null: not counted"
+    )
+    stdout_dropped: Optional[NonNegativeInt] = Field(
+        None, description="of those, bytes not in the file: beyond output_limit, or after the file could not be written"
+    )
+    stderr_bytes: Optional[NonNegativeInt] = None
+    stderr_dropped: Optional[NonNegativeInt] = None
     tail: list[str] = Field(default_factory=list, description="the last lines of its output")
     threads_seen_by: str = Field(
         "",

@@ -37,8 +37,19 @@ from typing import TYPE_CHECKING, Any, Optional
 from runner.run import _probe, kernel, memcg
 from runner.run.evaluate import degradation
 from runner.run.kernel import Counters
+from runner.run.output import FINISH_WAIT_S, CappedOutput
 from runner.run.procevents import Kind, ProcEvents
-from runner.run.rawcell import ApplyErrors, FoldedName, FoldedRule, FoldedThreads, HistoryGap, RawProgram, RawProgramThread, Snapshot
+from runner.run.rawcell import (
+    ApplyErrors,
+    FoldedName,
+    FoldedRule,
+    FoldedThreads,
+    HistoryGap,
+    OutputCount,
+    RawProgram,
+    RawProgramThread,
+    Snapshot,
+)
 from runner.scenario.model import Policy, ProgramSpec, Sched
 from runner.scenario.plan import Settings, first_rule, rule_settings
 
@@ -53,7 +64,6 @@ SEEN_BY_LISTING = "listing"
 OpenEvents = Callable[[frozenset[int]], tuple[Optional[ProcEvents], str]]  # subscribes to the events of these processes
 RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
 TAIL_LINES = 10  # lines of a program's output shown when it fails
-TAIL_BYTES = 8192
 # A thread's settings history keeps its first snapshots (it appeared, its rule, what the program set as it started) and
 # its most recent (what it ended with, and the pattern of its changes): 64 in all, each about 375 bytes of the runner's
 # memory (measured with tracemalloc) plus 8 to 13 bytes per CPU of an affinity narrower than all CPUs, and 125 bytes of
@@ -282,6 +292,8 @@ class ProgramRun:
         self.stopped = ""
         self.stdout = f"{spec.name}.stdout"
         self.stderr = f"{spec.name}.stderr"
+        self._outputs: tuple[CappedOutput, ...] = ()  # stdout's and stderr's, from its launch to its stop
+        self.output: tuple[OutputCount, ...] = ()  # what they took, once it was stopped: stdout's, stderr's
         self.threads: dict[int, _Thread] = {}  # by TID: the records a TID found in a listing or an event leads to
         self.retired: list[_Thread] = []  # exited threads kept whose TID the kernel gave to a new thread: no longer found by it
         self.threads_seen = 0  # thread records ever made here: the next one's index
@@ -329,7 +341,14 @@ class ProgramRun:
             return
         env = _environment(self.spec.env)
         cwd = self.spec.cwd if self.spec.cwd is not None else self.folder
-        with open(os.path.join(self.folder, self.stdout), "wb") as out, open(os.path.join(self.folder, self.stderr), "wb") as err:
+        out = CappedOutput(os.path.join(self.folder, self.stdout), self.spec.output_limit)
+        try:
+            err = CappedOutput(os.path.join(self.folder, self.stderr), self.spec.output_limit)
+        except BaseException:
+            out.finish(0)
+            raise
+        self._outputs = (out, err)
+        try:
             self.pid, self._report, self._gate = _probe.spawn_program(
                 os.fsencode(self.path),
                 [os.fsencode(a) for a in self.spec.command],
@@ -337,9 +356,15 @@ class ProgramRun:
                 os.fsencode(cwd),
                 settings_args(self.spec.sched, self.spec.cpus),
                 self.spec.reset_on_fork,
-                out.fileno(),
-                err.fileno(),
+                out.write_fd,
+                err.write_fd,
             )
+        except BaseException:
+            self._finish_output(0)
+            raise
+        finally:
+            for each in self._outputs:
+                each.close_write_end()  # the program holds its own copies: its exit (and its children's) ends the pipes
         guard.watch(self.pid)
         data = _read_exactly(self._report, 12)
         if len(data) == 12:
@@ -416,6 +441,7 @@ class ProgramRun:
         """
         if not self.pid or self.attached:
             self._close_cgroup(guard)
+            self._finish_output()
             return
         if self.released_ns is None:
             self.abandon()
@@ -437,6 +463,14 @@ class ProgramRun:
         _killpg(self.pid, signal.SIGKILL)
         guard.forget(self.pid)
         self._close_cgroup(guard)
+        self._finish_output()
+
+    def _finish_output(self, wait_s: float = FINISH_WAIT_S) -> None:
+        """Stop reading its stdout and stderr, once every process that held them is gone (or `wait_s` passed), and count them."""
+        deadline = time.monotonic() + wait_s
+        if self._outputs:
+            self.output = tuple(each.finish(deadline) for each in self._outputs)
+            self._outputs = ()
 
     def _hold(self, guard: Watcher, limit: Optional[int]) -> None:
         """Put the program, still at its gate, in a cgroup of its own, which all it starts joins too.
@@ -541,8 +575,8 @@ class ProgramRun:
             code,
             sig,
             self.stopped,
-            self.stdout if self.pid else "",
-            self.stderr if self.pid else "",
+            self.stdout if self.output and self.pid else "",
+            self.stderr if self.output and self.pid else "",
             self._tail(),
             threads,
             self.attached,
@@ -554,6 +588,7 @@ class ProgramRun:
             self.memory_note,
             self.halted_ns,
             self.folded.raw() if self.folded.count else None,
+            self.output,
         )
 
     def _raw_thread(self, t: _Thread, window_start: Optional[int], window_end: int) -> RawProgramThread:
@@ -580,15 +615,10 @@ class ProgramRun:
         )
 
     def _tail(self) -> tuple[str, ...]:
+        """The last lines it wrote, stderr's then stdout's, as read from its pipes: past the output limit too."""
         lines: list[str] = []
-        for name in (self.stderr, self.stdout):
-            try:
-                with open(os.path.join(self.folder, name), "rb") as handle:
-                    handle.seek(max(0, os.fstat(handle.fileno()).st_size - TAIL_BYTES))
-                    text = handle.read().decode(errors="replace")
-            except OSError:
-                continue
-            lines += [f"{name}: {line}" for line in deque(text.splitlines(), TAIL_LINES)]
+        for name, count in reversed(list(zip((self.stdout, self.stderr), self.output))):
+            lines += [f"{name}: {line}" for line in deque(count.tail.decode(errors="replace").splitlines(), TAIL_LINES)]
         return tuple(lines[-TAIL_LINES:])
 
 

@@ -20,7 +20,7 @@ from runner import units
 from runner.results.document import NOT_STARTED, FoldedRule, FoldedThreads, HistoryGap, ProgramResult, SettingsSnapshot, ThreadResult
 from runner.results.threadfigures import Faults, Involuntary, ThreadFigures, Voluntary
 from runner.run.child import signal_name
-from runner.run.rawcell import ApplyErrors, RawProgram, RawProgramThread
+from runner.run.rawcell import ApplyErrors, OutputCount, RawProgram, RawProgramThread
 from runner.run.rawcell import FoldedThreads as RawFolded
 from runner.run.rawcell import HistoryGap as RawGap
 from runner.scenario.model import ProgramSpec, SleepWork, Until
@@ -42,6 +42,37 @@ class ProgramOutcome:
     folded: list[tuple[PlannedThread, int]] = field(default_factory=list)
     folded_unnamed: int = 0  # folded threads whose names were not kept (beyond MAX_FOLDED_NAMES pairs): any name may be among them
     folded_cap: int = 0  # the thread records kept before threads that exit were folded
+
+
+def _size(nbytes: int) -> str:
+    """A size for a message in its largest unit: exact when whole (`64MiB`, `4B`), else to a tenth (`1.1GiB`)."""
+    unit = next((u for u in ("TiB", "GiB", "MiB", "KiB") if nbytes >= units.BYTES_PER[u]), "")
+    if not unit or nbytes % units.BYTES_PER[unit] == 0:
+        return units.format_size(nbytes)
+    return f"{nbytes / units.BYTES_PER[unit]:.1f}{unit}"
+
+
+def output_warnings(name: str, stream: str, file: str, count: OutputCount) -> list[str]:
+    """What of a program's `stream` is not in its `file`, in words: beyond its output_limit, past a write that failed, or
+    written after the cell's end by a process that outlived it; none when the file holds all it wrote."""
+    out = []
+    if count.dropped:
+        wrote = f"program {name} wrote {_size(count.written)} to {stream}"
+        if count.error:
+            out.append(f"{wrote}; {file} took only the first {_size(count.kept)} ({count.error}), the rest was dropped")
+        elif count.kept:
+            out.append(
+                f"{wrote}; the first {_size(count.kept)} are in {file}, the rest ({_size(count.dropped)}) was dropped "
+                f"(output_limit: {units.format_size(count.limit)})"
+            )
+        else:
+            out.append(f"{wrote}; none of it was kept (output_limit: {units.format_size(count.limit)})")
+    if count.held_open:
+        out.append(
+            f"program {name}: a process it started still held its {stream} at the cell's end (it had no cgroup to stop it with); "
+            "what that process wrote after was neither kept nor counted"
+        )
+    return out
 
 
 def _per_second(count: int, ns: int) -> Optional[float]:
@@ -222,6 +253,8 @@ def outcome(
         )
     if raw.stopped == "SIGKILL" and not raw.failure and not never_ran:
         warnings.append(f"program {spec.name} did not exit within {units.format_duration(spec.grace)} of SIGTERM and was killed (SIGKILL)")
+    for stream, file, count in zip(("stdout", "stderr"), (raw.stdout, raw.stderr), raw.output):
+        warnings += output_warnings(spec.name, stream, file, count)
     result = ProgramResult(
         name=spec.name,
         argv=list(spec.command),
@@ -237,6 +270,11 @@ def outcome(
         ran_ns=(raw.exited_ns - raw.released_ns) if raw.exited_ns is not None and raw.released_ns is not None else None,
         stdout=raw.stdout,
         stderr=raw.stderr,
+        output_limit=raw.output[0].limit if raw.output else None,
+        stdout_bytes=raw.output[0].written if raw.output else None,
+        stdout_dropped=raw.output[0].dropped if raw.output else None,
+        stderr_bytes=raw.output[1].written if len(raw.output) > 1 else None,
+        stderr_dropped=raw.output[1].dropped if len(raw.output) > 1 else None,
         tail=list(raw.tail),
         threads_seen_by=raw.seen_by,
         threads_seen_note=raw.seen_note,

@@ -59,6 +59,10 @@ MIN_DL_RUNTIME = 1024  # the kernel refuses SCHED_DEADLINE runtimes below 1.024 
 MAX_PHASES, MAX_EVENTS = 32, 128  # per thread, as the native core sizes its figures
 MAX_MEM_EVENT = 1 << 30  # a mem event writes at most this much of its buffer
 IO_CHUNK = 1 << 20  # iorun writes from the thread's buffer in chunks of at most this
+# What a program's stdout and stderr keep each by default: an hour of a chatty log at INFO (100 lines a second) whole, as
+# much as Kubernetes keeps of a container's (10 MiB in 5 files), and a program that prints in a loop costs a cell 128 MiB
+# of disk at most, not the disk.
+OUTPUT_LIMIT = 64 << 20
 
 
 CPUS_CONTEXT = "cpus"
@@ -1298,6 +1302,13 @@ class ProgramSpec(Strict):
         None,
         description="a memory limit for the program and all it starts, in a memory cgroup of its own (systemd's MemoryMax=, "
         "docker --memory): past it the kernel reclaims, then its OOM killer ends the program",
+    )
+    output_limit: Size = Field(
+        OUTPUT_LIMIT,
+        description="bytes of its stdout, and of its stderr, kept in NAME.stdout and NAME.stderr: what it writes beyond is "
+        "counted and dropped, never held up (the results and a warning say how much); 0B keeps none, and there is no "
+        "'unlimited' (a program that prints in a loop would fill the disk): write the size you need",
+        json_schema_extra={"default": units.format_size(OUTPUT_LIMIT)},  # as written, not in bytes: an editor offers it
     )
 
     _name = field_validator("name")(lambda cls, v: _check_comm(v))
