@@ -9,8 +9,10 @@ Every write of the program succeeds, beyond the limit too, at the pace of a pipe
 
 The thread is the runner's, in the runner's process: its GIL is not the program's.  The pipe
 is widened to PIPE_BYTES where the kernel lets it, so a program is held up only should the
-runner not take its turn for as long as the program needs to write that much (the reader
-drains about a GB/s on the 2-CPU VM, see tests/test_output.py).  The last TAIL_BYTES read
+runner not take its turn for as long as the program needs to write that much.  On the 2-CPU
+VM it drained `head -c 4G /dev/zero` at 4 GB/s, and at 0.4 GB/s while another thread of the
+runner spun in Python (the reader then waits for the GIL at each read); the same program wrote
+0.3 GB/s to a file on that VM's disk.  The last TAIL_BYTES read
 are kept in memory, dropped or not, so a program that fails says its last words even when
 its file was full long before.
 """
