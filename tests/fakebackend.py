@@ -40,7 +40,7 @@ class Act:
     degrade: bool = False  # RT policies come back as SCHED_OTHER
     oserror: Optional[int] = None  # errno of creating the cell's files
     follow_lines: int = 0  # --follow lines to print
-    released_late: tuple[tuple[str, int], ...] = ()  # measured processes that read their `go` after the common start
+    released_late: tuple[tuple[str, int], ...] = ()  # measured processes whose threads passed their start gate after the common start
     dies: bool = False  # the runner dies here, as under SIGKILL: nothing after this cell's start runs
 
 

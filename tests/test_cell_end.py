@@ -19,9 +19,10 @@ import pytest
 
 from runner.run import samples, spawn
 from runner.run.samples import Layout
-from runner.run.spawn import _CellRun, _load_late, start_margin
+from runner.run.spawn import Worker, _CellRun, _gate_late, _load_late, _start_load, start_margin
 
 _WORK_START_AT = 112  # a slot header's work_start_ns, as the native core lays it out (after loops and missed)
+_GATE_AT = 464  # and gate_ns, when the thread passed the start gate
 
 
 def _cell_run(**state: Any) -> _CellRun:
@@ -69,8 +70,8 @@ def test_after_the_end_the_loop_looks_soon_then_less_often(monkeypatch: pytest.M
 
 
 def test_the_start_margin_grows_with_processes_and_threads() -> None:
-    assert start_margin(3, 10) == pytest.approx(0.01162)  # fifo80: a worker of ten slots and two hogs
-    assert start_margin(16, 1024) == pytest.approx(0.030288)  # measured: the last released 7 to 20 ms after `go`
+    assert start_margin(1, 10) == pytest.approx(0.00542)  # fifo80: a worker of ten slots (its two hogs start after)
+    assert start_margin(16, 1024) == pytest.approx(0.022088)  # measured: the last through its gate 10 ms after it opened
     assert start_margin(64, 8192) == 0.060
 
 
@@ -92,3 +93,62 @@ def test_a_hogs_load_is_late_by_its_last_thread_to_begin_and_a_thread_that_never
         writable.close()
     finally:
         os.close(fd)
+
+
+def test_a_workers_release_is_late_by_its_last_thread_through_the_gate_and_one_that_never_passed_is_not_counted() -> None:
+    layout = Layout(3, 0, histograms=False)
+    fd = samples.create("gate-late-test", layout)
+    try:
+        writable = mmap.mmap(fd, layout.size)
+        t0 = 5_000_000_000
+        for index, passed in enumerate((t0 - 2_000_000, t0 + 700_000, 0)):  # in time, late, spawned mid-run (never)
+            struct.pack_into("<q", writable, layout.slot(index) + _GATE_AT, passed)
+        buffer = samples.Buffer(fd, layout)
+        assert _gate_late(buffer, t0) == 700_000
+        assert _gate_late(buffer, None) == 0, "a cell that never started released nobody late"
+        assert _load_late(buffer, t0) == 0, "the gate is not the work's start"
+        buffer.close()
+        writable.close()
+    finally:
+        os.close(fd)
+
+
+class _GateRecorder:
+    """A hog's buffer that notes the CPUs its thread may use when its gate opens; its load has begun at once."""
+
+    def __init__(self, tid: int) -> None:
+        self.tid = tid
+        self.allowed_at_open: set[int] = set()
+
+    def open_gate(self, start_ns: int, end_ns: int) -> bool:
+        self.allowed_at_open = os.sched_getaffinity(self.tid)
+        return True
+
+    def work_started(self) -> list[int]:
+        return [1]
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
+def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
+    """Woken together, two hogs could share a CPU for milliseconds before the balancer moved one; each is woken
+    on a CPU of its own instead, and may go anywhere it could before once its load began."""
+    import subprocess
+    import sys
+
+    cpus = sorted(os.sched_getaffinity(0))
+    sleepers = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"]) for _ in range(2)]
+    try:
+        hogs = []
+        for index, proc in enumerate(sleepers):
+            hog = Worker(f"hog busy[{index}]", {}, Layout(1, 0, histograms=False), [], False, os.devnull)
+            hog.ready = {"tids": [proc.pid]}
+            hog.buffer = _GateRecorder(proc.pid)  # type: ignore[assignment]
+            hogs.append(hog)
+        _start_load(hogs, 0, 1, 2**62)
+        woken_on = [h.buffer.allowed_at_open for h in hogs]  # type: ignore[union-attr]
+        assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, in turn"
+        assert all(os.sched_getaffinity(p.pid) == set(cpus) for p in sleepers), "their own CPUs back"
+    finally:
+        for proc in sleepers:
+            proc.kill()
+            proc.wait()

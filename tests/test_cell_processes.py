@@ -8,7 +8,6 @@ cell's end into an internal error, a wait of the whole grace period, or a busy l
 from __future__ import annotations
 
 import contextlib
-import os
 import select
 import signal
 import socket
@@ -22,7 +21,7 @@ from test_cell_end import _cell_run
 
 from runner.run import kernel, spawn
 from runner.run.child import signal_name
-from runner.run.spawn import Worker, _Exits, _kill_group_or_process
+from runner.run.spawn import _Exits, _kill_group_or_process
 
 
 @contextlib.contextmanager
@@ -66,19 +65,6 @@ def test_the_end_of_the_load_spares_a_command_reaped_already(monkeypatch: pytest
     with _sleeping(start_new_session=True) as running:
         _cell_run(commands=[done, running])._end_load()
         assert signalled == [running.pid]
-
-
-def test_a_worker_still_waiting_for_its_go_leaves_when_the_runner_hangs_up() -> None:
-    """Until `go` a stop signal is only noted; the end of its input makes it leave at once, not after the grace period."""
-    proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; sys.exit(0 if not sys.stdin.readline() else 3)"],
-        stdin=subprocess.PIPE,
-        text=True,
-    )
-    worker = Worker("w", {}, spawn.samples.Layout(1, 0), [], True, os.devnull, popen=proc)
-    worker.hang_up()
-    assert proc.wait(timeout=10) == 0
-    worker.hang_up()  # twice: nothing left to close, nothing raised
 
 
 def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:

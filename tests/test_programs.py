@@ -514,7 +514,7 @@ def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each
         group.join()
         reader = samples.Buffer(fd, layout)
         header = struct.unpack_from("<8s6IQ", reader.map, 0)
-        assert (header[0], header[5], header[7]) == (b"RSMP0006", layout.sample_size, layout.stride)
+        assert (header[0], header[5], header[7]) == (b"RSMP0007", layout.sample_size, layout.stride)
         tick, locker = reader.drain(1, stopped=True), reader.drain(2, stopped=True)
     finally:
         _probe.set_name("pytest")

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from runner.run import kernel, samples, tracing
-from runner.run.spawn import Worker, _read_done, work_tuple
+from runner.run.spawn import Worker, _gate_late, _read_done, work_tuple
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.scenario.model import SleepWork
 
@@ -91,12 +91,30 @@ def test_a_forked_worker_starts_as_a_fresh_one_would(tmp_path, zygote):
         mine = {os.readlink(f"/proc/{w.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{w.pid}/fd")}
         assert not sockets & mine, "no descriptor of the zygote's leaks into a worker"
         assert [link for link in mine if "memfd:runner-zyg-fresh" in link], "its samples buffer reached it (fd 3)"
-        now = time.monotonic_ns()
-        w.send(f"go {now + 20_000_000} {now + 60_000_000}")
+        start = time.monotonic_ns() + 20_000_000
+        assert w.buffer is not None and w.buffer.open_gate(start, start + 40_000_000)
         assert w.popen.wait(timeout=10) == 0
         _read_done(w)
-        assert w.done and w.late_ns == 0, "released before the common start: no lateness to report"
+        assert w.done and _gate_late(w.buffer, start) < 0, "released before the common start: no lateness to report"
         assert w.exit_reason() is None
+    finally:
+        w.signal(signal.SIGKILL)
+
+
+def test_a_worker_whose_cell_never_starts_leaves_at_once_when_the_runner_hangs_up(tmp_path, zygote):
+    """At its gate a stop signal is only noted: the runner cancels the gate, and the worker leaves without working."""
+    w = sleeper(tmp_path, "zyg-hangup")
+    w.start(_Guard(), zygote=zygote)
+    try:
+        ready(w)
+        began = time.monotonic()
+        w.hang_up()
+        assert w.popen is not None and w.popen.wait(timeout=10) == 0
+        assert time.monotonic() - began < 1.0, "not after a grace period"
+        _read_done(w)
+        assert not w.done, "no thread worked: nothing done to report"
+        assert w.buffer is not None and [s.loops for s in w.buffer.slots()] == [0]
+        w.hang_up()  # twice: nothing left to close, nothing raised
     finally:
         w.signal(signal.SIGKILL)
 

@@ -12,12 +12,14 @@
  * buffer (layout below) that the runner reads while the run goes on and after
  * it ends, even when the worker dies.  The loop allocates nothing.
  *
- * Buffer layout (little endian, all offsets in bytes), version 6:
- *   file header, 64 bytes:  magic "RSMP0006", u32 version, u32 nthreads,
+ * Buffer layout (little endian, all offsets in bytes), version 7:
+ *   file header, 128 bytes: magic "RSMP0007", u32 version, u32 nthreads,
  *                           u32 capacity, u32 slot_header_size, u32 sample_size,
  *                           u32 hist_buckets (0 when the group keeps none),
- *                           u64 slot_stride, u32 event_stats, u32 phase_stats
- *   per thread, at 64 + i * slot_stride:
+ *                           u64 slot_stride, u32 event_stats, u32 phase_stats;
+ *                           at 64 the start gate: u32 state (a futex word: 0 shut, 1 open,
+ *                           2 cancelled), u32 unused, i64 start_ns, i64 end_ns
+ *   per thread, at 128 + i * slot_stride:
  *     slot header, 512 bytes (struct slot_header): totals and running figures
  *     histograms, 3 * hist_buckets u64 (latency, slack >= 0, -slack for slack < 0)
  *     then a second block of hist_buckets u64: callback wall time
@@ -48,13 +50,16 @@
 #include <sys/mman.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
+#include <linux/futex.h>
 #include <sys/syscall.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "histogram.h" /* HIST_* and hist_index(), shared with _trace.c */
 
-#define FILE_HEADER 64
+#define FILE_HEADER 128
+#define GATE_AT 64 /* the start gate in the file header: state, then start and end (CLOCK_MONOTONIC) */
+enum gate_state { GATE_SHUT = 0, GATE_OPEN = 1, GATE_CANCELLED = 2 };
 #define SLOT_HEADER 512
 #define SAMPLE_BYTES 112
 #define MAX_LOCK_SLOTS 8 /* mutexes a thread's activations keep apart, in the order its program first locks them */
@@ -100,7 +105,8 @@ struct slot_header {
     int32_t cur_event;            /* index in the program's event list, -1 between events */
     int64_t blocked_since_ns;     /* when the current blocking event (lock, wait, barrier, suspend) began; 0 if none */
     int64_t timer_due_ns;         /* at its end, the first release of the timer it followed that it had not served; 0: none */
-    uint8_t reserved[SLOT_HEADER - 464];
+    int64_t gate_ns;              /* when it passed the start gate (0: not yet, or a thread spawned mid-run) */
+    uint8_t reserved[SLOT_HEADER - 472];
 };
 
 struct sample {
@@ -483,11 +489,6 @@ struct group {
     int with_hist;
     size_t stride;
     struct slot *slots;
-    pthread_mutex_t lock;
-    pthread_cond_t cond;
-    int released;
-    int64_t start_ns;
-    int64_t end_ns;
     cpu_set_t all_cpus;
     long page_size;
     uint32_t nstats, nphases;   /* event and phase stats per slot */
@@ -496,6 +497,45 @@ struct group {
     char *res;                  /* the shared resources segment, NULL if none */
     Py_ssize_t nres;
 };
+
+/* The start gate, in the shared file header: a futex word the runner opens (or cancels) for every thread of the
+ * process at once, with the run's start and end written before it.  Threads wait on it themselves, each at its
+ * own policy, so a thread at an RT priority is released at once, never behind a control thread that has to
+ * share the CPUs with the background load first. */
+static inline _Atomic uint32_t *gate_word(const char *base) { return (_Atomic uint32_t *)(base + GATE_AT); }
+
+/* The run's start and end: written before the gate opened and never after, so read without a lock. */
+static inline int64_t run_start(const struct group *g) { return *(const int64_t *)(g->base + GATE_AT + 8); }
+static inline int64_t run_end(const struct group *g) { return *(const int64_t *)(g->base + GATE_AT + 16); }
+
+/* Open a shut gate at `start`, to close at `end`; false if it was opened or cancelled already.  One opener (the
+ * runner, or a test's own process): the times are written before the state that publishes them, and a cancel
+ * that wins the race leaves them unread. */
+static int gate_open(char *base, int64_t start, int64_t end) {
+    if (atomic_load_explicit(gate_word(base), memory_order_acquire) != GATE_SHUT) return 0;
+    memcpy(base + GATE_AT + 8, &start, sizeof(start));
+    memcpy(base + GATE_AT + 16, &end, sizeof(end));
+    uint32_t shut = GATE_SHUT;
+    if (!atomic_compare_exchange_strong_explicit(gate_word(base), &shut, GATE_OPEN, memory_order_acq_rel, memory_order_acquire)) return 0;
+    syscall(SYS_futex, gate_word(base), FUTEX_WAKE, INT32_MAX, NULL, NULL, 0);
+    return 1;
+}
+
+/* Cancel a shut gate: its threads leave without working.  False if it was open already. */
+static int gate_cancel(char *base) {
+    uint32_t shut = GATE_SHUT;
+    int done = atomic_compare_exchange_strong_explicit(gate_word(base), &shut, GATE_CANCELLED, memory_order_acq_rel, memory_order_acquire);
+    if (done) syscall(SYS_futex, gate_word(base), FUTEX_WAKE, INT32_MAX, NULL, NULL, 0);
+    return done || shut == GATE_CANCELLED;
+}
+
+/* Wait for the gate; its state once it is no longer shut. */
+static uint32_t gate_wait(const struct group *g) {
+    uint32_t state;
+    while ((state = atomic_load_explicit(gate_word(g->base), memory_order_acquire)) == GATE_SHUT)
+        syscall(SYS_futex, gate_word(g->base), FUTEX_WAIT, GATE_SHUT, NULL, NULL, 0);
+    return state;
+}
 
 /* A periodic callback's burn: `ns` of the thread's CPU time (of wall time if `wall`), cut short only by a stop
  * (SIGTERM, SIGINT, the runner's stop).  A callback under way at the run's end runs to its own end, measured, and
@@ -599,12 +639,12 @@ static void run_periodic(struct slot *s) {
     struct group *g = s->group;
     struct slot_header *h = s->hdr;
     const struct work *w = &s->work;
-    int64_t next = g->start_ns + w->offset_ns;
+    int64_t next = run_start(g) + w->offset_ns;
     int64_t ru0[4], ru1[4];
     int32_t missed = 0;
     struct sample c;
     memset(&c, 0, sizeof(c));
-    while (!g_stop && next < g->end_ns) {
+    while (!g_stop && next < run_end(g)) {
         wait_until(w, next);
         if (g_stop) break;
         int64_t wake = now_ns(CLOCK_MONOTONIC);
@@ -641,7 +681,7 @@ static void run_periodic(struct slot *s) {
         next += w->period_ns;
         int64_t now = now_ns(CLOCK_MONOTONIC);
         while (next < now) { /* overran or woke late: skip the releases already past, as ROS 2 timers do */
-            if (next < g->end_ns) missed++;
+            if (next < run_end(g)) missed++;
             next += w->period_ns;
         }
         h->missed += (uint64_t)missed;
@@ -649,7 +689,7 @@ static void run_periodic(struct slot *s) {
     /* No release left in the run: wait for its end as a thread waiting for its next release
      * would, rather than run on into the worker's own epilogue (the trace ends this callback's
      * run at this sleep, as it ends every other one's). */
-    if (!g_stop && next >= g->end_ns) sleep_until(g->end_ns);
+    if (!g_stop && next >= run_end(g)) sleep_until(run_end(g));
 }
 
 static void run_spin(struct slot *s) {
@@ -657,7 +697,7 @@ static void run_spin(struct slot *s) {
     uint64_t loops = 0;
     while (!g_stop) {
         int64_t t = now_ns(CLOCK_MONOTONIC);
-        if (t >= g->end_ns) break;
+        if (t >= run_end(g)) break;
         if ((loops & 1023) == 0) note_cpu(s->hdr, sched_getcpu());
         loops++;
     }
@@ -667,7 +707,7 @@ static void run_spin(struct slot *s) {
 static void run_sleep(struct slot *s) {
     struct group *g = s->group;
     while (!g_stop) {
-        int64_t left = g->end_ns - now_ns(CLOCK_MONOTONIC);
+        int64_t left = run_end(g) - now_ns(CLOCK_MONOTONIC);
         if (left <= 0) break;
         struct timespec ts = to_ts(left);
         struct pollfd pfd = {.fd = g_stop_pipe[0], .events = POLLIN};
@@ -688,7 +728,7 @@ static inline struct phase_stats *ph_stats(struct slot *s, int i) {
 
 static inline struct resource *res_at(struct slot *s, int i) { return (struct resource *)(s->group->res + (size_t)i * RES_BYTES); }
 
-static inline int live(const struct group *g) { return !g_stop && now_ns(CLOCK_MONOTONIC) < g->end_ns; }
+static inline int live(const struct group *g) { return !g_stop && now_ns(CLOCK_MONOTONIC) < run_end(g); }
 
 static void ev_record(struct slot *s, int i, int64_t v) {
     struct event_stats *e = ev_stats(s, i);
@@ -720,7 +760,7 @@ static struct timespec slice_realtime(void) { return to_ts(now_ns(CLOCK_REALTIME
 
 static struct timespec slice_monotonic(const struct group *g) {
     int64_t t = now_ns(CLOCK_MONOTONIC) + SLICE_NS;
-    return to_ts(t < g->end_ns ? t : g->end_ns);
+    return to_ts(t < run_end(g) ? t : run_end(g));
 }
 
 /* A lock call's result with a dead holder's mutex made consistent and counted: the caller holds it then. */
@@ -771,7 +811,7 @@ static void burn_until_end(const struct group *g, int64_t ns, int wall) {
     int64_t until = now_ns(clock) + ns;
     unsigned k = 0;
     while (now_ns(clock) < until) {
-        if ((++k & 255) == 0 && (g_stop || now_ns(CLOCK_MONOTONIC) >= g->end_ns)) break;
+        if ((++k & 255) == 0 && (g_stop || now_ns(CLOCK_MONOTONIC) >= run_end(g))) break;
     }
 }
 
@@ -850,7 +890,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     activation_close(s, ps, now, follows ? t->last + period : own_next(ps));
     if (!follows) {
         if (e->res >= 0)
-            t->origin = g->start_ns;
+            t->origin = run_start(g);
         else
             t->origin = t->started ? now : ps->t_start;
         t->started = 1;
@@ -860,7 +900,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
         if (next < now) { /* the activation overran, or the thread came late */
             if (e->mode == OVR_SKIP) {
                 while (next < now) { /* as periodic work and ROS 2 timers: skip the releases already past */
-                    if (next < g->end_ns) missed++;
+                    if (next < run_end(g)) missed++;
                     next += period;
                 }
             } else if (e->mode == OVR_REBASE) {
@@ -870,8 +910,8 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
     }
     ps->timer_key = e->key;
     t->due = next, t->period = period;
-    if (next >= g->end_ns) { /* no release left in the run: the program is over */
-        sleep_until(g->end_ns);
+    if (next >= run_end(g)) { /* no release left in the run: the program is over */
+        sleep_until(run_end(g));
         return;
     }
     s->hdr->missed += (uint64_t)missed;
@@ -1100,7 +1140,7 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
         case EV_SLEEP: {
             t0 = now_ns(CLOCK_MONOTONIC);
             int64_t until = t0 + e->arg;
-            sleep_until(until < g->end_ns ? until : g->end_ns);
+            sleep_until(until < run_end(g) ? until : run_end(g));
             ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
             break;
         }
@@ -1175,11 +1215,11 @@ static void phase_account(struct slot *s, struct program_state *ps) {
 static void run_program(struct slot *s, struct program_state *ps) {
     struct group *g = s->group;
     const struct program *p = s->prog;
-    int64_t begin = g->start_ns + p->delay_ns;
+    int64_t begin = run_start(g) + p->delay_ns;
     /* A spawned thread starts when it is created; the others at their place on the scenario's clock, whatever
      * the jitter of their release, so that their grids keep the offsets the scenario gives them. */
     ps->t_start = s->deferred ? now_ns(CLOCK_MONOTONIC) : begin;
-    if (p->delay_ns > 0) sleep_until(begin < g->end_ns ? begin : g->end_ns);
+    if (p->delay_ns > 0) sleep_until(begin < run_end(g) ? begin : run_end(g));
     for (int64_t pass = 0; (p->loop == 0 || pass < p->loop) && live(g); pass++) {
         for (int k = 0; k < p->nphases && live(g); k++) {
             const struct phase *ph = &p->phases[k];
@@ -1214,7 +1254,7 @@ static void run_program(struct slot *s, struct program_state *ps) {
          * the end, came while it was blocked or still busy and were never served (a thread stuck for the last 1.99 s
          * of a 10 ms timer missed 199, not 0).  A timer whose first release was past the end had none due. */
         const struct timer_state *t = &ps->timers[ps->timer_key];
-        int64_t until = end < g->end_ns ? end : g->end_ns; /* an interrupt ends the count where it came */
+        int64_t until = end < run_end(g) ? end : run_end(g); /* an interrupt ends the count where it came */
         if (t->period > 0 && t->due > 0 && t->due < until) s->hdr->missed += (uint64_t)((until - 1 - t->due) / t->period + 1);
     }
     if (ps->timer_key >= 0) s->hdr->timer_due_ns = ps->timers[ps->timer_key].due;
@@ -1256,11 +1296,13 @@ static void program_release(struct program_state *ps) {
 /* Wait for the gate, run the work, record totals.  Called with the GIL released. */
 static void run_slot(struct slot *s) {
     struct group *g = s->group;
-    pthread_mutex_lock(&g->lock);
-    while (!g->released) pthread_cond_wait(&g->cond, &g->lock);
-    pthread_mutex_unlock(&g->lock);
-    if (s->work.kind != WORK_PERIODIC) sleep_until(g->start_ns);
     struct slot_header *h = s->hdr;
+    if (gate_wait(g) != GATE_OPEN) { /* the runner gave up on the cell: leave without working */
+        atomic_store((_Atomic int32_t *)&h->state, ST_DONE);
+        return;
+    }
+    if (!s->deferred) h->gate_ns = now_ns(CLOCK_MONOTONIC);
+    if (s->work.kind != WORK_PERIODIC) sleep_until(run_start(g));
     h->work_start_ns = now_ns(CLOCK_MONOTONIC);
     read_ru(h->start_ru);
     atomic_store((_Atomic int32_t *)&h->state, ST_RUNNING);
@@ -1370,13 +1412,7 @@ typedef struct {
 
 static void Group_dealloc(GroupObject *self) {
     if (self->g.slots) {
-        pthread_mutex_lock(&self->g.lock);
-        if (!self->g.released) { /* never started: let parked threads run an empty work and exit */
-            self->g.start_ns = self->g.end_ns = 0;
-            self->g.released = 1;
-            pthread_cond_broadcast(&self->g.cond);
-        }
-        pthread_mutex_unlock(&self->g.lock);
+        gate_cancel(self->g.base); /* never opened: parked threads leave */
         Py_BEGIN_ALLOW_THREADS
         join_all(&self->g);
         Py_END_ALLOW_THREADS
@@ -1388,8 +1424,6 @@ static void Group_dealloc(GroupObject *self) {
     }
     if (self->has_view) PyBuffer_Release(&self->view);
     if (self->has_res) PyBuffer_Release(&self->res_view);
-    pthread_mutex_destroy(&self->g.lock);
-    pthread_cond_destroy(&self->g.cond);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
@@ -1435,8 +1469,6 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
     g->res = self->has_res ? self->res_view.buf : NULL;
     g->nres = self->has_res ? self->res_view.len / RES_BYTES : 0;
     g->page_size = sysconf(_SC_PAGESIZE);
-    pthread_mutex_init(&g->lock, NULL);
-    pthread_cond_init(&g->cond, NULL);
     CPU_ZERO(&g->all_cpus);
     PyObject *seq = PySequence_Fast(all_cpus, "all_cpus must be a sequence");
     if (!seq) return -1;
@@ -1448,8 +1480,8 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         PyErr_NoMemory();
         return -1;
     }
-    memcpy(g->base, "RSMP0006", 8);
-    uint32_t meta[6] = {6, nthreads, capacity, SLOT_HEADER, (uint32_t)sample_size, with_hist ? HIST_BUCKETS : 0};
+    memcpy(g->base, "RSMP0007", 8);
+    uint32_t meta[6] = {7, nthreads, capacity, SLOT_HEADER, (uint32_t)sample_size, with_hist ? HIST_BUCKETS : 0};
     memcpy(g->base + 8, meta, sizeof(meta));
     uint64_t stride64 = g->stride;
     memcpy(g->base + 32, &stride64, sizeof(stride64));
@@ -1692,21 +1724,15 @@ static PyObject *Group_wait_ready(GroupObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
-PyDoc_STRVAR(release_doc, "release(start_ns, end_ns)\n\nOpen the gate: every thread starts its work at start_ns (CLOCK_MONOTONIC) and stops at end_ns.");
+PyDoc_STRVAR(release_doc, "release(start_ns, end_ns) -> bool\n\nOpen the gate from this process (as open_gate does from the runner): every thread starts its work at start_ns (CLOCK_MONOTONIC) and stops at end_ns.  False if it was open or cancelled already.");
 
 static PyObject *Group_release(GroupObject *self, PyObject *args) {
     long long start, end;
     if (!PyArg_ParseTuple(args, "LL", &start, &end)) return NULL;
-    pthread_mutex_lock(&self->g.lock);
-    self->g.start_ns = start;
-    self->g.end_ns = end;
-    self->g.released = 1;
-    pthread_cond_broadcast(&self->g.cond);
-    pthread_mutex_unlock(&self->g.lock);
-    Py_RETURN_NONE;
+    return PyBool_FromLong(gate_open(self->g.base, start, end));
 }
 
-PyDoc_STRVAR(run_main_doc, "run_main(index)\n\nRun the adopted main thread's work in the calling thread, GIL released, after the gate opens.");
+PyDoc_STRVAR(run_main_doc, "run_main(index) -> bool\n\nRun the adopted main thread's work in the calling thread, GIL released, once the gate opens.  False if the gate was cancelled instead: nothing ran.");
 
 static PyObject *Group_run_main(GroupObject *self, PyObject *args) {
     unsigned int index;
@@ -1718,7 +1744,7 @@ static PyObject *Group_run_main(GroupObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     program_release(s->pstate);
     s->pstate = NULL;
-    Py_RETURN_NONE;
+    return PyBool_FromLong(atomic_load(gate_word(self->g.base)) == GATE_OPEN);
 }
 
 PyDoc_STRVAR(join_doc, "join()\n\nJoin every thread, those spawned mid-run too, GIL released.");
@@ -2175,6 +2201,51 @@ static PyObject *probe_stopped(PyObject *mod, PyObject *Py_UNUSED(ignored)) {
     return PyBool_FromLong(g_stop);
 }
 
+/* The runner's side of a worker's start gate: its writable mapping of the buffer's file header. */
+static char *gate_header(PyObject *buffer, Py_buffer *view) {
+    if (PyObject_GetBuffer(buffer, view, PyBUF_WRITABLE) != 0) return NULL;
+    if (view->len < FILE_HEADER) {
+        PyErr_Format(PyExc_ValueError, "a buffer's header is %d bytes, this one %zd", FILE_HEADER, view->len);
+        PyBuffer_Release(view);
+        return NULL;
+    }
+    return view->buf;
+}
+
+PyDoc_STRVAR(open_gate_doc,
+"open_gate(header, start_ns, end_ns) -> bool\n\n"
+"Open a worker's start gate (header: a writable mapping of its buffer's first bytes): every thread waiting at it\n"
+"is woken at once, at its own policy, to start at start_ns (CLOCK_MONOTONIC) and stop at end_ns.  False if the\n"
+"gate was open or cancelled already.");
+
+static PyObject *probe_open_gate(PyObject *mod, PyObject *args) {
+    PyObject *buffer;
+    long long start, end;
+    if (!PyArg_ParseTuple(args, "OLL", &buffer, &start, &end)) return NULL;
+    Py_buffer view;
+    char *base = gate_header(buffer, &view);
+    if (!base) return NULL;
+    int opened = gate_open(base, start, end);
+    PyBuffer_Release(&view);
+    return PyBool_FromLong(opened);
+}
+
+PyDoc_STRVAR(cancel_gate_doc,
+"cancel_gate(header) -> bool\n\n"
+"Cancel a worker's start gate that is still shut: its threads (and those that reach it later) leave without\n"
+"working.  True if it is cancelled now, False if it had been opened.");
+
+static PyObject *probe_cancel_gate(PyObject *mod, PyObject *args) {
+    PyObject *buffer;
+    if (!PyArg_ParseTuple(args, "O", &buffer)) return NULL;
+    Py_buffer view;
+    char *base = gate_header(buffer, &view);
+    if (!base) return NULL;
+    int cancelled = gate_cancel(base);
+    PyBuffer_Release(&view);
+    return PyBool_FromLong(cancelled);
+}
+
 /* ------------------------------------------------------------------ Watchdog */
 
 /*
@@ -2369,6 +2440,8 @@ static PyMethodDef module_methods[] = {
     {"install_stop_handler", probe_install_stop_handler, METH_NOARGS, "SIGTERM/SIGINT/SIGUSR1 stop every loop of this process"},
     {"set_pdeathsig", probe_set_pdeathsig, METH_VARARGS, "set_pdeathsig(sig): receive sig when the parent dies"},
     {"stopped", probe_stopped, METH_NOARGS, "True once a stop signal arrived"},
+    {"open_gate", probe_open_gate, METH_VARARGS, open_gate_doc},
+    {"cancel_gate", probe_cancel_gate, METH_VARARGS, cancel_gate_doc},
     {"apply_to", probe_apply_to, METH_VARARGS, apply_to_doc},
     {"spawn_program", probe_spawn_program, METH_VARARGS, spawn_program_doc},
     {NULL, NULL, 0, NULL},
@@ -2388,6 +2461,7 @@ PyMODINIT_FUNC PyInit__probe(void) {
     Py_INCREF(&WatchdogType);
     PyModule_AddObject(m, "Watchdog", (PyObject *)&WatchdogType);
     PyModule_AddIntConstant(m, "FILE_HEADER", FILE_HEADER);
+    PyModule_AddIntConstant(m, "SLOT_GATE_AT", offsetof(struct slot_header, gate_ns));
     PyModule_AddIntConstant(m, "STAGE_CWD", STAGE_CWD);
     PyModule_AddIntConstant(m, "STAGE_EXEC", STAGE_EXEC);
     PyModule_AddIntConstant(m, "SLOT_HEADER", SLOT_HEADER);

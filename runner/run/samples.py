@@ -1,6 +1,6 @@
 """The shared sample buffer written by the native core, read from Python.
 
-Layout (see _probe.c, version 6): a 64-byte file header, then per thread a 512-byte
+Layout (see _probe.c, version 7): a 128-byte file header (with the start gate), then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
 negative slack, callback wall time; see runner/histogram.py), a ring of 112-byte
 samples (each followed by a 16-byte wait per lock slot, in a worker whose programs lock
@@ -28,13 +28,14 @@ from runner import histogram as hg
 from runner.histogram import Histogram
 from runner.run import _probe
 
-FILE_HEADER = 64
+FILE_HEADER = 128
+_GATE_NS_AT = 464  # struct slot_header's gate_ns: when the thread passed the start gate
 SLOT_HEADER = 512
 HIST_SETS = 4
 SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
 LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
 _SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqq")
-_STATE_AT, _COUNT_AT, _LOOPS_AT = 4, 8, 96
+_STATE_AT, _COUNT_AT, _LOOPS_AT, _WORK_START_AT = 4, 8, 96, 112
 STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed", 5: "starting"}  # _probe.c's enum slot_state
 _WORKING = (1, 2, 5)  # ready, running, and a spawned thread being created
 EV_HDR = 192
@@ -44,7 +45,8 @@ _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
 assert (
     SAMPLE.size == _probe.SAMPLE_SIZE == 112
     and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
-    and _SLOT.size == 464
+    and _SLOT.size == _GATE_NS_AT == _probe.SLOT_GATE_AT
+    and FILE_HEADER == _probe.FILE_HEADER
     and _EVENT.size == 152
     and _PHASE.size == 360
 )
@@ -470,13 +472,31 @@ def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
 
 
 class Buffer:
-    """A read-only view of a worker's buffer (a memfd): live counts, ring draining, and the figures at the end."""
+    """The runner's view of a worker's buffer (a memfd): live counts, ring draining, the figures at the end, and the
+    start gate, the one thing it writes (through a small writable mapping of the file header)."""
 
     def __init__(self, fd: int, layout: Layout):
         self.layout = layout
         self.map = mmap.mmap(fd, layout.size, prot=mmap.PROT_READ)
+        self.header = mmap.mmap(fd, FILE_HEADER)
         self.taken = [0] * layout.nthreads  # ring position read so far, per slot
         self.lost = [0] * layout.nthreads  # samples overwritten before they could be read
+
+    def open_gate(self, start_ns: int, end_ns: int) -> bool:
+        """Release every thread of the worker at once, to start at `start_ns` and stop at `end_ns`; False if it was cancelled."""
+        return _probe.open_gate(self.header, start_ns, end_ns)
+
+    def cancel_gate(self) -> bool:
+        """Send the worker's threads away without working (the cell will not start); False if the gate was open already."""
+        return _probe.cancel_gate(self.header)
+
+    def work_started(self) -> list[int]:
+        """When each thread began its work (CLOCK_MONOTONIC ns; 0: not yet)."""
+        return [struct.unpack_from("<q", self.map, self.layout.slot(i) + _WORK_START_AT)[0] for i in range(self.layout.nthreads)]
+
+    def gate_passed(self) -> list[int]:
+        """When each thread passed the start gate (CLOCK_MONOTONIC ns; 0: not yet, or spawned mid-run)."""
+        return [struct.unpack_from("<q", self.map, self.layout.slot(i) + _GATE_NS_AT)[0] for i in range(self.layout.nthreads)]
 
     def loops(self) -> list[int]:
         """Callbacks (or spin slices) so far, per slot."""
@@ -537,6 +557,7 @@ class Buffer:
 
     def close(self) -> None:
         self.map.close()
+        self.header.close()
 
 
 NO_HOLDERS: Mapping[int, str] = MappingProxyType({})  # no thread names: a cell whose threads lock no mutex

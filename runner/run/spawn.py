@@ -66,31 +66,35 @@ from runner.scenario.plan import PlannedThread, Settings, plan_scenario
 
 READY_TIMEOUT_S = 20.0
 # Background commands (stress-ng and the like) run this long before the measured start: how long
-# they take to load the machine is theirs to know.  Hogs need no head start: they spin from their
-# `go`, and the kernel places them on idle CPUs at once (two hogs of this VM were on two CPUs
-# within 10 us of `go`, in five runs of five).
+# they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
+# (`_start_load`), they spin within a fraction of a millisecond.
 COMMAND_HEAD_START_S = 0.1
 
 
-def start_margin(processes: int, threads: int) -> float:
-    """Seconds from sending `go` to the common start: time for every process to read it and release its threads.
+GATE_POLL_S = 0.0001
+LOAD_LEAD_S = 0.001  # the load starts this long before the common start at the latest
 
-    `processes` counts the workers and hogs, `threads` the workers' slots.  Measured on the
-    development VM from `go` to a worker's release: a fifo80 cell's worker 0.1 to 1.8 ms
-    (24 cells), with its hogs spinning from their own `go`, sent just after; with no hog,
-    16 processes of one thread 1.3 ms, 256 threads in one or four processes 3.4 and 3.8 ms,
-    1,024 threads in 16 processes 7 to 20 ms (beyond the 18 ms this gave before its term
-    per thread: two late releases in four such cells).  Releasing a thread is a wake-up on
-    CPUs the others share, about 15 us each: 12 us a thread on top of the rest gives 1,024
-    threads 30 ms, half again their slowest (more would push their start past its 300 ms
-    target; none late in nine such cells).  Hogs started later than their `go` (after every
-    worker said it was released, or asleep to 1 ms before the start) began their load after
-    the start in 1 of 40 and 23 of 70 small cells, woken together onto one CPU to wait for the
-    load balancer: they keep their `go` at once and the 10 ms to spread.  A worker released
-    after the start is said in the cell's warnings (it reports how late it was), as is a hog
-    whose load began after it (its slots say when).
+
+def start_margin(processes: int, threads: int) -> float:
+    """Seconds from opening the workers' start gates to the common start: time for every thread to pass its gate, then
+    for the hogs' load to begin.
+
+    `processes` counts the workers, `threads` their slots.  Each thread waits at the gate in its
+    shared buffer itself, at its own policy, and one futex wake per worker releases them all:
+    measured on the 2-CPU VM (policy_matrix cells of 0.5 s, one worker of ten threads and two
+    hogs), every thread passed its gate within 0.1 ms of its opening, and the hogs, woken one per
+    CPU once they had, began their load 0.1 to 0.4 ms after; 1,024 threads in 16 processes passed
+    theirs within 10 ms.  A SCHED_OTHER thread woken onto a CPU that runs something else waits
+    for that task's slice or the tick (4 ms here; this kernel does not preempt): beside a busy
+    loop of another program, a hog began its load after the start in 14 of 120 cells with 4 ms,
+    2 of 100 with 5 ms and 7 of 200 with 6 ms (the old 10 ms: none of 60); none of 80 on a quiet
+    VM with 5 ms.  So 5 ms, 0.3 ms a process and 12 µs a thread.  (Before the gate was in shared memory, a
+    Python thread of each worker read a `go` line and released the others: up to 8 ms behind the
+    hogs on this VM, and the margin was 10 ms, 0.5 ms a process and 12 µs a thread.)  A worker
+    whose last thread passed its gate after the start is said in the cell's warnings, as is a hog
+    whose load began after it (their slots say when).
     """
-    return min(0.060, 0.010 + 0.0005 * processes + 0.000012 * threads)
+    return min(0.060, 0.005 + 0.0003 * processes + 0.000012 * threads)
 
 
 STOP_GRACE_S = 2.0
@@ -296,7 +300,6 @@ class Worker:
     buffer: Optional[samples.Buffer] = None
     seen: list[int] = field(default_factory=list)
     written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
-    late_ns: int = 0  # how long after the common start it was released (its `done` says)
 
     @property
     def pid(self) -> int:
@@ -367,20 +370,15 @@ class Worker:
             os.close(each)
         return ZygoteChild(zygote, pid, open(stdin_w, "w", buffering=1), open(stdout_r))
 
-    def send(self, line: str) -> None:
-        try:
-            assert self.popen is not None and self.popen.stdin is not None
-            self.popen.stdin.write(line + "\n")
-            self.popen.stdin.flush()
-        except (BrokenPipeError, OSError, ValueError):
-            pass
-
     def hang_up(self) -> None:
-        """Close its input: a worker still waiting for its `go` (a cell that never started) reads the end of it and leaves.
+        """Cancel its start gate and close its input: a worker whose cell never started leaves at once, its threads unworked.
 
-        A stop signal would not do: until `go`, the native core only notes it, and the worker
-        waited out the grace period for its SIGKILL.
+        A stop signal would not do: at the gate, the native core only notes it, and the worker
+        waited out the grace period for its SIGKILL.  Its input's end reaches one still reading its spec.
         """
+        if self.buffer is not None:
+            with suppress(ValueError):  # unmapped already
+                self.buffer.cancel_gate()
         if self.popen is not None and self.popen.stdin is not None:
             with suppress(OSError):
                 self.popen.stdin.close()
@@ -559,10 +557,68 @@ def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable
     return None
 
 
-def _load_late(buffer: samples.Buffer, t0: int) -> int:
+def _load_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
     """How long after the common start `t0` a hog's last thread began its work, from its slots (ns; 0 or less: in time)."""
-    starts = [slot.work_start_ns for slot in buffer.slots() if slot.work_start_ns]
-    return max(starts) - t0 if starts else 0
+    starts = [t for t in buffer.work_started() if t]
+    return max(starts) - t0 if starts and t0 else 0
+
+
+def _gate_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
+    """How long after the common start `t0` a worker's last thread passed the start gate (ns; 0 or less: in time or never started)."""
+    passed = [t for t in buffer.gate_passed() if t]
+    return max(passed) - t0 if passed and t0 else 0
+
+
+def _await_gates(workers: list[Worker], until_ns: int) -> None:
+    """Return once every thread of the workers passed its start gate, or at `until_ns`.
+
+    The load starts after: a thread at SCHED_OTHER woken at its gate while the hogs spin waits
+    for a CPU like any other (4 ms and more on the 2-CPU VM), and would start late for it."""
+    pending = [w.buffer for w in workers if w.buffer is not None]
+    while pending and time.monotonic_ns() < until_ns:
+        pending = [b for b in pending if not all(b.gate_passed())]
+        if pending:
+            time.sleep(GATE_POLL_S)
+
+
+def _await_load(hogs: list[Worker], until_ns: int) -> None:
+    """Return once every hog thread began its load, or at `until_ns`; asleep meanwhile, so that a hog woken on the
+    runner's own CPU has it (the runner going on with its own work held one back by 2 ms)."""
+    pending = [h.buffer for h in hogs if h.buffer is not None]
+    while pending and time.monotonic_ns() < until_ns:
+        pending = [b for b in pending if not all(b.work_started())]
+        if pending:
+            time.sleep(GATE_POLL_S)
+
+
+def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -> None:
+    """Open the hogs' gates, each hog thread woken on a CPU of its own (in turn over the CPUs it may use), then
+    given its own CPUs back: the load is spread at once.
+
+    Woken together, two hogs of the 2-CPU VM were put on one CPU and waited for the load balancer,
+    2 to 5 ms and once 41 ms (README, "The start margin follows the threads"); woken one per CPU,
+    they began within 0.4 ms of their gates on a quiet VM.  Where they go after is the
+    scheduler's to say, as before."""
+    turn = 0
+    restore: list[tuple[int, set[int]]] = []
+    for h in hogs:
+        assert h.buffer is not None
+        tids = list((h.ready or {}).get("tids", []))
+        for tid in tids[1:] if h.spec.get("threads") else tids:  # the spinning ones: a hog of threads has a sleeping main
+            try:
+                allowed = os.sched_getaffinity(tid)
+                os.sched_setaffinity(tid, {sorted(allowed)[turn % len(allowed)]})
+            except OSError:  # gone, or a CPU it may not use: left where the scheduler puts it
+                continue
+            restore.append((tid, allowed))
+            turn += 1
+        h.buffer.open_gate(start_ns, end_ns)
+    try:
+        _await_load(hogs, until_ns)
+    finally:
+        for tid, allowed in restore:
+            with suppress(OSError):
+                os.sched_setaffinity(tid, allowed)
 
 
 def _read_done(w: Worker) -> None:
@@ -572,7 +628,6 @@ def _read_done(w: Worker) -> None:
             message = json.loads(line)
             if message.get("done"):
                 w.done = True
-                w.late_ns = int(message.get("late_ns", 0))
     except (ValueError, OSError):
         pass
 
@@ -800,22 +855,25 @@ class _CellRun:
         pids = [w.pid for w in workers + hogs] + [c.pid for c in self.commands] + [p.pid for p in self.programs if p.pid]
         now = time.monotonic_ns()
         head_start = COMMAND_HEAD_START_S if self.commands else 0.0
-        t0 = now + int((head_start + start_margin(len(workers) + len(hogs), sum(w.nslots for w in workers))) * 1e9)
-        t_end = t0 + options.duration_ns
-        if self.tracer is not None:
-            self.tracer.window(t0, t_end)
-        self.t0, self.t_end = t0, t_end
+        margin = int((head_start + start_margin(len(workers), sum(w.nslots for w in workers))) * 1e9)
         longest = max((p for t in self.planned for p in t.periods), default=0)
         grace = int(max(STOP_GRACE_S * 1e9, 2 * longest))
         # The programs are stopped one after another, each given its own grace between SIGTERM and SIGKILL.
         stopping = sum(p.spec.grace for p in self.programs)
+        t0 = now + margin
+        t_end = t0 + options.duration_ns
+        if self.tracer is not None:
+            self.tracer.window(t0, t_end)
+        self.t0, self.t_end = t0, t_end
         deadline = t_end + grace + stopping + int(1e9)
         self.watchdog.arm(deadline, pids)
-        for w in workers:  # the measured first: they read `go` before the hogs load the CPUs
-            w.send(f"go {t0} {t_end}")
+        for w in workers:  # the measured threads first, through their gates while the CPUs are free
+            assert w.buffer is not None
+            w.buffer.open_gate(t0, t_end)
             w.seen = [0] * w.nslots
-        for h in hogs:
-            h.send(f"go {now} {deadline}")  # the cell's end stops them (_end_load) once no measured thread works
+        if hogs:
+            _await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
+            _start_load(hogs, time.monotonic_ns(), deadline, t0)  # the cell's end stops it (_end_load) once no measured thread works
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
@@ -1050,8 +1108,8 @@ class _CellRun:
             tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
             self.trace,
             dict(self.trace_tasks),
-            tuple((w.label, w.late_ns) for w in self.workers if w.late_ns > 0),
-            tuple((h.label, late) for h in self.hogs if self.t0 and h.buffer is not None and (late := _load_late(h.buffer, self.t0)) > 0),
+            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := _gate_late(w.buffer, self.t0)) > 0),
+            tuple((h.label, late) for h in self.hogs if h.buffer is not None and (late := _load_late(h.buffer, self.t0)) > 0),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:

@@ -1,7 +1,7 @@
 """A scenario process: the child the runner starts for each process instance (and for hogs).
 
-Run as `python -m runner.run.worker`; talks to the runner over stdin/stdout with one
-JSON line each way per step, and records every measurement in the shared sample
+Run as `python -m runner.run.worker`; reads its spec from stdin, reports over stdout
+with one JSON line per step, and records every measurement in the shared sample
 buffer through the native core.  It imports only the standard library and the
 native core, so it starts fast, and its measured threads never hold the GIL.
 
@@ -13,9 +13,10 @@ Steps, in the order the ros2-realtime-examples take them:
      event of another thread creates them mid-run;
   4. main thread settings if applied after_threads;
   5. lock memory and preallocate, once every thread exists;
-  6. report ready (TIDs, errors) and wait for `go START END` (a hog's START is now; how
-     long after START a measured process was released goes back with `done`);
-  7. run: every thread starts at START (CLOCK_MONOTONIC) and stops at END.
+  6. report ready (TIDs, errors); every thread waits at the start gate in the shared
+     buffer, which the runner opens with START and END (a hog's START is now) or cancels;
+  7. run: every thread starts at START (CLOCK_MONOTONIC) and stops at END; each notes
+     when it passed the gate, so the runner sees one released after START.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import mmap
 import os
 import signal
 import sys
-import time
 from typing import Any
 
 from runner.run import _probe
@@ -136,15 +136,10 @@ def run(spec: dict[str, Any]) -> int:
     errors["threads"] = [list(group.errors(i)[1:]) for i in range(nslots)]
     _send({"ready": True, "pid": os.getpid(), "tids": tids, "errors": errors})
 
-    line = sys.stdin.readline().split()
-    if not line or line[0] != "go":
-        return 0  # the runner gave up on this cell; threads exit through Group's destructor
-    start_ns, end_ns = int(line[1]), int(line[2])
-    group.release(start_ns, end_ns)
-    late_ns = time.monotonic_ns() - start_ns  # > 0: released after the common start, by the runner's doing
-    group.run_main(0)
+    if not group.run_main(0):
+        return 0  # the runner cancelled the gate: the cell never started, and no thread worked
     group.join()
-    _send({"done": True, "stopped": _probe.stopped(), "late_ns": max(0, late_ns)})
+    _send({"done": True, "stopped": _probe.stopped()})
     return 0
 
 
