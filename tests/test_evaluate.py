@@ -7,7 +7,7 @@ import os
 
 from runner.results.document import Status
 from runner.run.evaluate import degradation, evaluate, releases_due, status
-from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ReadyReport, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ReadyReport, Timeline
 from runner.run.samples import Sample, slot_of
 from runner.scenario.loader import load_scenario
 from runner.scenario.model import Expectation, PeriodicWork, Policy
@@ -111,6 +111,24 @@ def test_a_late_release_or_a_hog_whose_load_began_late_is_said_in_words_without_
         w.startswith("background hog busy[1] began its load 400 µs after the common start") and "ran without it" in w
         for w in result.warnings
     ), result.warnings
+
+
+def test_a_background_commands_log_beyond_its_limit_is_counted_and_said_in_words():
+    cell, raw = _raw(10)
+    mib = 1024 * 1024
+    chatty = BackgroundProcess("command", "loadgen", 4242, ("loadgen", "-v"), "command-0.log", OutputCount(200 * mib, 64 * mib, 64 * mib))
+    quiet = BackgroundProcess("command", "stress-ng", 4243, ("stress-ng",), "command-1.log", OutputCount(300, 300, 64 * mib))
+    result = evaluate(cell, cell.scenario, dataclasses.replace(raw, background=(chatty, quiet)), allow_degraded=False)
+    assert result.status is Status.PASSED
+    said = [w for w in result.warnings if w.startswith("background command")]
+    assert said == [
+        "background command loadgen wrote 200MiB to its log; the first 64MiB are in command-0.log, the rest (136MiB) was "
+        "dropped (the limit of a command's log: 64MiB)"
+    ], result.warnings
+    assert [(b.log, b.output_bytes, b.output_dropped) for b in result.background] == [
+        ("command-0.log", 200 * mib, 136 * mib),
+        ("command-1.log", 300, 0),
+    ]
 
 
 def test_failures_interrupts_and_degradations_decide_the_status_in_order():

@@ -256,3 +256,23 @@ def test_the_background_load_lasts_until_a_callback_that_ran_past_the_end_is_don
     assert main["figures"]["callbacks"] == 3, main["figures"]
     wall = main["figures"]["callback_wall_ns"]
     assert wall["min"] > 250_000_000, f"a callback ran without the hog beside it: {wall}"
+
+
+def test_a_background_commands_log_keeps_its_first_64_mib_and_counts_the_rest(tmp_path):
+    """A load generator that logs at full speed must not fill the disk the results go to: its log is capped, the rest
+    read and dropped (the command is never held up), counted in results and said in the cell's warnings."""
+    extra = 100_000
+    scenario = {
+        "name": "cmdlog",
+        "duration": "300ms",
+        "processes": [{"name": "cmdlog", "main": {"work": {"kind": "periodic", "period": "50ms"}}}],
+        "background": {"commands": [{"argv": ["head", "-c", str(64 * 1024 * 1024 + extra), "/dev/zero"], "name": "chatty"}]},
+    }
+    done, out = run(tmp_path, scenario)
+    cell = done.results["cells"][0]
+    (command,) = [b for b in cell["background"] if b["kind"] == "command"]
+    assert (command["log"], command["output_bytes"], command["output_dropped"]) == ("command-0.log", 64 * 1024 * 1024 + extra, extra)
+    assert os.path.getsize(os.path.join(out, "cells", cell["id"], "command-0.log")) == 64 * 1024 * 1024
+    assert any(w.startswith("background command chatty wrote 64.1MiB to its log") and "dropped" in w for w in cell["warnings"]), cell[
+        "warnings"
+    ]

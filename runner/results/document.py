@@ -543,6 +543,11 @@ class Background(_Record):
     name: str = ""
     argv: list[str] = Field(default_factory=list)
     pid: Optional[int] = None
+    log: Optional[str] = Field(None, description="a command's output file in the cell's folder, stdout and stderr together")
+    output_bytes: Optional[int] = Field(None, description="bytes a command wrote to its output, kept or not; null for hogs and older files")
+    output_dropped: Optional[int] = Field(
+        None, description="of them, bytes not kept: beyond the first 64 MiB, or after a write to the log failed"
+    )
 
 
 class RtThrottling(_Record):

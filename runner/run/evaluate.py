@@ -489,7 +489,14 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     result.background = [
         Background(kind=BackgroundKind.HOG, name=b.name, pid=b.pid)
         if b.kind == "hog"
-        else Background(kind=BackgroundKind.COMMAND, argv=list(b.argv), pid=b.pid)
+        else Background(
+            kind=BackgroundKind.COMMAND,
+            argv=list(b.argv),
+            pid=b.pid,
+            log=b.log or None,
+            output_bytes=b.output.written if b.output else None,
+            output_dropped=b.output.dropped if b.output else None,
+        )
         for b in raw.background
     ]
     result.duration_ns = raw.timeline.ended_ns - raw.timeline.began_ns
@@ -516,6 +523,12 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             f"{label} was released {units.human_duration(late)} after the common start (the runner's start margin was too short):"
             " its threads' first releases were late by the runner's doing, not the scheduler's"
             for label, late in raw.released_late
+        ]
+        + [
+            w
+            for b in raw.background
+            if b.output is not None
+            for w in outside.output_warnings(f"background command {b.name}", "its log", b.log, b.output, "the limit of a command's log")
         ]
         + [
             f"background {label} began its load {units.human_duration(late)} after the common start (the runner's start margin"

@@ -52,24 +52,26 @@ def _size(nbytes: int) -> str:
     return f"{nbytes / units.BYTES_PER[unit]:.1f}{unit}"
 
 
-def output_warnings(name: str, stream: str, file: str, count: OutputCount) -> list[str]:
-    """What of a program's `stream` is not in its `file`, in words: beyond its output_limit, past a write that failed, or
-    written after the cell's end by a process that outlived it; none when the file holds all it wrote."""
+def output_warnings(who: str, stream: str, file: str, count: OutputCount, limit_key: str = "output_limit") -> list[str]:
+    """What of `who`'s `stream` is not in its `file`, in words: beyond its limit, past a write that failed, or written
+    after the cell's end by a process that outlived it; none when the file holds all it wrote.
+
+    `who`: "program NAME" or "background command ARGV0"; `limit_key` names where its limit is set."""
     out = []
     if count.dropped:
-        wrote = f"program {name} wrote {_size(count.written)} to {stream}"
+        wrote = f"{who} wrote {_size(count.written)} to {stream}"
         if count.error:
             out.append(f"{wrote}; {file} took only the first {_size(count.kept)} ({count.error}), the rest was dropped")
         elif count.kept:
             out.append(
                 f"{wrote}; the first {_size(count.kept)} are in {file}, the rest ({_size(count.dropped)}) was dropped "
-                f"(output_limit: {units.format_size(count.limit)})"
+                f"({limit_key}: {units.format_size(count.limit)})"
             )
         else:
-            out.append(f"{wrote}; none of it was kept (output_limit: {units.format_size(count.limit)})")
+            out.append(f"{wrote}; none of it was kept ({limit_key}: {units.format_size(count.limit)})")
     if count.held_open:
         out.append(
-            f"program {name}: a process it started still held its {stream} at the cell's end (it had no cgroup to stop it with); "
+            f"{who}: a process it started still held its {stream} at the cell's end (it had no cgroup to stop it with); "
             "what that process wrote after was neither kept nor counted"
         )
     return out
@@ -254,7 +256,7 @@ def outcome(
     if raw.stopped == "SIGKILL" and not raw.failure and not never_ran:
         warnings.append(f"program {spec.name} did not exit within {units.format_duration(spec.grace)} of SIGTERM and was killed (SIGKILL)")
     for stream, file, count in zip(("stdout", "stderr"), (raw.stdout, raw.stderr), raw.output):
-        warnings += output_warnings(spec.name, stream, file, count)
+        warnings += output_warnings(f"program {spec.name}", stream, file, count)
     result = ProgramResult(
         name=spec.name,
         argv=list(spec.command),

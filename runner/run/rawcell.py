@@ -107,6 +107,8 @@ class BackgroundProcess:
     name: str
     pid: Optional[int]
     argv: tuple[str, ...] = ()
+    log: str = ""  # a command's output file, in the cell's folder
+    output: Optional[OutputCount] = None  # what a command wrote to it, once the cell stopped it
 
 
 @dataclass(frozen=True)

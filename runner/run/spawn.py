@@ -36,10 +36,11 @@ from runner.run.child import child_env, python_module, signal_name
 from runner.run.external import Monitor, ProgramRun, sched_json
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
+from runner.run.output import FINISH_WAIT_S, CappedOutput
 from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
 from runner.run.programs import settings_of
-from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ReadyReport, ResourceState, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ReadyReport, ResourceState, Timeline
 from runner.run.traced import Task
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.scenario import program as programs
@@ -69,6 +70,9 @@ READY_TIMEOUT_S = 20.0
 # they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
 # (`_start_load`), they spin within a fraction of a millisecond.
 COMMAND_HEAD_START_S = 0.1
+# A background command's output (command-N.log) is kept up to this, the rest counted and dropped: a load generator
+# that logs at full speed for an hour would otherwise fill the disk the results go to (programs: output_limit).
+COMMAND_OUTPUT_LIMIT = 64 * 1024 * 1024
 
 
 GATE_POLL_S = 0.0001
@@ -747,6 +751,8 @@ class _CellRun:
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
         self.command_groups: list[memcg.MemoryCgroup] = []  # the cgroups holding the background commands
+        self.command_outputs: list[CappedOutput] = []  # each command's output, into its command-N.log
+        self.command_counts: list[OutputCount] = []  # what each wrote, once the cell stopped them
         self.table: list[ThreadRow] = []
         self.applied: dict[int, Optional[Settings]] = {}
         self.reason = ""
@@ -784,17 +790,25 @@ class _CellRun:
                 except OSError:
                     self.applied[id(t)] = None
         for cmd in self.scenario.background.commands:
-            with open(os.path.join(self.folder, f"command-{len(self.commands)}.log"), "w") as log:
-                try:
-                    argv = self._held(cmd.argv, len(self.commands))
-                    self.commands.append(
-                        subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
-                    )
-                    self.guard.watch(self.commands[-1].pid)
-                except OSError as exc:
-                    self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
-            if self.reason:
+            try:
+                output = CappedOutput(os.path.join(self.folder, f"command-{len(self.commands)}.log"), COMMAND_OUTPUT_LIMIT)
+            except OSError as exc:
+                self.reason = f"background command {cmd.argv[0]!r} could not start: its log: {exc.strerror} ({exc.filename})"
                 break
+            try:
+                argv = self._held(cmd.argv, len(self.commands))
+                command = subprocess.Popen(
+                    argv, stdout=output.write_fd, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+                )
+            except OSError as exc:
+                output.finish(0)
+                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
+                break
+            finally:
+                output.close_write_end()  # the command holds its own copy: its exit ends the pipe
+            self.commands.append(command)
+            self.command_outputs.append(output)
+            self.guard.watch(command.pid)
         for p in self.programs:
             if not self.reason:
                 p.launch(self.guard)
@@ -1055,6 +1069,9 @@ class _CellRun:
             group.remove()
             self.guard.forget_cgroup(group.folder)
         self.command_groups = []
+        finish_by = time.monotonic() + FINISH_WAIT_S  # one wait for all: a process that outlived its command holds a log
+        self.command_counts += [output.finish(finish_by) for output in self.command_outputs]
+        self.command_outputs = []
         self.watchdog.disarm()
 
     def raw(self) -> RawCell:
@@ -1090,7 +1107,11 @@ class _CellRun:
                     )
                 )
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
-        background += [BackgroundProcess("command", _argv(c)[0], c.pid, tuple(_argv(c))) for c in self.commands]
+        counts: list[Optional[OutputCount]] = [*self.command_counts, *([None] * len(self.commands))]
+        background += [
+            BackgroundProcess("command", cmd.name or _argv(c)[0], c.pid, tuple(_argv(c)), f"command-{n}.log", counts[n])
+            for n, (c, cmd) in enumerate(zip(self.commands, self.scenario.background.commands))
+        ]
         timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
         return RawCell(
             self.started_at,
