@@ -75,21 +75,26 @@ def test_the_start_margin_grows_with_processes_and_threads() -> None:
     assert start_margin(64, 8192) == 0.060
 
 
-def test_a_hogs_load_is_late_by_its_last_thread_to_begin_and_a_thread_that_never_began_is_not_counted() -> None:
+def test_a_cpus_load_is_late_by_the_first_hog_to_begin_there_and_a_hog_that_never_began_is_not_counted() -> None:
+    """Hogs woken on one CPU share it: one waiting for its turn beside a hog that spins leaves no CPU without load."""
     layout = Layout(3, 0, histograms=False)
     fd = samples.create("hog-test", layout)
     try:
         writable = mmap.mmap(fd, layout.size)
         t0 = 5_000_000_000
-        for index, began in enumerate((t0 - 3_000_000, t0 + 400_000, 0)):  # in time, late, never
+        for index, began in enumerate((t0 - 3_000_000, t0 + 400_000, t0 + 900_000)):
             struct.pack_into("<q", writable, layout.slot(index) + _WORK_START_AT, began)
-        buffer = samples.Buffer(fd, layout)
-        assert _load_late(buffer, t0) == 400_000
-        assert _load_late(buffer, t0 + 1_000_000) < 0, "a load that began before the start is in time"
-        struct.pack_into("<q", writable, layout.slot(1) + _WORK_START_AT, 0)
+        hog = Worker("hog busy[0]", {}, layout, [], False, os.devnull)
+        hog.buffer = samples.Buffer(fd, layout)
+        cpu0, cpu1 = [(hog, 0), (hog, 1)], [(hog, 2)]  # a thread in time and one waiting its turn; one alone, late
+        assert _load_late([cpu0, cpu1], t0) == [("hog busy[0]", 900_000)]
+        assert _load_late([cpu0, cpu1], t0 + 1_000_000) == [], "a load that began before the start is in time"
+        assert _load_late([cpu0, cpu1], None) == [], "a cell that never started had no load to be late"
         struct.pack_into("<q", writable, layout.slot(0) + _WORK_START_AT, 0)
-        assert _load_late(buffer, t0) == 0, "a hog that never began is a dead hog, said elsewhere"
-        buffer.map.close()
+        assert _load_late([cpu0], t0) == [("hog busy[0]", 400_000)], "the first to begin on the CPU loads it"
+        struct.pack_into("<q", writable, layout.slot(1) + _WORK_START_AT, 0)
+        assert _load_late([cpu0], t0) == [], "no hog there ever began: a dead hog, said elsewhere"
+        hog.buffer.close()
         writable.close()
     finally:
         os.close(fd)
@@ -106,7 +111,7 @@ def test_a_workers_release_is_late_by_its_last_thread_through_the_gate_and_one_t
         buffer = samples.Buffer(fd, layout)
         assert _gate_late(buffer, t0) == 700_000
         assert _gate_late(buffer, None) == 0, "a cell that never started released nobody late"
-        assert _load_late(buffer, t0) == 0, "the gate is not the work's start"
+        assert buffer.work_started() == [0, 0, 0], "the gate is not the work's start"
         buffer.close()
         writable.close()
     finally:
@@ -127,6 +132,9 @@ class _GateRecorder:
     def work_started(self) -> list[int]:
         return [1]
 
+    def close(self) -> None:
+        pass
+
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
 def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
@@ -144,9 +152,10 @@ def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
             hog.ready = {"tids": [proc.pid]}
             hog.buffer = _GateRecorder(proc.pid)  # type: ignore[assignment]
             hogs.append(hog)
-        _start_load(hogs, 0, 1, 2**62)
+        groups = _start_load(hogs, 0, 1, 2**62)
         woken_on = [h.buffer.allowed_at_open for h in hogs]  # type: ignore[union-attr]
-        assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, in turn"
+        assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, the least taken first"
+        assert groups == [[(hogs[0], 0)], [(hogs[1], 0)]], "the threads by the CPU they were woken on"
         assert all(os.sched_getaffinity(p.pid) == set(cpus) for p in sleepers), "their own CPUs back"
     finally:
         for proc in sleepers:

@@ -91,7 +91,7 @@ def start_margin(processes: int, threads: int) -> float:
     theirs within 10 ms.  A SCHED_OTHER thread woken onto a CPU that runs something else waits
     for that task's slice or the tick (4 ms here; this kernel does not preempt): beside a busy
     loop of another program, a hog began its load after the start in 14 of 120 cells with 4 ms,
-    2 of 100 with 5 ms and 7 of 200 with 6 ms (the old 10 ms: none of 60); none of 80 on a quiet
+    6 of 160 with 5 ms and 7 of 200 with 6 ms (the old 10 ms: none of 60); none of 120 on a quiet
     VM with 5 ms.  So 5 ms, 0.3 ms a process and 12 µs a thread.  (Before the gate was in shared memory, a
     Python thread of each worker read a `go` line and released the others: up to 8 ms behind the
     hogs on this VM, and the margin was 10 ms, 0.5 ms a process and 12 µs a thread.)  A worker
@@ -561,10 +561,28 @@ def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable
     return None
 
 
-def _load_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
-    """How long after the common start `t0` a hog's last thread began its work, from its slots (ns; 0 or less: in time)."""
-    starts = [t for t in buffer.work_started() if t]
-    return max(starts) - t0 if starts and t0 else 0
+LoadGroup = list[tuple[Worker, int]]  # the hog threads (worker, slot) woken on one CPU, or one left unpinned
+
+
+def _group_began(group: LoadGroup) -> list[tuple[int, Worker]]:
+    """When each thread of a load group began its work, with its hog, for those that did."""
+    return [(t, h) for h, index in group if h.buffer is not None and (t := h.buffer.work_started()[index])]
+
+
+def _load_late(groups: list[LoadGroup], t0: Optional[int]) -> list[tuple[str, int]]:
+    """The CPUs whose load began after the common start `t0`: (the hog that began first there, how late), from their slots.
+
+    A CPU is loaded once one of the hogs woken on it runs: more hogs than CPUs share them, and
+    one waiting for its turn beside a hog that spins is no CPU without load.  A group none of
+    whose threads ever began is a dead hog, said elsewhere."""
+    out = []
+    for group in groups:
+        began = _group_began(group)
+        if began and t0:
+            first, hog = min(began, key=lambda each: each[0])
+            if first > t0:
+                out.append((hog.label, first - t0))
+    return out
 
 
 def _gate_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
@@ -585,44 +603,51 @@ def _await_gates(workers: list[Worker], until_ns: int) -> None:
             time.sleep(GATE_POLL_S)
 
 
-def _await_load(hogs: list[Worker], until_ns: int) -> None:
-    """Return once every hog thread began its load, or at `until_ns`; asleep meanwhile, so that a hog woken on the
-    runner's own CPU has it (the runner going on with its own work held one back by 2 ms)."""
-    pending = [h.buffer for h in hogs if h.buffer is not None]
+def _await_load(groups: list[LoadGroup], until_ns: int) -> None:
+    """Return once a hog began its load on every CPU the hogs were woken on, or at `until_ns`; asleep meanwhile, so that
+    a hog woken on the runner's own CPU has it (the runner going on with its own work held one back by 2 ms)."""
+    pending = groups
     while pending and time.monotonic_ns() < until_ns:
-        pending = [b for b in pending if not all(b.work_started())]
+        pending = [g for g in pending if not _group_began(g)]
         if pending:
             time.sleep(GATE_POLL_S)
 
 
-def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -> None:
-    """Open the hogs' gates, each hog thread woken on a CPU of its own (in turn over the CPUs it may use), then
-    given its own CPUs back: the load is spread at once.
+def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -> list[LoadGroup]:
+    """Open the hogs' gates, each spinning thread woken on the CPU it may use that has the fewest so far, then given its
+    own CPUs back once a hog runs on each: the load is spread at once.  Returns the threads by the CPU they were woken on.
 
     Woken together, two hogs of the 2-CPU VM were put on one CPU and waited for the load balancer,
     2 to 5 ms and once 41 ms (README, "The start margin follows the threads"); woken one per CPU,
     they began within 0.4 ms of their gates on a quiet VM.  Where they go after is the
     scheduler's to say, as before."""
-    turn = 0
+    by_cpu: dict[int, LoadGroup] = {}
+    alone: list[LoadGroup] = []
     restore: list[tuple[int, set[int]]] = []
     for h in hogs:
         assert h.buffer is not None
         tids = list((h.ready or {}).get("tids", []))
-        for tid in tids[1:] if h.spec.get("threads") else tids:  # the spinning ones: a hog of threads has a sleeping main
+        spinning = range(1, len(tids)) if h.spec.get("threads") else range(len(tids))  # a hog of threads has a sleeping main
+        for index in spinning:
+            tid = tids[index]
             try:
                 allowed = os.sched_getaffinity(tid)
-                os.sched_setaffinity(tid, {sorted(allowed)[turn % len(allowed)]})
-            except OSError:  # gone, or a CPU it may not use: left where the scheduler puts it
+                cpu = min(sorted(allowed), key=lambda c: len(by_cpu.get(c, [])))
+                os.sched_setaffinity(tid, {cpu})
+            except (OSError, ValueError):  # gone, or a CPU it may not use: left where the scheduler puts it
+                alone.append([(h, index)])
                 continue
             restore.append((tid, allowed))
-            turn += 1
+            by_cpu.setdefault(cpu, []).append((h, index))
         h.buffer.open_gate(start_ns, end_ns)
+    groups = list(by_cpu.values()) + alone
     try:
-        _await_load(hogs, until_ns)
+        _await_load(groups, until_ns)
     finally:
         for tid, allowed in restore:
             with suppress(OSError):
                 os.sched_setaffinity(tid, allowed)
+    return groups
 
 
 def _read_done(w: Worker) -> None:
@@ -751,6 +776,7 @@ class _CellRun:
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
         self.commands: list[subprocess.Popen[bytes]] = []
         self.command_groups: list[memcg.MemoryCgroup] = []  # the cgroups holding the background commands
+        self.load_groups: list[LoadGroup] = []  # the hogs' spinning threads by the CPU they were woken on
         self.command_outputs: list[CappedOutput] = []  # each command's output, into its command-N.log
         self.command_counts: list[OutputCount] = []  # what each wrote, once the cell stopped them
         self.table: list[ThreadRow] = []
@@ -887,7 +913,8 @@ class _CellRun:
             w.seen = [0] * w.nslots
         if hogs:
             _await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
-            _start_load(hogs, time.monotonic_ns(), deadline, t0)  # the cell's end stops it (_end_load) once no measured thread works
+            # the cell's end stops the load (_end_load) once no measured thread works
+            self.load_groups = _start_load(hogs, time.monotonic_ns(), deadline, t0)
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
@@ -1130,7 +1157,7 @@ class _CellRun:
             self.trace,
             dict(self.trace_tasks),
             tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := _gate_late(w.buffer, self.t0)) > 0),
-            tuple((h.label, late) for h in self.hogs if h.buffer is not None and (late := _load_late(h.buffer, self.t0)) > 0),
+            tuple(_load_late(self.load_groups, self.t0)),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
