@@ -12,6 +12,8 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import SimpleNamespace
 from typing import Any
 
@@ -75,47 +77,49 @@ def test_the_start_margin_grows_with_processes_and_threads() -> None:
     assert start_margin(64, 8192) == 0.060
 
 
-def test_a_cpus_load_is_late_by_the_first_hog_to_begin_there_and_a_hog_that_never_began_is_not_counted() -> None:
-    """Hogs woken on one CPU share it: one waiting for its turn beside a hog that spins leaves no CPU without load."""
+T0 = 5_000_000_000
+
+
+@contextmanager
+def _three_slots(name: str, at: int, values: tuple[int, int, int]) -> Iterator[tuple[mmap.mmap, samples.Buffer]]:
+    """A buffer of three slots whose field at offset `at` of each slot header holds `values`, as a worker's threads left it:
+    a writable map to change them, and the runner's view."""
     layout = Layout(3, 0, histograms=False)
-    fd = samples.create("hog-test", layout)
+    fd = samples.create(name, layout)
     try:
         writable = mmap.mmap(fd, layout.size)
-        t0 = 5_000_000_000
-        for index, began in enumerate((t0 - 3_000_000, t0 + 400_000, t0 + 900_000)):
-            struct.pack_into("<q", writable, layout.slot(index) + _WORK_START_AT, began)
-        hog = Worker("hog busy[0]", {}, layout, [], False, os.devnull)
-        hog.buffer = samples.Buffer(fd, layout)
-        cpu0, cpu1 = [(hog, 0), (hog, 1)], [(hog, 2)]  # a thread in time and one waiting its turn; one alone, late
-        assert _load_late([cpu0, cpu1], t0) == [("hog busy[0]", 900_000)]
-        assert _load_late([cpu0, cpu1], t0 + 1_000_000) == [], "a load that began before the start is in time"
-        assert _load_late([cpu0, cpu1], None) == [], "a cell that never started had no load to be late"
-        struct.pack_into("<q", writable, layout.slot(0) + _WORK_START_AT, 0)
-        assert _load_late([cpu0], t0) == [("hog busy[0]", 400_000)], "the first to begin on the CPU loads it"
-        struct.pack_into("<q", writable, layout.slot(1) + _WORK_START_AT, 0)
-        assert _load_late([cpu0], t0) == [], "no hog there ever began: a dead hog, said elsewhere"
-        hog.buffer.close()
-        writable.close()
+        for index, value in enumerate(values):
+            struct.pack_into("<q", writable, layout.slot(index) + at, value)
+        buffer = samples.Buffer(fd, layout)
     finally:
         os.close(fd)
+    try:
+        yield writable, buffer
+    finally:
+        buffer.close()
+        writable.close()
+
+
+def test_a_cpus_load_is_late_by_the_first_hog_to_begin_there_and_a_hog_that_never_began_is_not_counted() -> None:
+    """Hogs woken on one CPU share it: one waiting for its turn beside a hog that spins leaves no CPU without load."""
+    with _three_slots("hog-test", _WORK_START_AT, (T0 - 3_000_000, T0 + 400_000, T0 + 900_000)) as (writable, buffer):
+        hog = Worker("hog busy[0]", {}, buffer.layout, [], False, os.devnull)
+        hog.buffer = buffer
+        cpu0, cpu1 = [(hog, 0), (hog, 1)], [(hog, 2)]  # a thread in time and one waiting its turn; one alone, late
+        assert _load_late([cpu0, cpu1], T0) == [("hog busy[0]", 900_000)]
+        assert _load_late([cpu0, cpu1], T0 + 1_000_000) == [], "a load that began before the start is in time"
+        assert _load_late([cpu0, cpu1], None) == [], "a cell that never started had no load to be late"
+        struct.pack_into("<q", writable, buffer.layout.slot(0) + _WORK_START_AT, 0)
+        assert _load_late([cpu0], T0) == [("hog busy[0]", 400_000)], "the first to begin on the CPU loads it"
+        struct.pack_into("<q", writable, buffer.layout.slot(1) + _WORK_START_AT, 0)
+        assert _load_late([cpu0], T0) == [], "no hog there ever began: a dead hog, said elsewhere"
 
 
 def test_a_workers_release_is_late_by_its_last_thread_through_the_gate_and_one_that_never_passed_is_not_counted() -> None:
-    layout = Layout(3, 0, histograms=False)
-    fd = samples.create("gate-late-test", layout)
-    try:
-        writable = mmap.mmap(fd, layout.size)
-        t0 = 5_000_000_000
-        for index, passed in enumerate((t0 - 2_000_000, t0 + 700_000, 0)):  # in time, late, spawned mid-run (never)
-            struct.pack_into("<q", writable, layout.slot(index) + _GATE_AT, passed)
-        buffer = samples.Buffer(fd, layout)
-        assert _gate_late(buffer, t0) == 700_000
+    with _three_slots("gate-late-test", _GATE_AT, (T0 - 2_000_000, T0 + 700_000, 0)) as (_, buffer):  # in time, late, never
+        assert _gate_late(buffer, T0) == 700_000
         assert _gate_late(buffer, None) == 0, "a cell that never started released nobody late"
         assert buffer.work_started() == [0, 0, 0], "the gate is not the work's start"
-        buffer.close()
-        writable.close()
-    finally:
-        os.close(fd)
 
 
 class _GateRecorder:
