@@ -256,10 +256,12 @@ def _print_warnings(warnings: Sequence[object]) -> None:
 
 def _annotate(problems: Sequence[object]) -> None:
     """In GitHub Actions, problems in a file are also annotations at their line (README, "CI systems")."""
+    env = dict(os.environ)
+    if env.get("GITHUB_ACTIONS", "") != "true":
+        return  # not in GitHub Actions: nothing to import
     from runner.errors import Problem
     from runner.report import github
 
-    env = dict(os.environ)
     if github.enabled(env):
         for problem in problems:
             if isinstance(problem, Problem):

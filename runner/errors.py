@@ -9,7 +9,6 @@ traceback to a file for the bug report, and exits with `INTERNAL_ERROR`.
 
 from __future__ import annotations
 
-import difflib
 import enum
 import errno
 import os
@@ -143,6 +142,8 @@ def special_file(path: str) -> str:
 
 def closest(word: str, choices: Iterable[str]) -> str | None:
     """The choice `word` is probably a typo of, or None: what `did_you_mean` suggests."""
+    import difflib  # here: only a mistake needs it, and its import is a start's 2 ms
+
     close = difflib.get_close_matches(str(word), [str(c) for c in choices], n=1, cutoff=0.6)
     return close[0] if close else None
 

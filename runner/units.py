@@ -9,10 +9,8 @@ purpose: `period: 500` is ambiguous (ms? us?) and a wrong guess silently turns a
 
 from __future__ import annotations
 
-import difflib
 import re
 from collections.abc import Iterable
-from fractions import Fraction
 from typing import Any
 
 NS_PER = {
@@ -97,14 +95,16 @@ def parse_size(value: object) -> int:
 def _scaled(number: str, scale: int, written: str, expected: str) -> int:
     """`number` (decimal digits) times `scale`, exactly, rounded to an integer.
 
-    Floats would overflow (a 400-digit size is infinity) or round (1.000000001s); a
-    Fraction is exact, and the digit limit keeps the arithmetic and its messages small.
+    Floats would overflow (a 400-digit size is infinity) or round (1.000000001s); integers
+    are exact, and the digit limit keeps the arithmetic and its messages small.  Halves round
+    to even, as Python's round() does.
     """
     if len(number.replace(".", "").lstrip("0")) > MAX_DIGITS:
         raise UnitError(f"the number in {_shorten(written)} has more than {MAX_DIGITS} digits; expected {expected}")
-    if "." not in number:
-        return int(number) * scale
-    return round(Fraction(number) * scale)
+    whole, _, decimals = number.partition(".")
+    quotient, remainder = divmod(int(whole + decimals) * scale, 10 ** len(decimals))
+    twice = 2 * remainder
+    return quotient + (twice > 10 ** len(decimals) or (twice == 10 ** len(decimals) and quotient % 2 == 1))
 
 
 def _shorten(text: str, keep: int = 40) -> str:
@@ -245,5 +245,7 @@ def format_cpus(cpus: tuple[int, ...] | list[int] | frozenset[int] | set[int]) -
 
 
 def _did_you_mean(word: str, choices: Iterable[str]) -> str:
+    import difflib  # here: only a mistake needs it
+
     close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.5)
     return f" (did you mean {close[0]!r}?)" if close else ""

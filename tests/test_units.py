@@ -82,6 +82,15 @@ def test_overflowing_numbers_are_refused_with_a_message(parse, text):
 def test_decimals_are_exact():
     assert units.parse_duration("1.000000001s") == 1_000_000_001
     assert units.parse_size("0.5KiB") == 512
+    assert units.parse_duration("12345678901234.567890123s") == 12_345_678_901_234_567_890_123  # 23 digits, no float near it
+
+
+@pytest.mark.parametrize(
+    "text, ns", [("0.5ns", 0), ("1.5ns", 2), ("2.5ns", 2), ("0.0000000015s", 2), ("0.0000000025s", 2), ("0.0000000026s", 3), (".5us", 500)]
+)
+def test_a_fraction_of_the_smallest_unit_rounds_half_to_even(text, ns):
+    """As Python's round() does (the parser's exact arithmetic was Fraction's, whose round() this is)."""
+    assert units.parse_duration(text) == ns
 
 
 @pytest.mark.parametrize(
