@@ -648,7 +648,7 @@ def _one_cell(
             if writer is not None:
                 writer.abort()
             return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc, None
-        scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        scenario = cell.scenario.replace(duration=options.duration_ns)
         result = evaluate(cell, scenario, raw, options.allow_degraded)
     except BaseException:  # a defect: no half-written samples file or open descriptor is left behind
         if writer is not None:

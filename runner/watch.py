@@ -15,8 +15,6 @@ import time
 from collections.abc import Callable
 from datetime import datetime, timezone
 
-from pydantic import ValidationError
-
 from runner.errors import UsageError
 from runner.results.document import CellResult, PermissionsInfo, RunDocument, ScenarioInfo, Status, ps_rows, worst
 from runner.results.pstable import ThreadRow
@@ -25,6 +23,7 @@ from runner.run.evaluate import degradation
 from runner.run.external import Monitor, ProgramRun
 from runner.run.outside import outcome
 from runner.scenario.model import ProgramSpec, ThreadRule
+from runner.scenario.typed import Invalid
 
 RULE_FORM = "PATTERN=SCHED, PATTERN@CPUS or PATTERN=SCHED@CPUS, e.g. 'ctl_loop=fifo:80@1'"
 WATCH_CELL = "watch"
@@ -41,12 +40,9 @@ def parse_rule(text: str) -> ThreadRule:
     if match.group(3) is not None:
         data["cpus"] = match.group(3)
     try:
-        return ThreadRule.model_validate(data)
-    except ValidationError as exc:
-        what = "; ".join(
-            f"{'.'.join(str(x) for x in e['loc']) or 'rule'}: {e['ctx']['error'] if e['type'] == 'value_error' else e['msg']}"
-            for e in exc.errors(include_url=False)
-        )
+        return ThreadRule.parse(data)
+    except Invalid as exc:
+        what = "; ".join(f"{'.'.join(str(x) for x in issue.path) or 'rule'}: {issue.message}" for issue in exc.issues)
         raise UsageError(f"runner watch: --rule {text!r}: {what}") from None
 
 
@@ -77,7 +73,7 @@ def _spec(pid: int, rules: list[ThreadRule]) -> ProgramSpec:
     except OSError:
         argv = []
     name = re.sub(r"[\s/]", "_", comm) or str(pid)
-    return ProgramSpec.model_construct(name=name, command=argv or [comm], threads=rules, grace=0)
+    return ProgramSpec(name=name, command=argv or [comm], threads=rules, grace=0)
 
 
 def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule], stop_requested: Callable[[], bool]) -> RunDocument:

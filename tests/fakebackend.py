@@ -107,7 +107,7 @@ class FakeBackend:
             assert options.follow is not None
             options.follow(f"[INFO] [fake] callback {n}")
         interrupted = options.stop_requested()
-        scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        scenario = cell.scenario.replace(duration=options.duration_ns)
         t0 = 1_000_000_000
         t_end = t0 + options.duration_ns
         threads = []

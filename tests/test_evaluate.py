@@ -19,7 +19,7 @@ OTHER = Settings(Policy.OTHER, 0, 0, None)
 
 
 def test_releases_due_run_from_the_gate_to_the_end_or_the_interrupt():
-    work = PeriodicWork(kind="periodic", period="100ms")
+    work = PeriodicWork.parse({"period": "100ms"})
     timeline = Timeline(0, start_ns=1_000, end_ns=1_000 + 1_000_000_000, stopped_ns=1_000 + 250_000_000)
     assert releases_due(work, timeline, interrupted=False) == 10
     assert releases_due(work, timeline, interrupted=True) == 3  # releases at 0, 100 and 200 ms
@@ -164,13 +164,13 @@ def test_a_thread_that_could_not_keep_up_fails_its_cell_by_an_implicit_verdict()
 
 def test_a_scenarios_own_bound_on_misses_replaces_the_implicit_verdict_and_the_words_stay():
     cell, raw = _raw(3)
-    own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "missed_releases", "max": 7})
-    scenario = cell.scenario.model_copy(update={"expect": [*cell.scenario.expect, own]})
+    own = Expectation.parse({"thread": "minimal_schedul", "metric": "missed_releases", "max": 7})
+    scenario = cell.scenario.replace(expect=[*cell.scenario.expect, own])
     result = evaluate(cell, scenario, raw, False)
     assert result.status is Status.PASSED
     assert [(v.measured, v.passed) for v in result.expectations if v.metric == "missed_releases"] == [(7, True)]
     assert len(result.warnings) == 1 and "could not keep up: missed 7 of 10 releases" in result.warnings[0]
-    strict = scenario.model_copy(update={"expect": [*cell.scenario.expect, own.model_copy(update={"max": 6})]})
+    strict = scenario.replace(expect=[*cell.scenario.expect, own.replace(max=6.0)])
     assert evaluate(cell, strict, raw, False).status is Status.FAILED
 
 
@@ -180,7 +180,7 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
 
     cell, raw = _raw(10)
     main = raw.threads[0]
-    work = PhasesWork.model_validate(
+    work = PhasesWork.parse(
         {"kind": "phases", "phases": [{"name": "init", "loop": 1, "events": [{"run": "5s"}]}, {"events": [{"timer": {"period": "10ms"}}]}]}
     )
     starved = RawThread(dataclasses.replace(main.planned, work=work), 99, slot_of([], tid=100), FIFO80, ApplyErrors(), True)
@@ -188,8 +188,8 @@ def test_a_thread_with_callbacks_that_ran_none_fails_its_cell_unless_the_scenari
     result = evaluate(cell, cell.scenario, held, False)
     implicit = [(v.metric, v.limit, v.measured, v.passed) for v in result.expectations if v.line is None]
     assert result.status is Status.FAILED and implicit == [("callbacks", ">= 1", 0, False)]
-    own = Expectation.model_validate({"thread": "minimal_schedul", "metric": "callbacks", "min": 0})
-    scenario = cell.scenario.model_copy(update={"expect": [own]})
+    own = Expectation.parse({"thread": "minimal_schedul", "metric": "callbacks", "min": 0})
+    scenario = cell.scenario.replace(expect=[own])
     assert [v for v in evaluate(cell, scenario, held, False).expectations if v.line is None] == []
     # A timer it reached whose first release was past the end had none due: running none was right.
     assert raw.timeline.end_ns is not None

@@ -28,7 +28,7 @@ def _group(nthreads: int, name: str) -> Iterator[tuple[_probe.Group, samples.Buf
         runner_view = samples.Buffer(fd, layout)
     finally:
         os.close(fd)
-    group.adopt(0, name, work_tuple(PeriodicWork(period="1ms")))
+    group.adopt(0, name, work_tuple(PeriodicWork.parse({"period": "1ms"})))
     for index in range(1, nthreads):
         group.spawn(index, f"{name}-{index}", work_tuple(SleepWork()), None, None, None, None, False, None, False)
     assert group.wait_ready(5.0)

@@ -306,7 +306,7 @@ class _NoGuard:
 
 def _renamer_monitored(tmp_path, program: str, open_events=None):
     """rtprog --rename (its ctl_loop thread named 20 ms after it appears) with a FIFO 10 rule, followed 0.2 s; what it left."""
-    spec = ProgramSpec.model_validate(
+    spec = ProgramSpec.parse(
         {"name": "talker", "command": [program, "--rename"], "threads": [{"match": "ctl_*", "sched": "fifo:10"}], "grace": "100ms"}
     )
     run = ProgramRun(spec, str(tmp_path), kernel.current_settings(), kernel.online_cpus())

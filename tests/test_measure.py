@@ -81,15 +81,15 @@ def test_releases_no_callback_served_are_missed_up_to_the_end_of_the_cell():
 
 def test_verdicts_carry_the_measured_value():
     f = thread_figures(slot([sample(0, 10, 0), sample(1, 500, 1)]), periodic=True)
-    ok = check(Expectation.model_validate({"thread": "t", "metric": "latency.p50", "max": "100us"}), "t", f)
-    bad = check(Expectation.model_validate({"thread": "t", "metric": "involuntary.per_callback_mean", "max": 0.1}), "t", f)
+    ok = check(Expectation.parse({"thread": "t", "metric": "latency.p50", "max": "100us"}), "t", f)
+    bad = check(Expectation.parse({"thread": "t", "metric": "involuntary.per_callback_mean", "max": 0.1}), "t", f)
     assert ok.passed and ok.measured == top(10_000)
     assert not bad.passed and bad.measured == 0.5 and bad.limit == "<= 0.1"
 
 
 def test_a_thread_without_callbacks_cannot_pass_a_callback_check():
     f = thread_figures(slot([]), periodic=False)
-    v = check(Expectation.model_validate({"thread": "t", "metric": "latency.max", "max": "1ms"}), "t", f)
+    v = check(Expectation.parse({"thread": "t", "metric": "latency.max", "max": "1ms"}), "t", f)
     assert not v.passed and "not measured" in v.note
 
 

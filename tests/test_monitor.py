@@ -61,7 +61,7 @@ class FakeProc:
 
 
 def _monitored(rules: list[dict[str, str]] | None = None) -> tuple[ProgramRun, Monitor]:
-    spec = ProgramSpec.model_validate({"name": "server", "command": ["server"], "threads": rules or []})
+    spec = ProgramSpec.parse({"name": "server", "command": ["server"], "threads": rules or []})
     run = ProgramRun(spec, "/tmp", OTHER, (0, 1))
     run.pid = PID
     monitor = Monitor([run], lambda pids: (None, "no process events in this test"))

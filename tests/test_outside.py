@@ -40,7 +40,7 @@ SECOND = 1_000_000_000
 
 def _spec(**extra: object) -> ProgramSpec:
     data = {"name": "talker", "command": ["rtprog"], "sched": "fifo:80", "cpus": "1", **extra}
-    return ProgramSpec.model_validate(data)
+    return ProgramSpec.parse(data)
 
 
 def _thread(tid: int, index: int, comm: str, settings: Settings, rule: int | None = None, **extra: object) -> RawProgramThread:
@@ -220,7 +220,7 @@ def test_a_program_stopped_at_its_gate_is_not_said_to_have_been_stopped_with_sig
         def forget_cgroup(self, path: str) -> None: ...
 
     monkeypatch.setattr(memcg, "hierarchy", lambda limit=True: (None, "no cgroup in this test"))
-    spec = ProgramSpec.model_validate({"name": "quitter", "command": ["true"], "until": "exit"})
+    spec = ProgramSpec.parse({"name": "quitter", "command": ["true"], "until": "exit"})
     run = external.ProgramRun(spec, str(tmp_path), OTHER, (0,))
     run.launch(Guard())
     assert run.pid and not run.failure
@@ -336,7 +336,7 @@ def test_a_program_that_sets_its_own_policy_as_it_starts_is_not_degraded_and_a_w
     """A program that made itself FIFO 50 before the first look was an error (`policy other requested`), one that
     did it 0.5 s later passed; and `runner watch` of any RT process was an error."""
     mine = Settings(Policy.FIFO, 50, 0, None)
-    spec = ProgramSpec.model_validate({"name": "rtspin", "command": ["rtspin"]})
+    spec = ProgramSpec.parse({"name": "rtspin", "command": ["rtspin"]})
     out = outcome(_program(spec, (_thread(500, 0, "rtspin", mine),)), T0, T0 + SECOND, False, degradation)
     assert [t.degraded for _, t in out.threads] == [[]] and out.result.degraded == [] and out.warnings == []
     watched = _program(spec, (_thread(500, 0, "rtspin", mine),), attached=True)
@@ -349,7 +349,7 @@ def test_a_program_that_sets_its_own_policy_as_it_starts_is_not_degraded_and_a_w
 
 def test_a_rule_that_matched_the_main_thread_is_checked_against_the_rule():
     """`match: '*'` at fifo:5 was checked against the process's settings: an error when the rule worked."""
-    spec = ProgramSpec.model_validate({"name": "star", "command": ["sleep", "10"], "threads": [{"match": "*", "sched": "fifo:5"}]})
+    spec = ProgramSpec.parse({"name": "star", "command": ["sleep", "10"], "threads": [{"match": "*", "sched": "fifo:5"}]})
     worked = _program(spec, (_thread(500, 0, "sleep", Settings(Policy.FIFO, 5, 0, None), rule=0),))
     assert [t.degraded for _, t in outcome(worked, T0, T0 + SECOND, False, degradation).threads] == [[]]
     refused = _program(spec, (_thread(500, 0, "sleep", OTHER, rule=0, rule_errors=ApplyErrors(sched=1)),))
@@ -526,7 +526,7 @@ def test_a_watched_process_that_exited_is_over_even_when_its_pid_lives_on_in_ano
 def test_output_limit_is_64mib_by_default_a_size_with_a_unit_and_never_unlimited():
     assert _spec().output_limit == 64 << 20 and _spec(output_limit="1MiB").output_limit == 1 << 20
     assert _spec(output_limit="0B").output_limit == 0
-    assert _spec(output_limit="1MiB").model_dump(mode="json")["output_limit"] == "1MiB"
+    assert _spec(output_limit="1MiB").dump()["output_limit"] == "1MiB"
     for wrong, words in ((None, "expected a size"), (1000, "bare number 1000 has no unit"), ("-1MiB", "cannot read")):
         with pytest.raises(ValueError, match=words):
             _spec(output_limit=wrong)

@@ -66,7 +66,7 @@ def test_the_resolved_count_and_cpus_are_part_of_the_cells_spec():
     """A 2-CPU and a 4-CPU run of the same file are different cells: comparing them is refused."""
     two, four = scenario(CYCLICTEST, TWO).cells[0], scenario(CYCLICTEST).cells[0]
     assert two.spec_hash != four.spec_hash
-    assert two.scenario.model_dump(mode="json")["processes"][0]["threads"][0]["count"] == 2
+    assert two.scenario.dump()["processes"][0]["threads"][0]["count"] == 2
 
 
 @pytest.mark.parametrize("name", ["policy_matrix", "memory_lock", "fifo80"])
@@ -80,9 +80,9 @@ def test_a_spec_that_does_not_spread_hashes_as_if_spreading_did_not_exist(name):
 
 
 def test_a_spread_is_part_of_the_spec_when_used():
-    spec = scenario(CYCLICTEST).cells[0].scenario.model_dump(mode="json")["processes"][0]["threads"][0]
+    spec = scenario(CYCLICTEST).cells[0].scenario.dump()["processes"][0]["threads"][0]
     assert (spec["count"], spec["cpus"], spec["pin"], spec["priospread"], spec["distance"]) == (4, "0-3", "each", True, "500us")
-    plain = scenario("{name: w, count: 2}").cells[0].scenario.model_dump(mode="json")["processes"][0]["threads"][0]
+    plain = scenario("{name: w, count: 2}").cells[0].scenario.dump()["processes"][0]["threads"][0]
     assert not {"pin", "priospread", "distance"} & set(plain)
 
 
@@ -242,9 +242,9 @@ def test_hogs_and_threads_resolve_count_cpus_against_the_same_cpus():
 
 
 def test_without_a_machine_the_model_falls_back_to_the_runners_affinity():
-    spec = ThreadSpec.model_validate({"name": "c", "count": "cpus", "pin": "each"})
+    spec = ThreadSpec.parse({"name": "c", "count": "cpus", "pin": "each"})
     assert spec.cpus == tuple(sorted(os.sched_getaffinity(0))) and spec.count == len(spec.cpus)
-    proc = ProcessSpec.model_validate({"name": "p", "threads": [{"name": "c", "count": "cpus"}]}, context={"cpus": (5, 6, 7)})
+    proc = ProcessSpec.parse({"name": "p", "threads": [{"name": "c", "count": "cpus"}]}, {"cpus": (5, 6, 7)})
     assert proc.threads[0].count == 3
 
 

@@ -9,7 +9,7 @@ BASE = Settings(Policy.OTHER, 0, 0, None)
 
 
 def proc(**kw) -> ProcessSpec:
-    return ProcessSpec.model_validate({"name": "p", **kw})
+    return ProcessSpec.parse({"name": "p", **kw})
 
 
 def test_before_threads_everything_inherits():

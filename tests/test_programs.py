@@ -13,7 +13,6 @@ import sys
 import time
 
 import pytest
-from pydantic import ValidationError
 
 from runner import histogram as hg
 from runner.run import _probe, kernel, programs, samples
@@ -23,6 +22,7 @@ from runner.run.samples import EventStats, PhaseStats, SlotData, rows
 from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, work_tuple
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched
 from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
+from runner.scenario.typed import Invalid
 
 
 def scenario(**extra) -> Scenario:
@@ -50,7 +50,7 @@ def scenario(**extra) -> Scenario:
         ],
     }
     base.update(extra)
-    return Scenario.model_validate(base)
+    return Scenario.parse(base)
 
 
 def test_events_read_in_their_short_forms_and_write_back_as_written():
@@ -63,8 +63,8 @@ def test_events_read_in_their_short_forms_and_write_back_as_written():
         {"mem": "64KiB"},
         {"lock": "m"},
     ):
-        assert Event.model_validate(written).model_dump(mode="json") == written
-    assert Event.model_validate({"broad": "c"}).event is EventKind.BROADCAST  # rt-app's name
+        assert Event.parse(written).dump() == written
+    assert Event.parse({"broad": "c"}).event is EventKind.BROADCAST  # rt-app's name
 
 
 @pytest.mark.parametrize(
@@ -79,13 +79,13 @@ def test_events_read_in_their_short_forms_and_write_back_as_written():
     ],
 )
 def test_a_malformed_event_says_what_to_write(event, words):
-    with pytest.raises(ValidationError, match=words.replace("?", r"\?").replace("(", r"\(")):
-        Event.model_validate(event)
+    with pytest.raises(Invalid, match=words.replace("?", r"\?").replace("(", r"\(")):
+        Event.parse(event)
 
 
 def test_locks_balance_within_a_phase_and_a_wait_holds_its_mutex():
     def work(events):
-        return PhasesWork.model_validate({"events": events})
+        return PhasesWork.parse({"events": events})
 
     work([{"lock": "m"}, {"wait": {"cond": "c", "mutex": "m"}}, {"unlock": "m"}])
     for events, words in (
@@ -94,27 +94,27 @@ def test_locks_balance_within_a_phase_and_a_wait_holds_its_mutex():
         ([{"lock": "m"}], "the phase ends holding m"),
         ([{"wait": {"cond": "c", "mutex": "m"}}], "needs its mutex m held"),
     ):
-        with pytest.raises(ValidationError, match=words):
+        with pytest.raises(Invalid, match=words):
             work(events)
 
 
 def test_deadline_defaults_follow_rt_app_and_the_kernels_order_is_checked():
-    only = Sched.model_validate({"policy": "deadline", "runtime": "2ms"})
+    only = Sched.parse({"policy": "deadline", "runtime": "2ms"})
     assert (only.runtime, only.deadline, only.period) == (2_000_000, 2_000_000, 2_000_000)
-    short = Sched.model_validate("deadline:2ms/8ms/10ms")
+    short = Sched.parse("deadline:2ms/8ms/10ms")
     assert (short.runtime, short.deadline, short.period, short.label()) == (2_000_000, 8_000_000, 10_000_000, "deadline 2ms/8ms/10ms")
-    assert Sched.model_validate("deadline:2ms/8ms").period == 8_000_000
+    assert Sched.parse("deadline:2ms/8ms").period == 8_000_000
     assert short.bandwidth == pytest.approx(0.2)
     for bad, words in (
         ("deadline", "needs a runtime"),
         ("deadline:1us", "below the kernel's minimum"),
         ("deadline:5ms/4ms/10ms", "runtime <= deadline"),
     ):
-        with pytest.raises(ValidationError, match=words):
-            Sched.model_validate(bad)
-    with pytest.raises(ValidationError, match="runtime, deadline and period are for policy deadline"):
-        Sched.model_validate({"policy": "fifo", "priority": 5, "runtime": "1ms"})
-    assert Sched.model_validate("fifo:80").model_dump(mode="json") == {"policy": "fifo", "priority": 80, "nice": None}
+        with pytest.raises(Invalid, match=words):
+            Sched.parse(bad)
+    with pytest.raises(Invalid, match="runtime, deadline and period are for policy deadline"):
+        Sched.parse({"policy": "fifo", "priority": 5, "runtime": "1ms"})
+    assert Sched.parse("fifo:80").dump() == {"policy": "fifo", "priority": 80, "nice": None}
 
 
 def test_the_native_core_gets_resources_by_index_and_each_phases_settings():
@@ -135,7 +135,7 @@ def test_each_mutex_a_thread_locks_has_a_lock_slot_in_the_order_it_is_first_lock
     events = [{"timer": {"period": "10ms"}}]
     for name in ["m3", *names]:  # m3 first, then every one, m3 again among them
         events += [{"lock": name}, {"unlock": name}]
-    sc = Scenario.model_validate(
+    sc = Scenario.parse(
         {
             "name": "slots",
             "resources": {name: {"kind": "mutex"} for name in names},
@@ -162,7 +162,7 @@ def test_a_program_with_a_timer_has_callbacks_at_its_period():
 
 
 def test_a_thread_whose_phases_follow_timers_of_other_periods_has_each_of_them_shortest_first():
-    s = Scenario.model_validate(
+    s = Scenario.parse(
         {
             "name": "periods",
             "resources": {"slow": {"kind": "timer", "period": "50ms"}},
@@ -268,7 +268,7 @@ def test_a_phase_the_kernel_refused_says_so_with_its_reason():
 
 def _cell_of(threads: dict[str, list[object]], resources: dict[str, str]) -> list[RawThread]:
     """Raw threads of one process `app` whose threads run the given events (in that order: gid = position)."""
-    spec = Scenario.model_validate(
+    spec = Scenario.parse(
         {
             "name": "s",
             "resources": {name: {"kind": kind} for name, kind in resources.items()},
@@ -323,7 +323,7 @@ def test_a_stage_whose_producer_goes_on_is_waiting_however_long_and_one_whose_pr
 
 
 def test_a_deadline_refusal_is_explained_with_the_cells_bandwidth_and_the_kernels_limit():
-    sc = Scenario.model_validate(
+    sc = Scenario.parse(
         {
             "name": "d",
             "processes": [{"name": "p", "instances": 2, "threads": [{"name": "g", "count": 2, "sched": "deadline:6ms/10ms/10ms"}]}],
@@ -347,7 +347,7 @@ def test_histograms_merge_exactly_to_the_bucket():
 def spawning(**template) -> Scenario:
     """A dispatcher (FIFO 30, then FIFO 50 in its second phase) spawning `job` there; `template` overrides job's spec."""
     job = {"name": "job", "spawned": True, "count": 3, "work": {"kind": "phases", "loop": 1, "events": [{"run": "1ms"}, {"iorun": "4MiB"}]}}
-    return Scenario.model_validate(
+    return Scenario.parse(
         {
             "name": "s",
             "processes": [
@@ -390,10 +390,10 @@ def test_the_native_core_gets_a_spawn_as_the_templates_first_slot_and_count_and_
 
 
 def test_spawn_events_read_and_write_back_as_written():
-    ev = Event.model_validate({"spawn": "job"})
-    assert (ev.event, ev.thread, ev.model_dump(), ev.label()) == (EventKind.SPAWN, "job", {"spawn": "job"}, "spawn job")
-    with pytest.raises(ValidationError, match="thread belongs to spawn events"):
-        Event.model_validate({"event": "run", "duration": "1ms", "thread": "job"})
+    ev = Event.parse({"spawn": "job"})
+    assert (ev.event, ev.thread, ev.dump(), ev.label()) == (EventKind.SPAWN, "job", {"spawn": "job"}, "spawn job")
+    with pytest.raises(Invalid, match="thread belongs to spawn events"):
+        Event.parse({"event": "run", "duration": "1ms", "thread": "job"})
 
 
 def test_dropped_spawns_and_instances_never_spawned_are_warnings_in_words():
@@ -419,9 +419,7 @@ def test_uclamp_is_refused_before_the_run_on_a_kernel_without_it(monkeypatch, tm
     def with_phase(sched: object) -> Scenario:
         phase = {"events": [{"run": "1ms"}], **({"sched": sched} if sched else {})}
         hint = {"name": "hint", "work": {"kind": "phases", "phases": [phase]}}
-        return Scenario.model_validate(
-            {"name": "s", "processes": [{"name": "app", "threads": [{"name": "plain", "sched": "fifo:10"}, hint]}]}
-        )
+        return Scenario.parse({"name": "s", "processes": [{"name": "app", "threads": [{"name": "plain", "sched": "fifo:10"}, hint]}]})
 
     sc, clamped = with_phase(None), with_phase({"policy": "other", "util_max": 512})
     perm = preflight.current_permissions()
@@ -471,7 +469,7 @@ def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each
     """A worker's three threads in this process (no rights needed): a periodic one, whose samples carry empty
     lock slots, and a program that locks n then m every 2 ms; the buffer's own header, and every sample
     the reader takes back, agree with the Python layout (its stride moves the last slot past the others)."""
-    sc = Scenario.model_validate(
+    sc = Scenario.parse(
         {
             "name": "slots",
             "resources": {"m": {"kind": "mutex"}, "n": {"kind": "mutex"}},
@@ -535,13 +533,13 @@ _BURN_STOPPED = """
 import mmap, os, signal, sys, threading, time
 from runner.run import _probe, kernel, samples
 from runner.run.spawn import work_tuple
-from runner.scenario.model import BurnClock, PeriodicWork
+from runner.scenario.model import PeriodicWork
 
 _probe.install_stop_handler()
 layout = samples.Layout(1, 16)
 fd = samples.create("burn-stop", layout)
 group = _probe.Group(mmap.mmap(fd, layout.size), 1, 16, kernel.online_cpus(), False, 0, 0, None, 0)
-work = work_tuple(PeriodicWork(period="2s", burn="1.5s", burn_clock=BurnClock.WALL))
+work = work_tuple(PeriodicWork.parse({"period": "2s", "burn": "1.5s", "burn_clock": "wall"}))
 group.spawn(0, "burner", work, None, None, None, None, False, None, False)
 assert group.wait_ready(5.0)
 now = time.monotonic_ns()

@@ -327,7 +327,7 @@ def test_a_unique_timer_whose_phases_give_it_other_periods_keeps_each_and_is_a_v
     phases = c.scenario["processes"][0]["threads"][0]["work"]["phases"]
     assert [p["events"][1]["timer"]["period"] for p in phases] == ["10ms", "20ms"]
     assert not any("timer" in n for n in c.notes), c.notes
-    Scenario.model_validate(c.scenario)
+    Scenario.parse(c.scenario)
 
 
 def test_two_unique_timers_of_one_thread_becoming_one_grid_is_noted():
@@ -496,7 +496,7 @@ def test_fork_spawns_an_instance_0_task_and_says_what_it_cannot_map():
     assert "tasks.parent.fork2: fork of 'nobody': no task of instance 0 has that name; left out" in c.notes
     assert "tasks.parent.fork3: fork of 'sibling': a task started at the start (rt-app would start another); left out" in c.notes
     assert "tasks.unused: instance 0: rt-app starts no thread for this task and no fork names it; left out" in c.notes
-    Scenario.model_validate(c.scenario)  # and the result is a valid scenario
+    Scenario.parse(c.scenario)  # and the result is a valid scenario
 
 
 def test_memory_events_and_the_buffer_size():

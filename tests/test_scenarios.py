@@ -124,3 +124,24 @@ def test_baselines_recorded_by_earlier_versions_still_compare(name):
         stored = {c["id"]: c["spec_hash"] for c in json.load(handle)["cells"]}
     ours = {c.id: c.spec_hash for c in load_scenario(os.path.join(SCENARIOS, f"{name}.yaml")).cells}
     assert stored == {cell: ours[cell] for cell in stored}
+
+
+def test_every_shipped_cells_spec_hash_is_as_recorded():
+    """The spec hash of every cell of the shipped and corpus scenarios, on a 2-CPU machine, is what earlier versions stored.
+
+    tests/golden/spec_hashes.json was written by the runner whose scenario models were pydantic's; the
+    models' own dump (runner.scenario.typed) must give the same JSON, or every stored baseline is refused.
+    A change that means to change a spec rewrites the file, and says so.
+    """
+    from runner.scenario.limits import MachineLimits
+    from runner.scenario.loader import parse_scenario
+
+    with open(os.path.join(REPO, "tests", "golden", "spec_hashes.json")) as handle:
+        recorded = json.load(handle)
+    machine = MachineLimits(cpus=(0, 1), online=(0, 1))
+    paths = sorted(glob.glob(os.path.join(SCENARIOS, "*.yaml")) + glob.glob(os.path.join(REPO, "tests", "valid", "*.yaml")))
+    ours = {}
+    for path in paths:
+        loaded = parse_scenario(load_file(path), machine, for_run=False)
+        ours[os.path.relpath(path, REPO)] = {c.id: c.spec_hash for c in loaded.cells}
+    assert ours == recorded

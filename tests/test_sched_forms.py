@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 
 import pytest
-from pydantic import ValidationError
 
 from runner.scenario.model import POLICY_PATTERN, SCHED_PATTERN, Policy, Sched, policy_pattern
+from runner.scenario.typed import Invalid
 
 
 @pytest.mark.parametrize(
@@ -27,7 +27,7 @@ from runner.scenario.model import POLICY_PATTERN, SCHED_PATTERN, Policy, Sched, 
     ],
 )
 def test_text_forms(text, policy, priority, nice):
-    sched = Sched.model_validate(text)
+    sched = Sched.parse(text)
     assert (sched.policy, sched.priority, sched.nice) == (policy, priority, nice)
     assert re.fullmatch(SCHED_PATTERN, text)
 
@@ -43,14 +43,14 @@ def test_text_forms(text, policy, priority, nice):
     ],
 )
 def test_deadline_text_forms(text, runtime, deadline, period):
-    sched = Sched.model_validate(text)
+    sched = Sched.parse(text)
     assert (sched.policy, sched.runtime, sched.deadline, sched.period) == (Policy.DEADLINE, runtime, deadline, period)
     assert re.fullmatch(SCHED_PATTERN, text)
 
 
 @pytest.mark.parametrize("policy", ["SCHED_FIFO", "FIFO", "fifo", "Fifo"])
 def test_mapping_policy_words(policy):
-    assert Sched.model_validate({"policy": policy, "priority": 80}).policy is Policy.FIFO
+    assert Sched.parse({"policy": policy, "priority": 80}).policy is Policy.FIFO
     assert re.fullmatch(POLICY_PATTERN, policy) and re.fullmatch(policy_pattern("fifo"), policy)
 
 
@@ -75,7 +75,7 @@ def test_mapping_policy_words(policy):
     ],
 )
 def test_refused_text_forms_say_what_to_write(text, message):
-    with pytest.raises(ValidationError) as caught:
-        Sched.model_validate(text)
+    with pytest.raises(Invalid) as caught:
+        Sched.parse(text)
     assert message in str(caught.value)
     assert not re.fullmatch(SCHED_PATTERN, text)  # and the schema refuses it too

@@ -51,15 +51,15 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    GetPydanticSchema,
     NonNegativeInt,
     PlainSerializer,
-    SerializerFunctionWrapHandler,
     StrictStr,
     WithJsonSchema,
-    WrapSerializer,
     computed_field,
 )
 from pydantic.json_schema import SkipJsonSchema
+from pydantic_core import core_schema
 
 from runner import __version__, units
 from runner import figures as fg
@@ -254,16 +254,63 @@ class ThreadHistograms(_Record):
     callback_wall: Optional[Histogram] = Field(None, description="wake to end of each callback, in ns")
 
 
-def _settings_out(value: Settings, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+def _cpus_in(value: Any) -> Any:
+    """`all` is every CPU (None); any other text is a CPU list (`0-1,3`)."""
+    return None if value == "all" else units.parse_cpu_list(value)
+
+
+def _cpus_out(cpus: Optional[tuple[int, ...]]) -> str:
+    return "all" if cpus is None else units.format_cpus(cpus)
+
+
+AffinityCpus = Annotated[
+    Optional[tuple[int, ...]],
+    BeforeValidator(_cpus_in),
+    PlainSerializer(_cpus_out, return_type=str),
+    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`", "examples": ["all", "0-1,3"]}),
+]
+
+
+class _SettingsRecord(BaseModel):
+    """How a file writes a thread's settings (`runner.scenario.plan.Settings`), read back: its fields, the CPUs as a list."""
+
+    policy: Policy = Policy.OTHER
+    priority: int = 0
+    nice: int = 0
+    cpus: AffinityCpus = None
+    runtime: int = 0
+    deadline: int = 0
+    period: int = 0
+
+
+def _settings_in(record: _SettingsRecord) -> Settings:
+    return Settings(**{f: getattr(record, f) for f in _SettingsRecord.model_fields})
+
+
+def _settings_out(value: Settings) -> dict[str, Any]:
     """Settings as stored: the SCHED_DEADLINE parameters only for deadline threads, so other records read as before."""
-    data: dict[str, Any] = handler(value)
+    data: dict[str, Any] = {f: getattr(value, f) for f in _SettingsRecord.model_fields}
+    data["policy"] = value.policy.value
+    data["cpus"] = _cpus_out(value.cpus)
     if value.policy is not Policy.DEADLINE:
         for key in ("runtime", "deadline", "period"):
             data.pop(key, None)
     return data
 
 
-StoredSettings = Annotated[Settings, WrapSerializer(_settings_out)]
+StoredSettings = Annotated[
+    Settings,
+    GetPydanticSchema(
+        lambda _tp, handler: core_schema.union_schema(
+            [
+                core_schema.is_instance_schema(Settings),  # made by the run
+                core_schema.no_info_after_validator_function(_settings_in, handler(_SettingsRecord)),  # read from a file
+            ],
+            mode="left_to_right",
+            serialization=core_schema.plain_serializer_function_ser_schema(_settings_out, return_schema=core_schema.dict_schema()),
+        )
+    ),
+]
 """A thread's settings in results.json: `{policy, priority, nice, cpus}`, plus `runtime, deadline, period` (ns) for deadline."""
 
 

@@ -736,7 +736,7 @@ class _CellRun:
     def __init__(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend):
         self.cell, self.folder, self.options = cell, folder, options
         self.watchdog, self.guard, self.traces, self.zygote = shared.watchdog, shared.guard, shared.traces, shared.zygote
-        self.scenario = cell.scenario.model_copy(update={"duration": options.duration_ns})
+        self.scenario = cell.scenario.replace(duration=options.duration_ns)
         os.makedirs(folder, exist_ok=True)
         self.began = time.monotonic()
         self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")

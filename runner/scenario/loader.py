@@ -21,8 +21,6 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import TypeAdapter, ValidationError
-
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.figures import Scope
 from runner.scenario import limits as lim
@@ -41,6 +39,7 @@ from runner.scenario.model import (
     workers,
 )
 from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_released, plan_process
+from runner.scenario.typed import Invalid, parse
 from runner.scenario.validate import problems_from, written_path
 from runner.scenario.yamlsource import Document, Mark, load_file, load_text
 
@@ -75,9 +74,12 @@ class LoadedScenario:
         return self.cells[0].scenario.description
 
 
+_NOT_SPEC = frozenset({"description", "matrix", "expect"})
+
+
 def spec_json(scenario: Scenario) -> dict[str, Any]:
     """What defines a resolved cell's run: everything but its description, matrix and expectations."""
-    return scenario.model_dump(mode="json", exclude={"description", "matrix", "expect"})
+    return scenario.dump(exclude=_NOT_SPEC)
 
 
 def spec_hash(scenario: Scenario) -> str:
@@ -94,12 +96,10 @@ def source_hash(data: Any) -> str:
 
 def expect_hash(cells: list[ResolvedCell]) -> str:
     """A short content hash of the expectations that judge each cell, to refuse resuming a run under changed ones."""
-    judged = [(c.id, [c.scenario.expect[i].model_dump(mode="json") for i in expectations_for(c.scenario, c)]) for c in cells]
+    judged = [(c.id, [c.scenario.expect[i].dump() for i in expectations_for(c.scenario, c)]) for c in cells]
     return hashlib.sha256(json.dumps(judged, sort_keys=True).encode()).hexdigest()[:16]
 
 
-_PROCESS: TypeAdapter[AnyProcess] = TypeAdapter(AnyProcess)
-_RESOURCES = TypeAdapter(dict[str, Resource])
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
 
 
@@ -200,9 +200,9 @@ def _check_cell(
         cell_problems.append(doc.problem(path, f"'${{{{ {expr} }}}}' has no value in this cell"))
     context = validation_context(machine)
     try:
-        scenario = Scenario.model_validate(raw, context=context)
-    except ValidationError as exc:
-        cell_problems.extend(problems_from(exc, doc, raw, Scenario))
+        scenario = Scenario.parse(raw, context)
+    except Invalid as exc:
+        cell_problems.extend(problems_from(exc, doc, raw))
         cell_problems.extend(_partial_cross_checks(doc, raw, index, context))
         return None, cell_problems, ""
     cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index, scenario.resources))
@@ -246,20 +246,20 @@ def _partial_cross_checks(doc: Document, raw: dict[str, Any], index: MatrixIndex
     invalid: set[str] = set()  # the names the invalid processes are written with
     for i, item in enumerate(written):
         try:
-            processes.append(_PROCESS.validate_python(item, context=context))
+            processes.append(parse(AnyProcess, item, context))
             at.append(i)
-        except ValidationError:
+        except Invalid:
             if isinstance(item, dict) and isinstance(item.get("name"), str):
                 invalid.add(item["name"])
     expectations = []
     for i, item in enumerate(raw.get("expect") or [] if isinstance(raw.get("expect"), list) else []):
         try:
-            expectations.append((i, Expectation.model_validate(item)))
-        except ValidationError:
+            expectations.append((i, Expectation.parse(item)))
+        except Invalid:
             continue
     try:
-        resources: dict[str, Resource] | None = _RESOURCES.validate_python(raw.get("resources") or {})
-    except ValidationError:
+        resources: dict[str, Resource] | None = parse(dict[str, Resource], raw.get("resources") or {})
+    except Invalid:
         resources = None  # its own problems are reported; references to it cannot be checked
     complete = len(processes) == len(written)
     return _cross_checks(doc, processes, expectations, index, resources if complete else None, at, None if complete else frozenset(invalid))

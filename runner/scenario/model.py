@@ -1,9 +1,9 @@
 """The scenario model: what a scenario can say, as typed, validated objects.
 
 One cell of a scenario (matrix values already substituted) validates into a
-`Scenario`.  Everything here is pure: pydantic models with enums and integer units
-(nanoseconds, bytes), no I/O.  The same models export the JSON Schema that editors
-use to autocomplete and underline scenario files (`runner schema`).
+`Scenario`.  Everything here is pure: typed models (runner.scenario.typed) with enums and
+integer units (nanoseconds, bytes), no I/O.  The same models export the JSON Schema that
+editors use to autocomplete and underline scenario files (`runner schema`).
 """
 
 from __future__ import annotations
@@ -14,30 +14,11 @@ import os
 import re
 import unicodedata
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Optional, Union
-
-from pydantic import (
-    BaseModel,
-    BeforeValidator,
-    ConfigDict,
-    Discriminator,
-    Field,
-    ModelWrapValidatorHandler,
-    PlainSerializer,
-    PrivateAttr,
-    SerializerFunctionWrapHandler,
-    StrictBool,
-    StrictInt,
-    Tag,
-    ValidationInfo,
-    WithJsonSchema,
-    field_validator,
-    model_serializer,
-    model_validator,
-)
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
 from runner import figures, units
 from runner.errors import did_you_mean
+from runner.scenario.typed import Context, Field, KeyProblem, Model, Schema, Tagged, Written
 
 COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
 
@@ -69,44 +50,25 @@ CPUS_CONTEXT = "cpus"
 """Key of the validation context holding the CPUs `count: cpus` and `pin: each` resolve against."""
 
 
-class KeyProblem(ValueError):
-    """A problem a model validator finds that belongs at one key of the object it checks.
-
-    A rule spanning several fields (`priospread` with `count` and `sched`) can only be checked
-    once they are all validated, on the whole object; raising this instead of a plain ValueError
-    lets the validator's report point at the key to change (its line), not at the object.
-    """
-
-    def __init__(self, key: str | tuple[str | int, ...], message: str) -> None:
-        super().__init__(message)
-        self.key = key
-
-    @property
-    def path(self) -> tuple[str | int, ...]:
-        """The key, or the path below the object (`("events", 2)`), the problem belongs at."""
-        return self.key if isinstance(self.key, tuple) else (self.key,)
-
-
-def context_cpus(info: Optional[ValidationInfo]) -> tuple[int, ...]:
-    """The CPUs per-CPU counts and pinning resolve against: the validation context's, else the runner's affinity.
+def context_cpus(context: Context) -> tuple[int, ...]:
+    """The CPUs per-CPU counts and pinning resolve against: the checking context's, else the runner's affinity.
 
     The loader passes this machine's CPUs (read once with its other limits) so that the model
-    stays pure and tests can pretend to be a 4-CPU machine; a model validated without them
+    stays pure and tests can pretend to be a 4-CPU machine; a model checked without them
     (a script, a test of one model) falls back to the CPUs this process may use, as hogs did.
     """
-    context = info.context if info is not None else None
-    if isinstance(context, dict) and context.get(CPUS_CONTEXT):
+    if context is not None and context.get(CPUS_CONTEXT):
         return tuple(context[CPUS_CONTEXT])
     return tuple(sorted(os.sched_getaffinity(0)))
 
 
 def _unit(parse: Any, ceiling: int | None = None, fmt: Any = None) -> Any:
-    """A pydantic before-validator parsing a unit value, refusing values above `ceiling`.
+    """The reader of a value written with a unit, refusing values above `ceiling`.
 
     Durations need no ceiling here: every duration field has its own range check.
     """
 
-    def check(value: Any) -> Any:
+    def check(value: Any, context: Context = None) -> Any:
         try:
             parsed = parse(value)
         except units.UnitError as exc:
@@ -156,43 +118,26 @@ _CPUS_SCHEMA = {
 }
 
 
-def _cpus(value: Any, info: ValidationInfo) -> Any:
-    """A CPU set as written; `all` is every CPU the runner may use (the validation context's, see context_cpus)."""
+def _cpus(value: Any, context: Context) -> Any:
+    """A CPU set as written; `all` is every CPU the runner may use (the checking context's, see context_cpus)."""
     try:
-        return units.parse_cpus(value, context_cpus(info))
+        return units.parse_cpus(value, context_cpus(context))
     except units.UnitError as exc:
         raise ValueError(str(exc)) from None
 
 
-Duration = Annotated[
-    int,
-    BeforeValidator(_unit(units.parse_duration)),
-    PlainSerializer(units.format_duration, return_type=str),
-    WithJsonSchema(_DURATION_SCHEMA),
-]
+Duration = Annotated[int, Written(_unit(units.parse_duration), units.format_duration, _DURATION_SCHEMA)]
 """A duration in nanoseconds, written with a unit (`100ms`)."""
 
-Size = Annotated[
-    int,
-    BeforeValidator(_unit(units.parse_size, MAX_ANY_SIZE, units.format_size)),
-    PlainSerializer(units.format_size, return_type=str),
-    WithJsonSchema(_SIZE_SCHEMA),
-]
+Size = Annotated[int, Written(_unit(units.parse_size, MAX_ANY_SIZE, units.format_size), units.format_size, _SIZE_SCHEMA)]
 """A size in bytes, written with a unit (`50MiB`)."""
 
-CpuSet = Annotated[
-    tuple[int, ...],
-    BeforeValidator(_cpus),
-    PlainSerializer(units.format_cpus, return_type=str),
-    WithJsonSchema(_CPUS_SCHEMA),
-]
+CpuSet = Annotated[tuple[int, ...], Written(_cpus, units.format_cpus, _CPUS_SCHEMA)]
 """A set of CPU numbers, written as a list, a cpulist `0-1,3` / `0-7:2` / `all`, or a mask `0b1100`."""
 
 
-class Strict(BaseModel):
+class Strict(Model):
     """Base of every scenario model: unknown keys are errors, objects are immutable."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, use_enum_values=False)
 
 
 class Policy(str, enum.Enum):
@@ -347,38 +292,37 @@ def _not_an_rt_policy(policy: Policy, priority: int) -> str:
 class Sched(Strict):
     """Scheduling settings: a policy with its RT priority (fifo, rr) or nice value (other, batch)."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": ["fifo:80", "SCHED_RR", {"policy": "other", "nice": -5}]})
-
     policy: Policy = Field(description="other, batch, idle, fifo, rr or deadline (SCHED_ prefix and upper case accepted)")
-    priority: Optional[StrictInt] = Field(None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
-    nice: Optional[StrictInt] = Field(None, ge=-20, le=19, description="nice value -20..19 for other and batch")
-    runtime: Optional[Duration] = Field(None, description="deadline: CPU time granted every period (sched_runtime)")
-    deadline: Optional[Duration] = Field(None, description="deadline: relative deadline (default: the period, as rt-app)")
-    period: Optional[Duration] = Field(None, description="deadline: period (default: the runtime, as rt-app)")
-    util_min: Optional[StrictInt] = Field(None, ge=0, le=1024, description="uclamp minimum utilisation 0..1024 (kernels with uclamp)")
-    util_max: Optional[StrictInt] = Field(None, ge=0, le=1024, description="uclamp maximum utilisation 0..1024 (kernels with uclamp)")
+    priority: Optional[int] = Field(default=None, description="RT priority 1..99 for fifo and rr; 0 or absent otherwise")
+    nice: Optional[int] = Field(default=None, ge=-20, le=19, description="nice value -20..19 for other and batch")
+    runtime: Optional[Duration] = Field(default=None, description="deadline: CPU time granted every period (sched_runtime)")
+    deadline: Optional[Duration] = Field(default=None, description="deadline: relative deadline (default: the period, as rt-app)")
+    period: Optional[Duration] = Field(default=None, description="deadline: period (default: the runtime, as rt-app)")
+    util_min: Optional[int] = Field(default=None, ge=0, le=1024, description="uclamp minimum utilisation 0..1024 (kernels with uclamp)")
+    util_max: Optional[int] = Field(default=None, ge=0, le=1024, description="uclamp maximum utilisation 0..1024 (kernels with uclamp)")
 
-    @model_serializer(mode="wrap")
-    def _without_unset(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    @classmethod
+    def _schema(cls, schema: dict[str, Any]) -> None:
+        schema["examples"] = ["fifo:80", "SCHED_RR", {"policy": "other", "nice": -5}]
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
         """Leave the deadline and uclamp keys out while unset, so a cell's spec hash reads as before they existed."""
-        data: dict[str, Any] = handler(self)
         for key in ("runtime", "deadline", "period", "util_min", "util_max"):
             if getattr(self, key) is None:
                 data.pop(key, None)
         return data
 
-    @model_validator(mode="before")
     @classmethod
-    def _shorthand(cls, value: Any) -> Any:
+    def _before(cls, value: Any, context: Context) -> Any:
         return _sched_shorthand(value)
 
-    @model_validator(mode="after")
-    def _consistent(self) -> Sched:
+    def _after(self, written: Any, context: Context) -> None:
         policy = self.policy
         if self.util_min is not None and self.util_max is not None and self.util_min > self.util_max:
             raise ValueError(f"util_min {self.util_min} is above util_max {self.util_max}")
         if policy is Policy.DEADLINE:
-            return self._deadline_consistent()
+            self._deadline_consistent()
+            return
         if self.runtime is not None or self.deadline is not None or self.period is not None:
             raise ValueError(f"runtime, deadline and period are for policy deadline, not {policy.value}")
         if policy.is_realtime:
@@ -392,9 +336,8 @@ class Sched(Strict):
             raise ValueError(_not_an_rt_policy(policy, self.priority))
         elif policy is Policy.IDLE and self.nice not in (None, 0):
             raise ValueError("policy idle takes no nice value")
-        return self
 
-    def _deadline_consistent(self) -> Sched:
+    def _deadline_consistent(self) -> None:
         """SCHED_DEADLINE: runtime <= deadline <= period, defaults as rt-app (period = runtime, deadline = period)."""
         if self.runtime is None:
             raise ValueError(
@@ -416,7 +359,6 @@ class Sched(Strict):
             raise ValueError(f"period {units.format_duration(period)} is too long; at most {units.format_duration(MAX_PERIOD)}")
         object.__setattr__(self, "period", period)  # frozen: the resolved defaults are set once, while validating
         object.__setattr__(self, "deadline", deadline)
-        return self
 
     @property
     def rt_priority(self) -> int:
@@ -460,25 +402,22 @@ class PeriodicWork(Strict):
 
     kind: Literal["periodic"] = "periodic"
     period: Duration = Field(description="time between callback releases")
-    burn: Duration = Field(0, description="CPU time burned per callback (0: wake-up only, as cyclictest)")
-    burn_clock: BurnClock = Field(BurnClock.THREAD_CPU, description="thread_cpu (the seed's burn) or wall")
-    alloc: Size = Field(0, description="memory to allocate, touch page by page and free per callback")
-    offset: Duration = Field(0, description="delay of the first release after the common start")
+    burn: Duration = Field(default=0, description="CPU time burned per callback (0: wake-up only, as cyclictest)")
+    burn_clock: BurnClock = Field(default=BurnClock.THREAD_CPU, description="thread_cpu (the seed's burn) or wall")
+    alloc: Size = Field(default=0, description="memory to allocate, touch page by page and free per callback")
+    offset: Duration = Field(default=0, description="delay of the first release after the common start")
     wait: Wait = Field(
-        Wait.SLEEP,
+        default=Wait.SLEEP,
         description="sleep: clock_nanosleep to each release; spin: busy-wait on the clock (short periods; the CPU is never given up)",
     )
 
-    @model_serializer(mode="wrap")
-    def _without_default_wait(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _dumped(self, data: dict[str, Any]) -> Any:
         """Leave `wait` out while it is the default, so a cell's spec hash reads as before it existed: old baselines still compare."""
-        data: dict[str, Any] = handler(self)
         if self.wait is Wait.SLEEP:
             data.pop("wait", None)
         return data
 
-    @model_validator(mode="after")
-    def _fits(self) -> PeriodicWork:
+    def _after(self, written: Any, context: Context) -> None:
         if self.period < MIN_PERIOD:
             raise ValueError(f"period {units.format_duration(self.period)} is too short; at least {units.format_duration(MIN_PERIOD)}")
         if self.period > MAX_PERIOD:
@@ -493,7 +432,6 @@ class PeriodicWork(Strict):
                 f"burn {units.format_duration(self.burn)} does not fit in period {units.format_duration(self.period)};"
                 " use kind: spin for a thread that never sleeps"
             )
-        return self
 
 
 class SpinWork(Strict):
@@ -676,16 +614,8 @@ def _event_schema() -> dict[str, Any]:
     }
 
 
-def _written_form(schema: dict[str, Any]) -> None:
-    """Replace the typed form's schema by the written one (pydantic passes the schema to edit in place)."""
-    schema.clear()
-    schema.update(_event_schema())
-
-
 class Event(Strict):
     """One step of a program, written `{run: 200us}`, `{lock: name}`, `{timer: {period: 1ms}}` or `yield`."""
-
-    model_config = ConfigDict(json_schema_extra=lambda schema, cls: _written_form(schema))
 
     event: EventKind
     duration: Optional[Duration] = None
@@ -693,18 +623,22 @@ class Event(Strict):
     resource: Optional[str] = None
     cond: Optional[str] = None
     mutex: Optional[str] = None
-    timer: Optional[str] = Field(None, description="a named timer of resources")
+    timer: Optional[str] = Field(default=None, description="a named timer of resources")
     period: Optional[Duration] = None
     overrun: Optional[Overrun] = None
-    thread: Optional[str] = Field(None, description="spawn: a thread of the same process declared with spawned: true")
+    thread: Optional[str] = Field(default=None, description="spawn: a thread of the same process declared with spawned: true")
 
-    @model_validator(mode="before")
     @classmethod
-    def _shorthand(cls, value: Any) -> Any:
+    def _schema(cls, schema: dict[str, Any]) -> None:
+        """How events are written, not the typed form the model keeps."""
+        schema.clear()
+        schema.update(_event_schema())
+
+    @classmethod
+    def _before(cls, value: Any, context: Context) -> Any:
         return _event_shorthand(value)
 
-    @model_validator(mode="after")
-    def _complete(self) -> Event:
+    def _after(self, written: Any, context: Context) -> None:
         kind = self.event
         if kind is EventKind.WAIT and (self.cond is None or self.mutex is None):
             raise ValueError(f"wait needs both a cond and a mutex, e.g. {_EVENT_EXAMPLES['wait']}")
@@ -726,10 +660,8 @@ class Event(Strict):
             )
         if kind in (EventKind.MEM, EventKind.IORUN) and self.size is not None and self.size > MAX_MEM_EVENT:
             raise ValueError(f"{kind.value} {units.format_size(self.size)} is too large; at most {units.format_size(MAX_MEM_EVENT)}")
-        return self
 
-    @model_serializer(mode="plain")
-    def _compact(self) -> Any:
+    def _dumped(self, data: dict[str, Any]) -> Any:
         """The event as written: `{run: 200us}`, `yield`, `{wait: {cond: c, mutex: m}}` (what the spec hash covers)."""
         kind = self.event
         takes = kind.takes
@@ -781,14 +713,13 @@ class Event(Strict):
 class Phase(Strict):
     """A named, ordered list of events run `loop` times, with scheduling and CPUs applied when it is entered."""
 
-    name: Optional[str] = Field(None, description="phase name (default p0, p1, ...)")
-    loop: StrictInt = Field(1, ge=1, le=1 << 40, description="passes over the events before the next phase")
-    sched: Optional[Sched] = Field(None, description="scheduling applied when the phase is entered")
-    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied when the phase is entered")
-    events: list[Event] = Field(min_length=1, description="what the phase does, in order")
+    name: Optional[str] = Field(default=None, description="phase name (default p0, p1, ...)")
+    loop: int = Field(default=1, ge=1, le=1 << 40, description="passes over the events before the next phase")
+    sched: Optional[Sched] = Field(default=None, description="scheduling applied when the phase is entered")
+    cpus: Optional[CpuSet] = Field(default=None, description="CPU affinity applied when the phase is entered")
+    events: list[Event] = Field(min_items=1, description="what the phase does, in order")
 
-    @model_validator(mode="after")
-    def _balanced(self) -> Phase:
+    def _after(self, written: Any, context: Context) -> None:
         """Locks balance within the phase, and a wait holds its mutex: what pthreads would refuse or deadlock on."""
         held: list[str] = []
         for i, ev in enumerate(self.events):
@@ -806,7 +737,6 @@ class Phase(Strict):
                 raise KeyProblem(("events", i), f"wait on {ev.cond} needs its mutex {ev.mutex} held; add {{lock: {ev.mutex}}} before it")
         if held:
             raise KeyProblem("events", f"the phase ends holding {', '.join(held)}; unlock in the same phase (a phase may loop)")
-        return self
 
 
 def _phases_shorthand(value: Any) -> Any:
@@ -823,17 +753,15 @@ class PhasesWork(Strict):
     """A program as rt-app writes one: phases of events, looped, with per-phase scheduling.  Runs in the native core."""
 
     kind: Literal["phases"] = "phases"
-    delay: Duration = Field(0, description="start this long after the common start")
-    loop: StrictInt = Field(0, ge=0, le=1 << 40, description="passes over all phases; 0: until the run ends")
-    phases: list[Phase] = Field(min_length=1, description="the phases, in order (or write events: for one phase)")
+    delay: Duration = Field(default=0, description="start this long after the common start")
+    loop: int = Field(default=0, ge=0, le=1 << 40, description="passes over all phases; 0: until the run ends")
+    phases: list[Phase] = Field(min_items=1, description="the phases, in order (or write events: for one phase)")
 
-    @model_validator(mode="before")
     @classmethod
-    def _shorthand(cls, value: Any) -> Any:
+    def _before(cls, value: Any, context: Context) -> Any:
         return _phases_shorthand(value)
 
-    @model_validator(mode="after")
-    def _fits(self) -> PhasesWork:
+    def _after(self, written: Any, context: Context) -> None:
         if self.delay > MAX_OFFSET:
             raise KeyProblem("delay", f"delay {units.format_duration(self.delay)} is too long; at most {units.format_duration(MAX_OFFSET)}")
         if len(self.phases) > MAX_PHASES:
@@ -845,7 +773,6 @@ class PhasesWork(Strict):
         for i, name in enumerate(names):
             if names.index(name) != i:
                 raise KeyProblem(("phases", i, "name"), f"phase name {name!r} is used twice in this thread")
-        return self
 
     def phase_names(self) -> list[str]:
         return [p.name or f"p{i}" for i, p in enumerate(self.phases)]
@@ -891,12 +818,11 @@ class Resource(Strict):
     """A synchronisation object or a named timer, declared once and shared by every thread that names it."""
 
     kind: ResourceKind
-    protocol: Protocol = Field(Protocol.NONE, description="mutex: none, or inherit (priority inheritance)")
-    period: Optional[Duration] = Field(None, description="timer: the period of its release grid")
-    overrun: Overrun = Field(Overrun.SKIP, description="timer: skip, rebase or catchup on a late release")
+    protocol: Protocol = Field(default=Protocol.NONE, description="mutex: none, or inherit (priority inheritance)")
+    period: Optional[Duration] = Field(default=None, description="timer: the period of its release grid")
+    overrun: Overrun = Field(default=Overrun.SKIP, description="timer: skip, rebase or catchup on a late release")
 
-    @model_validator(mode="after")
-    def _consistent(self) -> Resource:
+    def _after(self, written: Any, context: Context) -> None:
         if self.kind is ResourceKind.TIMER:
             if self.period is None:
                 raise ValueError("a timer needs a period, e.g. {kind: timer, period: 10ms}")
@@ -910,20 +836,15 @@ class Resource(Strict):
             raise KeyProblem("period", f"period is for timers, not a {self.kind.value}")
         if self.protocol is not Protocol.NONE and self.kind is not ResourceKind.MUTEX:
             raise KeyProblem("protocol", f"protocol is for mutexes, not a {self.kind.value}")
-        return self
 
 
-def _work_shorthand(value: Any) -> Any:
+def _work_shorthand(value: Any, context: Context) -> Any:
     if isinstance(value, str):
         return {"kind": value}
     return value
 
 
-Work = Annotated[
-    Union[PeriodicWork, SpinWork, SleepWork, PhasesWork],
-    Field(discriminator="kind"),
-    BeforeValidator(_work_shorthand),
-]
+Work = Annotated[Union[PeriodicWork, SpinWork, SleepWork, PhasesWork], Tagged(key="kind"), Written(_work_shorthand)]
 """What a thread runs; `kind` selects it."""
 
 
@@ -945,6 +866,13 @@ def _check_comm(name: str) -> str:
     return name
 
 
+def _per_cpu_asked(value: Any) -> tuple[bool, bool]:
+    """Whether a thread spec as written asks for one thread per CPU (`count: cpus`), and to pin each (`pin: each`)."""
+    if not isinstance(value, dict):
+        return False, False
+    return value.get("count") == "cpus", value.get("pin") in (Pin.EACH, Pin.EACH.value)
+
+
 class ApplyWhen(str, enum.Enum):
     """When the main thread applies its settings, relative to creating its threads."""
 
@@ -955,10 +883,10 @@ class ApplyWhen(str, enum.Enum):
 class MainThread(Strict):
     """The process's main thread (named as the process): its settings, when it applies them, and its work."""
 
-    sched: Optional[Sched] = Field(None, description="scheduling settings of the main thread")
-    cpus: Optional[CpuSet] = Field(None, description="CPU affinity of the main thread")
+    sched: Optional[Sched] = Field(default=None, description="scheduling settings of the main thread")
+    cpus: Optional[CpuSet] = Field(default=None, description="CPU affinity of the main thread")
     apply: ApplyWhen = Field(
-        ApplyWhen.BEFORE_THREADS,
+        default=ApplyWhen.BEFORE_THREADS,
         description="before_threads: threads created later inherit (chrt, middleware_threads); "
         "after_threads: they keep the old settings (main_thread)",
     )
@@ -989,86 +917,83 @@ class ThreadSpec(Strict):
     """A thread created by the main thread, in declared order; with `count`, that many such threads."""
 
     name: str = Field(description="thread name, 15 bytes at most (with count: N, names get -0, -1, ...; with pin: each, the CPU)")
-    count: StrictInt = Field(
-        1,
+    count: int = Field(
+        default=1,
         ge=1,
         le=MAX_THREAD_COUNT,
         description="how many such threads; 'cpus': one per CPU of cpus, or per CPU the runner may use (cyclictest -t)",
     )
-    inherit: StrictBool = Field(
-        True,
+    inherit: bool = Field(
+        default=True,
         description="true: start with the creator's settings (PTHREAD_INHERIT_SCHED); false: start with "
         "explicit defaults (SCHED_OTHER, nice 0, all CPUs) as PTHREAD_EXPLICIT_SCHED does",
     )
-    sched: Optional[Sched] = Field(None, description="settings the thread applies to itself when it starts")
+    sched: Optional[Sched] = Field(default=None, description="settings the thread applies to itself when it starts")
     cpus: Optional[CpuSet] = Field(
-        None,
+        default=None,
         description="CPU affinity the thread applies to itself when it starts; with pin: each, the CPUs to pin to "
         "(default: every CPU the runner may use)",
     )
     pin: Optional[Pin] = Field(
-        None,
+        default=None,
         description="each: thread i is pinned to the i-th CPU of cpus alone and named by it (cyclictest -t -a)",
     )
     work: Work = Field(default_factory=SleepWork)
-    priospread: StrictBool = Field(
-        False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
+    priospread: bool = Field(
+        default=False, description="thread i runs at sched's RT priority minus i (cyclictest --priospread); the last must stay at 1 or more"
     )
-    distance: Duration = Field(0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
-    spawned: StrictBool = Field(
-        False,
+    distance: Duration = Field(default=0, description="thread i's period is the work's period plus i times distance (cyclictest -d)")
+    spawned: bool = Field(
+        default=False,
         description="created mid-run by a spawn event of another thread of this process (rt-app's fork), not at the start; "
         "count is how many can be spawned (a spawn beyond it is counted as dropped); needs kind: phases work",
     )
 
-    _per_cpu: bool = PrivateAttr(False)
-    _machine_cpus: Optional[tuple[int, ...]] = PrivateAttr(None)
+    # set on each model while checking (see _after), not keys of the file
+    _per_cpu: ClassVar[bool] = False  # the file wrote `count: cpus`
+    _machine_cpus: ClassVar[Optional[tuple[int, ...]]] = None  # the machine's CPUs, when count or pinning was resolved against them
 
-    @model_validator(mode="wrap")
     @classmethod
-    def _per_cpu_count(cls, value: Any, handler: ModelWrapValidatorHandler[ThreadSpec], info: ValidationInfo) -> ThreadSpec:
-        """Resolve `count: cpus` (and `pin: each` without cpus) against the CPUs of the machine, then check the spread.
+    def _before(cls, value: Any, context: Context) -> Any:
+        """Resolve `count: cpus` (and `pin: each` without cpus) against the CPUs of the machine.
 
         The resolved count and CPUs are what the model keeps (and what a cell's spec hash covers):
         the same file makes 2 threads on a 2-CPU machine and 8 on an 8-CPU one.
         """
         if not isinstance(value, dict):
-            return handler(value)
-        per_cpu = value.get("count") == "cpus"
-        pinned = value.get("pin") in (Pin.EACH, Pin.EACH.value)
-        machine: Optional[tuple[int, ...]] = None
+            return value
+        per_cpu, pinned = _per_cpu_asked(value)
         if per_cpu or (pinned and value.get("cpus") is None):
             value = dict(value)
-            chosen = machine = context_cpus(info)
+            chosen = machine = context_cpus(context)
             if value.get("cpus") is not None:
                 try:
-                    chosen, machine = units.parse_cpus(value["cpus"], machine), None
+                    chosen = units.parse_cpus(value["cpus"], machine)
                 except units.UnitError:
                     pass  # the cpus key reports its own problem; count it as the machine's CPUs meanwhile
             elif pinned:
                 value["cpus"] = list(machine)
             if per_cpu:
                 value["count"] = len(chosen)
-        spec = handler(value)
-        spec._per_cpu, spec._machine_cpus = per_cpu, machine
-        spec._check_spread()
-        return spec
+        return value
 
-    @model_serializer(mode="wrap")
-    def _without_unused_spread(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _after(self, written: Any, context: Context) -> None:
+        """Note what was resolved against the machine, then check the names and the spread."""
+        per_cpu, pinned = _per_cpu_asked(written)
+        machine = context_cpus(context) if (per_cpu or pinned) and written.get("cpus") is None else None
+        object.__setattr__(self, "_per_cpu", per_cpu)
+        object.__setattr__(self, "_machine_cpus", machine)
+        for name in self.names():
+            _check_comm(name)
+        self._check_spread()
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
         """Leave pin, priospread and distance out while unused, so a cell's spec (and the hash results store
         and `compare` / `--resume` check) reads as it did before they existed: old baselines still compare."""
-        data: dict[str, Any] = handler(self)
         for key, unused in (("pin", None), ("priospread", False), ("distance", 0), ("spawned", False)):
             if getattr(self, key) == unused:
                 data.pop(key, None)
         return data
-
-    @model_validator(mode="after")
-    def _names_fit(self) -> ThreadSpec:
-        for name in self.names():
-            _check_comm(name)
-        return self
 
     def _check_spread(self) -> None:
         """The rules that span count, cpus, sched and work: one CPU per pinned thread, priorities >= 1, periods in range."""
@@ -1156,13 +1081,13 @@ class ThreadSpec(Strict):
         for i, name in enumerate(self.names()):
             sched = self.sched
             if self.priospread and sched is not None:
-                sched = sched.model_copy(update={"priority": sched.rt_priority - i})
+                sched = sched.replace(priority=sched.rt_priority - i)
             cpus = self.cpus
             if self.pin is Pin.EACH and cpus is not None:
                 cpus = (cpus[i],)
             work = self.work
             if self.distance and isinstance(work, PeriodicWork):
-                work = work.model_copy(update={"period": work.period + i * self.distance})
+                work = work.replace(period=work.period + i * self.distance)
             out.append(ThreadMember(name, sched, tuple(cpus) if cpus is not None else None, work))
         return out
 
@@ -1170,12 +1095,11 @@ class ThreadSpec(Strict):
 class Memory(Strict):
     """Memory settings of a process, as the seed's minimal_memory_lock applies them."""
 
-    lock: StrictBool = Field(False, description="mlockall(MCL_CURRENT|MCL_FUTURE) with glibc tuning (no mmap, no trim)")
-    prealloc: Size = Field(0, description="heap to reserve after locking: allocated, faulted in, and kept")
-    stack_size: Optional[Size] = Field(None, description="default stack size of threads the process creates")
+    lock: bool = Field(default=False, description="mlockall(MCL_CURRENT|MCL_FUTURE) with glibc tuning (no mmap, no trim)")
+    prealloc: Size = Field(default=0, description="heap to reserve after locking: allocated, faulted in, and kept")
+    stack_size: Optional[Size] = Field(default=None, description="default stack size of threads the process creates")
 
-    @model_validator(mode="after")
-    def _consistent(self) -> Memory:
+    def _after(self, written: Any, context: Context) -> None:
         if self.prealloc and not self.lock:
             raise KeyProblem("prealloc", "prealloc only keeps memory resident together with lock: true")
         if self.stack_size is not None and self.stack_size < MIN_STACK:
@@ -1184,23 +1108,20 @@ class Memory(Strict):
             raise KeyProblem(
                 "stack_size", f"stack_size {units.format_size(self.stack_size)} is too large; at most {units.format_size(MAX_STACK)}"
             )
-        return self
 
 
 class ProcessSpec(Strict):
     """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
 
-    name: str = Field(description="process name as ps shows it (COMMAND), 15 bytes at most")
-    instances: StrictInt = Field(1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
-    reset_on_fork: StrictBool = Field(
-        False,
+    name: str = Field(description="process name as ps shows it (COMMAND), 15 bytes at most", check=_check_comm)
+    instances: int = Field(default=1, ge=1, le=MAX_INSTANCES, description="how many copies of this process")
+    reset_on_fork: bool = Field(
+        default=False,
         description="start from SCHED_OTHER and nice >= 0 as SCHED_RESET_ON_FORK would, instead of inheriting the runner's settings",
     )
     memory: Memory = Field(default_factory=Memory)
     main: MainThread = Field(default_factory=MainThread)
     threads: list[ThreadSpec] = Field(default_factory=list, description="threads the main thread creates, in order")
-
-    _name = field_validator("name")(lambda cls, v: _check_comm(v))
 
     @property
     def main_name(self) -> str:
@@ -1212,7 +1133,7 @@ class ProcessSpec(Strict):
 
 
 def _argv_list(key: str) -> Any:
-    """A validator: `key` is a list of arguments, never a shell string (no shell runs it)."""
+    """A reader: `key` is a list of arguments, never a shell string (no shell runs it)."""
 
     def check(value: Any) -> Any:
         if isinstance(value, str):
@@ -1223,7 +1144,7 @@ def _argv_list(key: str) -> Any:
 
 
 def _argv_items(key: str) -> Any:
-    """A validator: the program (`key`[0]) is named and no argument holds a NUL byte, which exec cannot pass."""
+    """A check: the program (`key`[0]) is named and no argument holds a NUL byte, which exec cannot pass."""
 
     def check(value: list[str]) -> list[str]:
         if not value[0]:
@@ -1247,28 +1168,55 @@ MAX_GRACE = 60_000_000_000  # SIGTERM to SIGKILL: a program gets at most a minut
 MIN_MEMORY_MAX = 4 << 20  # below this the exec itself (the loader, libc) fails in the cgroup, not the program
 
 
+def _program_cwd(value: str) -> str:
+    if not value or "\x00" in value:
+        raise ValueError(f"cwd {value!r} is not a path")
+    return value
+
+
+def _program_env(value: dict[str, str]) -> dict[str, str]:
+    for key, text in value.items():
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", key):
+            raise ValueError(f"env: {key!r} is not a variable name; expected letters, digits and _, not starting with a digit")
+        if "\x00" in text:
+            raise ValueError(f"env: {key} contains a NUL byte, which no program can receive")
+    return value
+
+
+def _program_grace(value: int) -> int:
+    if value > MAX_GRACE:
+        raise ValueError(f"grace {units.format_duration(value)} is too long; at most {units.format_duration(MAX_GRACE)}")
+    return value
+
+
+def _program_memory_max(value: int) -> int:
+    if value < MIN_MEMORY_MAX:
+        raise ValueError(
+            f"memory_max {units.format_size(value)} is too small for any program to start; at least {units.format_size(MIN_MEMORY_MAX)}"
+        )
+    return value
+
+
+def _match_pattern(value: str) -> str:
+    """A thread rule's `match`: a name or shell pattern, not empty, without control characters."""
+    if not value:
+        raise ValueError("match is empty; expected a thread name or a pattern such as 'rt_sub*'")
+    char = control_character(value)
+    if char is not None:
+        raise ValueError(f"match {value!r} contains the control character {char!r}; thread names cannot hold one")
+    return value
+
+
 class ThreadRule(Strict):
     """Settings the runner gives the threads a program creates itself, chosen by name, the moment each appears."""
 
-    match: str = Field(description="thread name (comm) as a shell pattern: `ctl_loop`, `rt_sub*`, `worker-[0-3]`")
-    sched: Optional[Sched] = Field(None, description="scheduling applied to each matching thread")
-    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied to each matching thread")
+    match: str = Field(description="thread name (comm) as a shell pattern: `ctl_loop`, `rt_sub*`, `worker-[0-3]`", check=_match_pattern)
+    sched: Optional[Sched] = Field(default=None, description="scheduling applied to each matching thread")
+    cpus: Optional[CpuSet] = Field(default=None, description="CPU affinity applied to each matching thread")
 
-    @field_validator("match")
-    @classmethod
-    def _pattern(cls, value: str) -> str:
-        if not value:
-            raise ValueError("match is empty; expected a thread name or a pattern such as 'rt_sub*'")
-        char = control_character(value)
-        if char is not None:
-            raise ValueError(f"match {value!r} contains the control character {char!r}; thread names cannot hold one")
-        return value
-
-    @model_validator(mode="after")
-    def _does_something(self) -> ThreadRule:
+    def _after(self, written: Any, context: Context) -> None:
         if self.sched is None and self.cpus is None:
             raise KeyProblem("match", f"the rule for {self.match!r} sets nothing; give it sched, cpus or both")
-        return self
 
 
 class ProgramSpec(Strict):
@@ -1279,103 +1227,64 @@ class ProgramSpec(Strict):
     command) and per thread by name; everything is read back from the kernel.
     """
 
-    name: str = Field(description="the process's label in reports and expectations (`name/thread`), 15 bytes at most")
-    command: Annotated[list[str], BeforeValidator(_argv_list("command"))] = Field(
-        min_length=1, description="program and arguments as a list (never a shell string); the program is looked up in PATH"
+    name: str = Field(description="the process's label in reports and expectations (`name/thread`), 15 bytes at most", check=_check_comm)
+    command: list[str] = Field(
+        min_items=1,
+        before=_argv_list("command"),
+        check=_argv_items("command"),
+        description="program and arguments as a list (never a shell string); the program is looked up in PATH",
     )
-    cwd: Optional[str] = Field(None, description="working directory (default: the cell's folder)")
-    env: dict[str, str] = Field(default_factory=dict, description="environment variables added to the runner's")
-    sched: Optional[Sched] = Field(None, description="scheduling applied before exec: every thread the program creates inherits it")
-    cpus: Optional[CpuSet] = Field(None, description="CPU affinity applied before exec, inherited likewise")
-    reset_on_fork: StrictBool = Field(
-        False, description="set SCHED_RESET_ON_FORK before exec: threads and children the program creates start from SCHED_OTHER"
+    cwd: Optional[str] = Field(default=None, description="working directory (default: the cell's folder)", check=_program_cwd)
+    env: dict[str, str] = Field(default_factory=dict, description="environment variables added to the runner's", check=_program_env)
+    sched: Optional[Sched] = Field(default=None, description="scheduling applied before exec: every thread the program creates inherits it")
+    cpus: Optional[CpuSet] = Field(default=None, description="CPU affinity applied before exec, inherited likewise")
+    reset_on_fork: bool = Field(
+        default=False, description="set SCHED_RESET_ON_FORK before exec: threads and children the program creates start from SCHED_OTHER"
     )
     threads: list[ThreadRule] = Field(
         default_factory=list,
         description="settings for the program's own threads by name, applied as each appears (first match wins)",
     )
     until: Until = Field(
-        Until.END, description="end: stopped at the end of the cell; exit: the cell ends when it exits (duration is the limit)"
+        default=Until.END, description="end: stopped at the end of the cell; exit: the cell ends when it exits (duration is the limit)"
     )
-    grace: Duration = Field(1_000_000_000, description="time between SIGTERM and SIGKILL when the program is stopped")
+    grace: Duration = Field(
+        default=1_000_000_000, description="time between SIGTERM and SIGKILL when the program is stopped", check=_program_grace
+    )
     memory_max: Optional[Size] = Field(
-        None,
+        default=None,
         description="a memory limit for the program and all it starts, in a memory cgroup of its own (systemd's MemoryMax=, "
         "docker --memory): past it the kernel reclaims, then its OOM killer ends the program",
+        check=_program_memory_max,
     )
     output_limit: Size = Field(
-        OUTPUT_LIMIT,
+        default=OUTPUT_LIMIT,
         description="bytes of its stdout, and of its stderr, kept in NAME.stdout and NAME.stderr: what it writes beyond is "
         "counted and dropped, never held up (the results and a warning say how much); 0B keeps none, and there is no "
         "'unlimited' (a program that prints in a loop would fill the disk): write the size you need",
-        json_schema_extra={"default": units.format_size(OUTPUT_LIMIT)},  # as written, not in bytes: an editor offers it
     )
 
-    _name = field_validator("name")(lambda cls, v: _check_comm(v))
-    _items = field_validator("command")(lambda cls, v: _argv_items("command")(v))
-
-    @field_validator("cwd")
-    @classmethod
-    def _cwd(cls, value: Optional[str]) -> Optional[str]:
-        if value is not None and (not value or "\x00" in value):
-            raise ValueError(f"cwd {value!r} is not a path")
-        return value
-
-    @field_validator("env")
-    @classmethod
-    def _env(cls, value: dict[str, str]) -> dict[str, str]:
-        for key, text in value.items():
-            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", key):
-                raise ValueError(f"env: {key!r} is not a variable name; expected letters, digits and _, not starting with a digit")
-            if "\x00" in text:
-                raise ValueError(f"env: {key} contains a NUL byte, which no program can receive")
-        return value
-
-    @field_validator("grace")
-    @classmethod
-    def _grace(cls, value: int) -> int:
-        if value > MAX_GRACE:
-            raise ValueError(f"grace {units.format_duration(value)} is too long; at most {units.format_duration(MAX_GRACE)}")
-        return value
-
-    @field_validator("memory_max")
-    @classmethod
-    def _memory_max(cls, value: Optional[int]) -> Optional[int]:
-        if value is not None and value < MIN_MEMORY_MAX:
-            raise ValueError(
-                f"memory_max {units.format_size(value)} is too small for any program to start; at least {units.format_size(MIN_MEMORY_MAX)}"
-            )
-        return value
-
-    @model_validator(mode="after")
-    def _no_deadline(self) -> ProgramSpec:
+    def _after(self, written: Any, context: Context) -> None:
         if self.sched is not None and self.sched.policy is Policy.DEADLINE:
             raise KeyProblem(
                 "sched",
                 "a SCHED_DEADLINE process cannot create threads or children (the kernel refuses its clone); "
                 "give deadline to a thread rule (threads: - match: ...) instead",
             )
-        return self
 
     @property
     def main_name(self) -> str:
         return self.name
 
 
-PROGRAM_TAG, WORKERS_TAG = "[program]", "[threads]"
-
-
-def _process_kind(value: Any) -> str:
+def _process_kind(value: Any) -> type:
     """A process with a `command` runs the user's program; any other runs the runner's own threads."""
     if isinstance(value, ProgramSpec) or (isinstance(value, dict) and "command" in value):
-        return PROGRAM_TAG
-    return WORKERS_TAG
+        return ProgramSpec
+    return ProcessSpec
 
 
-AnyProcess = Annotated[
-    Union[Annotated[ProcessSpec, Tag(WORKERS_TAG)], Annotated[ProgramSpec, Tag(PROGRAM_TAG)]],
-    Discriminator(_process_kind),
-]
+AnyProcess = Annotated[Union[ProcessSpec, ProgramSpec], Tagged(choose=_process_kind)]
 """A scenario process: the runner's own threads (`threads:` with work), or the user's program (`command:`)."""
 
 
@@ -1390,32 +1299,29 @@ class HogKind(str, enum.Enum):
 class Hog(Strict):
     """Busy loops that compete for the CPUs while the scenario runs."""
 
-    count: StrictInt = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
-    kind: HogKind = Field(HogKind.PROCESS, description="process: one process each; thread: threads of one process")
-    name: str = Field("hog", description="process and thread name")
-    sched: Optional[Sched] = Field(None, description="policy of the hogs (default: inherited, normally SCHED_OTHER)")
-    cpus: Optional[CpuSet] = Field(None, description="CPUs the hogs may run on (default: all)")
+    count: int = Field(description="how many hogs; 'cpus' writes one per online CPU", ge=1, le=MAX_HOGS)
+    kind: HogKind = Field(default=HogKind.PROCESS, description="process: one process each; thread: threads of one process")
+    name: str = Field(default="hog", description="process and thread name", check=_check_comm)
+    sched: Optional[Sched] = Field(default=None, description="policy of the hogs (default: inherited, normally SCHED_OTHER)")
+    cpus: Optional[CpuSet] = Field(default=None, description="CPUs the hogs may run on (default: all)")
 
-    @model_validator(mode="before")
     @classmethod
-    def _per_cpu(cls, value: Any, info: ValidationInfo) -> Any:
+    def _before(cls, value: Any, context: Context) -> Any:
         if isinstance(value, dict) and value.get("count") == "cpus":
-            return {**value, "count": len(context_cpus(info))}
+            return {**value, "count": len(context_cpus(context))}
         return value
-
-    _name = field_validator("name")(lambda cls, v: _check_comm(v))
 
 
 class Command(Strict):
     """An external program run as background load, started before and stopped after the cell."""
 
-    argv: list[str] = Field(min_length=1, description="program and arguments as a list (never a shell string)")
-    name: Optional[str] = Field(None, description="label in reports; default: the program")
-
-    _label = field_validator("name")(lambda cls, v: _no_control("name")(v))
-
-    _no_shell = field_validator("argv", mode="before")(lambda cls, v: _argv_list("argv")(v))
-    _executable = field_validator("argv")(lambda cls, v: _argv_items("argv")(v))
+    argv: list[str] = Field(
+        min_items=1,
+        before=_argv_list("argv"),
+        check=_argv_items("argv"),
+        description="program and arguments as a list (never a shell string)",
+    )
+    name: Optional[str] = Field(default=None, description="label in reports; default: the program", check=_no_control("name"))
 
 
 class Background(Strict):
@@ -1457,7 +1363,7 @@ def metric_figure(metric: Metric) -> figures.Figure:
     return figures.figure(metric.value)
 
 
-def _limit(value: Any) -> Any:
+def _limit(value: Any, context: Context = None) -> Any:
     """Latency limits are durations (kept as ns), negative for slack (`-2ms`); counts are plain numbers."""
     if isinstance(value, str):
         text = value.strip()
@@ -1478,7 +1384,7 @@ _LIMIT_SCHEMA = {
         {"type": "string", "pattern": units.DURATION_PATTERN.replace("^", "^\\s*[-\u2212]?", 1)},  # -2ms for slack
     ]
 }
-Limit = Annotated[float, BeforeValidator(_limit), WithJsonSchema(_LIMIT_SCHEMA)]
+Limit = Annotated[float, Written(_limit, None, _LIMIT_SCHEMA)]
 MatrixValue = Union[str, int, float, bool]
 
 
@@ -1487,15 +1393,14 @@ class Expectation(Strict):
 
     thread: str = Field(description="thread name, or process/thread")
     metric: Metric = Field(description="figure to check, as named in results.json")
-    max: Optional[Limit] = Field(None, description="upper bound (a duration for latency metrics)")
-    min: Optional[Limit] = Field(None, description="lower bound (a duration for latency metrics)")
-    cells: dict[str, Union[MatrixValue, Annotated[list[MatrixValue], Field(json_schema_extra={"minItems": 1})]]] = Field(
+    max: Optional[Limit] = Field(default=None, description="upper bound (a duration for latency metrics)")
+    min: Optional[Limit] = Field(default=None, description="lower bound (a duration for latency metrics)")
+    cells: dict[str, Union[MatrixValue, Annotated[list[MatrixValue], Schema({"minItems": 1})]]] = Field(
         default_factory=dict, description="only in cells whose matrix values match, e.g. {policy: [fifo, rr]}"
     )
 
-    @model_validator(mode="before")
     @classmethod
-    def _units(cls, value: Any) -> Any:
+    def _before(cls, value: Any, context: Context) -> Any:
         if isinstance(value, dict):
             metric = str(value.get("metric", ""))
             if metric not in figures.BY_NAME:
@@ -1511,8 +1416,7 @@ class Expectation(Strict):
                     raise ValueError(f"{bound}: {metric or 'this metric'} is a count; expected a number, got {given!r}")
         return value
 
-    @model_validator(mode="after")
-    def _bounded(self) -> Expectation:
+    def _after(self, written: Any, context: Context) -> None:
         if self.max is None and self.min is None:
             raise ValueError("an expectation needs max, min or both")
         for name, bound in (("min", self.min), ("max", self.max)):
@@ -1530,7 +1434,6 @@ class Expectation(Strict):
                 )
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueError(f"min {self.describe_bound(self.min)} is above max {self.describe_bound(self.max)}; no run can meet both")
-        return self
 
     def describe_bound(self, value: float) -> str:
         """A bound as written back: a duration for latency metrics, a number otherwise."""
@@ -1574,21 +1477,16 @@ def _samples_text(value: Any) -> Any:
 class Samples(Strict):
     """What goes to the samples file: `all`, `none`, `outliers` or `last N`."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": ["all", "outliers", "last 10000"]})
-
     mode: SamplesMode = SamplesMode.ALL
-    last: Optional[StrictInt] = Field(None, ge=1, le=MAX_LAST_SAMPLES, description="with mode last: how many callbacks per thread")
+    last: Optional[int] = Field(default=None, ge=1, le=MAX_LAST_SAMPLES, description="with mode last: how many callbacks per thread")
 
-    @model_validator(mode="before")
     @classmethod
-    def _text(cls, value: Any) -> Any:
+    def _before(cls, value: Any, context: Context) -> Any:
         return _samples_text(value)
 
-    @model_validator(mode="after")
-    def _consistent(self) -> Samples:
+    def _after(self, written: Any, context: Context) -> None:
         if (self.mode is SamplesMode.LAST) != (self.last is not None):
             raise ValueError("write 'last N' (e.g. 'last 10000'); N goes only with last")
-        return self
 
     def label(self) -> str:
         return f"last {self.last}" if self.mode is SamplesMode.LAST else self.mode.value
@@ -1596,14 +1494,14 @@ class Samples(Strict):
 
 SamplesSetting = Annotated[
     Samples,
-    PlainSerializer(lambda s: s.label(), return_type=str),
-    WithJsonSchema(
-        {
+    Written(
+        dump=Samples.label,
+        schema={
             "type": "string",
             "pattern": "^(all|none|outliers|last [1-9][0-9]*)$",
             "description": "per-callback samples to write: all, none, outliers or last N",
             "examples": ["all", "outliers", "last 10000"],
-        }
+        },
     ),
 ]
 
@@ -1611,42 +1509,60 @@ SamplesSetting = Annotated[
 # ----------------------------------------------------------------------- scenario
 
 
+def _duration_range(value: int) -> int:
+    if not MIN_RUN <= value <= MAX_RUN:
+        raise ValueError(
+            f"duration {units.format_duration(value)} is out of range; expected "
+            f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}"
+        )
+    return value
+
+
+def _resource_names(value: dict[str, Resource]) -> dict[str, Resource]:
+    for name in value:
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", name):
+            raise ValueError(f"resource name {name!r} may use letters, digits and _ . - (64 at most), starting with a letter or _")
+    return value
+
+
+def _bound_range(value: int) -> int:
+    if not 0 < value <= MAX_LATENCY_LIMIT:
+        raise ValueError(f"latency_bound {units.format_duration(value)} is out of range; expected above 0 and at most 1h")
+    return value
+
+
+def _scenario_name(value: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
+        raise ValueError(f"name {value!r} may use letters, digits and _ . + - only (it names a results folder)")
+    return value
+
+
 class Scenario(Strict):
     """One fully resolved scenario (a matrix cell): what to spawn, for how long, and what to expect."""
 
-    name: str = Field(description="scenario name; default: the file name without .yaml")
-    description: str = Field("", description="what the scenario reproduces and the effect to expect")
-    duration: Duration = Field(10_000_000_000, description="run time of each cell (the CLI can override)")
-    processes: list[AnyProcess] = Field(
-        min_length=1, description="the runner's own processes (threads:) and the user's programs (command:)"
+    name: str = Field(description="scenario name; default: the file name without .yaml", check=_scenario_name)
+    description: str = Field(
+        default="", description="what the scenario reproduces and the effect to expect", check=_no_control("description", "\n\t")
     )
+    duration: Duration = Field(default=10_000_000_000, description="run time of each cell (the CLI can override)", check=_duration_range)
+    processes: list[AnyProcess] = Field(min_items=1, description="the runner's own processes (threads:) and the user's programs (command:)")
     background: Background = Field(default_factory=Background)
-    matrix: Any = Field(None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
+    matrix: Any = Field(default=None, description="axes, include and exclude as in GitHub Actions strategy.matrix")
     expect: list[Expectation] = Field(default_factory=list)
     latency_bound: Optional[Duration] = Field(
-        None, description="wake-up latency above which a release counts as an outlier (figure latency.above_bound; samples: outliers)"
+        default=None,
+        description="wake-up latency above which a release counts as an outlier (figure latency.above_bound; samples: outliers)",
+        check=_bound_range,
     )
     samples: SamplesSetting = Field(default_factory=Samples, description="per-callback samples to write: all, none, outliers or last N")
     resources: dict[str, Resource] = Field(
-        default_factory=dict, description="mutexes, conditions, barriers, queues and named timers the threads' events share, by name"
+        default_factory=dict,
+        description="mutexes, conditions, barriers, queues and named timers the threads' events share, by name",
+        check=_resource_names,
     )
 
-    _text = field_validator("description")(lambda cls, v: _no_control("description", "\n\t")(v))
-
-    @field_validator("duration")
-    @classmethod
-    def _duration_range(cls, value: int) -> int:
-        if not MIN_RUN <= value <= MAX_RUN:
-            raise ValueError(
-                f"duration {units.format_duration(value)} is out of range; expected "
-                f"{units.format_duration(MIN_RUN)} to {units.format_duration(MAX_RUN)}"
-            )
-        return value
-
-    @model_serializer(mode="wrap")
-    def _without_default_keeping(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _dumped(self, data: dict[str, Any]) -> Any:
         """Leave `latency_bound` and `samples` out while unset, so a cell's spec hash reads as before they existed."""
-        data: dict[str, Any] = handler(self)
         if self.latency_bound is None:
             data.pop("latency_bound", None)
         if self.samples.mode is SamplesMode.ALL:
@@ -1654,28 +1570,6 @@ class Scenario(Strict):
         if not self.resources:
             data.pop("resources", None)
         return data
-
-    @field_validator("resources")
-    @classmethod
-    def _resource_names(cls, value: dict[str, Resource]) -> dict[str, Resource]:
-        for name in value:
-            if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", name):
-                raise ValueError(f"resource name {name!r} may use letters, digits and _ . - (64 at most), starting with a letter or _")
-        return value
-
-    @field_validator("latency_bound")
-    @classmethod
-    def _bound_range(cls, value: Optional[int]) -> Optional[int]:
-        if value is not None and not 0 < value <= MAX_LATENCY_LIMIT:
-            raise ValueError(f"latency_bound {units.format_duration(value)} is out of range; expected above 0 and at most 1h")
-        return value
-
-    @field_validator("name")
-    @classmethod
-    def _safe_name(cls, value: str) -> str:
-        if not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
-            raise ValueError(f"name {value!r} may use letters, digits and _ . + - only (it names a results folder)")
-        return value
 
     @property
     def workers(self) -> list[ProcessSpec]:

@@ -13,9 +13,7 @@ from __future__ import annotations
 import fnmatch
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Annotated, Any, Optional
-
-from pydantic import BeforeValidator, PlainSerializer, WithJsonSchema
+from typing import Optional
 
 from runner import units
 from runner.scenario.model import (
@@ -35,31 +33,18 @@ from runner.scenario.model import (
 from runner.scenario.program import SpawnSite, spawn_sites
 
 
-def _cpus_in(value: Any) -> Any:
-    """`all` is every CPU (None); any other text is a CPU list (`0-1,3`)."""
-    return None if value == "all" else units.parse_cpu_list(value)
-
-
-AffinityCpus = Annotated[
-    Optional[tuple[int, ...]],
-    BeforeValidator(_cpus_in),
-    PlainSerializer(lambda cpus: "all" if cpus is None else units.format_cpus(cpus), return_type=str),
-    WithJsonSchema({"type": "string", "description": "CPU list as the kernel writes it (`0-1,3`), or `all`", "examples": ["all", "0-1,3"]}),
-]
-
-
 @dataclass(frozen=True)
 class Settings:
     """Scheduling settings of one thread; `cpus` None means every CPU.
 
     Stored in results as `{"policy": "fifo", "priority": 80, "nice": 0, "cpus": "all"}`
-    (the results models validate and serialise it through these annotations).
+    (`runner.results.document.StoredSettings` says how).
     """
 
     policy: Policy = Policy.OTHER
     priority: int = 0
     nice: int = 0
-    cpus: AffinityCpus = None
+    cpus: Optional[tuple[int, ...]] = None
     runtime: int = 0  # SCHED_DEADLINE parameters in ns; 0 for other policies
     deadline: int = 0
     period: int = 0

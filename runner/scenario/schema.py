@@ -1,6 +1,6 @@
 """JSON Schema of the scenario format, for editors (yaml-language-server) and `runner schema`.
 
-Generated from the pydantic models, then widened where the YAML accepts shorthands the models read
+Generated from the typed models (runner.scenario.typed), then widened where the YAML accepts shorthands the models read
 before validation (`sched: fifo:80`, `work: spin`, `count: cpus`, `events:` for one phase, and a
 `${{ matrix.NAME }}` reference: as the whole value anywhere, inside the text of any value that takes
 text), and narrowed where a model's validator checks what a schema can say too (names of 15 bytes
@@ -16,12 +16,12 @@ thread named by an expectation, a value a matrix cell substitutes) is left to `r
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 from runner import figures, units
 from runner.scenario import matrix
 from runner.scenario.model import COMM_MAX, POLICY_PATTERN, POLICY_WORDS, SCHED_FORMS, SCHED_PATTERN, Scenario, policy_pattern
+from runner.scenario.typed import json_schema
 
 SCHEMA_ID = "https://github.com/rt-scenario-runner/runner/runner.schema.json"
 _NAME = r"[A-Za-z_][A-Za-z0-9_-]*"
@@ -160,7 +160,7 @@ def _names(schema: dict[str, Any], defs: dict[str, Any]) -> None:
 
 def scenario_schema() -> dict[str, Any]:
     """The JSON Schema (draft 2020-12) of a scenario file."""
-    schema = copy.deepcopy(Scenario.model_json_schema(mode="validation"))
+    schema = json_schema(Scenario)
     defs = schema["$defs"]
     phases = defs["PhasesWork"]  # `events:` directly under the work is its one phase: either key, not both
     phases["properties"]["events"] = {
