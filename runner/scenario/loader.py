@@ -15,7 +15,7 @@ rather than searched per cell.
 
 from __future__ import annotations
 
-import hashlib
+import functools
 import json
 import os
 from dataclasses import dataclass, field
@@ -55,8 +55,12 @@ class ResolvedCell:
     id: str
     matrix: dict[str, mx.MatrixValue]
     scenario: Scenario
-    spec_hash: str
     expect_marks: tuple[Mark, ...] = ()
+
+    @functools.cached_property
+    def spec_hash(self) -> str:
+        """A short content hash of the resolved cell (`spec_hash`), worked out when a run or a listing asks for it."""
+        return spec_hash(self.scenario)
 
 
 @dataclass
@@ -67,11 +71,23 @@ class LoadedScenario:
     name: str
     cells: list[ResolvedCell]
     warnings: list[Problem] = field(default_factory=list)
-    source_hash: str = ""  # the file's data as written (matrix and `count: cpus` unresolved), hashed: the same on every machine
+    data: Any = None  # the file's data as written (matrix and `count: cpus` unresolved)
+
+    @functools.cached_property
+    def source_hash(self) -> str:
+        """The file's data as written, hashed: the same on every machine (no matrix or `count: cpus` resolved); "" without it."""
+        return source_hash(self.data) if self.data is not None else ""
 
     @property
     def description(self) -> str:
         return self.cells[0].scenario.description
+
+
+def _digest(text: str) -> str:
+    """The first 16 hex digits of the SHA-256 of `text`; hashlib is imported here, as its OpenSSL costs a start 5 ms."""
+    import hashlib
+
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 _NOT_SPEC = frozenset({"description", "matrix", "expect"})
@@ -85,19 +101,19 @@ def spec_json(scenario: Scenario) -> dict[str, Any]:
 def spec_hash(scenario: Scenario) -> str:
     """A short content hash of a resolved cell, to refuse comparing cells that differ."""
     text = json.dumps(spec_json(scenario), sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return _digest(text)
 
 
 def source_hash(data: Any) -> str:
     """A short content hash of a scenario's data as written (comments and layout aside): shards of one run agree on it,
     on machines of any size, since nothing is resolved against a machine yet."""
-    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    return _digest(json.dumps(data, sort_keys=True, default=str))
 
 
 def expect_hash(cells: list[ResolvedCell]) -> str:
     """A short content hash of the expectations that judge each cell, to refuse resuming a run under changed ones."""
     judged = [(c.id, [c.scenario.expect[i].dump() for i in expectations_for(c.scenario, c)]) for c in cells]
-    return hashlib.sha256(json.dumps(judged, sort_keys=True).encode()).hexdigest()[:16]
+    return _digest(json.dumps(judged, sort_keys=True))
 
 
 _NOTE_CELLS = 3  # cell ids named in a problem found in some cells only; the rest are counted
@@ -168,16 +184,16 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_
     marks = tuple(doc.mark(("expect", i)) for i in range(len(written))) if isinstance(written, list) else ()
     found: dict[Problem, list[str]] = {}
     resolved: list[ResolvedCell] = []
-    checked: dict[str, tuple[Scenario | None, list[Problem], str]] = {}
+    checked: dict[str, tuple[Scenario | None, list[Problem]]] = {}
     for cell in cells:
         raw = mx.substitute(data, cell.values)
         raw.setdefault("name", default_name)
         key = json.dumps(raw, sort_keys=True)
         if key not in checked:  # cells that resolve alike (an axis only selectors use) are checked once
             checked[key] = _check_cell(doc, raw, index, machine, for_run)
-        scenario, cell_problems, digest = checked[key]
+        scenario, cell_problems = checked[key]
         if scenario is not None and not any(p.severity == "error" for p in cell_problems):
-            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, digest, marks))
+            resolved.append(ResolvedCell(cell.id, dict(cell.values), scenario, marks))
         for problem in cell_problems:
             found.setdefault(problem, []).append(cell.id)
 
@@ -188,12 +204,12 @@ def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_
         (problems if problem.severity == "error" else warnings).append(problem)
     if problems:
         raise ScenarioError(problems + warnings)
-    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings, source_hash(doc.data))
+    return LoadedScenario(doc.file, resolved[0].scenario.name, resolved, warnings, doc.data)
 
 
 def _check_cell(
     doc: Document, raw: dict[str, Any], index: MatrixIndex, machine: lim.MachineLimits | None, for_run: bool = True
-) -> tuple[Scenario | None, list[Problem], str]:
+) -> tuple[Scenario | None, list[Problem]]:
     """Validate one resolved cell: the model, cross-field checks, ceilings and (if given) this machine's limits."""
     cell_problems: list[Problem] = []
     for path, expr in mx.unresolved(raw):
@@ -204,7 +220,7 @@ def _check_cell(
     except Invalid as exc:
         cell_problems.extend(problems_from(exc, doc, raw))
         cell_problems.extend(_partial_cross_checks(doc, raw, index, context))
-        return None, cell_problems, ""
+        return None, cell_problems
     cell_problems.extend(_cross_checks(doc, scenario.processes, list(enumerate(scenario.expect)), index, scenario.resources))
     late = program.never_released(scenario.processes, scenario.duration)
     cell_problems.extend(doc.problem(written_path(doc.data, path), message) for path, message in late)
@@ -213,7 +229,7 @@ def _check_cell(
         warn = f.elsewhere and not for_run
         message = f.message + ("; the file is valid, but it cannot run here" if warn else "")
         cell_problems.append(doc.problem(f.path, message, severity="warning" if warn else "error"))
-    return scenario, cell_problems, spec_hash(scenario)
+    return scenario, cell_problems
 
 
 def validation_context(machine: lim.MachineLimits | None) -> dict[str, Any] | None:
