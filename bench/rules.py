@@ -70,7 +70,7 @@ def _follow(
     binary: str, folder: str, opener: OpenEvents, args: list[str], rules: list[dict[str, str]], seconds: float
 ) -> tuple[ProgramRun, Monitor, float]:
     """Run the program under the monitor for `seconds` (or until it prints its delay); the process CPU seconds it took."""
-    spec = ProgramSpec.model_validate({"name": "bench", "command": [binary, *args], "threads": rules, "grace": "100ms"})
+    spec = ProgramSpec.parse({"name": "bench", "command": [binary, *args], "threads": rules, "grace": "100ms"})
     run = ProgramRun(spec, folder, kernel.current_settings(), kernel.online_cpus())
     run.launch(_NoGuard())
     monitor = Monitor([run], opener)
