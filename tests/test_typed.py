@@ -160,6 +160,10 @@ def test_a_yaml_boolean_where_text_belongs_says_how_to_quote_it():
 def test_bounds_and_lengths():
     assert issues(Leaf, {"name": "a", "size": 0}) == [(("size",), "input should be greater than or equal to 1, got 0")]
     assert issues(Leaf, {"name": "a", "size": 11}) == [(("size",), "input should be less than or equal to 10, got 11")]
+    from runner.scenario.model import Phase
+
+    too_many = issues(Phase, {"loop": 2**41, "events": ["yield"]})
+    assert too_many == [(("loop",), "input should be less than or equal to 1099511627776, got 2199023255552")], "a bound as written"
     assert issues(Tree, {"leaves": []}) == [(("leaves",), "list should have at least 1 item, not 0")]
     assert issues(Tree, {"leaves": "a"}) == [(("leaves",), "input should be a valid list, got 'a'")]
 

@@ -359,10 +359,8 @@ def _build(tp: Any) -> _Checker:
         return _literal_checker(get_args(tp))
     if origin in _UNIONS:
         return _union_checker(get_args(tp))
-    if origin is list:
-        return _list_checker(get_args(tp)[0], tuple)
-    if origin is tuple:
-        return _list_checker(get_args(tp)[0], None)
+    if origin in (list, tuple):
+        return _list_checker(get_args(tp)[0], as_tuple=origin is tuple)
     if origin is dict:
         return _dict_checker(get_args(tp)[1])
     scalar = _SCALAR_CHECKERS.get(tp)
@@ -402,11 +400,9 @@ _SCALAR_CHECKERS: dict[Any, _Checker] = {int: _int, bool: _bool, str: _str, floa
 
 
 def _annotated(tp: Any) -> _Checker:
-    base = _checker(tp.__origin__)
     written = next((m for m in tp.__metadata__ if isinstance(m, Written)), None)
     tagged = next((m for m in tp.__metadata__ if isinstance(m, Tagged)), None)
-    if tagged is not None:
-        base = _tagged_checker(tp.__origin__, tagged)
+    base = _tagged_checker(tp.__origin__, tagged) if tagged is not None else _checker(tp.__origin__)
     if written is None or written.parse is None:
         return base
     parse_form = written.parse
@@ -491,8 +487,8 @@ def _union_words(members: tuple[Any, ...]) -> str:
     return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
 
 
-def _list_checker(item_type: Any, convert: Optional[type]) -> _Checker:
-    """list[X] (kept a list) or tuple[X, ...] (made a tuple)."""
+def _list_checker(item_type: Any, as_tuple: bool) -> _Checker:
+    """list[X], or tuple[X, ...] (a list as written, made a tuple)."""
     item = _checker(item_type)
 
     def check(value: Any, path: Path, run: _Run) -> Any:
@@ -501,7 +497,7 @@ def _list_checker(item_type: Any, convert: Optional[type]) -> _Checker:
         out = [item(v, path + (i,), run) for i, v in enumerate(value)]
         if any(v is _INVALID for v in out):
             return _INVALID
-        return out if convert is not None else tuple(out)
+        return tuple(out) if as_tuple else out
 
     return check
 
@@ -601,9 +597,9 @@ def _field_checker(tp: Any, info: Info) -> _Checker:
         if value is _INVALID or value is None:
             return value
         if ge is not None and value < ge:
-            return run.add(path, f"input should be greater than or equal to {ge:g}{_got(value)}")
+            return run.add(path, f"input should be greater than or equal to {_bound(ge)}{_got(value)}")
         if le is not None and value > le:
-            return run.add(path, f"input should be less than or equal to {le:g}{_got(value)}")
+            return run.add(path, f"input should be less than or equal to {_bound(le)}{_got(value)}")
         if min_items is not None and len(value) < min_items:
             return run.add(path, f"list should have at least {min_items} item{'s' if min_items != 1 else ''}, not {len(value)}")
         if after is not None:
@@ -614,6 +610,11 @@ def _field_checker(tp: Any, info: Info) -> _Checker:
         return value
 
     return check
+
+
+def _bound(limit: float) -> str:
+    """A bound as written: `1099511627776`, not `1.09951e+12`."""
+    return str(int(limit)) if float(limit).is_integer() else str(limit)
 
 
 def _model_checker(model: type[Model]) -> _Checker:
