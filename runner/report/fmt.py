@@ -7,6 +7,7 @@ Formatting is the only place a figure is scaled: results hold durations as integ
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Sequence
 
@@ -78,7 +79,13 @@ def md_text(value: object, in_table: bool = False) -> Markdown:
     """
     if isinstance(value, Markdown):
         return value
-    text = str(value)
+    return _md_text(str(value), in_table)
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _md_text(text: str, in_table: bool) -> Markdown:
+    """md_text of text, remembered: a report writes the same names and numbers over and over (a 1,000-cell report
+    escapes 230,000 values, most of them repeated), and a lookup costs a fraction of the checks."""
     if _PLAIN.fullmatch(text) and text == text.strip() and (in_table or not (text[:1] in "#>-+=" or text[:1].isdigit() or "#" in text)):
         return Markdown(text)  # most names and numbers: nothing to escape (a 1,000-cell report writes 200,000 of them)
     text = _CONTROL.sub(" ", text).strip()
@@ -157,18 +164,25 @@ def pipe_table(headers: Sequence[object], rows: Iterable[Sequence[object]], alig
     Written here rather than by tabulate: a 1,000-cell report has 20,000 rows, and this is
     about four times faster.
     """
-    head = [md_text(h, in_table=True) for h in headers]
-    body = [[md_text(c, in_table=True) for c in r] for r in rows]
-    widths = [max(3, _width(h)) for h in head]
+    head = [_measured(h) for h in headers]
+    body = [[_measured(c) for c in r] for r in rows]
+    widths = [max(3, width) for _, width in head]
     for r in body:
-        for i, c in enumerate(r):
-            widths[i] = max(widths[i], _width(c))
+        for i, (_, width) in enumerate(r):
+            if width > widths[i]:
+                widths[i] = width
 
-    def line(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(_pad(c, w, a) for c, w, a in zip(cells, widths, align)) + " |"
+    def line(cells: Sequence[tuple[str, int]]) -> str:
+        return "| " + " | ".join(_pad(c, have, w, a) for (c, have), w, a in zip(cells, widths, align)) + " |"
 
     rule = "|" + "|".join(("-" * (w + 1) + ":") if a == RIGHT else (":" + "-" * (w + 1)) for w, a in zip(widths, align)) + "|"
     return Markdown("\n".join([line(head), rule, *(line(r) for r in body)]))
+
+
+def _measured(cell: object) -> tuple[str, int]:
+    """A table cell as markdown, with its display width (measured once: the widths of a column, then its padding)."""
+    text = md_text(cell, in_table=True)
+    return text, _width(text)
 
 
 def _width(text: str) -> int:
@@ -176,6 +190,6 @@ def _width(text: str) -> int:
     return width if width >= 0 else len(text)
 
 
-def _pad(text: str, width: int, align: str) -> str:
-    gap = " " * (width - _width(text))
+def _pad(text: str, have: int, width: int, align: str) -> str:
+    gap = " " * (width - have)
     return gap + text if align == RIGHT else text + gap

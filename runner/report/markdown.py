@@ -784,7 +784,8 @@ def facts(doc: RunDocument) -> Table:
     for cell in doc.cells:
         counts[cell.status] = counts.get(cell.status, 0) + 1
     outcome = ", ".join(f"{n} {s.value}" for s, n in sorted(counts.items(), key=lambda kv: list(Status).index(kv[0])))
-    missing = len([c for c in doc.cell_ids if c not in {cell.id for cell in doc.cells}])
+    ran = {cell.id for cell in doc.cells}
+    missing = len([c for c in doc.cell_ids if c not in ran])
     rows: list[list[str]] = [
         ["Scenario", Markdown(f"{md_text(doc.name, in_table=True)} ({md_code(_known(doc.scenario.path), in_table=True)})")],
         ["Date", f"{_when(doc.started_at)} to {_when(doc.finished_at)}" if doc.finished_at else f"{_when(doc.started_at)} (still running)"],
