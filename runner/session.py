@@ -10,21 +10,20 @@ cell in flight.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import errno
 import fnmatch
-import gc
 import os
 import random
 import signal
 import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any, Optional
 
 from runner import outdir, units
+from runner.collector import collector_paused
 from runner.errors import ExitCode, OutputError, Problem, RunnerError, ScenarioError, UsageError, from_os_error
 from runner.report.compare import Threshold, check_common, check_comparable, thresholds_for
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
@@ -611,7 +610,7 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
             )
             began = time.monotonic()
             cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
-            with _collector_paused():
+            with collector_paused():
                 result, loop.write_error, window_end = _one_cell(cell, cell_folder, run.start, cell_options, backend)
                 progress.finish(time.monotonic() - began)
                 loop.statuses.append(result.status)
@@ -675,25 +674,6 @@ class _SamplesFile:
         self, key: str, tid: int, samples: list[Sample], mutexes: Sequence[str] = (), holders: Mapping[int, str] = NO_HOLDERS
     ) -> None:
         self.writer.writerows(sample_rows(key, tid, samples, mutexes, holders))
-
-
-@contextlib.contextmanager
-def _collector_paused() -> Iterator[None]:
-    """Python's cyclic garbage collector off while a cell runs and is saved, on again after.
-
-    What a cell allocates is freed by reference counting: no reference cycles (a 5 s cell
-    of 1,024 threads, traced, left none for the collector to find; a program's cell, a ctypes
-    type or two).  But from the end of its window to its results saved, a large cell builds
-    its records and results, and the collector kept traversing them: after its workers had
-    exited alone, 140 collections and 60 ms of a 1,024-thread cell's 425 ms (334 ms without).
-    """
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
 
 
 def _settle(settle_ns: int, stop: StopSignals) -> None:
