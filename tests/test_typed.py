@@ -329,3 +329,18 @@ def test_a_type_the_engine_cannot_check_is_refused_when_first_used():
     globals()["Odd"] = Odd
     with pytest.raises(TypeError, match="cannot check"):
         parse(Odd, {})
+
+
+def test_a_number_too_large_for_a_float_is_said_in_digits():
+    from runner.scenario.model import Expectation
+
+    assert issues(Expectation, {"thread": "t", "metric": "callbacks", "max": 10**400}) == [
+        (("max",), "input should be a valid number; got an integer of about 401 digits")
+    ]
+
+
+def test_a_mapping_of_models_wants_a_mapping_and_models_given_as_models_pass():
+    assert issues(Garden, {"plant": {"kind": "bush"}, "extra": "x"}) == [(("extra",), "input should be a mapping (key: value), got 'x'")]
+    bush = Bush(height=2)
+    assert parse(Garden, {"plant": bush}).plant is bush, "a model already made is taken as it is"
+    assert parse(Tree, {"leaves": [Leaf(name="a")]}).leaves == [Leaf(name="a")]
