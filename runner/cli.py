@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from runner import __version__
+from runner.collector import collector_paused
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
 from runner.terminal import note, put, say, stdout_lost, warn
 
@@ -137,7 +138,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "import-rtapp": _cmd_import_rtapp,
         "completion": _cmd_completion,
     }
+    if command in _READ_DOCUMENTS:  # they build and walk documents of many records, none in a cycle (runner.collector)
+        with collector_paused():
+            return _guarded(handlers[command], rest)
     return _guarded(handlers[command], rest)
+
+
+_READ_DOCUMENTS = frozenset({"report", "compare", "merge"})
 
 
 def _seed(value: str) -> str:

@@ -1,12 +1,14 @@
-"""Python's cyclic garbage collector, kept from traversing the runner's records for nothing.
+"""Python's cyclic garbage collector, paused while the runner builds or walks many records at once.
 
 What the runner allocates is freed by reference counting: its records, figures and report lines
 hold no reference cycles (a 5 s cell of 1,024 threads, traced, left none for the collector to
 find; a 1,000-cell report, none).  But the collector's full passes traverse every live
 container, over and over: 140 collections and 60 ms of a 1,024-thread cell's end (425 ms, 334
-without), while its records were built; about 150 ms of a 1,000-cell report and its comparison,
-walking the document read.  So the collector is paused while a cell is measured and saved, and a
-document that lives on for the rest of the command is settled out of its passes.
+without) while its records were built; about 150 ms of a 1,000-cell report or of the comparison
+after it, walking the document read.  So the collector is paused while a cell is measured and
+saved, while a report is rendered, and through the commands that read documents (report,
+compare, merge); it runs again after.  Paused, not frozen: gc.freeze() would also keep for good
+whatever cyclic garbage was pending (a plot's matplotlib figure, an exception's frames).
 """
 
 from __future__ import annotations
@@ -14,12 +16,6 @@ from __future__ import annotations
 import contextlib
 import gc
 from collections.abc import Iterator
-
-
-def settle() -> None:
-    """What is alive now lives on for the rest of the command (a results document just read, or built): gc.freeze()
-    moves it out of the collector's passes, which then look only at what is allocated after."""
-    gc.freeze()
 
 
 @contextlib.contextmanager

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-from runner.collector import settle
+from runner.collector import collector_paused
 from runner.errors import OutputError, RunnerError, from_os_error
 from runner.outdir import REPORT_NAME
 from runner.report import github
@@ -80,8 +80,8 @@ def report_files(
     elif plots:
         skipped = drawing.skipped_note()
         warn(skipped)
-    settle()  # the document lives until the command ends: its records need no more traversing
-    text = report.render_run(doc, links, comparison, pid_width, skipped)
+    with collector_paused():
+        text = report.render_run(doc, links, comparison, pid_width, skipped)
     path = os.path.join(folder, name)
     write_atomic(path, text)
     return path, failed

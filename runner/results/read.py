@@ -14,7 +14,6 @@ from pydantic import (
 )
 
 from runner import __version__
-from runner.collector import settle
 from runner.errors import Problem, ScenarioError, special_file
 from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument, Status, worst
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
@@ -64,7 +63,6 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.realpath(path)), path  # where the file is: a link to it (/dev/stdin) is not its folder
-    settle()  # read once and walked by the report, the comparison or the merge until the command ends
     journaled = journal_cells(journal, journal_data)
     problems = [
         Problem(
