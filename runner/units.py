@@ -102,7 +102,8 @@ def _scaled(number: str, scale: int, written: str, expected: str) -> int:
     if len(number.replace(".", "").lstrip("0")) > MAX_DIGITS:
         raise UnitError(f"the number in {_shorten(written)} has more than {MAX_DIGITS} digits; expected {expected}")
     whole, _, decimals = number.partition(".")
-    quotient, remainder = divmod(int(whole + decimals) * scale, 10 ** len(decimals))
+    digits = (whole + decimals).lstrip("0") or "0"  # int() refuses more than 4,300 digits, leading zeros too
+    quotient, remainder = divmod(int(digits) * scale, 10 ** len(decimals))
     twice = 2 * remainder
     return quotient + (twice > 10 ** len(decimals) or (twice == 10 ** len(decimals) and quotient % 2 == 1))
 

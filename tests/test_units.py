@@ -83,6 +83,7 @@ def test_decimals_are_exact():
     assert units.parse_duration("1.000000001s") == 1_000_000_001
     assert units.parse_size("0.5KiB") == 512
     assert units.parse_duration("12345678901234.567890123s") == 12_345_678_901_234_567_890_123  # 23 digits, no float near it
+    assert units.parse_duration("0" * 5000 + "1.5ms") == 1_500_000, "leading zeros are no digits (int() refuses 4,300)"
 
 
 @pytest.mark.parametrize(
