@@ -233,11 +233,11 @@ def test_a_chain_under_fifo_is_far_shorter_than_under_other(tmp_path):
     fifo = thread(res, "controller", cell(res, "sched=fifo:60"))["figures"]["chain_ns"]
     other = thread(res, "controller", cell(res, "sched=other"))["figures"]["chain_ns"]
     assert fifo["p50"] >= 2_000_000  # the chain's own work: 0.5 + 1 + 0.5 ms of CPU
-    # Nine chains in ten under fifo stay within a millisecond of that work, and under other they stretch several times
-    # over.  Not p99 (5 of 500 chains): on the 2-CPU VM a FIFO wake-up waits for its vCPU now and then, 4 to 8 ms with
-    # no preemption in the guest (the trace blames the hog that ran meanwhile), and that took fifo's p99 past 4 ms in
-    # 2 of 10 runs.
-    assert fifo["p90"] < 3_000_000 and other["p90"] > 3 * fifo["p90"]
+    # Nine chains in ten under fifo stay within a millisecond of that work, and under other they stretch to twice it and
+    # more.  Not p99, which in a 1 s cell (100 chains) is the worst chain or so: on the 2-CPU VM a FIFO wake-up waits for
+    # its vCPU now and then, 4 to 8 ms with no preemption in the guest (the trace blames the hog that ran meanwhile),
+    # and that took fifo's p99 past 4 ms in 2 of 10 runs.
+    assert fifo["p90"] < 3_000_000 and other["p90"] > 2 * fifo["p90"]
 
 
 def test_each_stage_of_a_chain_has_a_row_per_activation_with_its_chain_latency(tmp_path):
