@@ -207,7 +207,8 @@ def ratio_interval(num: list[list[float]], den: list[list[float]], draws: int = 
         chosen = [pick.randrange(len(a)) for _ in a]
         ratios.append(statistics.median(a[i] for i in chosen) / statistics.median(b[i] for i in chosen))
     ratios.sort()
-    return ratios[int((1 - level) / 2 * draws)], ratios[int((1 + level) / 2 * draws) - 1]
+    outside = round((1 - level) / 2 * draws)  # draws left out at each end
+    return ratios[outside], ratios[draws - 1 - outside]
 
 
 def main() -> int:
