@@ -84,3 +84,25 @@ def test_a_required_key_left_out_with_no_typo_near_it_is_still_missing(write_sce
     reported = [str(p).removeprefix(f"{path}:") for p in caught.value.problems]
     assert "4:19: processes[0].main.sched.policy: missing required key 'policy'" in reported, reported
     assert any("unknown key 'colour'" in r for r in reported), reported
+
+
+def test_a_rule_on_phases_written_as_events_is_said_at_the_work_as_written(write_scenario):
+    """`events:` directly under a work is its one phase: a rule on `phases` points at the work, never at a `phases` key
+    the file does not have."""
+    events = "".join("          - run: 1us\n" for _ in range(129))
+    path = write_scenario(
+        "processes:\n  - name: a\n    threads:\n      - name: t\n        work:\n          kind: phases\n          events:\n" + events
+    )
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    assert [str(p).removeprefix(f"{path}:") for p in caught.value.problems] == [
+        "6:11: processes[0].threads[0].work: 129 events in all phases; at most 128 per thread"
+    ]
+
+
+def test_a_policy_given_as_a_number_is_told_the_forms_a_policy_takes(write_scenario):
+    path = write_scenario("processes:\n  - name: a\n    main: {sched: 80}\n")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(path)
+    (problem,) = caught.value.problems
+    assert str(problem).startswith(f"{path}:3:19: processes[0].main.sched: 80 is not a policy; expected other, batch, idle, fifo:1..99")

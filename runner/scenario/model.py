@@ -271,6 +271,9 @@ def _sched_shorthand(value: Any) -> Any:
         return _sched_text(value)
     if isinstance(value, dict) and isinstance(value.get("policy"), str):
         return {**value, "policy": _policy_name(value["policy"])}
+    if not isinstance(value, dict):  # `sched: 80`: say what a policy is written as, not only that a mapping is expected
+        shown = repr(value) if isinstance(value, (int, float)) else "a list" if isinstance(value, list) else type(value).__name__
+        raise ValueError(f"{shown} is not a policy; expected {SCHED_FORMS}")
     return value
 
 

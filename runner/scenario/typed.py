@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import enum
 import inspect
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -46,6 +47,7 @@ Context = Optional[Mapping[str, Any]]
 
 _SCALARS = (str, int, float, bool)
 _NONE_TYPE = type(None)
+_CLASS_VAR = re.compile(r"\bClassVar\b")
 _UNIONS = (Union, types.UnionType)
 
 
@@ -204,9 +206,16 @@ class Model:
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         slots = {slot.name: slot for slot in cls._slots}
-        for name, annotation in inspect.get_annotations(cls).items():
-            if str(annotation).startswith(("ClassVar", "typing.ClassVar")):
-                continue
+        own = inspect.get_annotations(cls)
+        for name, slot in list(slots.items()):  # a default given anew without its annotation is still that field's
+            if name in cls.__dict__ and name not in own:
+                given = cls.__dict__[name]
+                declared = given if isinstance(given, _Declared) else _Declared(given, MISSING, slot.info)
+                slots[name] = Slot(name, declared.default, declared.factory, declared.info)
+                delattr(cls, name)
+        for name, annotation in own.items():
+            if name.startswith("_") or _CLASS_VAR.search(str(annotation)):
+                continue  # a class's own state, set by its hooks: not a key of the data
             given = cls.__dict__.get(name, MISSING)
             declared = given if isinstance(given, _Declared) else _Declared(given, MISSING, Info())
             slots[name] = Slot(name, declared.default, declared.factory, declared.info)
@@ -238,7 +247,8 @@ class Model:
         return tuple(getattr(self, slot.name) for slot in self._slots)
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Model) and type(other) is type(self) and self._values() == other._values()
+        """The same type with the same fields and the same state its hooks set (`ThreadSpec`'s per-CPU count)."""
+        return isinstance(other, Model) and type(other) is type(self) and self.__dict__ == other.__dict__
 
     def __hash__(self) -> int:
         return hash((type(self), self._values()))
@@ -274,8 +284,13 @@ class Model:
         return _dump_model(self, exclude)
 
     def replace(self, **changes: Any) -> Self:
-        """A copy with `changes` (not checked again)."""
-        return type(self)(**{**{slot.name: getattr(self, slot.name) for slot in self._slots}, **changes})
+        """A copy with `changes` (not checked again), keeping the state its hooks set."""
+        copy = type(self)(**{**{slot.name: getattr(self, slot.name) for slot in self._slots}, **changes})
+        names = {slot.name for slot in self._slots}
+        for name, value in self.__dict__.items():
+            if name not in names:
+                object.__setattr__(copy, name, value)
+        return copy
 
 
 # ----------------------------------------------------------------------- checking
@@ -336,14 +351,16 @@ def _mismatch(run: _Run, path: Path, what: str, value: Any) -> Any:
     return run.add(path, message)
 
 
-_CHECKERS: dict[Any, _Checker] = {}
+_CHECKERS: dict[tuple[Any, str], _Checker] = {}
 
 
 def _checker(tp: Any) -> _Checker:
-    """The checker of type `tp`, built once."""
-    found = _CHECKERS.get(tp)
+    """The checker of type `tp`, built once (by its repr as well: typing finds Union[str, int] equal to Union[int, str],
+    but a union's checker tries its members in their order)."""
+    key = (tp, repr(tp))
+    found = _CHECKERS.get(key)
     if found is None:
-        found = _CHECKERS[tp] = _build(tp)
+        found = _CHECKERS[key] = _build(tp)
     return found
 
 
@@ -434,7 +451,7 @@ def _enum_checker(tp: type[enum.Enum]) -> _Checker:
 
 def _literal_checker(allowed: tuple[Any, ...]) -> _Checker:
     def check(value: Any, path: Path, run: _Run) -> Any:
-        if value in allowed and not isinstance(value, bool):
+        if any(type(value) is type(a) and value == a for a in allowed):  # strict: 1.0 is not 1, True is not 1
             return value
         return _mismatch(run, path, " or ".join(repr(a) for a in allowed), value)
 
@@ -450,10 +467,13 @@ def _union_checker(members: tuple[Any, ...]) -> _Checker:
     checkers = [_checker(m) for m in members]
     exact = tuple(m for m in members if m in _SCALAR_CHECKERS)
     names = _union_words(members)
+    lists = [c for m, c in zip(members, checkers) if get_origin(m.__origin__ if get_origin(m) is Annotated else m) in (list, tuple)]
 
     def check(value: Any, path: Path, run: _Run) -> Any:
         if type(value) in exact:
             return value
+        if isinstance(value, (list, tuple)) and len(lists) == 1:
+            return lists[0](value, path, run)  # the one member a list can be: its own problems, at its items
         for one in checkers:
             scratch = _Run(run.context, [])
             out = one(value, path, scratch)
@@ -511,7 +531,7 @@ def _dict_checker(value_type: Any) -> _Checker:
         out = {}
         for key, v in value.items():
             if not isinstance(key, str):
-                _mismatch(run, path + (key,), "a valid string", key)
+                run.add(path + (key,), f"the key {key!r} should be text", key=True)
                 out[key] = _INVALID
                 continue
             out[key] = item(v, path + (key,), run)
@@ -596,9 +616,9 @@ def _field_checker(tp: Any, info: Info) -> _Checker:
         value = check_type(value, path, run)
         if value is _INVALID or value is None:
             return value
-        if ge is not None and value < ge:
+        if ge is not None and not value >= ge:  # NaN meets no bound
             return run.add(path, f"input should be greater than or equal to {_bound(ge)}{_got(value)}")
-        if le is not None and value > le:
+        if le is not None and not value <= le:
             return run.add(path, f"input should be less than or equal to {_bound(le)}{_got(value)}")
         if min_items is not None and len(value) < min_items:
             return run.add(path, f"list should have at least {min_items} item{'s' if min_items != 1 else ''}, not {len(value)}")
@@ -652,7 +672,7 @@ def _model_checker(model: type[Model]) -> _Checker:
         try:
             obj._after(written, run.context)
         except ValueError as exc:
-            return run.raised(path, exc, value)
+            return run.raised(path, exc, written)  # at a key as far as the file writes it (not `phases` of `events:`)
         return obj
 
     return check
