@@ -470,3 +470,17 @@ def test_a_cell_better_than_its_own_verdicts_is_refused(tmp_path, edit, words):
     doc.save(str(tmp_path / "results.json"))
     with pytest.raises(ScenarioError, match=f"cells\\.{re.escape(cell.id)}\\.status: {words}"):
         load(str(tmp_path))
+
+
+def test_a_threads_settings_are_stored_with_every_field_they_have():
+    """results.document writes plan.Settings through a record of its own: a field added to one and not the other
+    would be dropped from every results file, or read back as its default."""
+    import dataclasses
+
+    from runner.results.document import _settings_in, _settings_out, _SettingsRecord
+    from runner.scenario.model import Policy
+    from runner.scenario.plan import Settings
+
+    assert list(_SettingsRecord.model_fields) == [f.name for f in dataclasses.fields(Settings)]
+    deadline = Settings(Policy.DEADLINE, 0, 0, (1, 3), 2_000_000, 8_000_000, 10_000_000)
+    assert _settings_in(_SettingsRecord.model_validate(_settings_out(deadline))) == deadline
