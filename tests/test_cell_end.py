@@ -122,6 +122,31 @@ def test_a_workers_release_is_late_by_its_last_thread_through_the_gate_and_one_t
         assert buffer.work_started() == [0, 0, 0], "the gate is not the work's start"
 
 
+def test_the_start_waits_for_the_gates_of_threads_that_start_with_the_cell_and_of_workers_alive() -> None:
+    """A thread spawned mid-run is at no gate, and an exited worker passes none: waiting for them until the hogs'
+    own time left the hogs 1 ms to begin, where the margin gives them 5."""
+    import time
+
+    def planned(index: int, spawned: bool) -> Any:
+        return SimpleNamespace(index=index, spawned=spawned)
+
+    with _three_slots("gate-wait-test", _GATE_AT, (T0, T0, 0)) as (writable, buffer):
+        worker = Worker("app[0]", {}, buffer.layout, [planned(0, False), planned(1, False), planned(2, True)], True, os.devnull)
+        worker.buffer = buffer
+        began = time.monotonic()
+        spawn._await_gates([worker], time.monotonic_ns() + 5_000_000_000)
+        assert time.monotonic() - began < 1, "slot 2 is spawned mid-run: nothing to wait for"
+        struct.pack_into("<q", writable, buffer.layout.slot(1) + _GATE_AT, 0)
+        worker.popen = SimpleNamespace(poll=lambda: 0)  # type: ignore[assignment]  # exited: slot 1 will never pass
+        began = time.monotonic()
+        spawn._await_gates([worker], time.monotonic_ns() + 5_000_000_000)
+        assert time.monotonic() - began < 1, "a worker that exited is not waited for"
+        worker.popen = SimpleNamespace(poll=lambda: None)  # type: ignore[assignment]  # alive, slot 1 not through
+        began = time.monotonic()
+        spawn._await_gates([worker], time.monotonic_ns() + 200_000_000)
+        assert time.monotonic() - began >= 0.2, "a live thread not through its gate is waited for, until the time given"
+
+
 class _GateRecorder:
     """A hog's buffer that notes the CPUs its thread may use when its gate opens; its load has begun at once."""
 
@@ -161,6 +186,31 @@ def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
         assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, the least taken first"
         assert groups == [[(hogs[0], 0)], [(hogs[1], 0)]], "the threads by the CPU they were woken on"
         assert all(os.sched_getaffinity(p.pid) == set(cpus) for p in sleepers), "their own CPUs back"
+    finally:
+        for proc in sleepers:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
+def test_a_hog_pinned_to_a_cpu_chooses_before_one_that_may_go_anywhere() -> None:
+    """Chosen in turn, a hog free to go anywhere took CPU 0, and one pinned there shared it: CPU 1 had no load."""
+    import subprocess
+    import sys
+
+    cpus = sorted(os.sched_getaffinity(0))
+    sleepers = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"]) for _ in range(2)]
+    try:
+        os.sched_setaffinity(sleepers[1].pid, {cpus[0]})
+        hogs = []
+        for index, proc in enumerate(sleepers):
+            hog = Worker(f"hog busy[{index}]", {}, Layout(1, 0, histograms=False), [], False, os.devnull)
+            hog.ready = {"tids": [proc.pid]}
+            hog.buffer = _GateRecorder(proc.pid)  # type: ignore[assignment]
+            hogs.append(hog)
+        _start_load(hogs, 0, 1, 2**62)
+        assert [h.buffer.allowed_at_open for h in hogs] == [{cpus[1]}, {cpus[0]}]  # type: ignore[union-attr]
+        assert [os.sched_getaffinity(p.pid) for p in sleepers] == [set(cpus), {cpus[0]}], "their own CPUs back"
     finally:
         for proc in sleepers:
             proc.kill()

@@ -592,15 +592,26 @@ def _gate_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
 
 
 def _await_gates(workers: list[Worker], until_ns: int) -> None:
-    """Return once every thread of the workers passed its start gate, or at `until_ns`.
+    """Return once every thread of the workers that starts with the cell passed its start gate, or at `until_ns`.
 
     The load starts after: a thread at SCHED_OTHER woken at its gate while the hogs spin waits
-    for a CPU like any other (4 ms and more on the 2-CPU VM), and would start late for it."""
-    pending = [w.buffer for w in workers if w.buffer is not None]
+    for a CPU like any other (4 ms and more on the 2-CPU VM), and would start late for it.  A
+    thread spawned mid-run (`spawned: true`) is at no gate, and a worker that exited passes none:
+    neither is waited for (waiting gave the hogs 1 ms to begin instead of the margin's 5)."""
+    pending = [w for w in workers if w.buffer is not None]
     while pending and time.monotonic_ns() < until_ns:
-        pending = [b for b in pending if not all(b.gate_passed())]
+        pending = [w for w in pending if not _gates_passed(w)]
         if pending:
             time.sleep(GATE_POLL_S)
+
+
+def _gates_passed(w: Worker) -> bool:
+    """Whether every thread of `w` that starts with the cell passed its gate, or `w` is gone."""
+    assert w.buffer is not None
+    if w.popen is not None and w.popen.poll() is not None:
+        return True
+    at_start = {t.index for t in w.planned if not t.spawned}
+    return all(passed for i, passed in enumerate(w.buffer.gate_passed()) if i in at_start)
 
 
 def _await_load(groups: list[LoadGroup], until_ns: int) -> None:
@@ -624,24 +635,32 @@ def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -
     by_cpu: dict[int, LoadGroup] = {}
     alone: list[LoadGroup] = []
     restore: list[tuple[int, set[int]]] = []
+    threads: list[tuple[Worker, int, int, set[int]]] = []  # (hog, slot, tid, the CPUs it may use)
     for h in hogs:
-        assert h.buffer is not None
         tids = list((h.ready or {}).get("tids", []))
         spinning = range(1, len(tids)) if h.spec.get("threads") else range(len(tids))  # a hog of threads has a sleeping main
         for index in spinning:
-            tid = tids[index]
             try:
-                allowed = os.sched_getaffinity(tid)
-                cpu = min(sorted(allowed), key=lambda c: len(by_cpu.get(c, [])))
+                threads.append((h, index, tids[index], os.sched_getaffinity(tids[index])))
+            except OSError:  # gone: left where the scheduler put it
+                alone.append([(h, index)])
+    # The threads with the fewest CPUs choose first: a hog pinned to CPU 0 after one that may go anywhere would
+    # otherwise share CPU 0 with it, and leave CPU 1 without load until the balancer moved one.
+    threads.sort(key=lambda thread: len(thread[3]))
+    try:
+        for h, index, tid, allowed in threads:
+            cpu = min(sorted(allowed), key=lambda c: len(by_cpu.get(c, [])))
+            try:
                 os.sched_setaffinity(tid, {cpu})
-            except (OSError, ValueError):  # gone, or a CPU it may not use: left where the scheduler puts it
+            except (OSError, ValueError):  # gone, or a CPU it may no longer use
                 alone.append([(h, index)])
                 continue
             restore.append((tid, allowed))
             by_cpu.setdefault(cpu, []).append((h, index))
-        h.buffer.open_gate(start_ns, end_ns)
-    groups = list(by_cpu.values()) + alone
-    try:
+        for h in hogs:
+            assert h.buffer is not None
+            h.buffer.open_gate(start_ns, end_ns)
+        groups = list(by_cpu.values()) + alone
         _await_load(groups, until_ns)
     finally:
         for tid, allowed in restore:
