@@ -117,3 +117,35 @@ def test_a_process_that_keeps_the_pipe_open_past_the_end_does_not_hang_the_cell(
             os.write(daemon, b"after")
     finally:
         os.close(daemon)
+
+
+def test_a_file_whose_writes_stall_does_not_hang_the_cell(tmp_path, monkeypatch):
+    """A hung network file system holds the reader in a write to its file: the cell ends without it, and says so."""
+    from runner.run import output
+
+    path = str(tmp_path / "p.stdout")
+    stuck = threading.Event()
+    release = threading.Event()
+    real_write = os.write
+
+    def write(fd: int, data: bytes) -> int:
+        if fd == out._file:
+            stuck.set()
+            release.wait(30)
+        return real_write(fd, data)
+
+    monkeypatch.setattr(output, "STALL_WAIT_S", 0.2)
+    out = CappedOutput(path, MiB)
+    monkeypatch.setattr(output.os, "write", write)
+    program = _program(out)
+    try:
+        real_write(program, b"a line\n")
+        assert stuck.wait(5), "the reader reached its file"
+        began = time.monotonic()
+        count = out.finish(time.monotonic() + 0.2)
+        assert time.monotonic() - began < 5, "the cell went on"
+        assert "p.stdout stalled" in count.error and count.written == 7
+    finally:
+        release.set()
+        os.close(program)
+        out._thread.join(5)

@@ -33,6 +33,7 @@ CHUNK = 1 << 20  # bytes read at once: a whole widened pipe in one call
 PIPE_BYTES = 1 << 20  # the pipe's capacity asked of the kernel (the default most machines allow unprivileged: pipe-max-size)
 TAIL_BYTES = 8192  # the last bytes read, kept for the failure message's last lines
 FINISH_WAIT_S = 1.0  # at the cell's end, how long to wait for the pipe's end of file (every writer gone)
+STALL_WAIT_S = 5.0  # then, woken, how long the reader may take to write what the pipe still held
 
 
 class CappedOutput:
@@ -88,7 +89,11 @@ class CappedOutput:
         held_open = self._thread.is_alive()
         if held_open:
             os.write(self._wake_write, b"x")
-            self._thread.join()
+            self._thread.join(STALL_WAIT_S)
+        if self._thread.is_alive():  # stuck in a write to its file (a hung network file system): the cell ends without it
+            self.error = self.error or f"writing {os.path.basename(self.path)} stalled; the runner went on without the rest"
+            # its descriptors stay open while it may still use them: a number closed here could be another file's next
+            return OutputCount(self.written, self.kept, self.limit, self.error, False, self._tail)
         for fd in (self._read, self._wake_read, self._wake_write, self._file):
             if fd >= 0:
                 os.close(fd)
