@@ -588,3 +588,31 @@ def test_output_counts_are_stored_read_back_and_null_in_older_files_and_for_a_wa
     assert (older.output_limit, older.stdout_bytes, older.stdout_dropped, older.stderr_bytes, older.stderr_dropped) == (None,) * 5
     watched = outcome(_program(_spec(), (_thread(500, 0, "rtprog", FIFO80),), attached=True), T0, T0 + SECOND, False, degradation)
     assert watched.result.stdout_bytes is None and watched.result.output_limit is None
+
+
+def test_a_watched_process_held_by_a_descriptor_past_1023_is_followed_to_its_exit(tmp_path):
+    """select() refuses descriptors from 1024 up; a runner of a large cell (or a raised RLIMIT_NOFILE) may hold one."""
+    import resource
+    import subprocess
+    import sys
+
+    from runner.run import external
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 1600:
+        pytest.skip(f"RLIMIT_NOFILE's hard limit is {hard}: no descriptor past 1023 here")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, 1600), hard))
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE, cwd=tmp_path)
+    try:
+        run = external.ProgramRun(_spec(), str(tmp_path), OTHER, (0, 1))
+        run.attach(child.pid)
+        high = os.dup2(run._pidfd, 1500)
+        os.close(run._pidfd)
+        run._pidfd = high
+        assert not run.poll(), "alive: followed"
+        assert child.stdin is not None
+        child.stdin.close()
+        child.wait(timeout=10)
+        assert run.poll(), "its exit seen through the high descriptor"
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))

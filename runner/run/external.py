@@ -328,11 +328,17 @@ class ProgramRun:
         """Whether the attached process has exited: its pidfd readable, or without one, /proc finding it gone."""
         if self._pidfd < 0:
             return not kernel.process_alive(self.pid)
-        if not select.select([self._pidfd], [], [], 0)[0]:
+        poller = select.poll()  # not select(): it refuses descriptors from 1024 up, which a large cell's runner may hold
+        poller.register(self._pidfd, select.POLLIN)
+        if not poller.poll(0):
             return False
-        os.close(self._pidfd)
-        self._pidfd = -1
+        self._close_pidfd()
         return True
+
+    def _close_pidfd(self) -> None:
+        if self._pidfd >= 0:
+            os.close(self._pidfd)
+            self._pidfd = -1
 
     def launch(self, guard: Watcher) -> None:
         """Fork it with its settings applied, held before exec; `failure` says why when it cannot start."""
@@ -440,6 +446,7 @@ class ProgramRun:
         program was stopped (its results would otherwise say it ran the cell and ignored SIGTERM).
         """
         if not self.pid or self.attached:
+            self._close_pidfd()  # an attached process that outlives the watch is let go of
             self._close_cgroup(guard)
             self._finish_output()
             return
