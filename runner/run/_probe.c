@@ -532,8 +532,12 @@ static int gate_cancel(char *base) {
 /* Wait for the gate; its state once it is no longer shut. */
 static uint32_t gate_wait(const struct group *g) {
     uint32_t state;
-    while ((state = atomic_load_explicit(gate_word(g->base), memory_order_acquire)) == GATE_SHUT)
-        syscall(SYS_futex, gate_word(g->base), FUTEX_WAIT, GATE_SHUT, NULL, NULL, 0);
+    while ((state = atomic_load_explicit(gate_word(g->base), memory_order_acquire)) == GATE_SHUT) {
+        if (syscall(SYS_futex, gate_word(g->base), FUTEX_WAIT, GATE_SHUT, NULL, NULL, 0) != 0 && errno != EAGAIN && errno != EINTR) {
+            struct timespec ms = {0, 1000000}; /* the futex refused (a seccomp filter): wait by the clock, never spin at an RT priority */
+            nanosleep(&ms, NULL);
+        }
+    }
     return state;
 }
 
