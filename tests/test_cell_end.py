@@ -165,53 +165,48 @@ class _GateRecorder:
         pass
 
 
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
-def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
-    """Woken together, two hogs could share a CPU for milliseconds before the balancer moved one; each is woken
-    on a CPU of its own instead, and may go anywhere it could before once its load began."""
+@contextmanager
+def _sleeping_hogs(pinned: dict[int, set[int]]) -> Iterator[tuple[list[Worker], list[int]]]:
+    """Two hogs of one thread each, sleeping processes whose gates note where they were woken (`pinned`: hog index -> CPUs
+    it may use), and the pids of their threads."""
     import subprocess
     import sys
 
-    cpus = sorted(os.sched_getaffinity(0))
     sleepers = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"]) for _ in range(2)]
     try:
         hogs = []
         for index, proc in enumerate(sleepers):
+            if index in pinned:
+                os.sched_setaffinity(proc.pid, pinned[index])
             hog = Worker(f"hog busy[{index}]", {}, Layout(1, 0, histograms=False), [], False, os.devnull)
             hog.ready = {"tids": [proc.pid]}
             hog.buffer = _GateRecorder(proc.pid)  # type: ignore[assignment]
             hogs.append(hog)
-        groups = _start_load(hogs, 0, 1, 2**62)
-        woken_on = [h.buffer.allowed_at_open for h in hogs]  # type: ignore[union-attr]
-        assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, the least taken first"
-        assert groups == [[(hogs[0], 0)], [(hogs[1], 0)]], "the threads by the CPU they were woken on"
-        assert all(os.sched_getaffinity(p.pid) == set(cpus) for p in sleepers), "their own CPUs back"
+        yield hogs, [proc.pid for proc in sleepers]
     finally:
         for proc in sleepers:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
+def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
+    """Woken together, two hogs could share a CPU for milliseconds before the balancer moved one; each is woken
+    on a CPU of its own instead, and may go anywhere it could before once its load began."""
+    cpus = sorted(os.sched_getaffinity(0))
+    with _sleeping_hogs({}) as (hogs, pids):
+        groups = _start_load(hogs, 0, 1, 2**62)
+        woken_on = [h.buffer.allowed_at_open for h in hogs]  # type: ignore[union-attr]
+        assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, the least taken first"
+        assert groups == [[(hogs[0], 0)], [(hogs[1], 0)]], "the threads by the CPU they were woken on"
+        assert all(os.sched_getaffinity(pid) == set(cpus) for pid in pids), "their own CPUs back"
 
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to spread over")
 def test_a_hog_pinned_to_a_cpu_chooses_before_one_that_may_go_anywhere() -> None:
     """Chosen in turn, a hog free to go anywhere took CPU 0, and one pinned there shared it: CPU 1 had no load."""
-    import subprocess
-    import sys
-
     cpus = sorted(os.sched_getaffinity(0))
-    sleepers = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"]) for _ in range(2)]
-    try:
-        os.sched_setaffinity(sleepers[1].pid, {cpus[0]})
-        hogs = []
-        for index, proc in enumerate(sleepers):
-            hog = Worker(f"hog busy[{index}]", {}, Layout(1, 0, histograms=False), [], False, os.devnull)
-            hog.ready = {"tids": [proc.pid]}
-            hog.buffer = _GateRecorder(proc.pid)  # type: ignore[assignment]
-            hogs.append(hog)
+    with _sleeping_hogs({1: {cpus[0]}}) as (hogs, pids):
         _start_load(hogs, 0, 1, 2**62)
         assert [h.buffer.allowed_at_open for h in hogs] == [{cpus[1]}, {cpus[0]}]  # type: ignore[union-attr]
-        assert [os.sched_getaffinity(p.pid) for p in sleepers] == [set(cpus), {cpus[0]}], "their own CPUs back"
-    finally:
-        for proc in sleepers:
-            proc.kill()
-            proc.wait()
+        assert [os.sched_getaffinity(pid) for pid in pids] == [set(cpus), {cpus[0]}], "their own CPUs back"
