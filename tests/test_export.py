@@ -3,11 +3,13 @@ where one is installed."""
 
 from __future__ import annotations
 
+import email.utils
 import json
 import os
 import re
 import shutil
 import subprocess
+from typing import Any
 
 import pytest
 from conftest import run_cli
@@ -15,7 +17,7 @@ from conftest import run_cli
 from runner import histogram as hg
 from runner.errors import UsageError
 from runner.report.export import histogram_text, json_summary, pick_cell
-from runner.results.document import CellResult, RunDocument, Status, ThreadHistograms, ThreadResult
+from runner.results.document import CellResult, MachineInfo, RunDocument, Status, ThreadHistograms, ThreadResult
 from runner.results.threadfigures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
 from runner.scenario.plan import Settings
 
@@ -48,7 +50,7 @@ def _cell(cell_id: str = "default") -> CellResult:
         figures=figures,
         histograms=ThreadHistograms(latency=hist),
     )
-    return CellResult(id=cell_id, spec_hash="x", status=Status.PASSED, threads=[thread])
+    return CellResult(id=cell_id, spec_hash="x", status=Status.PASSED, threads=[thread], started_at="2026-11-22T00:48:56+00:00")
 
 
 def test_the_histogram_reads_as_cyclictest_prints_it_and_never_shows_a_latency_smaller():
@@ -64,13 +66,76 @@ def test_the_histogram_reads_as_cyclictest_prints_it_and_never_shows_a_latency_s
     assert "# Min Latencies: 00003" in lines and "# Max Latencies: 02000" in lines and "# Avg Latencies: 00453" in lines
 
 
+_MONTHS = "Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec"
+_RFC2822 = re.compile(rf"(Mon|Tue|Wed|Thu|Fri|Sat|Sun), \d\d ({_MONTHS}) \d{{4}} \d\d:\d\d:\d\d [+-]\d{{4}}")
+
+
+def read_cyclictest_json(data: dict[str, Any]) -> list[str]:
+    """What a script written for `cyclictest --json` (rt-tests 2.x) takes from it, as strictly as cyclictest writes it;
+    its per-thread lines as Linaro's rt-tests parser prints them (`t0-max-latency pass 35 us`).
+
+    Each key is read as rt-utils.c's `rt_write_json` and cyclictest's `write_stats` write it: the version
+    `"%1.2f"` (a number in text), times as `strftime("%a, %d %b %Y %T %z")` (RFC 2822), `sysinfo` from
+    uname and /sys/kernel/realtime, and per thread a histogram of counts, cycles, min, max, avg, cpu, node.
+    """
+    assert data["file_version"] == 1
+    assert isinstance(data["cmdline:"], str) and float(data["rt_test_version:"]) >= 0
+    for key in ("start_time", "end_time"):
+        assert _RFC2822.fullmatch(data[key]), (key, data[key])
+        assert email.utils.parsedate_to_datetime(data[key]).tzinfo is not None
+    assert isinstance(data["return_code"], int)
+    info = data["sysinfo"]
+    assert all(isinstance(info[k], str) for k in ("sysname", "nodename", "release", "version", "machine")), info
+    assert info["realtime"] in (0, 1)
+    assert isinstance(data["resolution_in_ns"], int)
+    lines = []
+    for n in range(int(data["num_threads"])):
+        thread = data["thread"][str(n)]
+        assert all(isinstance(k, str) and k.isdigit() and isinstance(v, int) for k, v in thread["histogram"].items())
+        assert all(isinstance(thread[k], int) for k in ("cycles", "min", "max", "cpu", "node"))
+        assert isinstance(thread["avg"], (int, float))
+        lines += [f"t{n}-{key}-latency pass {thread[key]} us" for key in ("min", "avg", "max")]
+    return lines
+
+
+def _shape(value: Any) -> Any:
+    """The JSON types of `value`, key by key (a histogram's keys are data, so only its values' type counts)."""
+    if isinstance(value, dict):
+        if all(k.isdigit() and isinstance(v, int) for k, v in value.items()):  # an empty histogram too
+            return "counts"
+        return {k: _shape(v) for k, v in value.items()}
+    return "number" if isinstance(value, (int, float)) and not isinstance(value, bool) else type(value).__name__
+
+
 def test_the_json_summary_has_cyclictests_shape():
     doc = RunDocument(command=["runner", "x.yaml"], cells=[_cell()])
     out = json_summary(doc, doc.cells[0])
-    assert set(out) >= {"file_version", "cmdline:", "rt_test_version:", "num_threads", "resolution_in_ns", "thread"}
+    assert set(out) >= {"file_version", "cmdline:", "rt_test_version:", "num_threads", "resolution_in_ns", "thread", "sysinfo"}
     t = out["thread"]["0"]
     assert (t["cycles"], t["min"], t["max"], t["cpu"]) == (5, 3, 2000, 1)
     assert sum(t["histogram"].values()) == 5 and t["histogram"]["3"] == 2
+    assert read_cyclictest_json(json.loads(json.dumps(out)))[2] == "t0-max-latency pass 2000 us"
+
+
+def test_the_json_summary_says_the_machine_the_dates_and_the_version_as_cyclictest_writes_them():
+    """Issue 41: `--json` had no `sysinfo`, ISO dates where cyclictest writes RFC 2822, and `rt_test_version:` was
+    `runner 0.1.0`, which a script reading cyclictest's number could not read.  The machine is the one the run
+    recorded, not the one exporting it."""
+    machine = MachineInfo(hostname="rt-box", kernel="6.12.0-rt5", kernel_version="#1 SMP PREEMPT_RT Tue", arch="aarch64", preempt_rt=True)
+    cell = _cell().model_copy(update={"started_at": "2026-11-22T00:48:56+00:00", "duration_ns": 61_500_000_000, "machine": machine})
+    doc = RunDocument(command=["runner", "x.yaml"], cells=[cell])
+    out = json_summary(doc, cell)
+    assert out["sysinfo"] == {
+        "sysname": "Linux",
+        "nodename": "rt-box",
+        "release": "6.12.0-rt5",
+        "version": "#1 SMP PREEMPT_RT Tue",
+        "machine": "aarch64",
+        "realtime": 1,
+    }
+    assert (out["start_time"], out["end_time"]) == ("Sun, 22 Nov 2026 00:48:56 +0000", "Sun, 22 Nov 2026 00:49:57 +0000")
+    assert out["rt_test_version:"] == "0.10" and float(out["rt_test_version:"]) == 0.1 and out["runner_version"] == "0.1.0"
+    assert read_cyclictest_json(out)
 
 
 def test_a_worst_latency_of_an_hour_exports_as_few_entries_as_it_has_buckets():
@@ -101,10 +166,15 @@ def test_the_formats_match_a_real_cyclictests(tmp_path):
         ["cyclictest", "-q", "-l", "20", "-i", "1000", "-h", "50", f"--json={out}"], capture_output=True, text=True, timeout=30
     )
     theirs = json.loads(out.read_text())
-    doc = RunDocument(cells=[_cell()])
-    ours = json_summary(doc, doc.cells[0])
-    assert set(theirs) - {"sysinfo"} <= set(ours)
+    doc = RunDocument(cells=[_cell().model_copy(update={"started_at": "2026-11-22T00:48:56+00:00", "machine": MachineInfo()})])
+    ours = json.loads(json.dumps(json_summary(doc, doc.cells[0])))
+    assert read_cyclictest_json(theirs) and read_cyclictest_json(ours)  # the reader is cyclictest's shape, and ours reads as it
+    assert set(theirs) <= set(ours) and set(theirs["sysinfo"]) == set(ours["sysinfo"])
     assert set(theirs["thread"]["0"]) <= set(ours["thread"]["0"])
+    their_shape, our_shape = _shape(theirs), _shape(ours)
+    for key in set(theirs) - {"thread"}:
+        assert their_shape[key] == our_shape[key], key  # every key of the same JSON type, sysinfo's too
+    assert their_shape["thread"]["0"].items() <= our_shape["thread"]["0"].items()
     their_rows = [line for line in done.stdout.splitlines() if line and not line.startswith("#")]
     our_rows = [line for line in histogram_text(doc.cells[0], 50).splitlines() if not line.startswith("#")]
     shape = re.compile(r"\d{6} \d{6}")

@@ -3,7 +3,14 @@
 `histogram_text` is what `cyclictest -h US -q` prints (the format OSADL's latency plots
 read): one line per microsecond, `%06d` then one `%06d` count per thread, then the
 `# Total / Min / Avg / Max Latencies / Histogram Overflows` trailer.  `json_summary` has
-the shape of `cyclictest --json` (rt-tests 2.x, including its `cmdline:` key).
+the shape of `cyclictest --json` as rt-tests 2.x writes it (`rt_write_json` in
+src/lib/rt-utils.c, then cyclictest's `write_stats`): its `cmdline:` and `rt_test_version:`
+keys (colon included), the version a number in text (`"0.10"` where cyclictest writes
+`"2.40"`: the runner's major and minor, as `%1.2f` writes them), start and end times in
+RFC 2822 (`Sun, 22 Nov 2026 00:48:56 +0000`, as cyclictest's `strftime("%a, %d %b %Y %T %z")`),
+and `sysinfo` from the machine facts the run recorded (uname's sysname, nodename,
+release, version and machine, and `realtime` 1 on a PREEMPT_RT kernel), never from the
+machine the export runs on.
 
 Both come from the native histograms of every release answered (runner/histogram.py), one
 column (or `thread` entry) per periodic thread in the cell's order.  A bucket wider than a
@@ -14,12 +21,16 @@ cyclictest truncates them.
 
 from __future__ import annotations
 
+import itertools
 import shlex
+from datetime import datetime, timedelta
+from email.utils import format_datetime
 from typing import Any
 
+from runner import __version__
 from runner.errors import UsageError, did_you_mean
 from runner.histogram import Histogram
-from runner.results.document import CellResult, RunDocument, ThreadResult
+from runner.results.document import CellResult, MachineInfo, RunDocument, ThreadResult
 
 DEFAULT_HISTOGRAM_US = 1000
 
@@ -38,7 +49,8 @@ def pick_cell(doc: RunDocument, cell_id: str | None) -> CellResult:
     raise UsageError(f"runner report: no cell {cell_id!r}{did_you_mean(cell_id, [c.id for c in doc.cells])}")
 
 
-def _threads(cell: CellResult) -> list[tuple[ThreadResult, Histogram]]:
+def latency_threads(cell: CellResult) -> list[tuple[ThreadResult, Histogram]]:
+    """The cell's threads with callbacks and their latency histograms, in the cell's order; refused when it has none."""
     out = [(t, t.histograms.latency) for t in cell.threads if t.has_callbacks and t.histograms and t.histograms.latency]
     if not out:
         raise UsageError(f"runner report: cell {cell.id!r} has no latency histogram (no periodic thread ran, or the results predate them)")
@@ -73,7 +85,7 @@ def _avg_us(t: ThreadResult, hist: Histogram) -> float:
 
 def histogram_text(cell: CellResult, size: int = DEFAULT_HISTOGRAM_US) -> str:
     """The cell's latency as `cyclictest -h SIZE -q` prints it."""
-    threads = _threads(cell)
+    threads = latency_threads(cell)
     columns = [_bins(h, size) for _, h in threads]
     lines = ["# Histogram"]
     for us in range(size):
@@ -88,16 +100,56 @@ def histogram_text(cell: CellResult, size: int = DEFAULT_HISTOGRAM_US) -> str:
     return "\n".join(lines) + "\n"
 
 
+def rt_test_version(version: str = __version__) -> str:
+    """A runner version as the number cyclictest's `rt_test_version:` holds: `0.1.0` -> `"0.10"`, `1.12.3` -> `"1.12"`.
+
+    rt-tests writes its version with `%1.2f` (`2.4` -> `"2.40"`), so scripts read the field as a
+    number; the runner's major and minor read as the same number (`float("0.10") == 0.1`).
+    """
+    major, _, rest = version.partition(".")
+
+    def digits(text: str) -> str:  # a results file's version is text: `0.1.0rc1`, or anything
+        return "".join(itertools.takewhile(lambda c: "0" <= c <= "9", text))[:9]
+
+    return f"{int(digits(major) or 0)}.{(digits(rest) or '0').ljust(2, '0')}"
+
+
+def rfc2822(iso: str, later_ns: int = 0) -> str:
+    """An ISO 8601 time the results hold (`2026-11-22T00:48:56+00:00`), `later_ns` after, as cyclictest writes
+    times: RFC 2822 (`Sun, 22 Nov 2026 00:48:56 +0000`); "" when the results hold none."""
+    if not iso:
+        return ""
+    try:
+        when = datetime.fromisoformat(iso)
+    except ValueError:
+        return ""
+    return format_datetime(when + timedelta(microseconds=later_ns // 1000))
+
+
+def sysinfo(machine: MachineInfo) -> dict[str, Any]:
+    """cyclictest's `sysinfo` (uname, and whether the kernel is PREEMPT_RT) from the facts a run recorded."""
+    return {
+        "sysname": "Linux",  # the runner runs on Linux only (its uname's sysname)
+        "nodename": machine.hostname or "",
+        "release": machine.kernel or "",
+        "version": machine.kernel_version,
+        "machine": machine.arch or "",
+        "realtime": int(machine.preempt_rt),
+    }
+
+
 def json_summary(doc: RunDocument, cell: CellResult) -> dict[str, Any]:
     """The cell's latency in the shape of `cyclictest --json` (microseconds), with the runner's thread names beside."""
-    threads = _threads(cell)
+    threads = latency_threads(cell)
     out: dict[str, Any] = {
         "file_version": 1,
         "cmdline:": shlex.join(doc.command),
-        "rt_test_version:": f"runner {doc.tool.version}",
-        "start_time": cell.started_at,
-        "end_time": doc.finished_at or "",
+        "rt_test_version:": rt_test_version(doc.tool.version),
+        "runner_version": doc.tool.version,
+        "start_time": rfc2822(cell.started_at),
+        "end_time": rfc2822(cell.started_at, cell.duration_ns),
         "return_code": 0 if cell.status.value in ("passed", "degraded") else 1,
+        "sysinfo": sysinfo(cell.machine or doc.machine),
         "num_threads": len(threads),
         "resolution_in_ns": 0,
         "thread": {},
