@@ -54,6 +54,7 @@ def _threshold_help() -> str:
     ).replace("%", "%%")
 
 
+_LAVA_HELP = "report each cell as a LAVA test set: lava-test-set and lava-test-case when on PATH, their lines otherwise"
 _JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
 
 
@@ -99,6 +100,7 @@ def _run_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
     r.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
+    r.add_argument("--lava", action="store_true", help="after the run, " + _LAVA_HELP)
     return p
 
 
@@ -439,7 +441,20 @@ def _report_parser() -> argparse.ArgumentParser:
     x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
     x.add_argument("--histogram-max", type=int, metavar="US", help="--histogram's size in microseconds (cyclictest -h US; default 1000)")
     x.add_argument("--json", metavar="FILE", help="latency summary in the shape of `cyclictest --json`; - for stdout")
-    x.add_argument("--cell", metavar="ID", help="the cell to export (with --histogram or --json), when the run has several")
+    x.add_argument(
+        "--hdr",
+        metavar="FILE",
+        help="latency as an HdrHistogram log (HistogramLogProcessor and HdrHistogram's plotters read it); - for stdout",
+    )
+    x.add_argument("--cell", metavar="ID", help="the cell to export (with --histogram, --json or --hdr), when the run has several")
+    labs = p.add_argument_group("lab formats: LAVA, KernelCI's KCIDB (instead of the report, unless -o is given too)")
+    labs.add_argument("--lava", action="store_true", help=_LAVA_HELP + "; exits as the run did")
+    labs.add_argument("--kcidb", metavar="FILE", help="the run as KCIDB v5.3 JSON for you to submit to KernelCI; - for stdout")
+    labs.add_argument("--kcidb-origin", metavar="NAME", help="--kcidb's origin (lowercase letters, digits, _; default runner)")
+    labs.add_argument(
+        "--kcidb-build", metavar="ID", help="--kcidb: test this KCIDB build (ORIGIN:ID) instead of describing the running kernel"
+    )
+    labs.add_argument("--kcidb-url", metavar="URL", help="--kcidb: where the results folder is published (output_files link there)")
     return p
 
 
@@ -453,19 +468,26 @@ def _cmd_report(argv: list[str]) -> int:
     from runner.session import exit_code
 
     _check_export_options(ns)
-    for option, target in (("-o", ns.output), ("--json", ns.json), ("--histogram", ns.histogram)):
+    for option, target in (("-o", ns.output), ("--json", ns.json), ("--histogram", ns.histogram), ("--hdr", ns.hdr), ("--kcidb", ns.kcidb)):
         if target and target != "-":
             writable_file(target, option)
     doc = load(ns.results)
-    if ns.histogram or ns.json:
+    if ns.histogram or ns.json or ns.hdr or ns.kcidb:
         _export(doc, ns)
-        if not ns.output:
-            return 0
-    section, regressions, statuses, cmp = None, 0, [], None
+    statuses = []
+    if ns.lava:
+        from runner.report.labs import run_statuses
+        from runner.report.lava import lava_calls, send
+
+        send(lava_calls(doc))
+        statuses = run_statuses(doc)  # decided as the run decided on its cells (session.exit_code)
+    if not ns.output and (ns.histogram or ns.json or ns.hdr or ns.kcidb or ns.lava):
+        return int(exit_code(statuses))
+    section, regressions, cmp = None, 0, None
     thresholds = thresholds_for(ns.threshold, ns.baseline)
     if ns.baseline:  # decided as `runner compare` decides on the same files
         section, cmp = compare_files(ns.baseline, doc, ns.results, thresholds)
-        regressions, statuses = cmp.regressions, comparison_statuses(cmp, ns.results)
+        regressions, statuses = cmp.regressions, statuses + comparison_statuses(cmp, ns.results)
     if ns.output == "-":
         say(render_run(doc, None, section))
     else:
@@ -493,32 +515,62 @@ def _cmd_report(argv: list[str]) -> int:
 def _check_export_options(ns: argparse.Namespace) -> None:
     """Refuse --cell and --histogram-max without the export they shape: the report covers every cell, and
     taking them silently would let a user believe the report was cut to one cell or one size."""
-    if ns.cell is not None and not (ns.histogram or ns.json):
-        raise UsageError(f"runner report: --cell {ns.cell} chooses the cell to export; give --histogram FILE or --json FILE too")
+    if ns.cell is not None and not (ns.histogram or ns.json or ns.hdr):
+        raise UsageError(
+            f"runner report: --cell {ns.cell} chooses the cell to export; give --histogram FILE, --json FILE or --hdr FILE too"
+        )
     if ns.histogram_max is not None and not ns.histogram:
         raise UsageError(f"runner report: --histogram-max {ns.histogram_max} sets the size of the histogram; give --histogram FILE too")
-    exports = [option for option, given in (("--histogram", ns.histogram), ("--json", ns.json)) if given]
+    _check_kcidb_options(ns)
+    given = (("--histogram", ns.histogram), ("--json", ns.json), ("--hdr", ns.hdr), ("--lava", ns.lava), ("--kcidb", ns.kcidb))
+    exports = [option for option, value in given if value]
+    if sum(value == "-" for _, value in given) > 1:
+        raise UsageError("runner report: only one export can go to standard output (-); give the others a FILE")
     if exports and not ns.output and (ns.baseline or ns.threshold):
         option = "--baseline" if ns.baseline else "--threshold"
         raise UsageError(
             f"runner report: {option} compares the report with a baseline, but {' and '.join(exports)} alone write no report "
-            "(and decide no exit code); give -o FILE too, or run runner compare"
+            f"({'and hold no comparison' if ns.lava else 'and decide no exit code'}); give -o FILE too, or run runner compare"
         )
 
 
+def _check_kcidb_options(ns: argparse.Namespace) -> None:
+    """--kcidb-origin, --kcidb-build and --kcidb-url: only with --kcidb, and each as KCIDB's schema takes it."""
+    import urllib.parse
+
+    from runner.report import kcidb
+
+    for option, value in (("--kcidb-origin", ns.kcidb_origin), ("--kcidb-build", ns.kcidb_build), ("--kcidb-url", ns.kcidb_url)):
+        if value is not None and not ns.kcidb:
+            raise UsageError(f"runner report: {option} {value} shapes the KCIDB export; give --kcidb FILE too")
+    if ns.kcidb_origin is not None and not kcidb.ORIGIN.fullmatch(ns.kcidb_origin):
+        raise UsageError(f"runner report: --kcidb-origin {ns.kcidb_origin!r}: expected lowercase letters, digits and _ (KCIDB's origins)")
+    if ns.kcidb_build is not None and not kcidb.ID.fullmatch(ns.kcidb_build):
+        raise UsageError(f"runner report: --kcidb-build {ns.kcidb_build!r}: expected a KCIDB build id, ORIGIN:ID (e.g. maestro:67a1...)")
+    if ns.kcidb_url is not None:
+        parts = urllib.parse.urlsplit(ns.kcidb_url)
+        if not parts.scheme or not (parts.netloc or parts.path) or any(c.isspace() for c in ns.kcidb_url):
+            raise UsageError(f"runner report: --kcidb-url {ns.kcidb_url!r}: expected a URL such as https://lab.example/runs/42/")
+
+
 def _export(doc: Any, ns: argparse.Namespace) -> None:
-    """Write the cyclictest-format histogram and/or JSON summary of one cell."""
+    """Write the cyclictest-format histogram, JSON summary or HdrHistogram log of one cell, and the KCIDB document of the run."""
     from runner.outdir import write_output
     from runner.report.export import histogram_text, json_summary, pick_cell
+    from runner.report.hdrlog import hdr_log
 
     size = 1000 if ns.histogram_max is None else ns.histogram_max  # the default size of cyclictest -h
     if not 1 <= size <= 1_000_000:
         raise UsageError(f"runner report: --histogram-max {size} is out of range; expected 1 to 1000000 (us)")
-    cell = pick_cell(doc, ns.cell)
-    for target, text in (
-        (ns.histogram, lambda: histogram_text(cell, size)),
-        (ns.json, lambda: json.dumps(json_summary(doc, cell), indent=2) + "\n"),
-    ):
+    exports: list[tuple[str | None, Callable[[], str]]] = [(ns.kcidb, lambda: _kcidb_text(doc, ns))]  # the whole run
+    if ns.histogram or ns.json or ns.hdr:  # one cell
+        cell = pick_cell(doc, ns.cell)
+        exports[:0] = [
+            (ns.histogram, lambda: histogram_text(cell, size)),
+            (ns.json, lambda: json.dumps(json_summary(doc, cell), indent=2) + "\n"),
+            (ns.hdr, lambda: hdr_log(doc, cell)),
+        ]
+    for target, text in exports:
         if not target:
             continue
         if target == "-":
@@ -529,6 +581,13 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
         except OSError as exc:
             raise from_os_error(exc, "cannot write the export", path=target) from None
         say(f"wrote {target}")
+
+
+def _kcidb_text(doc: Any, ns: argparse.Namespace) -> str:
+    from runner.report.kcidb import DEFAULT_ORIGIN, kcidb_document
+
+    data = kcidb_document(doc, ns.kcidb_origin or DEFAULT_ORIGIN, ns.kcidb_build, ns.kcidb_url)
+    return json.dumps(data, indent=1, ensure_ascii=False) + "\n"
 
 
 def _compare_parser() -> argparse.ArgumentParser:

@@ -35,10 +35,16 @@ QUANTILES = {"p50": 0.50, "p90": 0.90, "p99": 0.99, "p999": 0.999}  # the percen
 
 def index(value: int) -> int:
     """The bucket of a non-negative value in ns (negative values count as 0, as in the native core)."""
-    if value < 2 * SUB:
-        return max(0, value)
     if value >= 1 << TOP_BITS:
         return BUCKETS - 1
+    return hdr_index(value)
+
+
+def hdr_index(value: int) -> int:
+    """`index` without the native core's last bucket: the counts index of HdrHistogram with 2 significant digits
+    and a lowest discernible value of 1, whose layout the native core's buckets are (runner/report/hdrlog.py)."""
+    if value < 2 * SUB:
+        return max(0, value)
     shift = value.bit_length() - 1 - SUB_BITS
     return (shift + 1) * SUB + (value >> shift) - SUB
 

@@ -71,6 +71,7 @@ class RunOptions:
     dma_latency_us: Optional[int] = 0  # /dev/cpu_dma_latency held at this while cells run; None: left alone
     junit: Optional[str] = None  # --junit FILE: the run as JUnit XML, for CI test reporters
     trace: bool = True  # trace the scheduler (tracefs) while cells run, where the kernel lets the runner
+    lava: bool = False  # --lava: after the report, each cell as a LAVA test set (runner/report/lava.py)
     resume_options: dict[str, Any] = field(default_factory=dict)  # with --resume: the run-shaping options given, as _shaping_values
 
     @classmethod
@@ -127,6 +128,7 @@ class RunOptions:
             dma_latency_us=dma_latency,
             junit=outdir.writable_file(ns.junit, "--junit") if ns.junit else None,
             trace=not ns.no_trace,
+            lava=ns.lava,
             resume_options=shaping,
         )
 
@@ -556,6 +558,10 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
         regressions = 0
     verdict = f"{empty}; nothing ran" if empty and worst(statuses) is Status.PASSED else worst(statuses).value
     say(f"{loaded.name}: {verdict}; results: {results_path}")
+    if options.lava:  # last, so a lab reads the verdicts after the lines that explain them
+        from runner.report.lava import lava_calls, send
+
+        send(lava_calls(doc))
     return int(exit_code(statuses, regressions))
 
 

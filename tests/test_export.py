@@ -1,11 +1,12 @@
-"""cyclictest's formats from a cell's histograms (pure), `runner report`'s options for them, and against a real cyclictest
-where one is installed."""
+"""cyclictest's formats and the HdrHistogram log from a cell's histograms (pure), `runner report`'s options for them, and
+against a real cyclictest where one is installed; the log is decoded by HdrHistogram's own Python package."""
 
 from __future__ import annotations
 
 import email.utils
 import json
 import os
+import random
 import re
 import shutil
 import subprocess
@@ -13,10 +14,15 @@ from typing import Any
 
 import pytest
 from conftest import run_cli
+from hdrh.histogram import HdrHistogram
+from hdrh.log import HistogramLogReader
+from hypothesis import given as examples
+from hypothesis import strategies as st
 
 from runner import histogram as hg
 from runner.errors import UsageError
 from runner.report.export import histogram_text, json_summary, pick_cell
+from runner.report.hdrlog import encode, hdr_log
 from runner.results.document import CellResult, MachineInfo, RunDocument, Status, ThreadHistograms, ThreadResult
 from runner.results.threadfigures import Faults, Involuntary, Spread, ThreadFigures, Voluntary
 from runner.scenario.plan import Settings
@@ -184,12 +190,83 @@ def test_the_formats_match_a_real_cyclictests(tmp_path):
     assert [t for t in trailer if not t.startswith("# /dev")][:6] == ours_trailer[:6]
 
 
+def _intervals(path: str) -> list[HdrHistogram]:
+    reader = HistogramLogReader(path, HdrHistogram(1, 2, 2))
+    out = []
+    while (h := reader.get_next_interval_histogram()) is not None:
+        out.append(h)
+    return out
+
+
+def _latency_cell(*histograms: hg.Histogram) -> CellResult:
+    cell = _cell().model_copy(update={"started_at": "2026-11-22T00:48:56+00:00", "duration_ns": 61_500_000_000})
+    threads = [
+        cell.threads[0].model_copy(update={"name": f"w{i}", "index": i, "histograms": ThreadHistograms(latency=h)})
+        for i, h in enumerate(histograms)
+    ]
+    return cell.model_copy(update={"threads": threads})
+
+
+def test_the_hdr_log_reads_back_in_hdrhistogram_as_the_cell_measured_it(tmp_path):
+    """HdrHistogram's own reader finds the cell untagged (every thread) and each thread under its tag, over the cell's
+    window, with the same counts, extremes and percentiles to the bucket (the layouts are the same)."""
+    rng = random.Random(41)
+    first = hg.from_values([int(rng.lognormvariate(10, 1)) for _ in range(20_000)])
+    second = hg.from_values([5_000 + rng.randrange(100_000) for _ in range(5_000)])
+    assert first is not None and second is not None
+    cell = _latency_cell(first, second)
+    path = tmp_path / "cell.hlog"
+    path.write_text(hdr_log(RunDocument(cells=[cell]), cell))
+    whole, one, two = _intervals(str(path))
+    assert (whole.get_tag(), one.get_tag(), two.get_tag()) == (None, "p.w0", "p.w1-1")
+    for decoded, hist in ((whole, hg.merge([first, second])), (one, first), (two, second)):
+        assert hist is not None and decoded.get_total_count() == hist.count
+        assert decoded.get_start_time_stamp() == 1795308536000 and decoded.get_end_time_stamp() == 1795308536000 + 61_500
+        assert decoded.values_are_equivalent(decoded.get_min_value(), hist.min)
+        assert decoded.values_are_equivalent(decoded.get_max_value(), hist.max)
+        assert all(decoded.get_count_at_value(low) == n for low, _, n in hist.buckets)  # bucket by bucket
+        for q in (50, 90, 99):  # (hdrh rounds a percentile's rank, the runner takes its ceiling: 99.9% of 25,000 differs)
+            assert decoded.values_are_equivalent(decoded.get_value_at_percentile(q), hist.quantile(q / 100)), q
+    lines = path.read_text().splitlines()
+    assert lines[1] == "#[Histogram log format version 1.3]" and lines[2].startswith("#[StartTime: 1795308536.000 (seconds since epoch), ")
+    assert lines[5].startswith("0.000,61.500,1.368,HISTF") and lines[6].startswith("Tag=p.w0,0.000,61.500,1.368,HISTF")
+
+
+@examples(st.lists(st.integers(min_value=0, max_value=(1 << 45)), min_size=1, max_size=200))
+def test_any_histogram_encodes_to_the_counts_hdrhistogram_decodes(values):
+    """Every bucket's count lands in HdrHistogram's bucket of the same values; none of the native core's last bucket
+    (2^40 ns up) is shown below the largest value seen, however far above 2^40 it lies."""
+    hist = hg.from_values(values)
+    assert hist is not None
+    decoded = HdrHistogram.decode(encode(hist))
+    assert decoded.get_total_count() == len(values)
+    assert decoded.values_are_equivalent(decoded.get_max_value(), max(values))
+    top = [v for v in values if v >= 1 << hg.TOP_BITS]
+    below = sorted(v for v in values if v < 1 << hg.TOP_BITS)
+    for v in set(below):
+        assert decoded.get_count_at_value(v) == sum(hg.index(w) == hg.index(v) for w in below)
+    if top:
+        assert decoded.get_count_at_value(max(values)) >= len(top)
+
+
+def test_hdr_writes_the_log_and_is_refused_for_a_cell_without_latency(tmp_path):
+    path = str(tmp_path / "results.json")
+    RunDocument(cells=[_latency_cell(hg.from_values(LATENCIES))]).save(path)  # type: ignore[arg-type]
+    done = run_cli("report", path, "--hdr", str(tmp_path / "l.hlog"))
+    assert done.code == 0 and done.err == "", done.err
+    assert [h.get_total_count() for h in _intervals(str(tmp_path / "l.hlog"))] == [5, 5]
+    bare = _cell().model_copy(update={"threads": [_cell().threads[0].model_copy(update={"histograms": None})]})
+    RunDocument(cells=[bare]).save(path)
+    done = run_cli("report", path, "--hdr", "-")
+    assert done.code == 2 and "has no latency histogram" in done.err, done.err
+
+
 def test_cell_and_histogram_max_without_the_export_they_shape_are_refused(tmp_path):
     """`runner report RUN --cell X` or `--histogram-max US` alone once re-rendered the whole report, ignoring them."""
     path = str(tmp_path / "results.json")
     RunDocument(cells=[_cell("a=1"), _cell("a=2")]).save(path)
     for given, words in (
-        (["--cell", "a=2"], "--cell a=2 chooses the cell to export; give --histogram FILE or --json FILE too"),
+        (["--cell", "a=2"], "--cell a=2 chooses the cell to export; give --histogram FILE, --json FILE or --hdr FILE too"),
         (["--histogram-max", "50", "-o", "-"], "--histogram-max 50 sets the size of the histogram; give --histogram FILE too"),
         (["--json", "-", "--cell", "a=2", "--histogram-max", "50"], "--histogram-max 50 sets the size of the histogram; "),
     ):
@@ -202,7 +279,7 @@ def test_cell_and_histogram_max_without_the_export_they_shape_are_refused(tmp_pa
     assert done.code == 0 and done.out == histogram_text(_cell("a=2"), 1000), done.err
 
 
-@pytest.mark.parametrize("export", ["--json", "--histogram"])
+@pytest.mark.parametrize("export", ["--json", "--histogram", "--hdr", "--kcidb"])
 def test_an_export_to_a_full_disk_exits_4_naming_it(tmp_path, export):
     """/dev/full refuses every write with ENOSPC: not invalid input (it once exited 2), but a disk to free or another file."""
     path = str(tmp_path / "results.json")
