@@ -7,6 +7,7 @@ CPU.  The figures (events/s, the reader's CPU share) are printed (`pytest -s`).
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -190,3 +191,71 @@ def test_a_tracer_dropped_or_left_at_exit_stops_tracing():
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, cwd="/")
     paths = tuple(done.stdout.split())
     assert paths and not any(os.path.exists(p) for p in paths), "left at interpreter exit: removed then"
+
+
+def _sweep_in_another_pid_namespace(root: str, owner: int) -> list[str]:
+    """What a runner started in a new PID namespace (a container: `unshare --pid --fork --mount-proc`) removes of
+    `owner`'s instances at its start; it must not see `owner` among its processes."""
+    code = (
+        "import os, sys\nfrom runner.run import tracing\n"
+        f"assert not os.path.exists('/proc/{owner}'), 'the namespace sees the owner'\n"
+        f"print(' '.join(tracing.remove_stale({root!r}, owner={owner})))\n"
+    )
+    done = subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.split()
+
+
+@pytest.mark.skipif(not shutil.which("unshare"), reason="needs unshare (util-linux)")
+def test_a_runner_in_another_pid_namespace_leaves_a_live_runners_instances_alone(procs):
+    """PIDs are not unique across PID namespaces: a runner in a container sees no process with this runner's PID,
+    and must still leave its instances, and their tracing, alone: between two traces (a run keeps its instances
+    from its first cell to its end) and during one."""
+    root = tracing.find_tracefs()
+    assert isinstance(root, tracing.TracefsRoot)
+    instances = tracing.TraceInstances()
+    try:
+        instances.prepare()
+        paths = instances.paths
+        assert paths, "the instances were set up"
+        assert _sweep_in_another_pid_namespace(root.path, os.getpid()) == []
+        assert all(os.path.isdir(p) for p in paths), "between two traces the instances stay"
+        sleeper = spawn(procs, "trt-ns", SLEEP_1MS)
+        tracer = instances.open([sleeper])
+        assert isinstance(tracer, tracing.Tracer), tracer
+        with tracer:
+            time.sleep(0.2)
+            assert _sweep_in_another_pid_namespace(root.path, os.getpid()) == []
+            assert [_read(os.path.join(p, "tracing_on")).strip() for p in paths] == ["1"] * len(paths), "tracing stays on"
+            tracer.window(time.monotonic_ns(), None)  # only what the trace holds after the sweep
+            time.sleep(0.3)
+            data = tracer.stop()
+        assert data.threads[sleeper].wakeups > 50, "the trace went on recording after the sweep"
+    finally:
+        instances.close()
+    assert not any(os.path.exists(p) for p in paths), "the owner still removes its own"
+
+
+def test_a_dead_runners_instance_is_removed_without_its_tracing_being_written():
+    """The sweep removes an instance no one holds (rmdir), and never writes a file of one that someone holds."""
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    root = tracing.find_tracefs()
+    assert isinstance(root, tracing.TracefsRoot)
+    dead, held = (os.path.join(root.path, "instances", f"runner-{gone.pid}-{n}") for n in (0, 1))
+    os.mkdir(dead)
+    os.mkdir(held)
+    try:
+        with open(os.path.join(held, "tracing_on"), "w") as on:
+            on.write("1")
+            on.flush()
+            assert tracing.remove_stale(root.path, owner=gone.pid) == [f"runner-{gone.pid}-0"]
+            assert not os.path.exists(dead) and os.path.isdir(held)
+            assert _read(os.path.join(held, "tracing_on")).strip() == "1"
+    finally:
+        os.rmdir(held)
+
+
+def _read(path: str) -> str:
+    with open(path) as handle:
+        return handle.read()

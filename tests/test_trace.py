@@ -510,9 +510,15 @@ def test_stats_lost_sums_overrun_commit_overrun_and_dropped():
     assert tracing.stats_lost(text) == 9
 
 
-def test_an_instance_is_told_to_the_guard_before_it_exists(tmp_path):
+def _hold_folder(path: str) -> int:
+    """`tracing._hold` for a folder standing in for tracefs (it has no tracing_on to hold)."""
+    return os.open(path, os.O_RDONLY)
+
+
+def test_an_instance_is_told_to_the_guard_before_it_exists(tmp_path, monkeypatch):
     """A runner SIGKILLed between making an instance and telling its guard once left the instance tracing."""
     (tmp_path / "instances").mkdir()
+    monkeypatch.setattr(tracing, "_hold", _hold_folder)
 
     class Told:
         def __init__(self) -> None:
@@ -526,8 +532,18 @@ def test_an_instance_is_told_to_the_guard_before_it_exists(tmp_path):
             self.forgotten.append(path)
 
     told = Told()
-    path = tracing._new_instance(str(tmp_path), told)  # type: ignore[arg-type]
+    held: list[int] = []
+    path = tracing._new_instance(str(tmp_path), told, held)  # type: ignore[arg-type]
     assert os.path.isdir(path) and told.watched == [(path, False)] and told.forgotten == []
+    assert len(held) == 1, "held from the moment it exists"
+    os.close(held[0])
+
+
+def test_a_folder_that_is_not_a_tracefs_instance_is_refused_not_retried(tmp_path):
+    (tmp_path / "instances").mkdir()
+    with pytest.raises(FileNotFoundError):
+        tracing._new_instance(str(tmp_path), None, [])
+    assert os.listdir(tmp_path / "instances") == []
 
 
 def test_guard_follows_trace_instances_beside_process_groups():
@@ -554,6 +570,7 @@ def test_a_migrate_instance_that_cannot_be_made_is_not_left_with_the_guard(tmp_p
     (tmp_path / "instances").mkdir()
     (tmp_path / "events" / "sched" / "sched_migrate_task").mkdir(parents=True)
     monkeypatch.setattr(tracing, "find_tracefs", lambda: tracing.TracefsRoot(str(tmp_path), False))
+    monkeypatch.setattr(tracing, "_hold", _hold_folder)
     made = os.mkdir
 
     def mkdir(path: str, *args: object) -> None:

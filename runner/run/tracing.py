@@ -37,6 +37,22 @@ that happened, never wrong.
 A SIGKILLed runner cannot stop its tracing; the guard (runner/run/guard.py) does: the
 instance is registered with it while it exists, and instances of runners that died
 without a guard are removed by the next `open_trace`.
+
+Which instances are a dead runner's is the kernel's to say, not the PID in their name.
+PIDs are not unique across PID namespaces: a runner in a container sees no process with
+the PID of a runner on the host (or in another container) and took its instance for a
+dead one, turned its tracing off and tried to remove it, and the other run's scheduler
+figures silently stopped.  A lock file would need a folder every runner sees (a
+container need not share /run or /dev/shm with the host), and a PID with its start time
+and namespace inode would need the owner's /proc, which other namespaces do not see.
+tracefs itself is shared by every namespace that mounts it, and the kernel refuses to
+remove an instance (EBUSY) while any of its files is open, whoever holds it.  So each
+runner holds one file of each of its instances open (`tracing_on`, read-only) from the
+moment it creates it until it removes it itself; its death closes it.  Another runner
+touches an instance it did not create only with rmdir: the kernel removes it if no one
+holds it (its runner is dead) and refuses otherwise, and its tracing is never written.
+The PID in the name still spares the instances of a live process of the sweeper's own
+namespace (a runner from before the held file, between two cells).
 """
 
 from __future__ import annotations
@@ -254,7 +270,8 @@ class TraceInstances:
         self._unavailable: Optional[TraceUnavailable] = None
         self._notes: list[str] = []  # said by the first trace only
         self._busy = False
-        self._remove = weakref.finalize(self, _remove_all, self.paths, guard, [])
+        self._held: list[int] = []  # a file of each instance, open while the instance is ours (the module's docstring says why)
+        self._remove = weakref.finalize(self, _remove_all, self.paths, guard, [], self._held)
 
     def open(
         self, pids: Sequence[int], *, max_threads: int = MAX_THREADS, interval_ns: int = INTERVAL_NS, owns: bool = False
@@ -328,23 +345,25 @@ class TraceInstances:
         for name in remove_stale(root.path):
             self._notes.append(f"removed the tracing instance {name} of a runner that died")
         paths: list[str] = []
+        held = self._held
         try:
-            paths.append(_new_instance(root.path, self.guard))
+            paths.append(_new_instance(root.path, self.guard, held))
             if os.path.isdir(os.path.join(root.path, "events", "sched", "sched_migrate_task")):
                 paths.append(paths[0] + "-migrate")  # listed before it exists, so a failure takes it back from the guard too
                 if self.guard is not None:
                     self.guard.watch_trace(paths[-1])  # before it exists, as _new_instance does
                 os.mkdir(paths[-1])
+                held.append(_hold(paths[-1]))
             self._layout = _configure(paths, self.buffer_kb)
         except (OSError, FormatError, ValueError) as error:
-            _remove_all(paths, self.guard, [])
+            _remove_all(paths, self.guard, [], held)
             if isinstance(error, OSError):
                 where = f"the tracing instance {paths[-1]}" if paths else f"a tracing instance in {root.path}/instances"
                 return TraceUnavailable(_why(error, f"cannot set up {where}"))
             return TraceUnavailable(f"cannot read the kernel's event formats: {error}")
         self.paths = tuple(paths)
         self._remove.detach()
-        self._remove = weakref.finalize(self, _remove_all, self.paths, self.guard, [])
+        self._remove = weakref.finalize(self, _remove_all, self.paths, self.guard, [], held)
         return None
 
     def _start(self, pids: Sequence[int], max_threads: int, interval_ns: int, owns: bool) -> Tracer:
@@ -428,8 +447,15 @@ def find_tracefs() -> TracefsRoot | TraceUnavailable:
     return TraceUnavailable(f"tracefs is not mounted and mounting it at {target} failed: {os.strerror(err)} ({code})")
 
 
-def remove_stale(root: str) -> list[str]:
-    """Remove the instances of runners that died without removing them (their pid is gone); their names."""
+def remove_stale(root: str, owner: Optional[int] = None) -> list[str]:
+    """Remove the instances of runners that died without removing them; their names.
+
+    An instance is removed only by rmdir, which the kernel refuses while its runner lives
+    (it holds a file of it open, whatever its PID namespace: see the module's docstring);
+    its tracing is never written.  Those named for a live process of this namespace are
+    left alone without asking.  `owner`: only the instances named for that PID (tests,
+    which must not sweep the instances of other runners on the machine).
+    """
     removed: list[str] = []
     try:
         names = os.listdir(os.path.join(root, "instances"))
@@ -437,9 +463,17 @@ def remove_stale(root: str) -> list[str]:
         return removed
     for name in sorted(names):
         m = _STALE.match(name)
-        dead = m is not None and int(m[1]) != os.getpid() and not os.path.exists(f"/proc/{m[1]}")
-        if dead and remove_instance(os.path.join(root, "instances", name)):
-            removed.append(name)
+        if m is None or int(m[1]) == os.getpid() or (owner is not None and int(m[1]) != owner):
+            continue
+        if os.path.exists(f"/proc/{m[1]}"):
+            continue  # a live process of this namespace has that PID
+        try:
+            os.rmdir(os.path.join(root, "instances", name))
+        except FileNotFoundError:
+            continue  # removed meanwhile, by its guard or another runner
+        except OSError:
+            continue  # EBUSY: a runner, perhaps in another PID namespace, holds it
+        removed.append(name)
     return removed
 
 
@@ -495,8 +529,11 @@ def _configure(paths: Sequence[str], buffer_kb: int) -> _Layout:
     return _Layout(header, switch, layouts)
 
 
-def _remove_all(paths: Sequence[str], guard: Optional[Guard], notes: list[str]) -> None:
-    """Remove the instances, side by side: each removal waits for RCU (about 70 ms on the development VM)."""
+def _remove_all(paths: Sequence[str], guard: Optional[Guard], notes: list[str], held: list[int]) -> None:
+    """Let go of the instances' held files and remove the instances, side by side: each removal waits for RCU (about
+    70 ms on the development VM)."""
+    while held:
+        os.close(held.pop())
     gone = [False] * len(paths)
 
     def remove(n: int) -> None:
@@ -549,19 +586,40 @@ def _write_pids(path: str, tids: Sequence[int]) -> None:
         os.close(fd)
 
 
-def _new_instance(root: str, guard: Optional[Guard] = None) -> str:
-    """A new instance `runner-<pid>-<n>`, told to the guard before it exists: a runner killed between the two leaves none."""
+def _new_instance(root: str, guard: Optional[Guard], held: list[int]) -> str:
+    """A new instance `runner-<pid>-<n>`, told to the guard before it exists (a runner killed between the two leaves
+    none), and held from the moment it exists (its file appended to `held`)."""
     while True:
         path = os.path.join(root, "instances", f"runner-{os.getpid()}-{next(_serial)}")
         if guard is not None:
             guard.watch_trace(path)
         try:
             os.mkdir(path)
-            return path
-        except FileExistsError:
+        except FileExistsError:  # not ours: an instance of a runner with this pid (before, or in another PID namespace)
             if guard is not None:
-                guard.forget_trace(path)  # not ours: an instance of a runner that had this pid before
+                guard.forget_trace(path)
             continue
+        try:
+            held.append(_hold(path))
+            return path
+        except FileNotFoundError:
+            if os.path.isdir(path):  # no tracing_on: not an instance of tracefs
+                os.rmdir(path)
+                if guard is not None:
+                    guard.forget_trace(path)
+                raise
+            if guard is not None:  # removed between its mkdir and its hold by another runner's sweep, which saw it unheld
+                guard.forget_trace(path)
+        except OSError:
+            remove_instance(path)
+            if guard is not None:
+                guard.forget_trace(path)
+            raise
+
+
+def _hold(path: str) -> int:
+    """A file of the instance, opened to be held: the kernel refuses to remove an instance while one is open."""
+    return os.open(os.path.join(path, "tracing_on"), os.O_RDONLY | os.O_CLOEXEC)
 
 
 def _stats_lost(path: str) -> int:
