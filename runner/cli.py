@@ -378,6 +378,7 @@ def _watch_parser() -> argparse.ArgumentParser:
 def _cmd_watch(argv: list[str]) -> int:
     ns = _watch_parser().parse_args(argv)
     from runner import outdir
+    from runner.printable import for_terminal
     from runner.report.publish import write_report
     from runner.run.kernel import pid_width
     from runner.scenario.model import MAX_RUN, MIN_RUN
@@ -405,7 +406,7 @@ def _cmd_watch(argv: list[str]) -> int:
         held.release()
     cell = doc.cells[0]
     say(render_cell(cell, pid_width()))
-    say(f"watch: {cell.status.value}{': ' + cell.reason if cell.reason else ''}; results: {path}; report: {report}")
+    say(for_terminal(f"watch: {cell.status.value}{': ' + cell.reason if cell.reason else ''}; results: {path}; report: {report}"))
     return exit_code([cell.status])
 
 

@@ -16,6 +16,8 @@ import os
 import sys
 from typing import TYPE_CHECKING, Optional
 
+from runner.printable import for_terminal, lines_for_terminal
+
 if TYPE_CHECKING:
     from runner import figures as fg
     from runner.results.document import CellResult
@@ -70,12 +72,17 @@ def stdout_lost() -> Optional[OSError]:
 
 
 def note(text: str) -> None:
-    """Progress, warnings and problems, on stderr, so stdout stays clean to pipe."""
+    """Progress, warnings and problems, on stderr, so stdout stays clean to pipe.
+
+    Each line as a terminal may get it (`printable.for_terminal`): a message quotes names
+    from the scenario, the kernel and results files, which may hold escape sequences.
+    """
     stream = sys.stderr
     if stream is None:
         return
+    text = lines_for_terminal(text.removesuffix("\n"))
     try:
-        stream.write(text if text.endswith("\n") else text + "\n")
+        stream.write(text + "\n")
         stream.flush()
     except OSError:
         pass  # nowhere left to say it; the exit code still does
@@ -106,7 +113,7 @@ class Progress:
 
     def start(self, unit: Unit, repeats: int, planned_s: float) -> None:
         rep = f" (repeat {unit.repeat + 1}/{repeats})" if repeats > 1 else ""
-        self.prefix = f"[{self.done + 1}/{self.total}] {unit.cell}{rep}"
+        self.prefix = f"[{self.done + 1}/{self.total}] {for_terminal(unit.cell)}{rep}"
         self.head = f"{self.prefix}, ETA {self.eta(planned_s)}"
         if self.live:
             self.line(self.head)
@@ -152,7 +159,10 @@ def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
 
 
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:
-    """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations."""
+    """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations.
+
+    Every name and reason in it (from the scenario, the kernel, a results file) as `for_terminal` shows it.
+    """
     from tabulate import tabulate
 
     from runner import figures as fg
@@ -161,7 +171,8 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     from runner.results.pstable import render_ps
 
     warned = f", {len(cell.warnings)} warning{'s' if len(cell.warnings) > 1 else ''}" if cell.warnings else ""
-    out = [f"cell {cell.id}: {_MARK[cell.status.value]}{warned} ({cell.duration_s:.1f}s)" + (f" - {cell.reason}" if cell.reason else "")]
+    reason = f" - {cell.reason}" if cell.reason else ""
+    out = [for_terminal(f"cell {cell.id}: {_MARK[cell.status.value]}{warned} ({cell.duration_s:.1f}s){reason}")]
     picked = threads_shown(cell, TERMINAL_ROWS)
     if cell.thread_table:
         ps_rows, _ = ps_rows_shown(cell.thread_table, picked)
@@ -173,7 +184,7 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         shown = [f for f in fg.REGISTRY if f.column and (overloaded or not f.overload)]
         headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in shown]
         rows = [
-            [f"{t.name}{' (main)' if t.index == 0 else ''}", str(t.tid), t.applied.label() if t.applied else "?"]
+            [for_terminal(f"{t.name}{' (main)' if t.index == 0 else ''}"), str(t.tid), t.applied.label() if t.applied else "?"]
             + [_cell_value(fg.value(t.figures, f), f) for f in shown]
             for t in periodic
         ]
@@ -184,18 +195,17 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     verdicts, more = verdicts_shown(cell.expectations, TERMINAL_ROWS)
     for v in verdicts:
         measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-        out.append(
-            f"  {'ok  ' if v.passed else 'FAIL'} {v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
-        )
+        said = f"{v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
+        out.append(f"  {'ok  ' if v.passed else 'FAIL'} {for_terminal(said)}")
     if more:
         failed = sum(not v.passed for v in cell.expectations) - sum(not v.passed for v in verdicts)
         out.append(f"  ... {more:,} more verdicts ({failed:,} of them failed): see the report or results.json")
     degraded, more = lines_shown([f"{t.process}/{t.name}: {why}" for t in cell.threads for why in t.degraded], TERMINAL_ROWS)
-    out.extend(f"  DEGRADED {line}" for line in degraded)
+    out.extend(f"  DEGRADED {for_terminal(line)}" for line in degraded)
     if more:
         out.append(f"  ... {more:,} more degraded settings: see the report or results.json")
     warnings, more = lines_shown(cell.warnings, TERMINAL_ROWS)
-    out.extend(f"  WARNING {text}" for text in warnings)
+    out.extend(f"  WARNING {for_terminal(text)}" for text in warnings)
     if more:
         out.append(f"  ... {more:,} more warnings: see the report or results.json")
     return "\n".join(out) + "\n"

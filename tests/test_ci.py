@@ -179,12 +179,45 @@ def test_junit_folders_are_made_as_out_folders_are(tmp_path):
     assert code == 0 and parsed((tmp_path / "r" / "ci" / "junit.xml").read_bytes()).get("failures") == "0"
 
 
-def test_text_xml_cannot_carry_is_escaped_not_written_raw():
+def test_text_xml_cannot_carry_is_shown_as_ps_shows_it_not_written_raw():
     doc = matrix()
     doc.cells[0].status, doc.cells[0].reason = Status.ERROR, "worker said \x1b[31mno\x07 \ud800"
     root = parsed(junit_xml(doc))
-    assert "\\x1b[31mno\\x07 \\ud800" in root.find(".//error").get("message")
-    assert xml_text("tab\tok\nline") == "tab\tok\nline"
+    assert "worker said ?[31mno? ?" in root.find(".//error").get("message")
+    assert xml_text("tab\tok\nline") == "tab?ok?line"
+
+
+def _hostile(doc: RunDocument, name: str) -> RunDocument:
+    """`doc` whose first cell failed an expectation of a thread called `name`, its id, matrix and warnings quoting it."""
+    cell = doc.cells[0]
+    t = main_thread(cell)
+    cell.threads[cell.threads.index(t)] = t.model_copy(update={"name": name, "process": name})
+    cell.id = f"v={name}"
+    cell.matrix = {**cell.matrix, "v": name}
+    cell.warnings = [f"thread {name} did something"]
+    cell.expectations = [Verdict(thread=name, metric="latency.p99", limit="<= 1us", measured=5_000, passed=False, note=name)]
+    doc.matrix_cells = doc.cell_ids = [c.id for c in doc.cells]
+    return doc
+
+
+def test_junit_and_annotations_show_a_thread_name_with_an_escape_sequence_and_a_newline_as_ps_does():
+    """A program's thread may call itself anything: its name reaches no reader of the JUnit file or the job's log raw."""
+    name = "ctl\x1b[2J\nFAIL::error::x\u2028y"
+    doc = _hostile(matrix(), name)
+    data = junit_xml(doc)
+    SCHEMA.validate(data.decode())
+    text = data.decode()
+    assert "\x1b" not in text and "\u2028" not in text
+    root = parsed(data)
+    shown = "ctl?[2J?FAIL::error::x?y"
+    for element in root.iter():
+        for value in element.attrib.values():
+            assert "\n" not in value and "\x1b" not in value, (element.tag, value)
+    assert any(shown in (c.get("name") or "") for c in root.iter("testcase"))
+    assert any(shown in (c.get("value") or "") for c in root.iter("property"))
+    commands = [a.command() for a in github.for_run(doc, None, "s.yaml")]
+    assert commands and all("\x1b" not in line and "\n" not in line and "\u2028" not in line for line in commands)
+    assert any(f"thread {shown} did something" in line for line in commands), commands
 
 
 # ---------------------------------------------------------------- runner merge / compare --junit

@@ -198,6 +198,53 @@ def test_mixed_process_rt_thread_beats_its_sibling(seed_runs):
     assert sub1 >= 2.0 and sub2 <= 0.5, (sub1, sub2)
 
 
+ODD_NAMES = (
+    b"a\x1b[31mred\nx",  # an escape sequence and a newline
+    b"tab\there",
+    b"d\x7fel",
+    b"x\xc2\x85y",  # a C1 control (NEL), two bytes: one `?`
+    b"\xff\xfeab",  # not UTF-8
+    b"abcdefghijklm\xe4\xb8",  # a character cut by the kernel's 15 bytes
+    b"caf\xc3\xa9",
+    b"\xe4\xb8\xad\xe6\x96\x87",  # two columns each
+    b"@bob #1",
+)
+
+_ODD_THREADS = f"""\
+import os, threading, time
+names = {ODD_NAMES!r}
+ready = threading.Barrier(len(names) + 1)
+def named(name):
+    with open(f"/proc/self/task/{{threading.get_native_id()}}/comm", "wb") as handle:
+        handle.write(name)
+    ready.wait()
+    time.sleep(60)
+for name in names:
+    threading.Thread(target=named, args=(name,), daemon=True).start()
+ready.wait()
+print(os.getpid(), flush=True)
+time.sleep(60)
+"""
+
+
+def test_runner_ps_shows_names_with_escape_sequences_and_newlines_as_real_ps_does():
+    """Thread names are whatever a process chose: `runner ps` prints them as procps does, byte for byte (an escape
+    sequence and a newline `?`, bytes that are not UTF-8 `?` each, wide characters padded by their columns)."""
+    utf8 = {**env(), "LC_ALL": "C.UTF-8"}  # procps escapes by the locale's rules; the runner writes UTF-8
+    proc = subprocess.Popen([sys.executable, "-c", _ODD_THREADS], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        pid = proc.stdout.readline().strip()
+        ps = subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", pid], capture_output=True, env=utf8, check=True).stdout
+        ours = subprocess.run([sys.executable, "-m", "runner", "ps", pid], capture_output=True, env=utf8, check=True).stdout
+    finally:
+        proc.kill()
+        proc.wait()
+    assert len(ps.splitlines()) == 2 + len(ODD_NAMES), ps
+    assert b"\x1b" not in ours and b"?[31mred?x" in ours
+    assert [line[:-4] for line in ours.splitlines()] == [line[:-4] for line in ps.splitlines()]  # but PSR, which may move
+
+
 def test_memory_lock_faults(tmp_path):
     proc = start_runner(
         os.path.join(SCENARIOS, "memory_lock.yaml"), "--duration", "2s", "--out", str(tmp_path), "--quiet", cwd=str(tmp_path)

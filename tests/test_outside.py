@@ -490,8 +490,8 @@ def test_the_report_names_a_few_threads_whose_history_left_changes_out_and_count
     kept = [t for _, t in out.threads]
     cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="", duration_ns=SECOND, programs=[out.result], threads=kept)
     line = program_lines(cell)[0]
-    named = re.findall(r"talker/\S+ (?:\(main\)|#\d)", line)
-    assert named == ["talker/rtprog (main)", "talker/worker #1", "talker/worker #2"]
+    named = re.findall(r"talker/\S+ (?:\(main\)|`#\d`)", line)  # `#1` in code: GitHub would make it a link to issue 1
+    assert named == ["talker/rtprog (main)", "talker/worker `#1`", "talker/worker `#2`"]
     assert line.endswith("; 2 more threads' histories the same way: 2,468 further changes not kept")
 
 

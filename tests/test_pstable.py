@@ -68,3 +68,53 @@ def test_runner_ps_imports_no_validation_library_and_no_scenario_model():
     lines = done.stdout.splitlines()
     assert lines[0].split() == ["TID", "COMMAND", "RTPRIO", "CLS", "PSR"], done.stdout
     assert lines[-1] == "0 []", done.stdout
+
+
+# ---------------------------------------------------------------- names as a terminal may get them
+
+
+def test_names_are_shown_as_procps_shows_them():
+    """procps 4.0.2 in a UTF-8 locale: what iswprint refuses is one `?` each, a byte that is not UTF-8 too."""
+    from runner.printable import decode, for_terminal
+
+    assert for_terminal("a\x1b[31mred\nx") == "a?[31mred?x"
+    assert for_terminal("tab\there\x7f") == "tab?here?"
+    assert for_terminal("x\x85y\u2028z") == "x?y?z"  # C1 NEL, line separator
+    assert for_terminal(decode(b"\xff\xfeab")) == "??ab"
+    assert for_terminal(decode(b"abcdefghijklm\xe4\xb8")) == "abcdefghijklm??"  # cut by the kernel: a `?` per byte
+    assert for_terminal("café 中文 \u202eRTL \ue000") == "café 中文 \u202eRTL \ue000"  # printable, as iswprint says
+    assert for_terminal("\U000e0080") == "?"  # unassigned
+
+
+def test_a_table_pads_names_by_the_columns_they_take():
+    rows = [row(1, "中文", 0, 0), row(2, "a\x1b[2Jb", 0, 0), row(3, "\u202eab", 0, 0)]
+    assert render_ps(rows, ["tid", "comm", "cls"]) == (
+        "  TID COMMAND         CLS\n    1 中文             TS\n    2 a?[2Jb           TS\n    3 \u202eab               TS\n"
+    )
+
+
+def test_the_terminals_cell_summary_shows_no_name_raw():
+    """Thread names, cell ids, reasons, verdicts, warnings: from the kernel, the scenario or a results file."""
+    from reportdata import main_thread, matrix
+
+    from runner.results.document import Verdict
+    from runner.terminal import render_cell
+
+    name = "w\x1b]0;pwned\x07\nFAIL x"
+    cell = matrix().cells[0]
+    t = main_thread(cell)
+    cell.threads[cell.threads.index(t)] = t.model_copy(update={"name": name, "degraded": [name]})
+    cell.id, cell.reason, cell.warnings = f"v={name}", name, [name]
+    cell.expectations = [Verdict(thread=name, metric="latency.p99", limit="<= 1us", measured=5_000, passed=False, note=name)]
+    cell.thread_table = [cell.thread_table[0].model_copy(update={"comm": name})]
+    text = render_cell(cell)
+    assert "\x1b" not in text and "\x07" not in text
+    assert not any(line.startswith("FAIL x") for line in text.splitlines()), text
+    assert text.count("w?]0;pwned??FAIL x") >= 6, text
+
+
+def test_notes_on_stderr_show_each_line_as_a_terminal_may_get_it(capsys):
+    from runner.terminal import note
+
+    note("runner: warning: thread a\x1b[2Jb stopped\nsecond line")
+    assert capsys.readouterr().err == "runner: warning: thread a?[2Jb stopped\nsecond line\n"

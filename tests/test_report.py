@@ -570,8 +570,9 @@ def report_load(path):
 
 HOSTILE = st.lists(
     st.sampled_from(
-        list("#|`*_[]()!<>&\\~-+=.:$ \n\r\t\x00\u2028a1")
+        list("#|`*_[]()!<>&\\~-+=.:$@/ \n\r\t\x00\u2028\u202ea1")
         + ["<script>", "](http://x)", "$\\foo$", "```", "<!--", "&amp;", "1. ", "> ", "- ", "## "]
+        + ["@bob", "#12", "GH-3", "o/r#4", "https://x.io/a", "www.x.io", "a@b.io", " #1"]
     ),
     min_size=1,
     max_size=12,
@@ -579,20 +580,42 @@ HOSTILE = st.lists(
 
 
 def structure(markdown: str) -> list[str]:
-    """The markdown's blocks (headings, lists, tables with their rows and cells) and inline structure, no text."""
+    """The markdown's blocks (headings, lists, tables with their rows and cells) and inline structure, no text.
+
+    Code spans count as text: `md_text` shows what GitHub would link (`@bob`, `#1`) in one, and escapes every
+    backtick of the text itself, so a code span of a name is the escape's (`rendered_text` checks what it holds).
+    """
     out = []
     for tok in MarkdownIt("commonmark").enable(["table", "strikethrough"]).parse(markdown):
         if tok.type != "inline":
             out.append(tok.type + tok.tag)
         for child in tok.children or []:
-            if child.type not in ("text", "text_special", "softbreak"):
+            if child.type not in ("text", "text_special", "softbreak", "code_inline"):
                 out.append(child.type)
     return out
 
 
 def rendered_text(markdown: str) -> str:
     tokens = MarkdownIt("commonmark").enable(["table", "strikethrough"]).parse(markdown)
-    return "".join(c.content for t in tokens for c in t.children or [] if c.type in ("text", "text_special"))
+    return "".join(c.content for t in tokens for c in t.children or [] if c.type in ("text", "text_special", "code_inline"))
+
+
+# What GitHub links by itself in rendered text outside code and links (html-pipeline's mention and issue reference
+# filters, cmark-gfm's autolink extension), written wider than GitHub's: any of these in text is a failure.
+GITHUB_LINKS = re.compile(r"@[A-Za-z0-9]|#\d|\bGH-\d|://|\bwww\.", re.IGNORECASE)
+
+
+def github_links(markdown: str) -> list[str]:
+    """The text of `markdown`, rendered, that GitHub would turn into a mention, an issue reference or a link."""
+    out = []
+    for tok in MarkdownIt("commonmark").enable(["table", "strikethrough"]).parse(markdown):
+        in_link = 0
+        for child in tok.children or []:
+            in_link += child.type == "link_open"
+            in_link -= child.type == "link_close"
+            if child.type in ("text", "text_special") and not in_link and GITHUB_LINKS.search(child.content):
+                out.append(child.content)
+    return out
 
 
 @settings(max_examples=300, derandomize=True, database=None)
@@ -600,15 +623,17 @@ def rendered_text(markdown: str) -> str:
 def test_escaped_text_renders_as_the_text_itself(text):
     from runner.report.fmt import md_text
 
-    expected = " ".join(re.sub(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]", " ", text).strip().split(" "))
+    expected = re.sub(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u202e]", " ", text).strip()
     escaped = md_text(text)
     assert "\n" not in escaped
-    assert rendered_text(escaped) == expected, (text, escaped)
+    assert " ".join(rendered_text(escaped).split()) == " ".join(expected.split()), (text, escaped)
     assert structure(escaped) in ([], ["paragraph_openp", "paragraph_closep"]), (text, escaped)
+    assert github_links(escaped) == [], (text, escaped)
     cell = md_text(text, in_table=True)
     row = "| a | b |\n|---|---|\n| " + cell + " | x |\n"
     assert structure(row) == structure("| a | b |\n|---|---|\n| plain | x |\n"), (text, cell)
-    assert rendered_text(row) == "ab" + expected + "x", (text, cell)
+    assert " ".join(rendered_text(row).split()) == " ".join(("ab" + expected + "x").split()), (text, cell)
+    assert github_links(row) == [], (text, cell)
 
 
 def _hostile_doc(name: str, cells: int = 3):
@@ -632,9 +657,18 @@ def test_hostile_names_do_not_change_the_report_structure(name):
 
     plain = _hostile_doc("plain")
     hostile = _hostile_doc(name)
-    assert structure(report.render_run(hostile)) == structure(report.render_run(plain))
+    text = report.render_run(hostile)
+    assert structure(text) == structure(report.render_run(plain))
+    assert github_links(text) == [], name
     section = report.render_comparison(compare(hostile, hostile), name, name)
     assert structure(section) == structure(report.render_comparison(compare(plain, plain), "plain", "plain"))
+    assert github_links(section) == [], name
+
+
+def test_the_golden_reports_link_nothing_github_would_link_by_itself():
+    """The runner's own labels (`minimal_memory_/gc #2`: its thread with index 2) once referenced issue 2."""
+    for golden_file in os.listdir(GOLDEN):
+        assert github_links(Path(GOLDEN, golden_file).read_text(encoding="utf-8")) == [], golden_file
 
 
 def unescaped_pipes(line: str) -> int:

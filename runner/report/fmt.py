@@ -60,22 +60,37 @@ class Markdown(str):
     """
 
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")  # and bidi overrides, isolates
+# What GitHub links by itself in text (not in code): @mentions (and emails), #123 and GH-123 issue references
+# (owner/repo#123 too), URLs with a scheme and www. addresses.
+_LIVE = re.compile(r"@[A-Za-z0-9][\w.\-/]*|#\d+|GH-\d+|\S*://\S*|www\.\S*", re.IGNORECASE)
 _ALWAYS = set("\\`*[]~")  # code spans, emphasis, links and images, strikethrough
 
 
-_PLAIN = re.compile(r"[^\x00-\x1f\x7f-\x9f\u2028\u2029\\`*\[\]~|_<&]*")  # no character md_text would escape inside a line
+_PLAIN = re.compile(
+    r"[^\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\\`*\[\]~|_<&]*"
+)  # no character md_text would escape inside a line
 
 
 def md_text(value: object, in_table: bool = False) -> Markdown:
-    """Plain text as inline markdown that renders as that text, on one line.
+    """Plain text as inline markdown that renders as that text, on one line, and links nothing.
 
-    Line breaks and control characters become spaces (a newline must not start a heading),
-    outer spaces go (four would start a code block), and every character that could start
-    markdown structure is backslash-escaped: code spans, emphasis, links and images, HTML
-    and autolinks, entities; in a table cell (`in_table`) `|`, elsewhere what would make a
-    block if the text began a line (`#`, `>`, list markers).  Harmless uses stay as they
-    read (`<= 2ms`, `minimal_schedul_`), so ordinary names look ordinary in the source too.
+    Line breaks, control characters and bidi overrides become spaces (a newline must not
+    start a heading), outer spaces go (four would start a code block), and every character
+    that could start markdown structure is backslash-escaped: code spans, emphasis, links
+    and images, HTML and autolinks, entities; in a table cell (`in_table`) `|`, elsewhere
+    what would make a block if the text began a line (`#`, `>`, list markers).  Harmless
+    uses stay as they read (`<= 2ms`, `minimal_schedul_`), so ordinary names look ordinary
+    in the source too.
+
+    What GitHub links after the markdown is rendered (a mention `@name` notifies that user,
+    `#1` and `owner/repo#1` reference issue 1, `GH-1` too, `https://...` and `www....` become
+    links) is shown in a code span: `@name`.  GitHub links none of these inside code, and
+    neither a backslash (`\\@name`, `\\#1`) nor an entity (`&#64;`) stops it: its filters run
+    on the rendered text, where those are gone (github/cmark-gfm issues 181 and 389).  A
+    zero-width character between `#` and `1` would stop it too, but a name copied out of the
+    report would then not be the name.  The runner's own labels are text like any other:
+    `ctl/worker #1` (its thread with index 1) shows `#1` as code.
     """
     if isinstance(value, Markdown):
         return value
@@ -86,9 +101,30 @@ def md_text(value: object, in_table: bool = False) -> Markdown:
 def _md_text(text: str, in_table: bool) -> Markdown:
     """md_text of text, remembered: a report writes the same names and numbers over and over (a 1,000-cell report
     escapes 230,000 values, most of them repeated), and a lookup costs a fraction of the checks."""
-    if _PLAIN.fullmatch(text) and text == text.strip() and (in_table or not (text[:1] in "#>-+=" or text[:1].isdigit() or "#" in text)):
+    if (
+        _PLAIN.fullmatch(text)
+        and text == text.strip()
+        and (in_table or not (text[:1] in "#>-+=" or text[:1].isdigit() or "#" in text))
+        and _LIVE.search(text) is None
+    ):
         return Markdown(text)  # most names and numbers: nothing to escape (a 1,000-cell report writes 200,000 of them)
     text = _CONTROL.sub(" ", text).strip()
+    spans: list[list[int]] = []  # side by side, two code spans would read as one with a fence of two backticks
+    for live in _LIVE.finditer(text):
+        if spans and spans[-1][1] == live.start():
+            spans[-1][1] = live.end()
+        else:
+            spans.append([live.start(), live.end()])
+    pieces, at = [], 0
+    for start, end in spans:
+        pieces += [_escaped(text[at:start], in_table), md_code(text[start:end], in_table)]
+        at = end
+    escaped = "".join(pieces) + _escaped(text[at:], in_table)
+    return Markdown(escaped if in_table else _escape_line_start(escaped))
+
+
+def _escaped(text: str, in_table: bool) -> str:
+    """Text with every character that could start markdown structure inside a line backslash-escaped."""
     out = []
     for i, ch in enumerate(text):
         after = text[i + 1] if i + 1 < len(text) else " "
@@ -103,8 +139,7 @@ def _md_text(text: str, in_table: bool) -> Markdown:
             out.append("\\" + ch)
         else:
             out.append(ch)
-    escaped = "".join(out)
-    return Markdown(escaped if in_table else _escape_line_start(escaped))
+    return "".join(out)
 
 
 def _escape_line_start(text: str) -> str:

@@ -14,7 +14,11 @@ file and line given, beside the scenario in the pull request's diff:
 GitHub shows at most 10 error and 10 warning annotations of a step; past that the tenth
 says how many more there are, so the first failures are never drowned by the rest.
 Escaping is GitHub's (actions/toolkit's `command.ts`): `%`, CR and LF in the message;
-those and `:` and `,` in property values.
+those and `:` and `,` in property values.  Before that, every line of a message and every
+property is shown as a terminal may get it (`printable.for_terminal`): a thread's name
+from the kernel may hold a newline, which would forge a line of the message, or an escape
+sequence, which the job's log would interpret.  A message of several lines is made of
+lines each made so.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional
 
 from runner.errors import Problem
+from runner.printable import for_terminal, lines_for_terminal
 
 if TYPE_CHECKING:  # the outcomes (and the report they word things as) load only when there is a run to annotate
     from runner.report.compare import Comparison
@@ -58,11 +63,12 @@ class Annotation:
     def command(self) -> str:
         """`::error file=scenarios/x.yaml,line=36,col=5,title=...::message`, escaped."""
         props = [
-            f"{key}={escape_property(str(value))}"
+            f"{key}={escape_property(for_terminal(str(value)))}"
             for key, value in (("file", self.file), ("line", self.line), ("col", self.col), ("title", self.title))
             if value is not None and value != ""
         ]
-        return f"::{self.level} {','.join(props)}::{escape_data(self.message)}" if props else f"::{self.level}::{escape_data(self.message)}"
+        message = escape_data(lines_for_terminal(self.message))
+        return f"::{self.level} {','.join(props)}::{message}" if props else f"::{self.level}::{message}"
 
 
 def enabled(env: dict[str, str]) -> bool:
@@ -94,13 +100,15 @@ def for_run(doc: RunDocument, comparison: Optional[Comparison], file: Optional[s
     suites = cell_checks(doc, comparison, run)
     errors = _grouped(suites, Kind.EXPECTATION, Outcome.FAILED, "error", "expectation failed", file)
     errors += [
-        Annotation("error", check.message, file, title=f"cell {suite.title}: {suite.status.value if suite.status else 'error'}")
+        Annotation(
+            "error", for_terminal(check.message), file, title=f"cell {suite.title}: {suite.status.value if suite.status else 'error'}"
+        )
         for suite in suites
         for check in suite.checks
         if check.outcome is Outcome.ERROR
     ]
     warnings = _grouped(suites, Kind.BASELINE, Outcome.FAILED, "warning", "regression", file)
-    warnings += [Annotation("warning", note, file, title=f"cell {suite.title}") for suite in suites for note in suite.notes]
+    warnings += [Annotation("warning", for_terminal(note), file, title=f"cell {suite.title}") for suite in suites for note in suite.notes]
     return _capped(errors, "error") + _capped(warnings, "warning")
 
 
@@ -114,7 +122,7 @@ def _grouped(suites: Sequence[CellChecks], kind: Kind, outcome: Outcome, level: 
     out = []
     for (name, line, col), where in groups.items():
         cells = [title for title, _ in where]
-        message = "\n".join(f"cell {title}: {text}" for title, text in where)
+        message = "\n".join(for_terminal(f"cell {title}: {text}") for title, text in where)  # a line each, whatever the names
         out.append(Annotation(level, message, file, line, col, f"{what} in {_cells(cells)}: {name}"))
     return out
 

@@ -14,7 +14,10 @@ what every reader takes (tests/junit.xsd checks it):
 One test suite per cell run, so a reader groups by cell and shows the matrix values.
 Test case names stay the same from run to run (they name the check, not its result), so
 Jenkins and GitLab can follow a check across nights.  Times are seconds.  Messages are the
-report's words (`outcomes.py`).  Text XML 1.0 cannot hold (control characters) is escaped.
+report's words (`outcomes.py`).  Names come from the scenario, the kernel and results files:
+every name, attribute and message is shown as a terminal may get it (`printable.for_terminal`:
+an escape sequence or a newline in a thread's name is `?`, as ps shows it), since readers print
+them on terminals and list them one per line; what XML 1.0 cannot hold at all never reaches it.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import re
 import xml.etree.ElementTree as ET
 from typing import Optional
 
+from runner.printable import for_terminal
 from runner.report.compare import Comparison
 from runner.report.outcomes import CellChecks, Check, Kind, Outcome, cell_checks
 from runner.results.document import RunDocument
@@ -32,8 +36,8 @@ _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
 
 
 def xml_text(text: str) -> str:
-    """`text` with the characters XML 1.0 cannot carry written as `\\x1b`, `\\ud800`."""
-    return _NOT_XML.sub(lambda m: repr(m.group())[1:-1], text)
+    """One line of text as a terminal may show it, with nothing XML 1.0 cannot carry (`for_terminal` leaves none)."""
+    return _NOT_XML.sub("?", for_terminal(text))
 
 
 def seconds(ns: int) -> str:
@@ -79,7 +83,7 @@ def _suite(scenario: str, path: Optional[str], suite: CellChecks) -> ET.Element:
     for check in suite.checks:
         element.append(_case(f"{scenario}.{suite.title}", path, check))
     if suite.notes:
-        ET.SubElement(element, "system-out").text = xml_text("\n".join(suite.notes))
+        ET.SubElement(element, "system-out").text = "\n".join(xml_text(note) for note in suite.notes)  # a line each
     return element
 
 

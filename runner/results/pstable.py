@@ -1,7 +1,9 @@
 """ps-style thread tables, byte for byte as procps prints `ps -L -o tid,comm,rtprio,cls,psr`.
 
 Pure: rows in, text out.  Column rules follow procps-ng: TID as wide as the
-largest possible PID, COMMAND 15 wide and left-aligned (unpadded when last),
+largest possible PID, COMMAND 15 columns wide and left-aligned (unpadded when last), its
+unprintable characters `?` (`printable.for_terminal`) and its width counted in terminal
+columns (a CJK character takes two),
 RTPRIO `-` for SCHED_OTHER only, NI `-` for policies other than TS and B, every
 other column right-aligned, one space apart.  Columns are named as procps names them
 (`nvcsw`, `nivcsw`: headers VCSW, IVCSW); `cpus` (the affinity list) is the runner's own.
@@ -15,6 +17,7 @@ from typing import Optional, Protocol
 
 from runner import units
 from runner.errors import UsageError, did_you_mean
+from runner.printable import for_terminal, width
 
 CLS = {0: "TS", 1: "FF", 2: "RR", 3: "B", 5: "IDL", 6: "DLN"}
 
@@ -99,7 +102,7 @@ def columns_for(pid_width: int = 5) -> dict[str, Column]:
     return {
         "tid": Column("TID", max(pid_width, 3), False, lambda r: str(r.tid)),
         "pid": Column("PID", max(pid_width, 3), False, lambda r: str(r.pid)),
-        "comm": Column("COMMAND", 15, True, lambda r: r.comm),
+        "comm": Column("COMMAND", 15, True, lambda r: for_terminal(r.comm)),
         "rtprio": Column("RTPRIO", 6, False, _rtprio),
         "cls": Column("CLS", 3, False, lambda r: r.cls),
         "psr": Column("PSR", 3, False, lambda r: str(r.psr)),
@@ -137,9 +140,10 @@ def render_ps(rows: Sequence[TableRow], columns: Optional[list[str]] = None, pid
         parts = []
         for i, (col, text) in enumerate(zip(cols, cells)):
             last = i == len(cols) - 1
+            gap = " " * (col.width - width(text))
             if col.left:
-                parts.append(text if last else text.ljust(col.width))
+                parts.append(text if last else text + gap)
             else:
-                parts.append(text.rjust(col.width))
+                parts.append(gap + text)
         lines.append(" ".join(parts))
     return "\n".join(lines) + "\n"

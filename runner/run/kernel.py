@@ -11,6 +11,7 @@ import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional
 
+from runner.printable import decode
 from runner.results.pstable import CLS, ThreadRow
 
 if TYPE_CHECKING:
@@ -69,9 +70,10 @@ def current_settings() -> Settings:
 
 
 def _read(path: str) -> str:
-    """A /proc file as text; a name that is not UTF-8 (comm: any 15 bytes a process chose) is read with U+FFFD in it."""
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        return handle.read()
+    """A /proc file as text; a name that is not UTF-8 (comm: any 15 bytes a process chose) is read with one U+FFFD per
+    byte that is not, as ps shows one `?` for each (runner.printable)."""
+    with open(path, "rb") as handle:
+        return decode(handle.read())
 
 
 def parse_stat(text: str) -> tuple[str, list[str]]:
