@@ -372,6 +372,7 @@ def _watch_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--allow-priority-99", action="store_true", help="let a rule ask for RT priority 99 (refused otherwise)")
     p.add_argument("--no-plots", action="store_true", help="write the report without plots")
+    p.add_argument("--no-trace", action="store_true", help="do not trace the scheduler (tracefs), as runner SCENARIO --no-trace")
     return p
 
 
@@ -396,7 +397,7 @@ def _cmd_watch(argv: list[str]) -> int:
     held = outdir.claim(ns.out or default_folder())
     try:
         with StopSignals() as stop:
-            doc = watch(pids, duration, held.folder, rules, stop.requested)
+            doc = watch(pids, duration, held.folder, rules, stop.requested, trace=not ns.no_trace)
         doc.command = ["runner", "watch", *argv]
         doc.folder = held.folder
         path = os.path.join(held.folder, "results.json")
@@ -406,6 +407,8 @@ def _cmd_watch(argv: list[str]) -> int:
         held.release()
     cell = doc.cells[0]
     say(render_cell(cell, pid_width()))
+    if cell.trace is not None and not cell.trace.enabled:
+        say(for_terminal(f"watch: scheduler trace not taken: {cell.trace.reason}"))
     say(for_terminal(f"watch: {cell.status.value}{': ' + cell.reason if cell.reason else ''}; results: {path}; report: {report}"))
     return exit_code([cell.status])
 

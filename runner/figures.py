@@ -263,7 +263,7 @@ REGISTRY: tuple[Figure, ...] = (
     *(
         Figure(
             f"wakeup.{q}",
-            f"wake-up latency from the scheduler trace {words}",
+            f"waking-to-running latency (scheduler trace) {words}",
             Unit.NS,
             Scope.OUTSIDE,
             ("wakeup_ns", q),

@@ -166,7 +166,7 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     from tabulate import tabulate
 
     from runner import figures as fg
-    from runner.report.fmt import fmt_figure
+    from runner.report.fmt import fmt_figure, samples_words
     from runner.report.selection import TERMINAL_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
     from runner.results.pstable import render_ps
 
@@ -195,6 +195,8 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     verdicts, more = verdicts_shown(cell.expectations, TERMINAL_ROWS)
     for v in verdicts:
         measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
+        if v.measured is not None and v.samples is not None:
+            measured += f", of {samples_words(v.figure, v.samples)}"
         said = f"{v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
         out.append(f"  {'ok  ' if v.passed else 'FAIL'} {for_terminal(said)}")
     if more:

@@ -3,8 +3,11 @@
 "How does my running robot behave" is one command: the named processes' threads are
 followed for the duration exactly as a scenario's `command:` programs are (the monitor
 lists their threads, reads their counters from /proc, and applies thread rules only when
-asked with `--rule`), and the same results.json and report are written.  Nothing is
-started and, without rules, nothing is changed.
+asked with `--rule`), the scheduler is traced as a run traces it (wake-up latency from
+sched_waking to running, preemptions and who preempted, migrations; `--no-trace` leaves it
+out, and where tracefs or the rights are missing the cell says why), and the same
+results.json and report are written.  Nothing is started and, without rules, nothing is
+changed.
 """
 
 from __future__ import annotations
@@ -18,11 +21,14 @@ from datetime import datetime, timezone
 from runner.errors import UsageError
 from runner.results.document import CellResult, PermissionsInfo, RunDocument, ScenarioInfo, Status, ps_rows, worst
 from runner.results.pstable import ThreadRow
-from runner.run import kernel
+from runner.run import kernel, tracing
 from runner.run.evaluate import degradation
 from runner.run.external import Monitor, ProgramRun
 from runner.run.outside import outcome
+from runner.run.traced import Task, apply
+from runner.run.traced import warnings as trace_warnings
 from runner.scenario.model import ProgramSpec, ThreadRule
+from runner.scenario.plan import Settings
 from runner.scenario.typed import Invalid
 
 RULE_FORM = "PATTERN=SCHED, PATTERN@CPUS or PATTERN=SCHED@CPUS, e.g. 'ctl_loop=fifo:80@1'"
@@ -76,8 +82,13 @@ def _spec(pid: int, rules: list[ThreadRule]) -> ProgramSpec:
     return ProgramSpec(name=name, command=argv or [comm], threads=rules, grace=0)
 
 
-def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule], stop_requested: Callable[[], bool]) -> RunDocument:
-    """Follow the processes for `duration_ns` (or until stopped) and return the run's document, one cell long."""
+def watch(
+    pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule], stop_requested: Callable[[], bool], trace: bool = True
+) -> RunDocument:
+    """Follow the processes for `duration_ns` (or until stopped) and return the run's document, one cell long.
+
+    `trace`: trace the scheduler for them (tracefs), as a run traces its cells.
+    """
     online = kernel.online_cpus()
     start = kernel.current_settings()
     runs = []
@@ -86,12 +97,30 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
         run.attach(pid)
         runs.append(run)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    tracer = tracing.open_trace(pids) if trace else None
+    try:
+        return _watched(runs, duration_ns, start, started_at, stop_requested, tracer)
+    finally:
+        if isinstance(tracer, tracing.Tracer):
+            tracer.close()
+
+
+def _watched(
+    runs: list[ProgramRun],
+    duration_ns: int,
+    start: Settings,
+    started_at: str,
+    stop_requested: Callable[[], bool],
+    tracer: tracing.Tracer | tracing.TraceUnavailable | None,
+) -> RunDocument:
     monitor = Monitor(runs)
     monitor.start()
     # The window opens once every thread there is listed: one listed after its start counts as born in the window,
     # from zero, and a process's whole life before the watch was reported as the watch's.
     began = time.monotonic_ns()
     monitor.window_start = began
+    if isinstance(tracer, tracing.Tracer):
+        tracer.window(began, None)  # the reader holds events back 10 ms: none of the window is counted before it is set
     table: list[ThreadRow] = []
     interrupted = False
     end = began + duration_ns
@@ -108,6 +137,12 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
     finally:
         monitor.stop()
     stopped = time.monotonic_ns()
+    traced: tracing.TraceData | tracing.TraceUnavailable | None = tracer if isinstance(tracer, tracing.TraceUnavailable) else None
+    tasks: dict[int, Task] = {}
+    if isinstance(tracer, tracing.Tracer):
+        tracer.window(began, stopped)
+        traced = tracer.stop()
+        tasks = {tid: Task(*task) for tid, task in tracing.named_tasks(traced).items()}  # while the processes live
     cell = CellResult(id=WATCH_CELL, spec_hash="-", status=Status.PASSED, started_at=started_at, duration_ns=stopped - began)
     failures: list[str] = []
     for run in runs:
@@ -116,6 +151,8 @@ def watch(pids: list[int], duration_ns: int, folder: str, rules: list[ThreadRule
         cell.threads.extend(t for _, t in out.threads)
         failures += out.failures
         cell.warnings += out.warnings
+    cell.threads, cell.trace = apply(cell.threads, traced, tasks, began)
+    cell.warnings += trace_warnings(cell.trace)
     ruled = sum(1 for t in cell.threads if t.rule is not None)
     if ruled:
         cell.warnings.append(

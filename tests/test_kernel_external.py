@@ -213,6 +213,31 @@ def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_pat
     assert ctl["tid"] != pid and thread(results, NAME)["tid"] == pid
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="tracing needs root")
+def test_watch_traces_the_scheduler_as_a_run_does_and_says_so_when_told_not_to(tmp_path, program):
+    """`runner watch` never traced: its report had no wake-up latency, no preemptions, and said nothing about it."""
+    proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
+    try:
+        wait_for_threads(NAME, 5)
+        done = _watch(tmp_path, NAME, "1s", "traced")
+        untraced = _watch(tmp_path, NAME, "500ms", "untraced", ("--no-trace",))
+    finally:
+        proc.kill()
+        proc.wait()
+    assert done.code == 0, done.err
+    cell = done.results["cells"][0]
+    assert cell["trace"]["enabled"] and cell["trace"]["events"] > 0, cell["trace"]
+    wakeup = thread(done.results, "ctl_loop")["figures"]["wakeup_ns"]
+    assert wakeup is not None and wakeup["count"] > 500, wakeup  # a 1 ms loop wakes about 1000 times a second
+    report = (tmp_path / "traced" / "report.md").read_text(encoding="utf-8")
+    assert "Wake-ups traced" in report and "Scheduler trace: " in report
+    assert untraced.results is not None, untraced.err
+    cell = untraced.results["cells"][0]
+    assert not cell["trace"]["enabled"] and "--no-trace" in cell["trace"]["reason"]
+    assert "watch: scheduler trace not taken: not asked for (--no-trace)" in untraced.out
+    assert "Scheduler trace: not taken (not asked for (--no-trace))" in (tmp_path / "untraced" / "report.md").read_text(encoding="utf-8")
+
+
 def test_watch_of_a_real_time_process_changes_and_checks_nothing_and_a_stopped_one_is_an_error(tmp_path):
     """`runner watch` of a FIFO 30 process was an error (`policy other requested`); of a stopped one, `passed`."""
     proc = subprocess.Popen(["chrt", "-f", "30", "sleep", "30"], start_new_session=True)

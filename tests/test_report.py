@@ -971,3 +971,53 @@ def test_a_programs_command_line_is_written_as_a_shell_would_read_it_back():
     program = ProgramResult(name="p", argv=["sh", "-c", "echo 'hi' $HOME", ""], path="/bin/sh", started=True, requested=Settings())
     cell = CellResult(id="c", spec_hash="-", status=Status.PASSED, started_at="now", programs=[program])
     assert "`sh -c 'echo '\"'\"'hi'\"'\"' $HOME' ''`" in program_lines(cell)[0]
+
+
+# ---------------------------------------------------------------- the trace's latency, with its wake-ups
+
+
+def _traced(wakeups: int):
+    """The recorded matrix's first cell, its periodic thread traced: waking to running of `wakeups` wake-ups, 15 µs."""
+    from reportdata import main_thread
+
+    from runner.histogram import from_rows, index
+    from runner.run.measure import spread
+
+    doc = matrix()
+    cell = doc.cells[0]
+    t = main_thread(cell)
+    wakeup = spread(from_rows([(index(15_000), wakeups)], 15_000, 15_000), 15_000.0, None, wakeups)
+    figures = t.figures.model_copy(update={"wakeup_ns": wakeup, "preemptions": 0})
+    cell.threads[cell.threads.index(t)] = t.model_copy(update={"figures": figures})
+    return doc, cell, t.model_copy(update={"figures": figures})
+
+
+def test_a_trace_figure_says_how_many_wake_ups_it_stands_on_in_results_report_and_terminal():
+    """A DEADLINE thread's "p50/p99/max 15.0 us" came from 1 of its 20 wake-ups, and nothing said so."""
+    from runner.figures import figure
+    from runner.run.measure import check
+    from runner.scenario.model import Expectation
+    from runner.terminal import render_cell
+
+    doc, cell, t = _traced(1)
+    assert t.figures.wakeup_ns is not None and t.figures.wakeup_ns.count == 1
+    verdict = check(Expectation.parse({"thread": "x", "metric": "wakeup.p99", "max": "1ms"}), "x", t.figures)
+    assert verdict.passed and verdict.samples == 1 and verdict.figure == figure("wakeup.p99")
+    cell.expectations = [verdict]
+    text = report.render_run(doc)
+    outside = next(tb for tb in tables(text) if any("Wake-ups traced" in c for c in tb[0]))
+    head = outside[0]
+    row = next(r for r in outside[1:] if r[head.index("Wake-ups traced")] != "–")
+    assert row[head.index("Wake-ups traced")] == "1" and row[head.index("Waking to running p50 (µs)")] == "15.0"
+    assert "| 15 (1 wake-up) |" in text, "the verdict's measured value with its wake-ups"
+    assert "(measured 15.0 µs, of 1 wake-up)" in render_cell(cell)
+    assert "does not compare with the runner's own threads' wake-up latency" in text
+
+
+def test_spreads_keep_their_count_and_older_files_without_it_read_as_unknown():
+    from runner.results.threadfigures import Spread
+
+    _, _, t = _traced(20)
+    assert t.figures.wakeup_ns is not None and t.figures.wakeup_ns.count == 20
+    assert t.figures.latency_ns is not None and t.figures.latency_ns.count is None  # recorded before the count was kept
+    assert Spread.model_validate({"min": 1, "p50": 1, "p90": 1, "p99": 1, "p999": 1, "max": 1}).count is None

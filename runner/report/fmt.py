@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from wcwidth import wcswidth
 
 from runner import units
-from runner.figures import Number, Unit, scale
+from runner.figures import Figure, Number, Unit, scale
 
 
 def fmt_ns(value: Number | None) -> str:
@@ -46,6 +46,15 @@ def fmt_figure(value: Number | None, unit: Unit) -> str:
     if unit is Unit.NS:
         return fmt_ns(value)
     return scale(unit).number(value)
+
+
+_SAMPLE_NOUNS = {"wakeup_ns": "wake-up", "latency_ns": "release", "callback_wall_ns": "callback"}
+
+
+def samples_words(figure: Figure, count: int) -> str:
+    """How many values a percentile, mean or extreme stands on: `20 wake-ups`, `1 release`, `3 events`."""
+    noun = _SAMPLE_NOUNS.get(figure.path[0], "event")
+    return f"{count:,} {noun}{'' if count == 1 else 's'}"
 
 
 # ---------------------------------------------------------------- text from the scenario, as markdown

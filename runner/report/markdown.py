@@ -34,6 +34,7 @@ from runner.report.fmt import (
     md_code_block,
     md_text,
     pipe_table,
+    samples_words,
 )
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
 from runner.results.document import (
@@ -307,7 +308,11 @@ def _measured_outside(t: ThreadResult) -> bool:
 
 
 def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
-    """Per thread measured from outside (a program's, or any the scheduler trace followed): rates, CPU time, trace figures."""
+    """Per thread measured from outside (a program's, or any the scheduler trace followed): rates, CPU time, trace figures.
+
+    The trace's latency is from each sched_waking to the switch onto a CPU, beside how many wake-ups it stands on
+    (a p99 of 1 wake-up is that wake-up); it is not the release-to-run latency of `latency_table`.
+    """
     chosen = [(label, t) for label, t in rows if _measured_outside(t)]
     if not chosen:
         return None
@@ -326,6 +331,7 @@ def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
             cpu.number(t.figures.cpu_time_ns),
             fmt_int(t.figures.migrations),
             fmt_int(t.figures.preemptions),
+            fmt_int(t.figures.wakeup_ns.count if t.figures.wakeup_ns else None),
             wake.number(t.figures.wakeup_ns.p50 if t.figures.wakeup_ns else None),
             wake.number(t.figures.wakeup_ns.p99 if t.figures.wakeup_ns else None),
             wake.number(t.figures.wakeup_ns.max if t.figures.wakeup_ns else None),
@@ -340,7 +346,8 @@ def outside_table(rows: Rows, first: str = "Thread") -> Table | None:
         cpu.header("CPU time"),
         "Migrations",
         "Preemptions",
-        wake.header("Wake-up p50"),
+        "Wake-ups traced",
+        wake.header("Waking to running p50"),
         wake.header("p99"),
         wake.header("max"),
     ]
@@ -640,6 +647,8 @@ def verdict_table(cell: CellResult) -> Table | None:
         sc = fg.scale(v.figure.unit, [v.measured, *(b for _, b in bounds or [])])
         limit = " and ".join(f"{op} {sc.number(b)}" for op, b in bounds) if bounds is not None else v.limit
         measured = sc.number(v.measured) if v.measured is not None else "not measured"
+        if v.measured is not None and v.samples is not None:
+            measured += f" ({samples_words(v.figure, v.samples)})"
         rows.append(
             [
                 "✅ pass" if v.passed else "❌ FAIL",

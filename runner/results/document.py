@@ -236,6 +236,9 @@ class Verdict(_Record):
     measured: Measured = Field(description="the figure's value in its unit (integer ns for durations); null: not measured")
     passed: bool
     note: str = ""
+    samples: Optional[NonNegativeInt] = Field(
+        None, description="for a percentile, mean or extreme: how many values it stands on (wake-ups, releases); null otherwise"
+    )
     line: Optional[Annotated[int, Field(ge=1)]] = Field(
         None, description="where the expectation is written in the scenario file (`scenario.path`), 1-based; null: not recorded"
     )

@@ -46,6 +46,9 @@ class Spread(_Figures):
     mean: Optional[int] = None  # exact (a running mean), rounded to the ns
     stddev: Optional[int] = None  # population standard deviation, rounded to the ns
     above_bound: Optional[Count] = None  # values above the scenario's latency_bound, when one is set
+    count: Optional[Count] = Field(
+        None, description="how many values the figures stand on (a p99 of 1 wake-up is that one); null in files from before it was kept"
+    )
 
 
 class Slack(_Figures):

@@ -90,6 +90,7 @@ def spread(
         mean=mean_ns,
         stddev=round(math.sqrt(max(0.0, m2) / n)) if mean_ns is not None and m2 is not None else None,
         above_bound=above,
+        count=hist.count,
     )
 
 
@@ -115,4 +116,12 @@ def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
         }.get(fig.scope, "no callbacks")
         return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note=f"not measured ({why})")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)
-    return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok)
+    return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=value, passed=ok, samples=samples(figs, fig))
+
+
+def samples(figs: ThreadFigures, fig: fg.Figure) -> Optional[int]:
+    """How many values `fig` stands on, when it is a percentile, mean or extreme of a spread (a p99 of 1 wake-up)."""
+    spread_of = getattr(figs, fig.path[0], None)
+    if isinstance(spread_of, Spread) and len(fig.path) == 2 and fig.path[1] != "above_bound":
+        return spread_of.count
+    return None

@@ -1022,13 +1022,7 @@ class _CellRun:
         data = self.tracer.stop()
         self.tracer = None
         self.trace = data
-        tids = {p.tid for t in data.threads.values() for p in t.preemptors} | {
-            w.delayer_tid for t in data.threads.values() for w in t.worst
-        }
-        for tid in tids:
-            task = kernel.task_of(tid)
-            if task is not None:
-                self.trace_tasks[tid] = Task(*task)
+        self.trace_tasks.update({tid: Task(*task) for tid, task in tracing.named_tasks(data).items()})
 
     def _running(self, t_end: int) -> bool:
         """Whether the cell goes on: a worker runs, or a program runs before the end (every `until: exit` one, before its exit)."""

@@ -477,6 +477,15 @@ def remove_stale(root: str, owner: Optional[int] = None) -> list[str]:
     return removed
 
 
+def named_tasks(data: TraceData) -> dict[int, tuple[int, str]]:
+    """(pid, class as ps writes it) of each task the trace names as a preemptor or a delayer, read from /proc now:
+    call it while they live (hogs and programs are still running)."""
+    from runner.run import kernel
+
+    tids = {p.tid for t in data.threads.values() for p in t.preemptors} | {w.delayer_tid for t in data.threads.values() for w in t.worst}
+    return {tid: task for tid in tids if (task := kernel.task_of(tid)) is not None}
+
+
 def thread_ids(pid: int) -> list[int]:
     """The threads of process `pid` now ([] once it has gone)."""
     try:
