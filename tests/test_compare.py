@@ -576,7 +576,7 @@ def test_trace_figures_are_not_comparable_where_the_trace_lost_events_in_either_
     from runner.report.junit import junit_xml
 
     xml = junit_xml(new, result, run=False).decode()
-    assert "wake-up latency from the scheduler trace p99 4.0 µs → 40.0 µs: not comparable (the scheduler trace lost events" in xml
+    assert "waking-to-running latency (scheduler trace) p99 4.0 µs → 40.0 µs: not comparable (the scheduler trace lost events" in xml
 
 
 def test_the_registry_marks_the_figures_taken_from_the_scheduler_trace():

@@ -61,6 +61,7 @@ def test_figures_of_a_callback_thread():
         "mean": 20_000,
         "stddev": 8165,
         "above_bound": None,
+        "count": 3,  # what the percentiles stand on: the 3 releases answered
     }
     assert f.faults.minor_first_callback == 12800 and f.faults.minor_after_first == 0
     assert f.cpus_seen == (0, 1)

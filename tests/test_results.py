@@ -318,6 +318,7 @@ def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
         "measured": 58_366,
         "passed": True,
         "note": "",
+        "samples": None,  # how many values the figure stands on: not told, for a verdict built by hand
         "line": None,  # where the scenario declares it: none for a verdict built by hand
         "col": None,
     }
