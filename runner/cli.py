@@ -240,15 +240,20 @@ def _say(text: str) -> None:
 
 
 def _internal_error(exc: BaseException) -> int:
-    """A bug: one line for the user, the whole traceback in a file for the bug report."""
+    """A bug: one line for the user, the whole traceback in a file for the bug report.
+
+    The file is new, of a name no one can guess, readable by its owner alone (mkstemp: O_EXCL,
+    O_NOFOLLOW, 0600): in a shared /tmp, a name known in advance could be a link another user
+    put there, which an open of that name would write through, as root too.
+    """
     import tempfile  # here, not at the top: only a bug needs them, and every command would pay for both
     import traceback
 
     text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     where = os.environ.get("RUNNER_CRASH_DIR") or tempfile.gettempdir()
-    path = os.path.join(where, f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.txt")
     try:
-        with open(path, "w", encoding="utf-8", errors="backslashreplace") as handle:
+        fd, path = tempfile.mkstemp(prefix=f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-", suffix=".txt", dir=where)
+        with os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace") as handle:
             handle.write(f"runner {__version__}\ncommand: {' '.join(map(_shown, sys.argv))}\n\n{text}")
         saved = f"the traceback is in {path}"
     except (OSError, ValueError):

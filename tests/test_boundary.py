@@ -13,6 +13,7 @@ import errno
 import io
 import os
 import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -42,6 +43,33 @@ def test_a_bug_prints_one_line_saves_the_traceback_and_exits_70(tmp_path, monkey
     saved = list(tmp_path.glob("runner-bug-*.txt"))
     assert len(saved) == 1 and str(saved[0]) in err
     assert "Traceback (most recent call last)" in saved[0].read_text() and "def broken" not in err
+
+
+def test_the_crash_report_is_a_new_private_file_never_a_name_planted_in_advance(tmp_path, monkeypatch, capsys):
+    """Its name was runner-bug-<second>-<pid>.txt in /tmp: another user could plant that link, and the runner wrote through it."""
+    victim = tmp_path / "victim"
+    victim.write_text("keep me\n")
+    crash = tmp_path / "crash"
+    crash.mkdir()
+    now = time.time()
+    for second in range(-1, 4):
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.localtime(now + second))
+        (crash / f"runner-bug-{stamp}-{os.getpid()}.txt").symlink_to(victim)
+    monkeypatch.setenv("RUNNER_CRASH_DIR", str(crash))
+
+    def broken(argv: list[str]) -> int:
+        raise ZeroDivisionError("division by zero")
+
+    mask = os.umask(0)
+    try:
+        assert cli._guarded(broken, []) == 70
+    finally:
+        os.umask(mask)
+    assert victim.read_text() == "keep me\n"
+    saved = [p for p in crash.iterdir() if not p.is_symlink()]
+    assert len(saved) == 1 and str(saved[0]) in capsys.readouterr().err
+    assert stat.S_IMODE(saved[0].stat().st_mode) == 0o600, "readable by its owner alone, whatever the umask"
+    assert "ZeroDivisionError" in saved[0].read_text()
 
 
 def test_a_bug_under_a_command_line_that_is_not_utf8_still_saves_its_traceback(tmp_path, monkeypatch, capsys):
