@@ -223,7 +223,7 @@ def test_a_fifo_named_as_an_output_is_checked_without_waiting_on_it(tmp_path):
 
 def test_stdout_and_a_pipe_as_stdin_are_written_and_read_where_they_are(tmp_path):
     """/dev/stdout on a pipe once resolved to /proc/N/fd/pipe:[M], which no file can be made beside."""
-    code = "from runner.results.files import write_atomic; write_atomic('/dev/stdout', 'through\\n')"
+    code = "from runner.safefs import write_named; write_named('/dev/stdout', 'through\\n')"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 0 and done.stdout == "through\n", done.stderr
     log = tmp_path / "log"

@@ -85,7 +85,7 @@ def remove_instance(path: str, wait_s: float = 0.0) -> bool:
     if os.path.basename(os.path.dirname(path)) != "instances" or not os.path.basename(path).startswith("runner-"):
         return False
     try:
-        fd = os.open(os.path.join(path, "tracing_on"), os.O_WRONLY)  # never created where it is not
+        fd = os.open(os.path.join(path, "tracing_on"), os.O_WRONLY | os.O_NOFOLLOW | os.O_CLOEXEC)  # never created, never a link
         try:
             os.write(fd, b"0")
         finally:
