@@ -325,22 +325,28 @@ def test_guard_follows_cgroups_beside_process_groups():
     assert left.groups == {100} and left.cgroups == {"/cg/runner-1-command0"} and left.instances == {"/t/instances/runner-1-0"}
 
 
-def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path):
-    """The owner (a shell standing in for the runner) dies by SIGKILL; the group it started dies with it."""
+@pytest.mark.parametrize("killed", ["the owner", "the owner and its guard"])
+def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path, killed):
+    """The owner (a process standing in for the runner) dies by SIGKILL; the group it started dies with it.
+
+    Killed beside its guard, the owner's group once lived on: the guard's second does the guard's work then.
+    """
     script = (
         "import subprocess, sys, time\n"
         "from runner.run.guard import Guard\n"
         "g = Guard()\n"
         "p = subprocess.Popen(['sh', '-c', 'sleep 60 & sleep 60'], start_new_session=True)\n"
         "g.watch(p.pid)\n"
-        "print(p.pid, flush=True)\n"
+        "print(p.pid, g.proc.pid, flush=True)\n"
         "time.sleep(60)\n"
     )
     owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     assert owner.stdout is not None
-    pgid = int(owner.stdout.readline())
+    pgid, guard_pid = map(int, owner.stdout.readline().split())
     time.sleep(0.3)
     assert _group_members(pgid), "the watched group should be running"
+    if killed == "the owner and its guard":
+        os.kill(guard_pid, signal.SIGKILL)
     owner.kill()
     owner.wait()
     until = time.monotonic() + 5

@@ -80,7 +80,7 @@ def test_background_commands_and_their_children_die_with_a_sigkilled_runner(tmp_
     assert not find_pids("cmdkill") and not any(_alive(p) for p in sleepers)
 
 
-@pytest.mark.parametrize("end", ["the cell ends", "the runner is SIGKILLed"])
+@pytest.mark.parametrize("end", ["the cell ends", "the runner is SIGKILLed", "the runner and its guard are SIGKILLed together"])
 def test_what_a_program_or_command_starts_in_a_session_of_its_own_dies_with_the_cell(tmp_path, end):
     """`setsid sleep &` left its group and outlived a finished run: the cgroup each is started in holds it anyway.
 
