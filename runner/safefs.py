@@ -19,8 +19,9 @@ of it, least of all when it runs as root.  So every write of the runner goes thr
   anywhere else, except the paths of the runner's own descriptors (`/dev/stdout`, `/dev/fd/N`),
   which are written into; so is a device or FIFO named as it is (`/dev/null`, a named pipe).
 
-A link (or a FIFO, device or socket where a regular file is written) is refused with an OSError
-naming the path: errno ELOOP for a link, EINVAL for the others, worded by `errors.from_os_error`,
+A link (or a FIFO, device or socket where a regular file is written, or a file of several names
+where one is written into) is refused with an OSError naming the path: errno ELOOP for a link,
+EINVAL or EMLINK for the others, worded by `errors.from_os_error`,
 which also decides the exit code (2 before a run, 4 once it ran).  Only the standard library is
 imported: the guard (runner/run/guard.py) writes through here too.
 """
@@ -87,11 +88,13 @@ def open_write(path: str, flags: int = os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mo
     """os.open(path, flags) for writing a regular file, never through a link (O_NOFOLLOW) nor into anything else.
 
     Opened with O_NONBLOCK, so a FIFO found there (no reader: ENXIO) or one with a reader does not
-    hold the runner up; what was opened is checked to be a regular file, and O_NONBLOCK taken off.
+    hold the runner up; what was opened is checked to be a regular file of one name (a hard link
+    planted in an unpacked archive, as root, could be any file of the machine), and only then
+    truncated (O_TRUNC) and O_NONBLOCK taken off.
     """
     check_target(path)  # refuse before the open: opening a device can do something of its own
     try:
-        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK, mode)
+        fd = os.open(path, (flags & ~os.O_TRUNC) | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK, mode)
     except OSError as exc:
         if exc.errno == errno.ELOOP:  # a link made since the check
             raise link_refused(path) from None
@@ -99,9 +102,13 @@ def open_write(path: str, flags: int = os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mo
             check_target(path)
         raise
     try:
-        found = os.fstat(fd).st_mode
-        if not stat.S_ISREG(found):
-            raise OSError(errno.EINVAL, f"{_kind(found)}, not a regular file, which the runner does not write into here", path)
+        found = os.fstat(fd)
+        if not stat.S_ISREG(found.st_mode):
+            raise OSError(errno.EINVAL, f"{_kind(found.st_mode)}, not a regular file, which the runner does not write into here", path)
+        if found.st_nlink > 1:
+            raise OSError(errno.EMLINK, f"a file of {found.st_nlink} names (hard links), which the runner does not write into", path)
+        if flags & os.O_TRUNC:
+            os.ftruncate(fd, 0)
         os.set_blocking(fd, True)
     except BaseException:
         os.close(fd)

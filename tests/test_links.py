@@ -160,6 +160,14 @@ def test_a_program_output_or_log_that_is_a_link_is_refused(tmp_path, victim):
     _untouched(victim)
 
 
+def test_a_file_of_several_names_is_not_truncated_nor_written_into(tmp_path, victim):
+    """A hard link in an unpacked archive is as bad as a symbolic one, as root: the same file under another name."""
+    os.link(victim, tmp_path / "prog.stdout")
+    with pytest.raises(OSError, match="a file of 2 names"):
+        CappedOutput(str(tmp_path / "prog.stdout"), 1 << 20)
+    _untouched(victim)
+
+
 @pytest.mark.parametrize(
     "argv",
     [

@@ -156,7 +156,7 @@ def _start_second(fd: str) -> Optional[int]:
     if pid == 0:
         try:
             os.setsid()  # a kill of the guard's process group leaves it
-            devnull = os.open(os.devnull, os.O_RDWR | os.O_CLOEXEC)
+            devnull = os.open(os.devnull, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
             os.dup2(devnull, 0)  # the guard's stdin: held here, the runner's writes would never fail once the guard died
             os.dup2(devnull, 1)  # its stdout: held here, the runner would not see the guard's end while it waits for its word
             os.close(clear_write)  # the guard's end: its death is the end of file here
