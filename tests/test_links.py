@@ -174,6 +174,8 @@ def test_a_file_of_several_names_is_not_truncated_nor_written_into(tmp_path, vic
         ["report", "{run}", "-o", "{link}"],
         ["report", "{run}", "--histogram", "{link}", "--cell", "{cell}"],
         ["report", "{run}", "--json", "{link}", "--cell", "{cell}"],
+        ["report", "{run}", "--hdr", "{link}", "--cell", "{cell}"],
+        ["report", "{run}", "--kcidb", "{link}"],
         ["compare", "{run}", "{run}", "-o", "{link}"],
         ["compare", "{run}", "{run}", "--junit", "{link}"],
         ["merge", "{run}", "--out", "{out}", "--junit", "{link}", "--no-plots"],
