@@ -335,6 +335,7 @@ def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path, killed):
         "import subprocess, sys, time\n"
         "from runner.run.guard import Guard\n"
         "g = Guard()\n"
+        "getattr(g, 'ready', lambda: None)()\n"  # its second started, as before a run's programs and commands
         "p = subprocess.Popen(['sh', '-c', 'sleep 60 & sleep 60'], start_new_session=True)\n"
         "g.watch(p.pid)\n"
         "print(p.pid, g.proc.pid, flush=True)\n"

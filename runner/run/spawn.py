@@ -835,6 +835,8 @@ class _CellRun:
                     self.applied[id(t)] = kernel.thread_settings(tid, every)
                 except OSError:
                     self.applied[id(t)] = None
+        if self.scenario.background.commands or self.programs:
+            self.guard.ready()  # what they start only the guard, or its second, stops should the runner die
         for cmd in self.scenario.background.commands:
             try:
                 output = CappedOutput(os.path.join(self.folder, f"command-{len(self.commands)}.log"), COMMAND_OUTPUT_LIMIT)
