@@ -115,6 +115,7 @@ def test_what_a_program_or_command_starts_in_a_session_of_its_own_dies_with_the_
     while (_pids_with_cmdline(marker) or _runner_cgroups(proc.pid)) and time.monotonic() < until:
         time.sleep(0.05)
     assert not _pids_with_cmdline(marker), f"a process started by a program or command outlived the runner when {end}"
+    assert not find_pids("escape"), f"a worker outlived the runner when {end}"
     assert not _runner_cgroups(proc.pid), f"the runner's cgroups were left behind when {end}"
 
 
