@@ -33,7 +33,7 @@ import errno
 import os
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable
 
 LINK_WORDS = "a symbolic link, which the runner never writes through"
 _KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
@@ -135,19 +135,14 @@ def write_atomic(path: str, data: str | bytes, mode: int = FILE_MODE) -> None:
 def copy_file(source: str, target: str, mode: int = FILE_MODE) -> None:
     """Copy the regular file `source` to `target` as `write_atomic` writes (an OSError names whichever failed)."""
     try:
-        handle = open(source, "rb")  # noqa: SIM115  # closed by the generator's end
+        handle = open(source, "rb")  # noqa: SIM115  # closed by the with below
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), source) from exc
-
-    def chunks() -> Iterator[bytes]:
-        with handle:
-            while chunk := handle.read(1 << 20):
-                yield chunk
-
-    _replace(target, chunks(), mode)
+    with handle:
+        _replace(target, iter(lambda: handle.read(1 << 20), b""), mode)
 
 
-def _replace(path: str, chunks: Iterator[bytes] | list[bytes], mode: int) -> None:
+def _replace(path: str, chunks: Iterable[bytes], mode: int) -> None:
     folder = _folder_of(path)
     tmp = None
     try:
