@@ -19,6 +19,11 @@ of it, least of all when it runs as root.  So every write of the runner goes thr
   anywhere else, except the paths of the runner's own descriptors (`/dev/stdout`, `/dev/fd/N`),
   which are written into; so is a device or FIFO named as it is (`/dev/null`, a named pipe).
 
+Paths, not descriptors of each folder (openat with dir_fd), are what these take: a folder below the
+results folder is checked as the runner makes or enters it, files are made new (O_EXCL) or opened
+with O_NOFOLLOW, and renames replace names; a link swapped in between would need someone who may
+write the results folder already, who could change the results themselves.
+
 A link (or a FIFO, device or socket where a regular file is written, or a file of several names
 where one is written into) is refused with an OSError naming the path: errno ELOOP for a link,
 EINVAL or EMLINK for the others, worded by `errors.from_os_error`,
