@@ -240,15 +240,20 @@ def _say(text: str) -> None:
 
 
 def _internal_error(exc: BaseException) -> int:
-    """A bug: one line for the user, the whole traceback in a file for the bug report."""
+    """A bug: one line for the user, the whole traceback in a file for the bug report.
+
+    The file is new, of a name no one can guess, readable by its owner alone (mkstemp: O_EXCL,
+    O_NOFOLLOW, 0600): in a shared /tmp, a name known in advance could be a link another user
+    put there, which an open of that name would write through, as root too.
+    """
     import tempfile  # here, not at the top: only a bug needs them, and every command would pay for both
     import traceback
 
     text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     where = os.environ.get("RUNNER_CRASH_DIR") or tempfile.gettempdir()
-    path = os.path.join(where, f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}.txt")
     try:
-        with open(path, "w", encoding="utf-8", errors="backslashreplace") as handle:
+        fd, path = tempfile.mkstemp(prefix=f"runner-bug-{time.strftime('%Y%m%dT%H%M%S')}-", suffix=".txt", dir=where)
+        with os.fdopen(fd, "w", encoding="utf-8", errors="backslashreplace") as handle:
             handle.write(f"runner {__version__}\ncommand: {' '.join(map(_shown, sys.argv))}\n\n{text}")
         saved = f"the traceback is in {path}"
     except (OSError, ValueError):
@@ -500,11 +505,19 @@ def _cmd_report(argv: list[str]) -> int:
                 f"runner report: {ns.results} is not a file in a results folder (a pipe?): there is no folder to write "
                 f"{REPORT_NAME} beside; give -o FILE, or -o - for standard output"
             )
-        target = os.path.abspath(ns.output) if ns.output else os.path.join(doc.folder, REPORT_NAME)
+        # A folder named is where its report goes, never where a results.json link inside it leads (doc.folder).
+        folder = os.path.abspath(ns.results) if os.path.isdir(ns.results) else doc.folder
+        target = os.path.abspath(ns.output) if ns.output else os.path.join(folder, REPORT_NAME)
         try:
             os.makedirs(os.path.dirname(target), exist_ok=True)  # as writable_file found it could be
             path, failed = report_files(
-                doc, os.path.dirname(target), section, not ns.no_plots, name=os.path.basename(target), quiet_input_errors=True
+                doc,
+                os.path.dirname(target),
+                section,
+                not ns.no_plots,
+                name=os.path.basename(target),
+                quiet_input_errors=True,
+                named=bool(ns.output),
             )
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None
@@ -559,9 +572,9 @@ def _check_kcidb_options(ns: argparse.Namespace) -> None:
 
 def _export(doc: Any, ns: argparse.Namespace) -> None:
     """Write the cyclictest-format histogram, JSON summary or HdrHistogram log of one cell, and the KCIDB document of the run."""
-    from runner.outdir import write_output
     from runner.report.export import histogram_text, json_summary, pick_cell
     from runner.report.hdrlog import hdr_log
+    from runner.safefs import write_named
 
     size = 1000 if ns.histogram_max is None else ns.histogram_max  # the default size of cyclictest -h
     if not 1 <= size <= 1_000_000:
@@ -581,7 +594,7 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
             put(text())
             continue
         try:
-            write_output(target, text().encode("utf-8"))
+            write_named(target, text().encode("utf-8"))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the export", path=target) from None
         say(f"wrote {target}")
@@ -606,10 +619,11 @@ def _compare_parser() -> argparse.ArgumentParser:
 
 def _cmd_compare(argv: list[str]) -> int:
     ns = _compare_parser().parse_args(argv)
-    from runner.outdir import writable_file, write_output
+    from runner.outdir import writable_file
     from runner.report.compare import parse_threshold, thresholds_with
     from runner.report.publish import append_step_summary, ci_outputs, compare_files, comparison_statuses
     from runner.results.read import load
+    from runner.safefs import write_named
     from runner.session import exit_code
 
     junit = writable_file(ns.junit, "--junit") if ns.junit else None
@@ -621,7 +635,7 @@ def _cmd_compare(argv: list[str]) -> int:
     say(section)
     if ns.output:
         try:
-            write_output(ns.output, section)
+            write_named(ns.output, section)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the comparison", path=ns.output) from None
     append_step_summary(section, dict(os.environ))
@@ -690,7 +704,7 @@ def _import_rtapp_parser() -> argparse.ArgumentParser:
 
 def _cmd_import_rtapp(argv: list[str]) -> int:
     ns = _import_rtapp_parser().parse_args(argv)
-    from runner.outdir import write_output
+    from runner.safefs import write_named
     from runner.scenario.limits import MachineLimits
     from runner.scenario.loader import parse_scenario
     from runner.scenario.rtapp import convert, read
@@ -705,7 +719,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
         put(scenario)
     else:
         try:
-            write_output(ns.output, scenario)
+            write_named(ns.output, scenario)
         except OSError as exc:
             raise from_os_error(exc, "cannot write the scenario", path=ns.output) from None
         say(f"wrote {ns.output}")

@@ -108,6 +108,8 @@ def output_hint(error_number: int | None) -> str:
         errno.ENOTDIR: "; a file stands where a folder is expected",
         errno.EEXIST: "; a file of that name is in the way",
         errno.EISDIR: "; a folder stands where a file is expected",
+        errno.ELOOP: ": remove the link, or choose another path (README, 'Files the runner writes')",
+        errno.EMLINK: ": remove it, or choose another path (README, 'Files the runner writes')",
     }.get(error_number or 0, "")
 
 
@@ -116,11 +118,14 @@ def from_os_error(exc: OSError, what: str, before_run: bool = True, path: str | 
 
     `before_run` errors (an --out that is a file, an unwritable -o) are invalid input (exit 2);
     errors once measuring has started are run errors (exit 4), and so is a full disk at any time
-    (`FULL_DISK`).  `path` names the file the user knows when the error came from a temporary one beside it.
+    (`FULL_DISK`).  A link where the runner would write (ELOOP, or EMLINK for a hard link: runner/safefs.py)
+    is invalid input at any time: the folder it is in must change, not the machine.  `path` names the file the user knows
+    when the error came from a temporary one beside it.
     """
     path = path or (exc.filename if exc.filename is not None else "")
     message = f"runner: {what} {path}: {exc.strerror or exc}{output_hint(exc.errno)}"
-    return UsageError(message) if before_run and exc.errno not in FULL_DISK else OutputError(message)
+    invalid = (before_run and exc.errno not in FULL_DISK) or exc.errno in (errno.ELOOP, errno.EMLINK)
+    return UsageError(message) if invalid else OutputError(message)
 
 
 def special_file(path: str) -> str:

@@ -6,6 +6,11 @@ runs writing into the same folder would mix their cells and share sample buffers
 that run is being resumed), and holds an exclusive `flock` on a lock file inside
 it for as long as the claim lives.  The kernel drops the lock when the process
 dies, however it dies, so a crashed run never leaves its folder locked.
+
+The folder itself is the user's to name, through links if they like (`--out ~/r` with a
+symlinked home); inside it, a link where the run would write (results.json, the lock, the
+journal, report.md, plots, cells) is refused before anything is written: a folder that came
+from elsewhere must not carry the run's writes out of it (runner/safefs.py).
 """
 
 from __future__ import annotations
@@ -17,10 +22,12 @@ from dataclasses import dataclass
 from typing import Optional
 
 from runner.errors import UsageError, from_os_error
-from runner.results.files import JOURNAL, write_atomic, written_through
+from runner.results.files import JOURNAL
+from runner.safefs import LINK_WORDS, make_folders, open_write, own_descriptor, written_into
 
 LOCK_NAME = ".runner.lock"
 REPORT_NAME = "report.md"  # what a run or a merge writes beside its results
+WRITTEN = ("results.json", JOURNAL, LOCK_NAME, REPORT_NAME, "comparison.md", "plots", "cells")  # what a run writes at the top
 
 
 @dataclass
@@ -45,15 +52,19 @@ def claim(folder: str, what: str = "results folder", resume: bool = False) -> Cl
     """
     folder = os.path.abspath(folder)
     try:
-        os.makedirs(folder, exist_ok=True)
-    except FileExistsError:
-        raise UsageError(f"runner: {what} {folder}: a file stands where a folder is expected") from None
+        make_folders(folder)
     except OSError as exc:
+        if exc.errno == errno.ENOTDIR:
+            raise UsageError(f"runner: {what} {folder}: a file stands where a folder is expected") from None
         raise from_os_error(exc, what) from None
-    if not os.path.isdir(folder):
-        raise UsageError(f"runner: {what} {folder}: not a folder")
+    links = [name for name in WRITTEN if os.path.islink(os.path.join(folder, name))]
+    if links:  # refused before the lock is made: a dangling .runner.lock link would make its target
+        shown = ", ".join(links)
+        raise UsageError(
+            f"runner: {what} {folder} holds {shown}, {LINK_WORDS}; remove {'it' if len(links) == 1 else 'them'}, or choose a new folder"
+        )
     try:
-        fd = os.open(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        fd = open_write(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT)
     except OSError as exc:
         raise from_os_error(exc, what) from None
     try:
@@ -107,7 +118,9 @@ def writable_file(path: str, option: str) -> str:
     """
     if is_results_file(path):
         raise UsageError(f"runner: {option} {path}: that is a results file, which only a run writes; choose another file")
-    if written_through(path):  # /dev/stdout, a device, a FIFO: written into where it is, no file made beside it
+    if os.path.islink(path) and not own_descriptor(path):  # a link planted in a downloaded folder must not lead the write
+        raise UsageError(f"runner: {option} {path}: {LINK_WORDS}; name the file itself, or another path")
+    if written_into(path):  # /dev/stdout, a device, a FIFO: written into where it is, no file made beside it
         return path
     if os.path.isdir(path):
         raise UsageError(f"runner: {option} {path}: a folder stands where a file is expected")
@@ -122,10 +135,3 @@ def writable_file(path: str, option: str) -> str:
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(f"runner: {option} {path}: the folder {existing} may not be written; choose a folder you may write")
     return path
-
-
-def write_output(path: str, data: str | bytes) -> None:
-    """Write a file an option named, which writable_file checked: its folder made first, as the check found it could be."""
-    if not written_through(path):
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    write_atomic(path, data)

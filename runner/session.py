@@ -38,6 +38,7 @@ from runner.run.preflight import Permissions
 from runner.run.samples import NO_HOLDERS, Sample
 from runner.run.samples import rows as sample_rows
 from runner.runorder import Shard, Unit, plan_units
+from runner.safefs import make_folders
 from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, spec_json
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
@@ -615,9 +616,9 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
                 trace=options.trace,
             )
             began = time.monotonic()
-            cell_folder = os.path.join(folder, cell_dir(unit.cell, unit.repeat, options.repeat > 1))
+            relative = cell_dir(unit.cell, unit.repeat, options.repeat > 1)
             with collector_paused():
-                result, loop.write_error, window_end = _one_cell(cell, cell_folder, run.start, cell_options, backend)
+                result, loop.write_error, window_end = _one_cell(cell, folder, relative, run.start, cell_options, backend)
                 progress.finish(time.monotonic() - began)
                 loop.statuses.append(result.status)
                 try:
@@ -635,19 +636,21 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
 
 
 def _one_cell(
-    cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, backend: Backend
+    cell: ResolvedCell, root: str, relative: str, start: Settings, options: CellOptions, backend: Backend
 ) -> tuple[CellResult, Optional[OSError], Optional[int]]:
-    """Run, evaluate and store one cell; a write error (a full disk) comes back beside the result it spoiled.
+    """Run, evaluate and store one cell in `root`/`relative`; a write error (a full disk) comes back beside the result it spoiled.
 
     Also returned: when the cell's measured window ended (CLOCK_MONOTONIC ns; None if it never began).
+    The cell's folders below the run's are made, or found, as folders: never a link (safefs.make_folders).
     """
+    folder = os.path.join(root, relative)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     keep = cell.scenario.samples.mode is not SamplesMode.NONE
     writer = SamplesWriter(os.path.join(folder, "samples.csv.gz")) if keep else None
     options = replace(options, samples=_SamplesFile(writer) if writer else None)
     try:
         try:
-            os.makedirs(folder, exist_ok=True)
+            make_folders(root, relative)
             raw = backend.run_cell(cell, folder, start, options)
         except OSError as exc:  # the cell's folder or sample buffer could not be made: nothing ran
             if writer is not None:

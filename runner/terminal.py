@@ -57,7 +57,7 @@ def put(text: str) -> None:
 def _discard(stream: object) -> None:
     """Point the stream's descriptor at /dev/null, so what it still buffers is flushed there at exit, not reported."""
     try:
-        fd = os.open(os.devnull, os.O_WRONLY)
+        fd = os.open(os.devnull, os.O_WRONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
         try:
             os.dup2(fd, stream.fileno())  # type: ignore[attr-defined]
         finally:

@@ -13,6 +13,7 @@ import errno
 import io
 import os
 import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -42,6 +43,33 @@ def test_a_bug_prints_one_line_saves_the_traceback_and_exits_70(tmp_path, monkey
     saved = list(tmp_path.glob("runner-bug-*.txt"))
     assert len(saved) == 1 and str(saved[0]) in err
     assert "Traceback (most recent call last)" in saved[0].read_text() and "def broken" not in err
+
+
+def test_the_crash_report_is_a_new_private_file_never_a_name_planted_in_advance(tmp_path, monkeypatch, capsys):
+    """Its name was runner-bug-<second>-<pid>.txt in /tmp: another user could plant that link, and the runner wrote through it."""
+    victim = tmp_path / "victim"
+    victim.write_text("keep me\n")
+    crash = tmp_path / "crash"
+    crash.mkdir()
+    now = time.time()
+    for second in range(-1, 4):
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.localtime(now + second))
+        (crash / f"runner-bug-{stamp}-{os.getpid()}.txt").symlink_to(victim)
+    monkeypatch.setenv("RUNNER_CRASH_DIR", str(crash))
+
+    def broken(argv: list[str]) -> int:
+        raise ZeroDivisionError("division by zero")
+
+    mask = os.umask(0)
+    try:
+        assert cli._guarded(broken, []) == 70
+    finally:
+        os.umask(mask)
+    assert victim.read_text() == "keep me\n"
+    saved = [p for p in crash.iterdir() if not p.is_symlink()]
+    assert len(saved) == 1 and str(saved[0]) in capsys.readouterr().err
+    assert stat.S_IMODE(saved[0].stat().st_mode) == 0o600, "readable by its owner alone, whatever the umask"
+    assert "ZeroDivisionError" in saved[0].read_text()
 
 
 def test_a_bug_under_a_command_line_that_is_not_utf8_still_saves_its_traceback(tmp_path, monkeypatch, capsys):
@@ -195,7 +223,7 @@ def test_a_fifo_named_as_an_output_is_checked_without_waiting_on_it(tmp_path):
 
 def test_stdout_and_a_pipe_as_stdin_are_written_and_read_where_they_are(tmp_path):
     """/dev/stdout on a pipe once resolved to /proc/N/fd/pipe:[M], which no file can be made beside."""
-    code = "from runner.results.files import write_atomic; write_atomic('/dev/stdout', 'through\\n')"
+    code = "from runner.safefs import write_named; write_named('/dev/stdout', 'through\\n')"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 0 and done.stdout == "through\n", done.stderr
     log = tmp_path / "log"
@@ -297,22 +325,29 @@ def test_guard_follows_cgroups_beside_process_groups():
     assert left.groups == {100} and left.cgroups == {"/cg/runner-1-command0"} and left.instances == {"/t/instances/runner-1-0"}
 
 
-def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path):
-    """The owner (a shell standing in for the runner) dies by SIGKILL; the group it started dies with it."""
+@pytest.mark.parametrize("killed", ["the owner", "the owner and its guard"])
+def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path, killed):
+    """The owner (a process standing in for the runner) dies by SIGKILL; the group it started dies with it.
+
+    Killed beside its guard, the owner's group once lived on: the guard's second does the guard's work then.
+    """
     script = (
         "import subprocess, sys, time\n"
         "from runner.run.guard import Guard\n"
         "g = Guard()\n"
+        "getattr(g, 'ready', lambda: None)()\n"  # its second started, as before a run's programs and commands
         "p = subprocess.Popen(['sh', '-c', 'sleep 60 & sleep 60'], start_new_session=True)\n"
         "g.watch(p.pid)\n"
-        "print(p.pid, flush=True)\n"
+        "print(p.pid, g.proc.pid, flush=True)\n"
         "time.sleep(60)\n"
     )
     owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     assert owner.stdout is not None
-    pgid = int(owner.stdout.readline())
+    pgid, guard_pid = map(int, owner.stdout.readline().split())
     time.sleep(0.3)
     assert _group_members(pgid), "the watched group should be running"
+    if killed == "the owner and its guard":
+        os.kill(guard_pid, signal.SIGKILL)
     owner.kill()
     owner.wait()
     until = time.monotonic() + 5

@@ -300,16 +300,25 @@ def test_a_reader_of_a_run_still_going_never_misses_cells_a_rewrite_moved(tmp_pa
     assert sorted(opened) == sorted([JOURNAL, "results.json"])
 
 
-def test_the_journal_of_a_linked_results_json_is_where_readers_look(tmp_path, monkeypatch):
+def test_a_results_json_or_journal_that_is_a_link_is_refused_and_what_it_names_untouched(tmp_path, monkeypatch):
+    """The store once wrote the file a results.json link named, and its journal beside that file."""
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     (tmp_path / "kept").mkdir()
     (tmp_path / "run").mkdir()
     (tmp_path / "kept" / "results.json").write_text("{}")
     os.symlink(tmp_path / "kept" / "results.json", tmp_path / "run" / "results.json")
+    with pytest.raises(OSError, match="symbolic link"):
+        _doc_with(ResultsStore(str(tmp_path / "run" / "results.json")), 4)
+    assert (tmp_path / "kept" / "results.json").read_text() == "{}" and os.listdir(tmp_path / "kept") == ["results.json"]
+    (tmp_path / "run" / "results.json").unlink()
+    os.symlink(tmp_path / "kept" / "journal", tmp_path / "run" / JOURNAL)  # dangling: an append would make its target
     store = ResultsStore(str(tmp_path / "run" / "results.json"))
-    _doc_with(store, 4)
-    assert (tmp_path / "kept" / JOURNAL).exists() and not (tmp_path / "run" / JOURNAL).exists()
-    assert [c.id for c in load(str(tmp_path / "run" / "results.json")).cells] == [f"c{n}" for n in range(4)]
+    doc = RunDocument(cells=[_cell(0)])
+    doc.save(store.results_path)
+    store.saved_bytes = 1 << 20  # large: the next cell is a journal line
+    with pytest.raises(OSError, match="symbolic link"):
+        store.add(doc, doc.cells[0])
+    assert os.listdir(tmp_path / "kept") == ["results.json"]
 
 
 def test_a_folder_holding_a_journal_without_its_results_is_refused_unless_resumed(tmp_path):

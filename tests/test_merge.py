@@ -41,14 +41,14 @@ def split(tmp_path, parts):
 
 
 def test_a_samples_file_a_full_disk_refused_is_named_and_exits_4(tmp_path, monkeypatch):
-    """shutil's copy names no file when the write fails: the message once ended in `results :` and nothing else."""
-    from runner.results import merge
+    """shutil's copy named no file when the write failed: the message once ended in `results :` and nothing else."""
+    from runner import safefs
 
-    def no_space(source: str, target: str) -> None:
-        raise OSError(errno.ENOSPC, "No space left on device")
+    def no_space(fd: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")  # as the kernel says it: no file named
 
-    monkeypatch.setattr(merge.shutil, "copyfile", no_space)
     shards = split(tmp_path, [[0, 2, 4], [1, 3]])
+    monkeypatch.setattr(safefs.os, "fsync", no_space)  # the first file the merge writes is the first samples file
     done = run_cli("merge", *shards, "--out", str(tmp_path / "merged"), "--no-plots")
     assert done.code == 4 and "Traceback" not in done.err, done.err
     target = tmp_path / "merged" / "cells" / "policy=fifo,priority=10" / "samples.csv.gz"

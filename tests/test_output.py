@@ -92,7 +92,10 @@ def test_a_writer_far_past_the_limit_is_never_held_up(tmp_path):
 
 
 def test_a_full_disk_keeps_what_it_took_says_why_and_still_drains(tmp_path):
-    out = CappedOutput("/dev/full", MiB)  # every write: ENOSPC
+    out = CappedOutput(str(tmp_path / "p.stdout"), MiB)
+    full = os.open("/dev/full", os.O_WRONLY)  # its file, on a disk that is full: every write ENOSPC
+    os.dup2(full, out._file)
+    os.close(full)
     data = _pattern(4 * MiB)
     writer = _write(_program(out), data)
     writer.join(10)

@@ -6,6 +6,7 @@ import copy
 import itertools
 import os
 import re
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -298,7 +299,7 @@ def test_fixture_data_is_where_the_tests_expect_it():
 
 
 def test_written_files_get_the_mode_of_any_new_file(tmp_path):
-    from runner.results.files import write_atomic
+    from runner.safefs import write_atomic
 
     mask = os.umask(0o022)
     os.umask(mask)
@@ -316,7 +317,7 @@ def test_written_files_get_the_mode_of_any_new_file(tmp_path):
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path, monkeypatch, fail):
     import errno
 
-    from runner.results import files as results
+    from runner import safefs as results
 
     path = tmp_path / "results.json"
     path.write_text("old")
@@ -335,38 +336,68 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path
     assert os.listdir(tmp_path) == ["results.json"]
 
 
-def test_a_device_fifo_or_link_given_as_the_output_is_written_through_never_replaced(tmp_path):
+def test_a_device_or_fifo_named_as_an_output_is_written_into_never_replaced(tmp_path):
     import stat
     import threading
 
-    from runner.results.files import write_atomic
+    from runner.safefs import write_named
 
     null = tmp_path / "null"
     try:
         os.mknod(null, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # a /dev/null of our own: the real one is not ours to risk
     except PermissionError:  # without CAP_MKNOD: the real one, which only root could have replaced
-        null.symlink_to("/dev/null")
-    write_atomic(str(null), "{}")
+        null = Path("/dev/null")
+    write_named(str(null), "{}")
     assert stat.S_ISCHR(os.stat(null).st_mode), "the device was replaced by a regular file"
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
     got: list[bytes] = []
     reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
     reader.start()
-    write_atomic(str(fifo), "through the pipe")
+    write_named(str(fifo), "through the pipe")
     reader.join(5)
     assert got == [b"through the pipe"] and stat.S_ISFIFO(fifo.stat().st_mode)
+
+
+@pytest.mark.parametrize("named", [False, True], ids=["in a results folder", "named on the command line"])
+def test_a_link_where_a_file_is_written_is_refused_and_what_it_names_untouched(tmp_path, named):
+    """A link planted in a downloaded results folder once carried the runner's writes to the file it named, as root too."""
+    import errno
+
+    from runner.safefs import write_atomic, write_named
+
+    write = write_named if named else write_atomic
     real = tmp_path / "real.json"
     real.write_text("old")
     link = tmp_path / "link.json"
     link.symlink_to(real)
-    write_atomic(str(link), "new")
-    assert link.is_symlink() and real.read_text() == "new", "the link stays a link; the file it names is written"
-    assert sorted(os.listdir(tmp_path)) == ["link.json", "null", "pipe", "real.json"]
+    dangling = tmp_path / "dangling.json"
+    dangling.symlink_to(tmp_path / "made-by-the-write")
+    for path in (link, dangling):
+        with pytest.raises(OSError) as err:
+            write(str(path), "new")
+        assert err.value.errno == errno.ELOOP and err.value.filename == str(path) and "symbolic link" in str(err.value)
+        assert path.is_symlink()
+    assert real.read_text() == "old" and sorted(os.listdir(tmp_path)) == ["dangling.json", "link.json", "real.json"]
+
+
+def test_a_device_or_fifo_in_a_results_folder_is_refused_never_written_into(tmp_path):
+    """`tar x` as root makes the device files an archive holds: a report.md that is the disk must not be written."""
+    import stat
+
+    from runner.safefs import open_write, write_atomic
+
+    fifo = tmp_path / "report.md"
+    os.mkfifo(fifo)
+    began = time.monotonic()
+    for write in (lambda: write_atomic(str(fifo), "x"), lambda: open_write(str(fifo))):
+        with pytest.raises(OSError, match="a FIFO, not a regular file"):
+            write()
+    assert time.monotonic() - began < 2 and stat.S_ISFIFO(fifo.stat().st_mode)
 
 
 def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_the_file(tmp_path):
-    from runner.results.files import write_atomic
+    from runner.safefs import write_atomic
 
     target = tmp_path / "missing" / "results.json"
     with pytest.raises(OSError) as err:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -20,6 +21,7 @@ import pytest
 from conftest import SCENARIOS
 from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
 
+from runner.run import memcg
 from runner.run.kernel import find_pids
 
 pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
@@ -78,10 +80,15 @@ def test_background_commands_and_their_children_die_with_a_sigkilled_runner(tmp_
     assert not find_pids("cmdkill") and not any(_alive(p) for p in sleepers)
 
 
-@pytest.mark.parametrize("end", ["the cell ends", "the runner is SIGKILLed"])
+@pytest.mark.parametrize("end", ["the cell ends", "the runner is SIGKILLed", "the runner and its guard are SIGKILLed together"])
 def test_what_a_program_or_command_starts_in_a_session_of_its_own_dies_with_the_cell(tmp_path, end):
-    """`setsid sleep &` left its group and outlived a finished run: the cgroup each is started in holds it anyway."""
-    marker = f"runner-escape-{os.getpid()}-{end[4:7]}"
+    """`setsid sleep &` left its group and outlived a finished run: the cgroup each is started in holds it anyway.
+
+    With the guard killed beside the runner (`pkill -9`, a container's stop that spares no one), the
+    program's children and grandchildren and the background commands once all lived on, in cgroups
+    no one removed.
+    """
+    marker = f"runner-escape-{os.getpid()}-{end[4:12]}"
     escape = "import os, time; os.fork() or (os.setsid(), os.fork() or time.sleep(60)); time.sleep(60)"
     extra = (
         f"  - {{name: prog, command: [{sys.executable}, -c, '{escape}', {marker}]}}\n"
@@ -94,13 +101,68 @@ def test_what_a_program_or_command_starts_in_a_session_of_its_own_dies_with_the_
     while len(_pids_with_cmdline(marker)) < 6 and time.monotonic() < until:
         time.sleep(0.05)
     assert len(_pids_with_cmdline(marker)) == 6, "each: itself, a child in its group, and one in a session of its own"
-    if end == "the runner is SIGKILLed":
+    groups = _runner_cgroups(proc.pid)
+    assert len(groups) == 2 or not memcg.hierarchy(limit=False)[0], groups  # the program's and the command's, where cgroups serve
+    if end == "the runner and its guard are SIGKILLed together":
+        guards = [pid for pid in _children(proc.pid) if b"runner.run.guard" in _cmdline(pid)]
+        assert len(guards) == 1, "the runner's guard"
+        os.kill(guards[0], signal.SIGKILL)
+        proc.kill()
+    elif end == "the runner is SIGKILLed":
         proc.kill()
     proc.wait(timeout=30)
     until = time.monotonic() + 5
-    while _pids_with_cmdline(marker) and time.monotonic() < until:
+    while (_pids_with_cmdline(marker) or _runner_cgroups(proc.pid)) and time.monotonic() < until:
         time.sleep(0.05)
     assert not _pids_with_cmdline(marker), f"a process started by a program or command outlived the runner when {end}"
+    assert not find_pids("escape"), f"a worker outlived the runner when {end}"
+    assert not _runner_cgroups(proc.pid), f"the runner's cgroups were left behind when {end}"
+
+
+def test_a_programs_cgroup_is_no_one_elses_to_write_under_umask_0(tmp_path):
+    """Made under umask 0, a program's cgroup was 0777: another user could make a cgroup inside it, which no rmdir then removes."""
+    if memcg.hierarchy(limit=False)[0] is None:
+        pytest.skip("the runner may not make cgroups here")
+    path = _scenario(tmp_path / "s.yaml", "umask", extra="  - {name: prog, command: [sleep, '60']}\n", duration="20s")
+    proc = start_runner(
+        path, "--out", str(tmp_path / "r"), "--quiet", "--no-report", cwd=str(tmp_path), prefix=("sh", "-c", 'umask 0; exec "$@"', "sh")
+    )
+    try:
+        wait_for_threads("umask", 1)
+        until = time.monotonic() + 5
+        while not _runner_cgroups(proc.pid) and time.monotonic() < until:
+            time.sleep(0.05)
+        groups = _runner_cgroups(proc.pid)
+        assert groups, "the program's cgroup"
+        for group in groups:
+            assert stat.S_IMODE(os.stat(group).st_mode) == 0o755, (group, oct(os.stat(group).st_mode))
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+
+
+def _runner_cgroups(pid: int) -> list[str]:
+    """The cgroups the runner of `pid` made (`runner-<pid>-*`), in every hierarchy it could make them in."""
+    found = memcg.locate(open("/proc/self/mountinfo").read(), open("/proc/self/cgroup").read())
+    return sorted(
+        os.path.join(h.folder, n) for h in found if os.path.isdir(h.folder) for n in os.listdir(h.folder) if n.startswith(f"runner-{pid}-")
+    )
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as handle:
+            out += [int(p) for p in handle.read().split()]
+    return out
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as handle:
+            return handle.read()
+    except OSError:
+        return b""
 
 
 def _pids_with_cmdline(marker: str) -> list[int]:

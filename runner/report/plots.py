@@ -39,8 +39,9 @@ from runner.histogram import Histogram
 from runner.report.fmt import Markdown, md_code, md_text
 from runner.report.markdown import Plot, callback_threads, first_runs, matrix_order, threads_of_interest
 from runner.results.document import CellResult, RunDocument, ThreadResult
-from runner.results.files import slug, write_atomic
+from runner.results.files import slug
 from runner.results.samplesfile import SampleRow, read_samples
+from runner.safefs import make_folders, write_atomic
 
 MAX_SERIES = 12  # lines (or panels) in one plot; beyond that the plot's title says how many it shows
 MAX_BINS = 200  # bins of a latency histogram at most: the bin width is the first of 1, 2, 5, 10, 20, ... µs that keeps to it
@@ -226,7 +227,7 @@ def _legend(ax, title: str) -> None:  # type: ignore[no-untyped-def]
 
 
 def _save(fig, path: str) -> None:  # type: ignore[no-untyped-def]
-    """Draw `fig` as SVG and replace `path` with it atomically (see results.write_atomic)."""
+    """Draw `fig` as SVG and replace `path` with it atomically, never through a link (safefs.write_atomic)."""
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
@@ -271,7 +272,7 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
     keys = threads_of_interest(first_runs(cells))
     if not cells or not keys:
         return []
-    os.makedirs(os.path.join(folder, "plots"), exist_ok=True)
+    make_folders(folder, "plots")  # a link named plots (a folder elsewhere) is refused, never written into
     # rows of the threads of interest (their switches), and of any periodic thread without a native histogram (old results)
     samples = _Samples(doc, set(keys) | {t.key for c in cells for t in callback_threads(c) if _no_histogram(t)})
     out: list[Plot] = []

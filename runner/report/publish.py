@@ -1,7 +1,7 @@
 """Write a run's report files: report.md and its plots beside results.json, the CI job summary, JUnit XML and annotations.
 
 The I/O half of reporting; `report` renders and `plots` draws.  Files are replaced
-atomically, so a reader never sees half a report.
+atomically, so a reader never sees half a report, and never through a link (runner/safefs.py).
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from runner.report.compare import Comparison, Threshold, compare
 from runner.report.fmt import terminal_text
 from runner.report.junit import junit_xml
 from runner.results.document import RunDocument, Status
-from runner.results.files import write_atomic
 from runner.results.read import load
+from runner.safefs import append, write_atomic, write_named
 from runner.terminal import note, say, warn
 
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
@@ -51,6 +51,7 @@ def report_files(
     pid_width: int = 5,
     name: str = REPORT_NAME,
     quiet_input_errors: bool = False,
+    named: bool = False,
 ) -> tuple[str, Optional[RunnerError]]:
     """`write_report`, and the error the plots failed with when it is the input's (a samples file that cannot be read)
     or the output's (an OutputError: a plot file that could not be written, a full disk).
@@ -60,6 +61,8 @@ def report_files(
     the plots are, passes `quiet_input_errors` to say an input error itself, as its error, once
     the report is written; a run's outcome is its cells, and the warning says it there.  An output
     error is never a warning: every caller raises it once what it writes after the plots is written.
+    `named`: the report's file is one the user named (`runner report -o FILE`), written as such
+    (safefs.write_named: /dev/null is written into); else it is the results folder's report.md.
     """
     from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
 
@@ -83,7 +86,7 @@ def report_files(
     with collector_paused():
         text = report.render_run(doc, links, comparison, pid_width, skipped)
     path = os.path.join(folder, name)
-    write_atomic(path, text)
+    (write_named if named else write_atomic)(path, text)
     return path, failed
 
 
@@ -97,8 +100,7 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
         cut = text.encode()[: STEP_SUMMARY_LIMIT - 200].decode(errors="ignore")
         text = cut[: cut.rfind("\n## ")] + "\n\n> Report cut to fit the job summary; the full report is in the artifacts.\n"
     try:
-        with open(path, "a", encoding="utf-8") as handle:
-            handle.write(text.rstrip("\n") + "\n\n")
+        append(path, text.rstrip("\n") + "\n\n")  # never through a link: one planted there would carry the summary anywhere
     except OSError as exc:  # the summary is a copy: the run's own files are written, so warn, do not fail
         warn(f"cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}")
         return None
@@ -142,8 +144,7 @@ def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Option
     """
     if junit:
         try:
-            os.makedirs(os.path.dirname(os.path.abspath(junit)), exist_ok=True)
-            write_atomic(junit, junit_xml(doc, comparison, run))
+            write_named(junit, junit_xml(doc, comparison, run))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the JUnit file", path=junit, before_run=False) from None
         say(f"junit: {junit}")

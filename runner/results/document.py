@@ -65,9 +65,10 @@ from runner import __version__, units
 from runner import figures as fg
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.histogram import Histogram
-from runner.results.files import samples_path_problem, write_atomic
+from runner.results.files import samples_path_problem
 from runner.results.pstable import CLS, TableRow
 from runner.results.threadfigures import Spread, ThreadFigures
+from runner.safefs import write_atomic
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
 

@@ -1,13 +1,10 @@
-"""The results folder on disk: cell folder names, atomic writes, and the rule that stored paths stay inside it."""
+"""The results folder on disk: cell folder names and the rule that stored paths stay inside it (writes: runner/safefs.py)."""
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import re
-import stat
-import tempfile
 from typing import Any
 
 INT64 = 2**63
@@ -43,84 +40,6 @@ def cell_dir(cell_id: str, repeat: int, repeated: bool) -> str:
 def results_file(path: str) -> str:
     """The results.json that `path` names: the file itself, or the one inside a results folder."""
     return os.path.join(path, "results.json") if os.path.isdir(path) else path
-
-
-def _umask() -> int:
-    """The process umask, read without changing it (Linux reports it in /proc/self/status)."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as handle:
-            for line in handle:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError):
-        pass
-    old = os.umask(0o022)  # at import, before any thread of ours exists: not racy in practice
-    os.umask(old)
-    return old
-
-
-FILE_MODE = 0o666 & ~_umask()  # what open() would give a new file: output files are ordinary files
-
-
-def write_atomic(path: str, data: str | bytes) -> None:
-    """Write `data` to `path` so that readers see the old or the new file, never half of one.
-
-    The new file gets the mode any new file would get (0666 less the umask), not mkstemp's 0600.
-    On failure (a full disk, a read-only or forbidden folder) the old file is untouched, no
-    temporary file is left behind, and the OSError raised names `path`, for the caller to word.
-    A symbolic link stays a link: the file it points to is written.  A device, FIFO or socket
-    (`/dev/null`, `/dev/stdout`, a named pipe) is written into as it is, never replaced by a
-    regular file: renaming over `/dev/null` as root would replace the machine's own.
-    """
-    blob = data.encode("utf-8") if isinstance(data, str) else data
-    if written_through(path):
-        try:
-            with open(path, "ab") as handle:  # append: `>> log` behind /dev/stdout keeps what it holds
-                handle.write(blob)
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
-        return
-    target = os.path.realpath(path)
-    folder = os.path.dirname(target)
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
-        with os.fdopen(fd, "wb") as handle:
-            os.fchmod(handle.fileno(), FILE_MODE)
-            handle.write(blob)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, target)
-        tmp = None
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror or str(exc), path) from exc
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    sync_folder(folder)
-
-
-def written_through(path: str) -> bool:
-    """Whether `path` is to be written into, never replaced: a device, FIFO or socket, or one of this process's
-    descriptors (`/dev/stdout`, `/dev/fd/N`), whatever it is open on (a pipe, a file the shell opened)."""
-    if path in ("/dev/stdout", "/dev/stderr") or path.startswith(("/dev/fd/", "/proc/")):
-        return True
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return False  # absent (to be made), or the write names the problem
-    return stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
-
-
-def sync_folder(folder: str) -> None:
-    """Make a rename or a new file in `folder` durable (best effort: some file systems cannot fsync a folder)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def samples_path_problem(relative: str | None, folder: str) -> str:

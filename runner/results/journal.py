@@ -27,7 +27,8 @@ import os
 from dataclasses import dataclass
 
 from runner.results.document import CellResult, RunDocument
-from runner.results.files import FILE_MODE, JOURNAL, sync_folder
+from runner.results.files import JOURNAL
+from runner.safefs import FILE_MODE, open_write, sync_folder, write_all
 
 REWRITE_BELOW = 1 << 16
 """results.json is rewritten after every cell while it is smaller than this; beyond, at doubling.
@@ -78,8 +79,8 @@ class ResultsStore:
 
     @property
     def journal(self) -> str:
-        """Beside the file results.json is (its link's target, when it is a link), where readers look for it."""
-        return journal_path(os.path.dirname(os.path.realpath(self.results_path)))
+        """Beside results.json (which is never a link: the run refuses one, safefs.write_atomic), where readers look for it."""
+        return journal_path(os.path.dirname(self.results_path))
 
     def begin(self, doc: RunDocument) -> None:
         """Write `doc` whole (it holds whatever an earlier segment of the run journaled) and start an empty journal."""
@@ -110,15 +111,13 @@ class ResultsStore:
     def _append(self, cell: CellResult) -> int:
         line = (cell.model_dump_json(by_alias=True) + "\n").encode("utf-8")
         try:
-            fd = os.open(self.journal, os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
+            fd = open_write(self.journal, os.O_RDWR | os.O_APPEND | os.O_CREAT, FILE_MODE)  # never through a link
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc), self.journal) from exc
         try:
             size = _whole_lines(fd, os.fstat(fd).st_size)
             try:
-                view = memoryview(line)
-                while view:
-                    view = view[os.write(fd, view) :]
+                write_all(fd, line)
                 os.fsync(fd)
                 if size == 0:  # a journal just made: its name in the folder must last too
                     sync_folder(os.path.dirname(self.journal))

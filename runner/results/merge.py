@@ -8,13 +8,13 @@ copied, so the merged folder stands on its own.
 from __future__ import annotations
 
 import os
-import shutil
 from datetime import datetime, timezone
 
 from runner.errors import Problem, ScenarioError
 from runner.results.document import CellResult, RunDocument, Status, worst
 from runner.results.files import cell_dir, results_file
 from runner.results.read import load
+from runner.safefs import copy_file, make_folders
 
 
 def unfinished(doc: RunDocument) -> str:
@@ -91,7 +91,7 @@ def merge(paths: list[str], out: str) -> tuple[RunDocument, list[str]]:
     first = docs[0][1]
     order = {cell_id: i for i, cell_id in enumerate(first.matrix_cells or [c.id for _, d in docs for c in d.cells])}
     cells = sorted(((doc, c) for _, doc in docs for c in doc.cells), key=lambda dc: (order.get(dc[1].id, len(order)), dc[1].repeat))
-    os.makedirs(out, exist_ok=True)
+    make_folders(out)
     repeated = {c.id for _, c in cells if c.repeat}
     merged = RunDocument(
         scenario=first.scenario,
@@ -182,9 +182,6 @@ def _copy_samples(doc: RunDocument, cell: CellResult, out: str, repeated: bool) 
     rel = os.path.join(cell_dir(cell.id, cell.repeat, repeated), "samples.csv.gz")
     target = os.path.join(out, rel)
     if os.path.abspath(source) != os.path.abspath(target):
-        os.makedirs(os.path.dirname(target), exist_ok=True)
-        try:
-            shutil.copyfile(source, target)
-        except OSError as exc:  # a failed write (a full disk) names no file: the caller says which
-            raise OSError(exc.errno, exc.strerror or str(exc), exc.filename or target) from exc
+        make_folders(out, os.path.dirname(rel))  # never into a link inside the merged folder
+        copy_file(source, target)  # an error names the file: the source, or the target (a full disk names none itself)
     return rel

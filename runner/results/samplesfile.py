@@ -26,13 +26,15 @@ import gzip
 import io
 import os
 import re
+import tempfile
 import zlib
 from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Optional
 
 from runner.errors import Problem, ScenarioError
-from runner.results.files import INT64, show_value, sync_folder
+from runner.results.files import INT64, show_value
+from runner.safefs import FILE_MODE, check_target, sync_folder
 
 SAMPLE_COLUMNS = (
     "thread",
@@ -67,15 +69,15 @@ _BATCH = 1 << 16
 class SamplesWriter:
     """Streams rows into a gzip'd CSV while the cell runs; the file appears under its name only when complete.
 
-    Rows go to a temporary file beside the final one, renamed into place by `close`; a
-    write error (a full disk) is kept, not raised, so the run goes on (the figures do not
-    depend on this file), and `close` raises it after removing the partial file.
+    Rows go to a temporary file beside the final one (a new file of a name of its own, never
+    one that was there, nor through a link), renamed into place by `close`, which refuses a link
+    at the final name; a write error (a full disk) is kept, not raised, so the run goes on (the
+    figures do not depend on this file), and `close` raises it after removing the partial file.
     """
 
     def __init__(self, path: str):
         self.path = path
-        folder, name = os.path.split(path)
-        self._tmp = os.path.join(folder, f".{name}.{os.getpid()}.tmp")
+        self._tmp = ""
         self._raw: Optional[BinaryIO] = None
         self._gz: Optional[gzip.GzipFile] = None
         self._text = io.StringIO()  # rows, handed to gzip by the batch: a large cell writes a few rows per thread a tick
@@ -83,7 +85,10 @@ class SamplesWriter:
         self.error: Optional[OSError] = None
 
     def _open(self) -> None:
-        self._raw = open(self._tmp, "wb")  # noqa: SIM115  # open across calls, closed by close() or abort()
+        folder, name = os.path.split(self.path)
+        fd, self._tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=folder or os.curdir)  # O_EXCL|O_NOFOLLOW
+        self._raw = os.fdopen(fd, "wb")  # open across calls, closed by close() or abort()
+        os.fchmod(fd, FILE_MODE)  # as any new file: not mkstemp's 0600
         self._gz = gzip.GzipFile(fileobj=self._raw, mode="wb", compresslevel=1, mtime=0)
         self._csv = csv.writer(self._text, lineterminator="\n")
         self._csv.writerow(SAMPLE_COLUMNS)
@@ -113,6 +118,7 @@ class SamplesWriter:
                 self._raw.flush()
                 os.fsync(self._raw.fileno())
                 self._raw.close()
+                check_target(self.path)  # a link there is refused (the rename would replace it, never follow it)
                 os.replace(self._tmp, self.path)
                 folder = os.path.dirname(os.path.abspath(self.path))
                 sync_folder(folder)  # the file's name, and its folder's (a cell's folder is made with it), last as results.json does
@@ -143,10 +149,12 @@ class SamplesWriter:
                 pass
         self._gz = self._raw = self._csv = None
         self._text = io.StringIO()
-        try:
-            os.unlink(self._tmp)
-        except OSError:
-            pass
+        if self._tmp:
+            try:
+                os.unlink(self._tmp)
+            except OSError:
+                pass
+            self._tmp = ""
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ def hold(request_us: Optional[int], device: str = DEVICE) -> Iterator[DmaLatency
         yield DmaLatency(requested_us=None, reads_us=read_value(device), note="left alone (--no-dma-latency)")
         return
     try:
-        fd = os.open(device, os.O_RDWR | os.O_CLOEXEC)  # workers must not inherit the request
+        fd = os.open(device, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)  # workers must not inherit it; never through a link
     except OSError as exc:
         yield DmaLatency(requested_us=request_us, reads_us=read_value(device), note=_why(exc, device, "open"))
         return
@@ -81,6 +81,8 @@ def _why(exc: OSError, device: str, action: str) -> str:
     reason = exc.strerror or str(exc)
     if exc.errno == errno.ENOENT:
         return f"{device} does not exist (a container without the device, or a kernel without CPU idle support); not held"
+    if exc.errno == errno.ELOOP:
+        return f"{device} is a symbolic link, which the runner never writes through (the device is not); not held"
     if exc.errno in (errno.EACCES, errno.EPERM):
         return f"cannot {action} {device}: {reason} (it needs root or write access to the device); not held"
     return f"cannot {action} {device}: {reason}; not held"

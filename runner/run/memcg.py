@@ -10,7 +10,9 @@ cgroup v2 (`memory.max`, `memory.peak`, `memory.events`) is used where the runne
 has the memory controller and can hand it to a child; a v1 memory hierarchy
 (`memory.limit_in_bytes`, `memory.max_usage_in_bytes`, `memory.oom_control`) otherwise.
 Folders are named `runner-<pid>-<program>`; those of runners that died without removing
-theirs are removed by the next `create` (a cgroup without tasks is removed by rmdir).
+theirs are removed by the next `create` (a cgroup without tasks is removed by rmdir).  A
+folder is made 0755 whatever the umask (FOLDER_MODE): one that others may write could be
+given a cgroup of theirs inside it, and a cgroup with a child is never removed.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from typing import Optional
 
 _STALE = re.compile(r"runner-(\d+)-")
 REMOVE_WAIT_S = 0.5  # a killed group's last tasks leave it within this
+FOLDER_MODE = 0o755  # the runner's alone to write (its files, cgroup.procs among them, are the kernel's 0644)
 
 
 @dataclass(frozen=True)
@@ -100,8 +103,12 @@ def _read(path: str) -> str:
 
 
 def _write(path: str, text: str) -> None:
-    with open(path, "w") as handle:
-        handle.write(text)
+    """Write a control file of a cgroup: one that is there (never made) and not a link."""
+    fd = os.open(path, os.O_WRONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        os.write(fd, text.encode())
+    finally:
+        os.close(fd)
 
 
 def _usable(h: Hierarchy) -> str:
@@ -176,7 +183,7 @@ class MemoryCgroup:
         folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}")
         for n in itertools.count(2):  # an earlier cell's group still leaving, or another of the same name: a name of its own
             try:
-                os.mkdir(folder)
+                os.mkdir(folder, FOLDER_MODE)  # never more than 0755, whatever the umask (it can only take bits away)
                 break
             except FileExistsError:
                 if n > 100:
@@ -184,6 +191,7 @@ class MemoryCgroup:
                 folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}-{n}")
         group = cls(h, folder)
         try:
+            os.chmod(folder, FOLDER_MODE)  # and exactly 0755 under a umask that took more
             if limit is not None:
                 _write(os.path.join(folder, h.limit_file), str(limit))
         except OSError:
@@ -237,14 +245,23 @@ class MemoryCgroup:
 
 
 def kill_all(folder: str) -> None:
-    """SIGKILL every task in the cgroup at `folder`, again while new ones appear (a task forking as it is killed)."""
+    """SIGKILL every task in the cgroup at `folder`, and wait (REMOVE_WAIT_S at most) until none is left.
+
+    cgroup v2's `cgroup.kill` (Linux 5.14) has the kernel do it at once, a task forking as it is
+    killed included; elsewhere each task listed is killed, again while new ones appear.
+    """
     until = time.monotonic() + REMOVE_WAIT_S
+    try:
+        _write(os.path.join(folder, "cgroup.kill"), "1")
+        killed = True
+    except OSError:
+        killed = False  # cgroup v1, or before Linux 5.14
     while True:
         try:
             pids = [int(p) for p in _read(os.path.join(folder, "cgroup.procs")).split()]
         except (OSError, ValueError):
             return
-        for pid in pids:
+        for pid in [] if killed else pids:
             try:
                 os.kill(pid, signal.SIGKILL)
             except OSError:

@@ -28,6 +28,7 @@ import time
 from typing import Optional
 
 from runner.run.rawcell import OutputCount
+from runner.safefs import open_write
 
 CHUNK = 1 << 20  # bytes read at once: a whole widened pipe in one call
 PIPE_BYTES = 1 << 20  # the pipe's capacity asked of the kernel (the default most machines allow unprivileged: pipe-max-size)
@@ -54,7 +55,7 @@ class CappedOutput:
         self._eof = False
         fds: list[int] = []
         try:
-            fds.append(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644))
+            fds.append(open_write(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644))  # never through a link
             fds += os.pipe()  # both ends close-on-exec: the program's copy is the one dup2 puts on 1 or 2
             fds += os.pipe()  # to wake the reader at the cell's end, should the pipe not reach its end of file
         except BaseException:

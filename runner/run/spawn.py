@@ -43,6 +43,7 @@ from runner.run.programs import settings_of
 from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ReadyReport, ResourceState, Timeline
 from runner.run.traced import Task
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
+from runner.safefs import make_folders, open_write
 from runner.scenario import program as programs
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import (
@@ -339,7 +340,7 @@ class Worker:
 
     def _popen(self, passed: list[int]) -> subprocess.Popen[str]:
         """A fresh interpreter running the worker: the way without a zygote."""
-        with open(self.log_path, "w") as log:  # the worker holds its own copies of the descriptors
+        with os.fdopen(open_write(self.log_path, mode=0o644), "w") as log:  # the worker holds its own copies of the descriptors
             return subprocess.Popen(
                 python_module("runner.run.worker"),
                 stdin=subprocess.PIPE,
@@ -360,7 +361,7 @@ class Worker:
             return None
         opened: list[int] = []  # every descriptor made here, closed on any failure
         try:
-            opened.append(os.open(self.log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644))
+            opened.append(open_write(self.log_path, mode=0o644))  # never through a link
             opened += [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
             log, stdin_r, stdin_w, stdout_r, stdout_w = opened
             pid = zygote.spawn(stdin_r, stdout_w, log, passed)
@@ -372,7 +373,7 @@ class Worker:
             raise
         for each in (log, stdin_r, stdout_w):  # the child holds its own copies now
             os.close(each)
-        return ZygoteChild(zygote, pid, open(stdin_w, "w", buffering=1), open(stdout_r))
+        return ZygoteChild(zygote, pid, os.fdopen(stdin_w, "w", buffering=1), os.fdopen(stdout_r))
 
     def hang_up(self) -> None:
         """Cancel its start gate and close its input: a worker whose cell never started leaves at once, its threads unworked.
@@ -756,7 +757,7 @@ class _CellRun:
         self.cell, self.folder, self.options = cell, folder, options
         self.watchdog, self.guard, self.traces, self.zygote = shared.watchdog, shared.guard, shared.traces, shared.zygote
         self.scenario = cell.scenario.replace(duration=options.duration_ns)
-        os.makedirs(folder, exist_ok=True)
+        make_folders(folder)
         self.began = time.monotonic()
         self.started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.planned = plan_scenario(self.scenario, start)
@@ -834,6 +835,8 @@ class _CellRun:
                     self.applied[id(t)] = kernel.thread_settings(tid, every)
                 except OSError:
                     self.applied[id(t)] = None
+        if self.scenario.background.commands or self.programs:
+            self.guard.ready()  # what they start only the guard, or its second, stops should the runner die
         for cmd in self.scenario.background.commands:
             try:
                 output = CappedOutput(os.path.join(self.folder, f"command-{len(self.commands)}.log"), COMMAND_OUTPUT_LIMIT)

@@ -587,7 +587,7 @@ def _follow(path: str, reader: Any, pids: Sequence[int]) -> None:
 def _write_pids(path: str, tids: Sequence[int]) -> None:
     """Add `tids` to set_event_pid, in one write."""
     data = (" ".join(str(tid) for tid in tids) + "\n").encode()
-    fd = os.open(path, os.O_WRONLY)
+    fd = os.open(path, os.O_WRONLY | os.O_NOFOLLOW | os.O_CLOEXEC)  # a tracefs file: never made, never a link
     try:
         while data:
             data = data[os.write(fd, data) :]
@@ -722,7 +722,7 @@ def _read_or(path: str, default: str) -> str:
 
 
 def _write(path: str, name: str, value: str) -> None:
-    fd = os.open(os.path.join(path, name), os.O_WRONLY | os.O_TRUNC)
+    fd = os.open(os.path.join(path, name), os.O_WRONLY | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC)  # never made, never a link
     try:
         os.write(fd, value.encode())
     finally:
