@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 import pytest
 from hypothesis import settings
@@ -97,3 +98,20 @@ def ajv_verdicts(schema: dict[str, object], paths: list[str], tmp_path: pathlib.
     assert done.returncode == 0, done.stderr
     verdicts: dict[str, dict[str, object]] = json.loads(done.stdout)
     return verdicts
+
+
+def editor_answers(requests: list[dict[str, object]], tmp_path: pathlib.Path) -> list[dict[str, Any]]:
+    """What an editor shows, as yaml-language-server's language service answers (.ci/yamlls.cjs): per request
+    ({"file": PATH, "text": TEXT, "complete": [[LINE, CHARACTER], ...]}) its diagnostics and, per position, the
+    completions.  A buffer is known by its file's path, so its modeline's schema is read from disk."""
+    modules = os.path.join(REPO, ".ci", "node_modules")
+    if shutil.which("node") is None or not os.path.isdir(os.path.join(modules, "yaml-language-server")):
+        if _in_ci():
+            pytest.fail("node or yaml-language-server is not installed; .ci/run installs it with npm")
+        pytest.skip("yaml-language-server not installed (.ci/run's npm install line puts it in .ci/node_modules)")
+    request_file = tmp_path / "requests.json"
+    request_file.write_text(json.dumps(requests), encoding="utf-8")
+    done = subprocess.run(["node", os.path.join(REPO, ".ci", "yamlls.cjs"), str(request_file)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    answers: list[dict[str, Any]] = json.loads(done.stdout)
+    return answers
