@@ -19,7 +19,10 @@ let validate;
 try {
   // strict: unknown keywords, ignored types, unmatched tuples and non-finite numbers are errors, as an editor's
   // validator would have to treat them; patterns are compiled with the `u` flag, as yaml-language-server does.
-  validate = new Ajv({ strict: true, allErrors: true, allowUnionTypes: true }).compile(schema);
+  const ajv = new Ajv({ strict: true, allErrors: true, allowUnionTypes: true });
+  // the keywords editors read beside JSON Schema's (yaml-language-server, VS Code): annotations to a validator
+  ajv.addVocabulary(["defaultSnippets", "markdownDescription", "patternErrorMessage", "errorMessage"]);
+  validate = ajv.compile(schema);
 } catch (err) {
   process.stderr.write(`ajv cannot compile ${schemaPath}: ${err.message}\n`);
   process.exit(2);

@@ -35,6 +35,7 @@ MAX_ENTRIES = 256  # include or exclude entries (GitHub Actions caps a whole mat
 MAX_KEYS = 64  # axes and include-only keys together
 MAX_VALUE_CHARS = 256  # a matrix value is a word or a short setting, and it becomes part of cell ids
 _KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
+KEY_WORDS = "a letter or _ followed by letters, digits, _ or -"
 REFERENCE = re.compile(r"\$\{\{\s*(.*?)\s*\}\}")
 _NAME = re.compile(r"^matrix\.([A-Za-z_][A-Za-z0-9_-]*)$")
 
@@ -99,7 +100,7 @@ def parse(doc: Document, raw: Any, problems: list[Problem]) -> MatrixSpec:
     def key_ok(key: str, path: Path) -> bool:
         if _KEY.fullmatch(key):
             return True
-        problems.append(doc.problem(path, f"matrix key {key!r} must be a letter or _ followed by letters, digits, _ or -", key=True))
+        problems.append(doc.problem(path, f"matrix key {key!r} must be {KEY_WORDS}", key=True))
         return False
 
     for key, value in raw.items():
@@ -121,7 +122,7 @@ def parse(doc: Document, raw: Any, problems: list[Problem]) -> MatrixSpec:
                 entries.append(dict(entry))  # kept even when wrong: its keys are defined, and problems stop expansion
             continue
         if not _KEY.fullmatch(key):
-            problems.append(doc.problem(path, f"axis name {key!r} must be a letter or _ followed by letters, digits, _ or -", key=True))
+            problems.append(doc.problem(path, f"axis name {key!r} must be {KEY_WORDS}", key=True))
             continue
         if not isinstance(value, list) or not value:
             problems.append(doc.problem(path, "an axis needs a non-empty list of values, e.g. [fifo, rr]"))

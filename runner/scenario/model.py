@@ -18,9 +18,11 @@ from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
 from runner import figures, units
 from runner.errors import did_you_mean
-from runner.scenario.typed import Context, Field, KeyProblem, Model, Schema, Tagged, Written
+from runner.scenario.typed import Context, Field, KeyProblem, Model, Schema, Tagged, Written, text_schema
 
 COMM_MAX = 15  # TASK_COMM_LEN - 1: the kernel truncates longer names silently
+COMM_FORBIDS = "spaces, '/' or control characters"
+"""What a process or thread name may not hold (ps and /proc would show it split, or as another line); the editors' words too."""
 
 # Ceilings no real scenario comes near.  They turn absurd input (`period: 2000000h`, a 400-digit
 # size) into a message that names the bound, instead of a run that fails or never ends.  What
@@ -105,14 +107,16 @@ def _no_control(what: str, allowed: str = "") -> Any:
     return check
 
 
-_DURATION_STRING = {"type": "string", "pattern": units.DURATION_PATTERN}
-_DURATION_SCHEMA = {"anyOf": [_DURATION_STRING, {"const": 0}], "examples": ["100ms", "40ms", "1.5s"]}
-_SIZE_SCHEMA = {"type": "string", "pattern": units.SIZE_PATTERN, "examples": ["50MiB", "200KiB"]}
+_DURATION_SCHEMA = {
+    "anyOf": [text_schema(units.DURATION_PATTERN, units.DURATION_EXPECTED), {"const": 0}],
+    "examples": ["100ms", "40ms", "1.5s"],
+}
+_SIZE_SCHEMA = text_schema(units.SIZE_PATTERN, units.SIZE_EXPECTED, examples=["50MiB", "200KiB"])
 _CPUS_SCHEMA = {
-    "anyOf": [
+    "anyOf": [  # text first: an editor shows the first form's message when none fits, and most are written as text
+        text_schema(units.CPUS_PATTERN, units.CPUS_EXPECTED),
         {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": units.MAX_CPUS - 1}, "minItems": 1},
         {"type": "integer", "minimum": 0, "maximum": units.MAX_CPUS - 1},
-        {"type": "string", "pattern": units.CPUS_PATTERN},
     ],
     "examples": ["0-1", [1], "0b10", "0-7:2", "all"],
 }
@@ -865,7 +869,7 @@ def _check_comm(name: str) -> str:
     char = control_character(name)
     if char is not None or re.search(r"[\s/]", name):
         found = char if char is not None else re.findall(r"[\s/]", name)[0]
-        raise ValueError(f"name {name!r} may not contain spaces, '/' or control characters (found {found!r})")
+        raise ValueError(f"name {name!r} may not contain {COMM_FORBIDS} (found {found!r})")
     return name
 
 
@@ -1287,7 +1291,16 @@ def _process_kind(value: Any) -> type:
     return ProcessSpec
 
 
-AnyProcess = Annotated[Union[ProcessSpec, ProgramSpec], Tagged(choose=_process_kind)]
+_PROGRAM_SNIPPET = {
+    "label": "command: a program of yours",
+    "description": "a process that runs your program (command: its argv, as a list) instead of the runner's threads",
+    "body": {"name": "${1:app}", "command": ["${2:program}", "${3:argument}"]},
+}
+AnyProcess = Annotated[
+    Union[ProcessSpec, ProgramSpec],
+    Tagged(choose=_process_kind),
+    Schema({"defaultSnippets": [_PROGRAM_SNIPPET]}),  # an editor completes only the keys of the form `name:` fits first
+]
 """A scenario process: the runner's own threads (`threads:` with work), or the user's program (`command:`)."""
 
 
@@ -1381,10 +1394,13 @@ def _limit(value: Any, context: Context = None) -> Any:
     return value
 
 
+SIGNED_DURATION_SCHEMA = text_schema(  # -2ms for slack
+    units.DURATION_PATTERN.replace("^", "^\\s*[-\u2212]?", 1), f"{units.DURATION_EXPECTED}, or below zero (-2ms) for slack"
+)
 _LIMIT_SCHEMA = {
-    "anyOf": [
+    "anyOf": [  # text first: an editor shows the first form's message when none fits
+        SIGNED_DURATION_SCHEMA,
         {"type": "number", "minimum": -1.7976931348623157e308, "maximum": 1.7976931348623157e308},  # finite: .inf is refused
-        {"type": "string", "pattern": units.DURATION_PATTERN.replace("^", "^\\s*[-\u2212]?", 1)},  # -2ms for slack
     ]
 }
 Limit = Annotated[float, Written(_limit, None, _LIMIT_SCHEMA)]
@@ -1463,6 +1479,9 @@ class SamplesMode(str, enum.Enum):
     LAST = "last"  # the last N callbacks of each thread
 
 
+SAMPLES_EXPECTED = "all, none, outliers or 'last N'"
+
+
 def _samples_text(value: Any) -> Any:
     if isinstance(value, str):
         word, _, count = value.strip().partition(" ")
@@ -1473,7 +1492,7 @@ def _samples_text(value: Any) -> Any:
                 raise ValueError(f"samples {value!r}: expected 'last N' with a whole number N, e.g. 'last 10000'") from None
         return {"mode": word}
     if not isinstance(value, (dict, Samples)):  # null, a number: the model's own message would name its class
-        raise ValueError(f"samples {'null' if value is None else repr(value)}: expected all, none, outliers or 'last N'")
+        raise ValueError(f"samples {'null' if value is None else repr(value)}: expected {SAMPLES_EXPECTED}")
     return value
 
 
@@ -1499,12 +1518,12 @@ SamplesSetting = Annotated[
     Samples,
     Written(
         dump=Samples.label,
-        schema={
-            "type": "string",
-            "pattern": "^(all|none|outliers|last [1-9][0-9]*)$",
-            "description": "per-callback samples to write: all, none, outliers or last N",
-            "examples": ["all", "outliers", "last 10000"],
-        },
+        schema=text_schema(
+            "^(all|none|outliers|last [1-9][0-9]*)$",
+            SAMPLES_EXPECTED,
+            description="per-callback samples to write: all, none, outliers or last N",
+            examples=["all", "outliers", "last 10000"],
+        ),
     ),
 ]
 
@@ -1521,10 +1540,13 @@ def _duration_range(value: int) -> int:
     return value
 
 
+RESOURCE_NAME_WORDS = "letters, digits and _ . - (64 at most), starting with a letter or _"
+
+
 def _resource_names(value: dict[str, Resource]) -> dict[str, Resource]:
     for name in value:
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", name):
-            raise ValueError(f"resource name {name!r} may use letters, digits and _ . - (64 at most), starting with a letter or _")
+            raise ValueError(f"resource name {name!r} may use {RESOURCE_NAME_WORDS}")
     return value
 
 
@@ -1534,9 +1556,12 @@ def _bound_range(value: int) -> int:
     return value
 
 
+SCENARIO_NAME_WORDS = "letters, digits and _ . + - only (it names a results folder)"
+
+
 def _scenario_name(value: str) -> str:
     if not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
-        raise ValueError(f"name {value!r} may use letters, digits and _ . + - only (it names a results folder)")
+        raise ValueError(f"name {value!r} may use {SCENARIO_NAME_WORDS}")
     return value
 
 

@@ -20,26 +20,39 @@ from typing import Any
 
 from runner import figures, units
 from runner.scenario import matrix
-from runner.scenario.model import COMM_MAX, POLICY_PATTERN, POLICY_WORDS, SCHED_FORMS, SCHED_PATTERN, Scenario, policy_pattern
-from runner.scenario.typed import json_schema
+from runner.scenario.model import (
+    COMM_FORBIDS,
+    COMM_MAX,
+    POLICY_PATTERN,
+    POLICY_WORDS,
+    RESOURCE_NAME_WORDS,
+    SCENARIO_NAME_WORDS,
+    SCHED_FORMS,
+    SCHED_PATTERN,
+    SIGNED_DURATION_SCHEMA,
+    Scenario,
+    policy_pattern,
+)
+from runner.scenario.typed import json_schema, text_schema
 
 SCHEMA_ID = "https://github.com/rt-scenario-runner/runner/runner.schema.json"
 _NAME = r"[A-Za-z_][A-Za-z0-9_-]*"
-_WHOLE_REFERENCE = {"type": "string", "pattern": rf"^\s*\$\{{\{{\s*matrix\.{_NAME}\s*\}}\}}\s*$"}
-_TEXT_REFERENCE = {"type": "string", "pattern": rf"\$\{{\{{\s*matrix\.{_NAME}\s*\}}\}}"}
+_REFERENCE_WORDS = "a matrix value, ${{ matrix.NAME }}, NAME an axis of the matrix"
+_WHOLE_REFERENCE = text_schema(rf"^\s*\$\{{\{{\s*matrix\.{_NAME}\s*\}}\}}\s*$", _REFERENCE_WORDS)
+_TEXT_REFERENCE = text_schema(rf"\$\{{\{{\s*matrix\.{_NAME}\s*\}}\}}", _REFERENCE_WORDS)
 # Control, format and separator characters a name or label may not hold (model.control_character): C0, DEL,
 # C1, and the format and separator characters of the Basic Multilingual Plane that text can hide.  A fixed
 # list, not unicodedata's, so the schema file is the same whatever Python's Unicode version.
 _FORMATS = r"\x7f-\x9f\u00ad\u061c\u180e\u200b-\u200f\u2028-\u202e\u2060-\u206f\ufeff\ufff9-\ufffb"
 _CONTROLS = r"\x00-\x1f" + _FORMATS
 _CONTROLS_BUT_LINES = r"\x00-\x08\x0b-\x1f" + _FORMATS  # a description may have newlines and tabs
-_LABEL = {"type": "string", "pattern": f"^[^{_CONTROLS}]*$"}
-_COMM = {
-    "type": "string",
-    "minLength": 1,
-    "maxLength": COMM_MAX,  # characters, where the kernel counts bytes: a name of accented letters can pass here
-    "pattern": rf"^[^\s/{_CONTROLS}]+$",
-}
+_LABEL = text_schema(f"^[^{_CONTROLS}]*$", "text without control characters")
+_COMM = text_schema(
+    rf"^[^\s/{_CONTROLS}]+$",
+    f"a name without {COMM_FORBIDS}",
+    minLength=1,
+    maxLength=COMM_MAX,  # characters, where the kernel counts bytes: a name of accented letters can pass here
+)
 _NULL_OR = {"enum": [0, None]}
 
 
@@ -90,10 +103,8 @@ def _sched(defs: dict[str, Any]) -> None:
     """The text forms, and the mapping form's rules per policy (fifo and rr need 1..99, deadline a runtime, ...)."""
     mapping = defs["Sched"]
     props = mapping["properties"]
-    props["policy"] = {
-        "anyOf": [{"enum": POLICY_WORDS}, {"type": "string", "pattern": POLICY_PATTERN}],
-        "description": props["policy"]["description"],
-    }
+    words = props["policy"]["description"]
+    props["policy"] = {"anyOf": [{"enum": POLICY_WORDS}, text_schema(POLICY_PATTERN, words)], "description": words}
 
     def when(names: tuple[str, ...], then: dict[str, Any]) -> dict[str, Any]:
         return {
@@ -114,7 +125,7 @@ def _sched(defs: dict[str, Any]) -> None:
         when(("idle",), {"properties": {"priority": _NULL_OR, "nice": _NULL_OR, **dl_keys}}),
         when(("deadline",), {"required": ["runtime"], "properties": {"runtime": True, "priority": _NULL_OR, "nice": _NULL_OR}}),
     ]
-    text = {"type": "string", "pattern": SCHED_PATTERN, "description": f"a policy as text: {SCHED_FORMS}"}
+    text = text_schema(SCHED_PATTERN, SCHED_FORMS, description=f"a policy as text: {SCHED_FORMS}")
     defs["Sched"] = {"anyOf": [text, mapping], "description": mapping.get("description", "")}
 
 
@@ -122,10 +133,9 @@ def _expectations(defs: dict[str, Any]) -> None:
     """Bounds in the metric's unit (a duration for latency, a number for counts), not negative unless the figure
     can be (slack), and at least one of max and min."""
     expectation = defs["Expectation"]
-    duration = units.DURATION_PATTERN
     by_kind: dict[tuple[bool, bool], dict[str, Any]] = {
-        (True, False): {"type": "string", "pattern": duration},
-        (True, True): {"type": "string", "pattern": duration.replace("^", "^\\s*[-\u2212]?", 1)},
+        (True, False): text_schema(units.DURATION_PATTERN, units.DURATION_EXPECTED),
+        (True, True): SIGNED_DURATION_SCHEMA,
         (False, False): {"type": "number", "minimum": 0},
         (False, True): {"type": "number"},
     }
@@ -152,10 +162,36 @@ def _names(schema: dict[str, Any], defs: dict[str, Any]) -> None:
     label["anyOf"] = [_LABEL, {"type": "null"}]
     # no program can receive a NUL byte; an empty argv[0] is left to the model (a prefixItems tuple that
     # stays open is what ajv's strictTuples refuses)
-    defs["Command"]["properties"]["argv"]["items"] = {"type": "string", "pattern": "^[^\\x00]*$"}
-    schema["properties"]["name"]["pattern"] = r"^[A-Za-z0-9_.+-]+$"
-    schema["properties"]["description"]["pattern"] = f"^[^{_CONTROLS_BUT_LINES}]*$"
-    schema["properties"]["resources"]["propertyNames"] = {"pattern": r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$"}
+    defs["Command"]["properties"]["argv"]["items"] = text_schema("^[^\\x00]*$", "an argument without a NUL byte")
+    schema["properties"]["name"].update(text_schema(r"^[A-Za-z0-9_.+-]+$", SCENARIO_NAME_WORDS))
+    schema["properties"]["description"].update(
+        text_schema(f"^[^{_CONTROLS_BUT_LINES}]*$", "text without control characters but newlines and tabs")
+    )
+    schema["properties"]["resources"]["propertyNames"] = text_schema(
+        r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$", f"a resource name of {RESOURCE_NAME_WORDS}"
+    )
+
+
+def _snippets(node: Any) -> Any:
+    """The schema with each mapping among `examples` moved to `defaultSnippets`, labelled with its YAML flow form.
+
+    yaml-language-server offers an example as a completion labelled with JavaScript's String() of it, which is
+    `[object Object]` for a mapping; a snippet has a label of its own and inserts the same mapping.
+    """
+    if isinstance(node, list):
+        return [_snippets(v) for v in node]
+    if not isinstance(node, dict):
+        return node
+    out = {k: _snippets(v) for k, v in node.items()}
+    examples = out.get("examples")
+    if isinstance(examples, list) and any(isinstance(e, dict) for e in examples):
+        import yaml
+
+        out["examples"] = [e for e in examples if not isinstance(e, dict)]
+        mappings = [e for e in examples if isinstance(e, dict)]
+        labels = [yaml.safe_dump(e, default_flow_style=True, sort_keys=False, width=1 << 16).strip() for e in mappings]
+        out["defaultSnippets"] = [*out.get("defaultSnippets", []), *({"label": t, "body": e} for t, e in zip(labels, mappings))]
+    return out
 
 
 def scenario_schema() -> dict[str, Any]:
@@ -197,6 +233,7 @@ def scenario_schema() -> dict[str, Any]:
     value = {
         "type": ["string", "number", "boolean"],
         "pattern": f"^[^{_CONTROLS}]*$",
+        "patternErrorMessage": "expected a value without control characters",
         "maxLength": matrix.MAX_VALUE_CHARS,
         "not": {"type": "string", "pattern": r"\$\{\{"},
     }
@@ -209,11 +246,11 @@ def scenario_schema() -> dict[str, Any]:
         "type": "object",
         "description": "axes (lists of values), include and exclude, as GitHub Actions strategy.matrix",
         "properties": {"include": entries, "exclude": entries},
-        "propertyNames": {"pattern": rf"^{_NAME}$"},
+        "propertyNames": text_schema(rf"^{_NAME}$", f"an axis name: {matrix.KEY_WORDS}"),
         "maxProperties": matrix.MAX_KEYS,
         "additionalProperties": {"type": "array", "items": value, "minItems": 1},
     }
-    schema = _allow_reference(_standard(schema), defs)
+    schema = _snippets(_allow_reference(_standard(schema), defs))
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["$id"] = SCHEMA_ID
     schema["title"] = "runner scenario"

@@ -728,6 +728,16 @@ def _dumper(tp: Any) -> Callable[[Any], Any]:
 # ------------------------------------------------------------------------- schema
 
 
+def text_schema(pattern: str, expected: str, **extra: Any) -> dict[str, Any]:
+    """The schema of text matching `pattern`, with the words an editor shows for text that does not match.
+
+    `expected` is what `runner validate` says is expected of the value (`units.DURATION_EXPECTED`...): the
+    same words, from the same declaration, where yaml-language-server would otherwise print the whole pattern
+    (`patternErrorMessage` is its keyword and VS Code's, beside JSON Schema's; validators take it as an annotation).
+    """
+    return {"type": "string", "pattern": pattern, "patternErrorMessage": f"expected {expected}", **extra}
+
+
 def json_schema(root: type[Model]) -> dict[str, Any]:
     """The JSON Schema (draft 2020-12) of `root`: its properties at the top, every other model and enum in `$defs`."""
     defs: dict[str, Any] = {}
