@@ -60,7 +60,7 @@ _JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per c
 
 def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner run", description="Run a scenario file: spawn its processes and threads, measure, report.")
-    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("scenario", metavar="SCENARIO.yaml", help="scenario YAML file (or an rt-app workload, FILE.json)")
     p.add_argument("--list", action="store_true", help="print the expanded cells with each thread's resolved settings; run nothing")
     p.add_argument("--duration", metavar="D", help="override the scenario's duration, e.g. 2s (100ms to 24h)")
     p.add_argument("--cell", action="append", default=[], metavar="GLOB", help="run only cells whose id matches (repeatable)")
@@ -339,6 +339,7 @@ def _ps_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "target",
+        metavar="PID|NAME",
         help="a PID, or a process name: every thread of the processes whose COMMAND it is "
         "(as the seed's `ps -C NAME -L` printed; procps 4 selects threads by their own name instead)",
     )
@@ -368,11 +369,12 @@ def _watch_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("targets", nargs="+", metavar="PID|NAME", help="a PID, or a process name (every live process whose COMMAND it is)")
     p.add_argument("--duration", default="10s", help="how long to watch (default 10s); Ctrl-C stops early and keeps what was measured")
-    p.add_argument("--out", help="results folder (default reports/watch/<UTC time>)")
+    p.add_argument("--out", metavar="DIR", help="results folder (default reports/watch/<UTC time>)")
     p.add_argument(
         "--rule",
         action="append",
         default=[],
+        metavar="PATTERN=SCHED@CPUS",
         help="a thread rule to apply to matching threads: PATTERN=SCHED@CPUS (the threads keep it after the watch)",
     )
     p.add_argument("--allow-priority-99", action="store_true", help="let a rule ask for RT priority 99 (refused otherwise)")
@@ -741,7 +743,7 @@ def _completion_parser() -> argparse.ArgumentParser:
         "bash: runner completion bash > ~/.local/share/bash-completion/completions/runner; "
         'zsh: runner completion zsh > "${fpath[1]}/_runner"',
     )
-    p.add_argument("shell", choices=SHELLS)
+    p.add_argument("shell", choices=SHELLS, metavar="|".join(SHELLS))
     return p
 
 

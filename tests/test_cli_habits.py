@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import os
+import pathlib
 import re
+import shlex
 import shutil
 import subprocess
+import sys
 
 import pytest
-from conftest import SCENARIOS, run_cli
+import shtab
+from conftest import SCENARIOS, _in_ci, run_cli
 
 from runner.cli import _PARSERS, COMMANDS
 
@@ -69,31 +74,145 @@ def test_no_group_title_appears_twice_in_a_commands_help(command):
     assert titles and len(titles) == len(set(titles)), f"runner {command} --help repeats a group: {titles}"
 
 
-@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
-def test_bash_completion_completes_commands_options_and_files(tmp_path):
-    outcome = run_cli("completion", "bash")
-    assert outcome.code == 0
-    (tmp_path / "script").write_text(outcome.out)
+def _completion_folder(tmp_path: pathlib.Path) -> pathlib.Path:
+    """A folder to complete in: a scenario under scenarios/, a file beside, a folder for results."""
+    (tmp_path / "scenarios").mkdir(parents=True)
+    (tmp_path / "scenarios" / "fifo80.yaml").write_text("")
     (tmp_path / "a.yaml").write_text("")
-
-    def complete(*words: str) -> list[str]:
-        line = " ".join(words)
-        program = (
-            f"source {tmp_path / 'script'}; COMP_WORDS=({' '.join(repr(w) for w in words)}); COMP_CWORD={len(words) - 1}; "
-            f'COMP_LINE="{line}"; COMP_POINT=${{#COMP_LINE}}; _shtab_runner; printf "%s\\n" "${{COMPREPLY[@]}}"'
-        )
-        done = subprocess.run(["bash", "-c", program], capture_output=True, text=True, cwd=tmp_path, timeout=30)
-        return sorted(done.stdout.split())
-
-    assert complete("runner", "comp") == ["compare", "completion"]
-    assert complete("runner", "run", "--dur") == ["--duration"]
-    assert complete("runner", "validate", "") == ["a.yaml", "script"]
-    assert "--results" in complete("runner", "schema", "--")
+    (tmp_path / "results").mkdir()
+    return tmp_path
 
 
-def test_zsh_completion_is_written_too():
+# (the words of a command line, the last being completed; what completion offers): the same for bash and zsh
+COMPLETIONS = [
+    (["runner", "comp"], ["compare", "completion"]),
+    (["runner", "scenarios/fi"], ["scenarios/fifo80.yaml"]),  # the README's main form: a scenario as the first word
+    (["runner", "--"], ["--help", "--version"]),
+    (["runner", "a.yaml", "--du"], ["--duration"]),  # then the run's options
+    (["runner", "a.yaml", "--out", ""], ["results", "scenarios"]),  # folders only; it offered the commands
+    (["runner", "a.yaml", "--out", "results", "--no-p"], ["--no-plots"]),
+    (["runner", "run", "a.yaml", "--du"], ["--duration"]),
+    (["runner", "validate", "sc"], ["scenarios"]),
+    (["runner", "schema", "--r"], ["--results"]),
+    (["runner", "merge", "x", "--out", "s"], ["scenarios"]),
+]
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+def test_bash_completes_a_scenario_then_the_run_options(tmp_path):
+    """`runner scenarios/fi<TAB>` completed nothing, `runner x.yaml --du<TAB>` neither, and `runner x.yaml --out <TAB>`
+    offered the commands: the script knew `runner COMMAND` only."""
+    folder = _completion_folder(tmp_path)
+
+    cases = [words for words, _ in COMPLETIONS] + [["runner", ""]]
+    program = [  # loaded as a user loads it; the function completing is the one `complete -p runner` names
+        f"source <({shlex.quote(sys.executable)} -m runner completion bash)",
+        'function=$(complete -p runner | sed -n "s/.* -F \\([^ ]*\\) .*/\\1/p")',
+    ]
+    for words in cases:
+        line = shlex.quote(" ".join(words))
+        program += [
+            f"COMP_WORDS=({' '.join(map(shlex.quote, words))}); COMP_CWORD={len(words) - 1}; COMP_LINE={line}; COMP_POINT=${{#COMP_LINE}}",
+            'COMPREPLY=(); "$function"; printf "%s\\n" "${COMPREPLY[@]}" --',
+        ]
+    done = subprocess.run(["bash", "-c", "\n".join(program)], capture_output=True, text=True, cwd=folder, timeout=120)
+    assert done.returncode == 0, done.stderr
+    offered = [sorted(set(text.split())) for text in done.stdout.split("--\n")]
+    assert len(offered) == len(cases) + 1, done.stdout
+    wrong = [f"{' '.join(words)}<TAB>: {got}, expected {want}" for (words, want), got in zip(COMPLETIONS, offered) if got != want]
+    assert not wrong, "\n".join(wrong)
+    assert {"validate", "run", "a.yaml", "scenarios"} <= set(offered[len(COMPLETIONS)]), offered  # commands and files
+
+
+_ZSH_DRIVER = r"""
+# usage: zsh -f DRIVER FPATH_DIR OUT LINE...: an interactive zsh in a pseudo-terminal, with the completion from FPATH_DIR
+# (as `runner completion zsh > "${fpath[1]}/_runner"` installs it) and compinit; each LINE is typed with a TAB, never run,
+# and what completion offered for it goes to OUT, one match a line, each LINE's ended by a line `--`
+zmodload zsh/zpty
+dir=$1; export OFFERED=$2; shift 2
+cat > $OFFERED.zsh <<'END'
+compadd() {  # what each call adds, as matched against the word (-O), written down; calls that only ask are passed on
+  if [[ ${@[1,(i)(-|--)]} == *-(O|A|D)\ * ]]; then builtin compadd "$@"; return; fi
+  local -a matches
+  builtin compadd -O matches "$@"
+  print -rl -- $matches >> $OFFERED
+  builtin compadd "$@"
+}
+complete-and-mark() { zle complete-word; print -r -- -- >> $OFFERED }  # TAB: complete, then say it is done
+zle -N complete-and-mark
+bindkey '^I' complete-and-mark
+unsetopt autolist  # no list on the terminal, and no question whether to show a long one
+zle-line-init() { print -r -- ready > $OFFERED.ready }  # the line editor reads keys now: what is typed before may be lost
+zle -N zle-line-init
+END
+wait_for() {  # until the file $1 holds $2 lines `--` (0: until it exists), reading what the terminal shows meanwhile
+  for i in {1..300}; do
+    while zpty -rt z echoed; do :; done  # read, so that the pseudo-terminal never fills and blocks the shell
+    [[ -e $1 ]] && (( $(grep -cx -- -- $1) >= $2 )) && return
+    sleep 0.1
+  done
+  print -u2 "no answer from zsh"; exit 1
+}
+integer typed=0
+for line in "$@"; do  # a shell for each line: nothing typed ahead while a completion runs, and nothing left of the last
+  rm -f $OFFERED.ready
+  zpty z zsh -f -i
+  zpty -w z "PS1=''; fpath=($dir \$fpath); autoload -U compinit; compinit -u -D; source $OFFERED.zsh; path=()"  # no program runs
+  wait_for $OFFERED.ready 0
+  zpty -wn z "$line"$'\t'  # no newline: the line is completed, never run
+  wait_for $OFFERED $(( typed += 1 ))
+  zpty -d z
+done
+"""
+
+
+def test_zsh_completes_a_scenario_then_the_run_options(tmp_path):
+    if shutil.which("zsh") is None:
+        if _in_ci():
+            pytest.fail("zsh is not installed; .ci/run installs it")
+        pytest.skip("needs zsh")
+    folder = _completion_folder(tmp_path / "work")
+    functions = tmp_path / "functions"
+    functions.mkdir()
     outcome = run_cli("completion", "zsh")
     assert outcome.code == 0 and outcome.out.startswith("#compdef runner")
+    (functions / "_runner").write_text(outcome.out)
+    (tmp_path / "driver.zsh").write_text(_ZSH_DRIVER)
+    lines = [" ".join(words) for words, _ in COMPLETIONS] + ["runner "]
+    out = tmp_path / "offered"
+    subprocess.run(["zsh", "-f", str(tmp_path / "driver.zsh"), str(functions), str(out), *lines], cwd=folder, timeout=120, check=True)
+    offered = out.read_text().split("--\n")
+    assert len(offered) == len(lines) + 1, offered
+    got = {line: sorted(set(text.split())) for line, text in zip(lines, offered)}
+    want = {" ".join(words): [w.rsplit("/", 1)[-1] for w in want] for words, want in COMPLETIONS}  # zsh offers a path's last part
+    assert {line: got[line] for line in want} == want
+    assert {"validate", "run", "a.yaml", "scenarios"} <= set(got["runner "]), got["runner "]
+
+
+def test_tcsh_completion_is_written_with_the_version_option():
+    outcome = run_cli("completion", "tcsh")
+    assert outcome.code == 0 and "version" in re.search(r"'c/--/\(([^)]*)\)/'", outcome.out).group(1).split()
+
+
+def test_every_argument_naming_a_file_or_folder_completes_as_one():
+    """report's --hdr FILE and --kcidb FILE completed nothing: which arguments complete files goes by their names."""
+    from runner.cli import _PARSERS
+    from runner.completion import parser_tree
+
+    names = {"FILE", "FILE.json", "FILE.yaml", "SCENARIO.yaml", "RESULTS", "BASE", "NEW", "DIR"}
+    top = parser_tree(_PARSERS, "")
+    (commands,) = [a for a in top._actions if isinstance(a, argparse._SubParsersAction)]
+    bare = [
+        f"runner {name} {'/'.join(a.option_strings) or a.dest} {a.metavar}"
+        for name, parser in commands.choices.items()
+        for a in parser._actions
+        if a.metavar in names and not hasattr(a, "complete")
+    ]
+    assert not bare, bare
+    assert {a.dest: a.complete for a in commands.choices["run"]._actions if a.dest in ("out", "resume")} == {
+        "out": shtab.DIRECTORY,
+        "resume": shtab.DIRECTORY,
+    }
 
 
 def test_completion_refuses_a_shell_it_cannot_write_for():

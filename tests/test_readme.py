@@ -10,6 +10,7 @@ skipped; a block whose first line is `# fragment` is skipped too, and one whose 
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 from dataclasses import dataclass
@@ -122,12 +123,48 @@ def test_readmes_validate_sample_is_what_the_tool_prints(args, shown, monkeypatc
     assert done.out + done.err == shown
 
 
-def test_the_run_synopsis_of_commands_names_every_run_option():
-    """README's synopsis of `runner SCENARIO.yaml` left out --no-trace and --allow-priority-99; `runner run --help` is the list."""
-    from runner.cli import _run_parser
+def _synopsis() -> dict[str, str]:
+    """The `## Commands` block's entries by command (`run` for `runner SCENARIO.yaml`, `` for `runner --help`),
+    each entry's lines joined, comments left out."""
+    from runner.cli import COMMANDS
 
     commands = _readme().split("\n## Commands\n", 1)[1]
     block = commands.split("```text\n", 1)[1].split("```", 1)[0]
-    synopsis = block.split("\nrunner validate", 1)[0]  # the run's lines and --list's, not watch's options of the same names
-    options = {o for action in _run_parser()._actions for o in action.option_strings if o.startswith("--") and o != "--help"}
-    assert not sorted(o for o in options if not re.search(rf"{re.escape(o)}\b(?!-)", synopsis))
+    entries: dict[str, str] = {}
+    command = ""
+    for line in block.splitlines():
+        text = line.split("#", 1)[0]
+        if line.startswith("runner "):
+            word = text.split()[1]
+            command = word if word in COMMANDS else "" if word.startswith("-") else "run"
+        entries[command] = entries.get(command, "") + " " + text
+    return entries
+
+
+def _options(text: str) -> set[str]:
+    return set(re.findall(r"(?<![\w-])(--?[a-z][a-z0-9-]*)", text))
+
+
+def test_the_synopsis_of_commands_is_what_help_says():
+    """Every option each command's --help lists is in README's synopsis and the synopsis has none the command lacks;
+    the arguments are named as the usage names them (SCENARIO.yaml, PID|NAME).  The synopsis had left out
+    --no-trace and --allow-priority-99 of a run, report's --threshold and --no-plots, compare's -o, merge's
+    --threshold and --no-plots."""
+    from runner.cli import _PARSERS
+
+    synopsis = _synopsis()
+    assert set(synopsis) == {*_PARSERS, ""}, sorted(synopsis)
+    assert _options(synopsis[""]) == {"--help", "--version"} and run_cli("--version").code == 0
+    wrong = []
+    for command, build in _PARSERS.items():
+        actions = [a for a in build()._actions if a.help != argparse.SUPPRESS and "--help" not in a.option_strings]
+        written = _options(synopsis[command])
+        for action in actions:
+            if action.option_strings and not written & set(action.option_strings):
+                wrong.append(f"runner {command}: {'/'.join(action.option_strings)} is not in the synopsis")
+            name = str(action.metavar or action.dest)  # what the usage calls the argument
+            if not action.option_strings and not re.search(rf"(?<!\S){re.escape(name)}(?:\.\.\.)?(?!\S)", synopsis[command]):
+                wrong.append(f"runner {command}: its argument {name} is not named so in the synopsis")
+        known = {o for a in actions for o in a.option_strings}
+        wrong += [f"runner {command}: the synopsis has {o}, which --help does not" for o in sorted(written - known)]
+    assert not wrong, "\n".join(wrong)
