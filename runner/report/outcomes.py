@@ -19,7 +19,7 @@ from typing import Optional
 from runner.figures import scale
 from runner.report.compare import CellChange, Comparison, FigureChange, Verdict
 from runner.report.fmt import fmt_figure
-from runner.report.markdown import change_text, thread_labels
+from runner.report.markdown import change_text, interval_ends, interval_text, thread_labels
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.document import Verdict as ExpectationVerdict
 from runner.scenario.matrix import format_value
@@ -93,9 +93,11 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
     `thread_gone`: this run has no such thread at all (its figures are missing for that reason).
     """
     thread = labels.get(f.thread, f.thread)
-    sc = scale(f.figure.unit, (f.base, f.new))  # the row's one unit and precision, as in the comparison table
+    ends = (*interval_ends(f.base_estimate), *interval_ends(f.new_estimate))
+    sc = scale(f.figure.unit, (f.base, f.new, *ends))  # the row's one unit and precision, as in the comparison table
     unit = f" {sc.unit}" if sc.unit else ""
-    base, new = sc.number(f.base) + unit, sc.number(f.new) + unit
+    base = sc.number(f.base) + unit + interval_text(f.base_estimate, sc)
+    new = sc.number(f.new) + unit + interval_text(f.new_estimate, sc)
     if f.verdict == Verdict.NEW:
         return f"{thread}: {f.figure.words}: no baseline (this run {new})"
     if f.verdict == Verdict.MISSING:
@@ -105,14 +107,16 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
         return f"{thread}: {f.figure.words} {base} → {new}: not checked (its threshold is off)"
     if f.verdict == Verdict.UNCOMPARABLE:
         return f"{thread}: {f.figure.words} {base} → {new}: not comparable (the scheduler trace lost events in this cell)"
+    why = f": {f.why}" if f.why else ""
     return (
-        f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: {f.verdict}"
+        f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: "
+        f"{f.verdict}{why}"
     )
 
 
 def _figure_check(f: FigureChange, labels: dict[str, str], thread_gone: bool = False) -> Check:
     """A figure against its baseline: failed when worse, or when the baseline has it and this run does not (never a pass)."""
-    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED, Verdict.UNCOMPARABLE: Outcome.SKIPPED}
+    skipped = {v: Outcome.SKIPPED for v in (Verdict.NEW, Verdict.OFF, Verdict.UNCOMPARABLE, Verdict.FEW)}
     outcome = {Verdict.REGRESSION: Outcome.FAILED, Verdict.MISSING: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
     name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the baseline"
     return Check(name, Kind.BASELINE, outcome, figure_message(f, labels, thread_gone) if outcome is not Outcome.PASSED else "")
