@@ -401,7 +401,7 @@ def compare(
         note = f"{old_status.value} → {new_status.value}" if worse or verdict == Verdict.ERROR else ""
         out.cells.append(CellChange(cell_id, old_status, new_status, verdict, note))
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
-        out.threads_gone.extend((cell_id, key) for key in _compared_keys(b[cell_id]) if key not in _compared_keys(n[cell_id]))
+        out.threads_gone.extend((cell_id, key) for key in compared_keys(b[cell_id]) if key not in compared_keys(n[cell_id]))
     out.figures = judge(out.figures)
     lossy = list(dict.fromkeys(f.cell for f in out.figures if f.verdict == Verdict.UNCOMPARABLE))
     if lossy:
@@ -456,13 +456,13 @@ def _status(cells: list[CellResult]) -> Status:
     return min((c.status for c in cells), key=order.index)
 
 
-def _compared_keys(cells: list[CellResult]) -> list[str]:
+def compared_keys(cells: list[CellResult]) -> list[str]:
     """The threads of a cell (all its repeats) whose figures are compared: those with callbacks, and a program's
     threads (the figures measured from outside)."""
     return list(dict.fromkeys(t.key for c in cells for t in c.threads if t.has_callbacks or t.program))
 
 
-def _estimate(cells: list[CellResult], key: str, fig: Figure) -> Estimate | None:
+def cell_estimate(cells: list[CellResult], key: str, fig: Figure) -> Estimate | None:
     """`fig` of thread `key` over a cell's repeats, with its interval (`estimates.estimate`)."""
     pairs = [(t, c.duration_ns) for c in cells for t in c.threads if t.key == key]
     return estimate(fig, [t for t, _ in pairs], [d for _, d in pairs])
@@ -477,7 +477,7 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
     """
     out = []
     lossy = any(_trace_loss(c) for c in old + now)
-    for key in dict.fromkeys(_compared_keys(now) + _compared_keys(old)):
+    for key in dict.fromkeys(compared_keys(now) + compared_keys(old)):
         for th in thresholds:
             fig = fg.figure(th.figure)
             base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
@@ -498,7 +498,7 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
                 verdict = Verdict.BETTER
             else:
                 verdict = Verdict.SAME
-            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict, _estimate(old, key, fig), _estimate(now, key, fig)))
+            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict, cell_estimate(old, key, fig), cell_estimate(now, key, fig)))
     return out
 
 

@@ -677,6 +677,7 @@ class MachineInfo(_Record):
     cpufreq_governors: list[str] = Field(default_factory=list)
     memory_total_bytes: Optional[int] = None
     python: Optional[str] = None
+    cpu_model: Optional[str] = Field(None, description="the CPU's model name (/proc/cpuinfo); null: not recorded or not said")
     cmdline: Optional[str] = Field(None, description="the kernel command line (/proc/cmdline)")
     clocksource: Optional[str] = Field(None, description="the current clocksource, e.g. `tsc`")
     nohz_full_cpus: Optional[str] = Field(None, description="CPUs without a scheduler tick; null: the kernel has no nohz_full")
