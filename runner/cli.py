@@ -55,6 +55,10 @@ def _threshold_help() -> str:
 
 
 _LAVA_HELP = "report each cell as a LAVA test set: lava-test-set and lava-test-case when on PATH, their lines otherwise"
+_HISTORY_HELP = (
+    "judge each figure against its own past nights on this host in the history FILE (SQLite, made when absent) or "
+    "postgresql://URL, then add this night to it; a regression makes the exit code 1"
+)
 _JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
 
 
@@ -96,6 +100,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     r = p.add_argument_group("report")
     r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
+    r.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
     r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
@@ -648,6 +653,7 @@ def _merge_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
     p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
+    p.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
@@ -663,7 +669,7 @@ def _cmd_merge(argv: list[str]) -> int:
     from runner.results.merge import merge
     from runner.session import exit_code
 
-    thresholds = thresholds_for(ns.threshold, ns.baseline)
+    thresholds = thresholds_for(ns.threshold, ns.baseline, ns.history, has_history=True)
     junit = writable_file(ns.junit, "--junit") if ns.junit else None
     if ns.baseline:
         from runner.results.read import load
@@ -682,7 +688,9 @@ def _cmd_merge(argv: list[str]) -> int:
             note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
         say(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
         try:
-            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit)
+            regressions = finish(
+                doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit, history=ns.history
+            )
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", before_run=False) from None
     finally:

@@ -175,6 +175,28 @@ def normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2))
 
 
+def t_sf(t: float, df: int) -> float:
+    """P(T >= t) for Student's T with `df` (whole) degrees of freedom: the closed sums of Abramowitz and Stegun 26.7.3-4."""
+    if df < 1:
+        raise ValueError(f"t_sf: df {df}: expected at least 1")
+    theta = math.atan(abs(t) / math.sqrt(df))
+    c2, sin, cos = math.cos(theta) ** 2, math.sin(theta), math.cos(theta)
+    if df % 2:  # odd
+        total, term = 1.0, 1.0
+        for k in range(1, (df - 1) // 2):
+            term *= c2 * (2 * k) / (2 * k + 1)
+            total += term
+        inside = 2 / math.pi * (theta + (sin * cos * total if df > 1 else 0.0))
+    else:
+        total, term = 1.0, 1.0
+        for k in range(1, df // 2):
+            term *= c2 * (2 * k - 1) / (2 * k)
+            total += term
+        inside = sin * total
+    tail = max(0.0, (1 - inside) / 2)
+    return tail if t >= 0 else 1 - tail
+
+
 def normal_quantile(p: float) -> float:
     """z with P(Z <= z) = p (the standard library's inverse, exact to double precision)."""
     from statistics import NormalDist  # here: statistics imports fractions and random, which a run's start need not pay for

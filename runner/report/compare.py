@@ -147,11 +147,13 @@ def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
     return list(out.values())
 
 
-def thresholds_for(texts: Iterable[str], baseline: str | None) -> list[Threshold]:
-    """The --threshold options, which only a comparison reads: refused without --baseline, never ignored."""
+def thresholds_for(texts: Iterable[str], baseline: str | None, history: str | None = None, has_history: bool = False) -> list[Threshold]:
+    """The --threshold options, which only a comparison or a history reads: refused without --baseline (or --history, for a
+    command that has it: `has_history`), never ignored."""
     given = list(texts)
-    if given and not baseline:
-        raise UsageError(f"runner: --threshold {given[0]} sets a limit of a comparison; give --baseline RESULTS too")
+    if given and not baseline and not history:
+        either = "--baseline RESULTS or --history FILE" if has_history else "--baseline RESULTS"
+        raise UsageError(f"runner: --threshold {given[0]} sets a limit of a comparison; give {either} too")
     return thresholds_with(parse_threshold(t) for t in given)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from runner.figures import scale
 from runner.report.compare import CellChange, Comparison, FigureChange, Verdict
@@ -23,6 +23,9 @@ from runner.report.markdown import change_text, interval_ends, interval_text, th
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.document import Verdict as ExpectationVerdict
 from runner.scenario.matrix import format_value
+
+if TYPE_CHECKING:
+    from runner.history.judge import FigureVerdict, NightVerdict
 
 
 class Outcome(str, enum.Enum):
@@ -40,6 +43,7 @@ class Kind(str, enum.Enum):
     RUN = "run"  # the cell's run itself
     EXPECTATION = "expectation"  # one expectation on one thread
     BASELINE = "baseline"  # one figure (or the cell's status) against the baseline
+    HISTORY = "history"  # one figure against its past nights (--history)
 
 
 @dataclass(frozen=True)
@@ -122,6 +126,17 @@ def _figure_check(f: FigureChange, labels: dict[str, str], thread_gone: bool = F
     return Check(name, Kind.BASELINE, outcome, figure_message(f, labels, thread_gone) if outcome is not Outcome.PASSED else "")
 
 
+def _history_check(f: FigureVerdict, labels: dict[str, str]) -> Check:
+    """A figure against its past nights: failed when it regressed or went missing, skipped while there is too little to judge."""
+    from runner.history.judge import FAILED, Verdict
+
+    skipped = (Verdict.LEARNING, Verdict.NEW, Verdict.FEW, Verdict.CONTINUING)
+    outcome = Outcome.FAILED if f.verdict in FAILED else Outcome.SKIPPED if f.verdict in skipped else Outcome.PASSED
+    name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the history"
+    message = f"{labels.get(f.thread, f.thread)}: {f.figure.words}: {f.words}" if outcome is not Outcome.PASSED else ""
+    return Check(name, Kind.HISTORY, outcome, message)
+
+
 def _status_check(c: CellChange) -> Check:
     if c.verdict == Verdict.ERROR:  # an error in this run, whatever the baseline was: never "within threshold"
         return Check("status against the baseline", Kind.BASELINE, Outcome.ERROR, f"the cell could not run or was cut short: {c.note}")
@@ -150,8 +165,11 @@ def _notes(cell: CellResult) -> list[str]:
     return degraded + [f"warning: {text}" for text in cell.warnings]
 
 
-def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True) -> list[CellChecks]:
-    """Every cell run of `doc` with its checks; `comparison` adds each figure against the baseline.
+def cell_checks(
+    doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True, history: Optional[NightVerdict] = None
+) -> list[CellChecks]:
+    """Every cell run of `doc` with its checks; `comparison` adds each figure against the baseline, `history` each figure
+    against its past nights.
 
     `run` False leaves out the runs and expectations (`runner compare`: only the comparison).
     Cells `doc` was asked for but has no result of are skipped (errors when the run did not finish,
@@ -185,6 +203,8 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
             item.checks.append(_status_check(changes[cell.id]))
             gone = set(comparison.threads_gone) if comparison else set()
             item.checks.extend(_figure_check(f, labels, (f.cell, f.thread) in gone) for f in figures.get(cell.id, []))
+        if history is not None and cell.repeat == first_repeat[cell.id]:
+            item.checks.extend(_history_check(f, labels) for f in history.figures if f.cell == cell.id)
         if item.checks:
             out.append(item)
     ran = {c.id for c in doc.cells}
