@@ -111,3 +111,31 @@ def test_a_run_with_history_adds_its_night_after_its_results_are_written(tmp_pat
     with open_store(history) as store:
         (only,) = store.nights()
         assert only.results.endswith("results.json") and only.environment["runner"]
+
+
+def test_runner_history_imports_old_results_and_writes_a_trend_report_with_plots(tmp_path):
+    folders = []
+    for n in range(7):
+        doc = night(24 * n, seed=n, kernel="6.12.8" if n < 6 else "6.12.9")
+        if n == 6:
+            doc = with_latencies(doc, FIFO, heavy_tail(latencies(2_000, seed=77), share=0.05, factor=4))
+        folder = tmp_path / f"r{n}"
+        folder.mkdir()
+        doc.save(str(folder / "results.json"))
+        folders.append(str(folder))
+    history = str(tmp_path / "h.sqlite")
+    junit = tmp_path / "j.xml"
+    done = run_cli("history", history, "--import", *reversed(folders), "--junit", str(junit), "--out", str(tmp_path / "trend"))
+    assert done.code == 0, done.out + done.err
+    assert done.out.count("❌ 1 regression against the history") == 1  # the last night, imported last though given first
+    report = (tmp_path / "trend" / "history.md").read_text()
+    assert "## Changes of environment" in report and "kernel 6.12.8 → 6.12.9" in report
+    assert f"## vm · {FIFO} · " in report and "p99.99" in report
+    assert "❌ latency.p99" in report  # the night of the change, in the thread's table
+    plots = list((tmp_path / "trend" / "plots").glob("*.svg"))
+    assert len(plots) == 5 and all(p.stat().st_size > 1_000 for p in plots)
+    assert "regression against the history" in junit.read_text()
+    only = run_cli("history", history, "--cell", FIFO, "--since", "2026-11-03", "--out", str(tmp_path / "only"), "--no-plots")
+    assert only.code == 0, only.err
+    text = (tmp_path / "only" / "history.md").read_text()
+    assert text.count("\n## vm · ") == 1 and "2026-11-01" not in text.split("## vm")[1]
