@@ -120,3 +120,14 @@ def test_change_points_of_a_planted_step_are_found_where_it_was_planted():
     values = [math.log(v) for v in noise(15, seed=3)] + [math.log(v * 3) for v in noise(15, seed=4)]
     assert level_starts(values) == [15]
     assert level_starts([math.log(v) for v in noise(30, seed=5)]) == []
+
+
+def test_a_count_that_was_zero_every_night_and_jumps_is_a_regression():
+    """0 switches of 10 callbacks every night (each 0 [0, 0.37]), then 135 per callback: on a log scale offset by a
+    hundredth, the nights' own intervals spanned a factor of 40 and hid the jump; offset by their half width, they do not."""
+    name = "involuntary.per_callback_mean"
+    past = [Point(stamp(n), 0.0, 10, 0.0, 0.3689, 0, 10.0, None, False) for n in range(5)]
+    tonight = FigureRow(THREAD, name, 134.9, 1349, 127.8, 142.3, 1349, 10.0)
+    thresholds = [t for t in DEFAULT_THRESHOLDS if t.figure == name]
+    got = judge([CellInput("cell", "spec", stamp(5), [tonight], {(THREAD, name): past})], thresholds, {}, stamp(5))
+    assert [f.verdict for f in got.figures] == [Verdict.REGRESSION], got.figures

@@ -43,6 +43,7 @@ from runner.report.compare import Threshold
 
 MIN_NIGHTS = 5  # nights of a level before it is a range to judge against
 REFERENCE_NIGHTS = 30  # the most nights a range is learnt from (the first of a level, or the latest)
+KNOWN_DF = 1_000  # a spread known from the nights' sampling, not estimated from few of them: normal tails
 MAD_EFFICIENCY = 0.37  # the MAD's asymptotic efficiency against the standard deviation, for a normal law
 ALPHA = 0.01  # a night's family-wise level: a nightly gate at 5% would still cry wolf every three weeks
 PENALTY = 3.0  # change-point penalty, in robust standard deviations per log(nights)
@@ -111,17 +112,25 @@ class CellInput:
     new_spec: str = ""  # words when the cell's spec changed: its history starts tonight
 
 
-def y(fig: fg.Figure, value: float) -> float:
-    """A figure's value on the scale its nights vary on: log for what cannot fall below zero, itself for signed figures."""
+def offset(fig: fg.Figure, level: Sequence[Point]) -> float:
+    """What the log scale adds to a figure's values: its unit's smallest step, or the nights' typical half interval when
+    larger (a count of 0 of 10 callbacks is 0 [0, 0.37], and must not read as far from 0.05 as 0.05 is from 5)."""
+    halves = sorted((p.high - p.low) / 2 for p in level if p.low is not None and p.high is not None)
+    return max(_OFFSET[fig.unit], halves[len(halves) // 2] if halves else 0.0)
+
+
+def y(fig: fg.Figure, value: float, add: float | None = None) -> float:
+    """A figure's value on the scale its nights vary on: log for what cannot fall below zero (plus `add`, the `offset`),
+    itself for signed figures."""
     if fig.signed:
         return value / 1_000.0 if fig.unit is fg.Unit.NS else value
-    return math.log(max(value, 0.0) + _OFFSET[fig.unit])
+    return math.log(max(value, 0.0) + (_OFFSET[fig.unit] if add is None else add))
 
 
-def from_y(fig: fg.Figure, scaled: float) -> float:
+def from_y(fig: fg.Figure, scaled: float, add: float | None = None) -> float:
     if fig.signed:
         return scaled * 1_000.0 if fig.unit is fg.Unit.NS else scaled
-    return max(0.0, math.exp(scaled) - _OFFSET[fig.unit])
+    return max(0.0, math.exp(scaled) - (_OFFSET[fig.unit] if add is None else add))
 
 
 def level_starts(values: Sequence[float]) -> list[int]:
@@ -208,7 +217,8 @@ def _one(
         words = f"continues the change of {_day(max(recorded))} (reported then; {was} before it)"
         return _with(base, Verdict.CONTINUING, words, since=max(recorded), nights=len(past) - reported), None, None
     accepted = past[reported:]  # the nights since the last reported change: the level a change is measured from
-    starts = [reported + i for i in level_starts([y(fig, p.value) for p in accepted])]
+    add = offset(fig, accepted)
+    starts = [reported + i for i in level_starts([y(fig, p.value, add) for p in accepted])] if len(accepted) >= 2 * MIN_NIGHTS else []
     level = past[starts[-1] :] if starts else accepted
     if len(level) < MIN_NIGHTS and not starts:
         since = f" since {_day(level[0].started_at)}" if reported else ""
@@ -216,7 +226,7 @@ def _one(
     reference = past[reported : starts[0]] if starts else accepted
     reference = reference[:REFERENCE_NIGHTS] if starts else reference[-REFERENCE_NIGHTS:]
     if len(reference) < MIN_NIGHTS:
-        reference = level[-REFERENCE_NIGHTS:]
+        reference = accepted[-REFERENCE_NIGHTS:]
     verdict, worse, better = _ranged(base, fig, th, row, reference)
     if starts and verdict.verdict in (Verdict.REGRESSION, Verdict.BETTER):  # the level moved since: a change found over nights
         verdict = _with(verdict, verdict.verdict, verdict.words, since=past[starts[-1]].started_at)
@@ -228,13 +238,14 @@ def _ranged(
 ) -> tuple[FigureVerdict, Optional[float], Optional[float]]:
     """Tonight against a level of nights: its threshold from their median, and its interval's nearer end against their range."""
     centre_value = _median([p.value for p in level])
+    add = offset(fig, level)
     centre, spread, df = _spread(fig, level)
     quantile = _t_quantile(0.975, df)
     low_y, high_y = centre - quantile * spread, centre + quantile * spread
     higher = fig.worse is fg.Worse.HIGHER
     has_interval = row.low is not None and row.high is not None
-    worse_edge = y(fig, (row.low if higher else row.high) if has_interval else row.value)  # type: ignore[arg-type]
-    better_edge = y(fig, (row.high if higher else row.low) if has_interval else row.value)  # type: ignore[arg-type]
+    worse_edge = y(fig, (row.low if higher else row.high) if has_interval else row.value, add)  # type: ignore[arg-type]
+    better_edge = y(fig, (row.high if higher else row.low) if has_interval else row.value, add)  # type: ignore[arg-type]
     sign = 1 if higher else -1
     p_worse = stats.t_sf(sign * (worse_edge - centre) / spread, df)
     p_better = stats.t_sf(-sign * (better_edge - centre) / spread, df)
@@ -249,8 +260,8 @@ def _ranged(
         verdict,
         "",
         centre=centre_value,
-        range_low=from_y(fig, low_y),
-        range_high=from_y(fig, high_y),
+        range_low=from_y(fig, low_y, add),
+        range_high=from_y(fig, high_y, add),
         nights=len(level),
         since=level[0].started_at,
     )
@@ -263,13 +274,17 @@ def _spread(fig: fg.Figure, level: Sequence[Point]) -> tuple[float, float, int]:
     The MAD, made consistent for a normal law and for few nights (k / (k - 0.8), Croux and Rousseeuw's
     correction), never below the nights' own sampling error; a new night varies by that and by the
     centre's own uncertainty, sqrt(1 + 1/k); Student's t for its tails, with the degrees of freedom of a standard
-    deviation as certain as the MAD of k nights is (37% as efficient: 0.37 (k - 1)).
+    deviation as certain as the MAD of k nights is (37% as efficient: 0.37 (k - 1)).  When the nights vary less than
+    their own sampling error says they must, that error is the spread, known rather than estimated (normal tails).
     """
-    ys = [y(fig, p.value) for p in level]
+    add = offset(fig, level)
+    ys = [y(fig, p.value, add) for p in level]
     k = len(ys)
     centre, mad = stats.median_and_mad(ys)
-    scale = max(1.4826 * mad * k / (k - 0.8), _sampling_sd(fig, level), 1e-9)
-    return centre, scale * math.sqrt(1 + 1 / k), max(1, round(MAD_EFFICIENCY * (k - 1)))
+    spread, sampling = 1.4826 * mad * k / (k - 0.8), _sampling_sd(fig, level)
+    if spread >= sampling:
+        return centre, max(spread, 1e-9) * math.sqrt(1 + 1 / k), max(1, round(MAD_EFFICIENCY * (k - 1)))
+    return centre, max(sampling, 1e-9) * math.sqrt(1 + 1 / k), KNOWN_DF  # the nights vary less than their sampling says
 
 
 def _t_quantile(p: float, df: int) -> float:
@@ -287,13 +302,14 @@ def _t_quantile(p: float, df: int) -> float:
 def _beyond(fig: fg.Figure, row: FigureRow, level: Sequence[Point], up: bool) -> bool:
     """Whether tonight's value lies beyond the range of `level`'s nights (95%) on the side of a change (`up`: above)."""
     centre, spread, df = _spread(fig, level)
-    off = y(fig, row.value) - centre
+    off = y(fig, row.value, offset(fig, level)) - centre
     return (off if up else -off) > _t_quantile(0.975, df) * spread
 
 
 def _sampling_sd(fig: fg.Figure, level: Sequence[Point]) -> float:
     """The nights' typical sampling error on the judged scale: half their intervals' width over 1.96, median of them."""
-    widths = [(y(fig, p.high) - y(fig, p.low)) / 2 / 1.96 for p in level if p.low is not None and p.high is not None]
+    add = offset(fig, level)
+    widths = [(y(fig, p.high, add) - y(fig, p.low, add)) / 2 / 1.96 for p in level if p.low is not None and p.high is not None]
     return _median(widths) if widths else 0.0
 
 

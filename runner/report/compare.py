@@ -34,7 +34,7 @@ import math
 import statistics
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from runner import figures as fg
 from runner import stats, units
@@ -42,9 +42,11 @@ from runner.errors import Problem, ScenarioError, UsageError, did_you_mean
 from runner.figures import Figure, Number
 from runner.report.fmt import fmt_figure
 from runner.results.document import CellResult, RunDocument, Status
-from runner.results.estimates import Estimate, estimate, p_change
 from runner.results.files import show_value
 from runner.results.merge import incomplete
+
+if TYPE_CHECKING:
+    from runner.results.estimates import Estimate
 
 
 @dataclass(frozen=True)
@@ -466,6 +468,8 @@ def compared_keys(cells: list[CellResult]) -> list[str]:
 
 def cell_estimate(cells: list[CellResult], key: str, fig: Figure) -> Estimate | None:
     """`fig` of thread `key` over a cell's repeats, with its interval (`estimates.estimate`)."""
+    from runner.results.estimates import estimate  # statistics and the exact sums: only when a comparison is made
+
     pairs = [(t, c.duration_ns) for c in cells for t in c.threads if t.key == key]
     return estimate(fig, [t for t, _ in pairs], [d for _, d in pairs])
 
@@ -525,6 +529,8 @@ def judge(changes: list[FigureChange], alpha: float = stats.ALPHA) -> list[Figur
 
 
 def _p(f: FigureChange, worse: bool) -> float | None:
+    from runner.results.estimates import p_change
+
     if f.verdict not in _JUDGED or f.base_estimate is None or f.new_estimate is None:
         return None
     return p_change(f.base_estimate, f.new_estimate, worse)
