@@ -131,3 +131,30 @@ def test_a_count_that_was_zero_every_night_and_jumps_is_a_regression():
     thresholds = [t for t in DEFAULT_THRESHOLDS if t.figure == name]
     got = judge([CellInput("cell", "spec", stamp(5), [tonight], {(THREAD, name): past})], thresholds, {}, stamp(5))
     assert [f.verdict for f in got.figures] == [Verdict.REGRESSION], got.figures
+
+
+def test_a_worst_slack_is_judged_by_how_many_samples_lie_beyond_the_past_nights_not_by_one():
+    """slack.min is one callback of 20: one callback 19 ms late on an identical night moved it from 59.9 to 40.8 ms, far
+    outside the nights' range of minima.  Against the 200 callbacks of the past nights pooled, one sample below their worst
+    is what 20 more samples give a tenth of the time: not a regression; ten of them are."""
+    from runner.histogram import from_values
+
+    name = "slack.min"
+    past = [Point(stamp(n), 59_900_000.0 + 10_000 * (n % 3), 20, None, None, None, None, None, False) for n in range(10)]
+    pooled = from_values([59_900_000 + 5_000 * (i % 40) for i in range(200)])
+    thresholds = [t for t in DEFAULT_THRESHOLDS if t.figure == name]
+
+    def tonight(late: int):
+        values = [40_800_000] * late + [59_950_000] * (20 - late)
+        hist = from_values(values)
+        assert pooled is not None and hist is not None
+        row = FigureRow(THREAD, name, float(min(values)), 20)
+        cell = CellInput(
+            "cell", "spec", stamp(10), [row], {(THREAD, name): past},
+            histograms={(THREAD, "slack"): hist}, past_histograms={(THREAD, "slack"): pooled},
+        )  # fmt: skip
+        (f,) = judge([cell], thresholds, {}, stamp(10)).figures
+        return f.verdict
+
+    assert tonight(1) == Verdict.WITHIN
+    assert tonight(10) == Verdict.REGRESSION

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from runner.histogram import Histogram
 from runner.history.judge import CellInput, NightVerdict, judge
-from runner.history.night import record
+from runner.history.night import CellRecord, record
 from runner.history.store import Store, open_store
 from runner.report.compare import Threshold
 from runner.results.document import RunDocument
@@ -45,6 +46,8 @@ def judged_into(store: Store, doc: RunDocument, results: str, thresholds: Sequen
                 past=store.series(night.host, c.cell, c.spec_hash, c.started_at),
                 recorded=[cp for cp in recorded if cp.cell == c.cell and cp.spec_hash == c.spec_hash],
                 new_spec=new_spec,
+                histograms={(thread, kind): hist for thread, kind, hist in c.histograms},
+                past_histograms=_past_histograms(store, night.host, c),
             )
         )
     verdict = judge(cells, thresholds, environments, night.started_at)
@@ -52,3 +55,13 @@ def judged_into(store: Store, doc: RunDocument, results: str, thresholds: Sequen
     for point in verdict.change_points:
         store.add_change_point(night.host, point)
     return verdict
+
+
+def _past_histograms(store: Store, host: str, cell: CellRecord) -> dict[tuple[str, str], Histogram]:
+    """The past nights' histograms of each thread and kind tonight has, merged (the extremes' exceedance tests use them)."""
+    out = {}
+    for thread, kind, _ in cell.histograms:
+        merged = store.histogram(host, cell.cell, cell.spec_hash, thread, kind, before=cell.started_at)
+        if merged is not None:
+            out[(thread, kind)] = merged
+    return out

@@ -30,12 +30,14 @@ from __future__ import annotations
 import enum
 import itertools
 import math
+import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Optional
 
 from runner import figures as fg
 from runner import stats
+from runner.histogram import Histogram
 from runner.history.environment import changes
 from runner.history.night import FigureRow
 from runner.history.store import ChangePoint, Point
@@ -110,6 +112,8 @@ class CellInput:
     past: Mapping[tuple[str, str], Sequence[Point]]
     recorded: Sequence[ChangePoint] = ()
     new_spec: str = ""  # words when the cell's spec changed: its history starts tonight
+    histograms: Mapping[tuple[str, str], Histogram] = field(default_factory=dict)  # (thread, kind): tonight's
+    past_histograms: Mapping[tuple[str, str], Histogram] = field(default_factory=dict)  # (thread, kind): the past nights' merged
 
 
 def offset(fig: fg.Figure, level: Sequence[Point]) -> float:
@@ -228,9 +232,35 @@ def _one(
     if len(reference) < MIN_NIGHTS:
         reference = accepted[-REFERENCE_NIGHTS:]
     verdict, worse, better = _ranged(base, fig, th, row, reference)
+    worse, better = _extreme(fig, cell, thread, worse, better)
     if starts and verdict.verdict in (Verdict.REGRESSION, Verdict.BETTER):  # the level moved since: a change found over nights
         verdict = _with(verdict, verdict.verdict, verdict.words, since=past[starts[-1]].started_at)
     return verdict, worse, better
+
+
+def _extreme(
+    fig: fg.Figure, cell: CellInput, thread: str, worse: Optional[float], better: Optional[float]
+) -> tuple[Optional[float], Optional[float]]:
+    """A min or a max is one sample of tonight's: it is also tested by how many of tonight's samples lie beyond the past
+    nights' pooled extreme (beta-binomial, as a comparison tests one), and must pass both tests (the larger p-value)."""
+    from runner.results.estimates import rank_bounds
+    from runner.stats import betabinom_sf
+
+    level, kind = fig.level, fig.histogram
+    if level not in (0.0, 1.0) or kind is None:
+        return worse, better
+    now, past = cell.histograms.get((thread, kind)), cell.past_histograms.get((thread, kind))
+    if now is None or past is None:
+        return worse, better
+    m, n = past.count, now.count
+    rank = m if level == 1.0 else 1
+    low, high = rank_bounds(past, rank)
+    above = sum(c for lo, _hi, c in now.buckets if max(lo, now.min) > high)
+    below = sum(c for _lo, hi, c in now.buckets if min(hi, now.max) < low)
+    p_above = betabinom_sf(above, n, m - rank + 1, rank)
+    p_below = betabinom_sf(below, n, rank, m - rank + 1)
+    p_worse, p_better = (p_above, p_below) if fig.worse is fg.Worse.HIGHER else (p_below, p_above)
+    return (None if worse is None else max(worse, p_worse)), (None if better is None else max(better, p_better))
 
 
 def _ranged(
@@ -274,17 +304,23 @@ def _spread(fig: fg.Figure, level: Sequence[Point]) -> tuple[float, float, int]:
     The MAD, made consistent for a normal law and for few nights (k / (k - 0.8), Croux and Rousseeuw's
     correction), never below the nights' own sampling error; a new night varies by that and by the
     centre's own uncertainty, sqrt(1 + 1/k); Student's t for its tails, with the degrees of freedom of a standard
-    deviation as certain as the MAD of k nights is (37% as efficient: 0.37 (k - 1)).  When the nights vary less than
+    deviation as certain as the MAD of k nights is (37% as efficient: 0.37 (k - 1)).  Night-to-night figures have heavy
+    tails (a calm fortnight, then a night 1.7 times as high, nothing changed): when the nights' standard deviation is
+    larger than their MAD says, it is the spread (k - 1 degrees of freedom), so one calm stretch does not make the range
+    too narrow to hold the next ordinary wild night.  When the nights vary less than
     their own sampling error says they must, that error is the spread, known rather than estimated (normal tails).
     """
     add = offset(fig, level)
     ys = [y(fig, p.value, add) for p in level]
     k = len(ys)
     centre, mad = stats.median_and_mad(ys)
-    spread, sampling = 1.4826 * mad * k / (k - 0.8), _sampling_sd(fig, level)
-    if spread >= sampling:
-        return centre, max(spread, 1e-9) * math.sqrt(1 + 1 / k), max(1, round(MAD_EFFICIENCY * (k - 1)))
-    return centre, max(sampling, 1e-9) * math.sqrt(1 + 1 / k), KNOWN_DF  # the nights vary less than their sampling says
+    robust, sampling = 1.4826 * mad * k / (k - 0.8), _sampling_sd(fig, level)
+    classical = statistics.stdev(ys) if k > 1 else 0.0
+    if max(robust, classical) < sampling:  # the nights vary less than their sampling says they must
+        return centre, max(sampling, 1e-9) * math.sqrt(1 + 1 / k), KNOWN_DF
+    if classical > robust:  # tails heavier than the calm nights' MAD says: the spread of every night counts
+        return centre, classical * math.sqrt(1 + 1 / k), max(1, k - 1)
+    return centre, max(robust, 1e-9) * math.sqrt(1 + 1 / k), max(1, round(MAD_EFFICIENCY * (k - 1)))
 
 
 def _t_quantile(p: float, df: int) -> float:

@@ -315,12 +315,14 @@ class Store:
         )
         return [(r[0], r[1], r[2], r[3], r[4], Point(r[5], r[6], r[7], r[8], r[9], r[10], r[11], r[12], bool(r[13]))) for r in rows]
 
-    def histogram(self, host: str, cell: str, spec_hash: str, thread: str, kind: str, since: str = "") -> Optional[Histogram]:
-        """One thread's histogram of `kind` over every night from `since` on, merged (exact to the bucket)."""
+    def histogram(
+        self, host: str, cell: str, spec_hash: str, thread: str, kind: str, since: str = "", before: str = "~"
+    ) -> Optional[Histogram]:
+        """One thread's histogram of `kind` over every night from `since` on (and before `before`), merged (exact to the bucket)."""
         rows = self._read(
             "SELECT buckets, min, max FROM histograms WHERE host = ? AND cell = ? AND spec_hash = ? AND thread = ? AND kind = ? "
-            "AND started_at >= ?",
-            (host, cell, spec_hash, thread, kind, since),
+            "AND started_at >= ? AND started_at < ?",
+            (host, cell, spec_hash, thread, kind, since, before),
         )
         return merge(Histogram(buckets=[tuple(b) for b in json.loads(r[0])], min=r[1], max=r[2]) for r in rows)
 
