@@ -180,3 +180,12 @@ def test_the_cpu_model_is_read_as_proc_cpuinfo_names_it():
         "Raspberry Pi 4 Model B Rev 1.4"
     )
     assert cpu_model("") is None and cpu_model(None) is None
+
+
+def test_a_history_path_that_is_a_link_is_refused_not_followed(tmp_path):
+    """Nothing the runner writes follows a link it did not make: SQLite would create or open what the link names."""
+    (tmp_path / "h.sqlite").symlink_to(tmp_path / "elsewhere.sqlite")
+    with pytest.raises(hs.HistoryError) as caught, hs.open_store(str(tmp_path / "h.sqlite")):
+        pass
+    assert caught.value.exit_code == ExitCode.INVALID_INPUT and "expected the history file itself" in str(caught.value)
+    assert not (tmp_path / "elsewhere.sqlite").exists()

@@ -410,6 +410,15 @@ def _connect(target: str) -> Store:
 
     if os.path.isdir(target):
         raise HistoryError(f"runner: history {target}: a folder; expected a history file (it is made when absent)", ExitCode.INVALID_INPUT)
+    from runner.safefs import check_target
+
+    for path in (target, target + "-wal", target + "-shm"):  # SQLite writes beside it too: no link there is followed
+        try:
+            check_target(path)
+        except OSError as exc:
+            raise HistoryError(
+                f"runner: history {path}: {exc.strerror}; expected the history file itself", ExitCode.INVALID_INPUT
+            ) from None
     folder = os.path.dirname(os.path.abspath(target))
     if not os.path.isdir(folder):
         raise HistoryError(f"runner: history {target}: no folder {folder} to make it in", ExitCode.INVALID_INPUT)
