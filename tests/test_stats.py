@@ -163,7 +163,8 @@ def test_a_figure_without_its_samples_stored_has_no_interval_and_says_why():
     """A wake-up spread of the scheduler trace in a file from before its histogram was stored: sample count unknown."""
     thread = main_thread(matrix().cells[0])
     hist = from_values([10_000, 12_000])
-    figures = thread.figures.model_copy(update={"wakeup_ns": spread(hist)})
+    old = spread(hist).model_copy(update={"count": None})  # type: ignore[union-attr]  # kept no count, as files before it
+    figures = thread.figures.model_copy(update={"wakeup_ns": old})
     thread = thread.model_copy(update={"figures": figures, "histograms": ThreadHistograms()})
     got = estimate(fg.figure("wakeup.p99"), [thread], [1_000_000_000])
     assert got is not None and got.low is None and not got.testable and "no histogram" in got.lacking
@@ -189,3 +190,13 @@ def test_the_traces_wake_up_histogram_is_stored_so_its_quantiles_have_intervals(
     assert thread.histograms.wakeup.count == len(values)
     got = estimate(fg.figure("wakeup.p99"), [thread], [10_000_000_000])
     assert got is not None and got.samples == 1_000 and got.low is not None and got.low <= got.value <= got.high  # type: ignore[operator]
+
+
+def test_a_spread_that_says_how_many_values_it_holds_is_judged_on_that_count_without_a_histogram():
+    """A program's lock waits keep no histogram, but their spread keeps its count: a p99 of 20 is not judged."""
+    thread = main_thread(matrix().cells[0])
+    hist = from_values(latencies(20, seed=4))
+    spread20 = spread(hist, None, None, 20).model_copy(update={"count": 20})  # type: ignore[union-attr]
+    thread = thread.model_copy(update={"figures": thread.figures.model_copy(update={"lock_wait_ns": spread20})})
+    got = estimate(fg.figure("lock_wait.p99"), [thread], [2_000_000_000])
+    assert got is not None and got.few and got.lacking.startswith("20 events; p99 needs at least 368")

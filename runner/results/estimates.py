@@ -119,9 +119,13 @@ def _histogram(fig: Figure, threads: Sequence[ThreadResult]) -> Optional[Histogr
 
 
 def _sample_count(fig: Figure, threads: Sequence[ThreadResult], hist: Optional[Histogram]) -> Optional[int]:
-    """How many samples the distribution holds: its histogram's count, else a callback figure's callbacks; None: not known."""
+    """How many samples the distribution holds: its histogram's count, else its spread's (`count`), else a callback figure's
+    callbacks; None: not known."""
     if hist is not None:
         return hist.count
+    counts = [getattr(getattr(t.figures, fig.path[0], None), "count", None) for t in threads]  # a spread says how many
+    if counts and all(c is not None for c in counts):
+        return sum(c for c in counts if c is not None)
     if fig.histogram in ("latency", "slack", "callback_wall"):
         return sum(t.figures.callbacks for t in threads)
     return None
