@@ -189,3 +189,9 @@ def test_a_history_path_that_is_a_link_is_refused_not_followed(tmp_path):
         pass
     assert caught.value.exit_code == ExitCode.INVALID_INPUT and "expected the history file itself" in str(caught.value)
     assert not (tmp_path / "elsewhere.sqlite").exists()
+
+
+def test_a_urls_password_is_never_shown():
+    assert hs.shown("postgresql://lab:s3cret@db.example:5432/nights") == "postgresql://lab:***@db.example:5432/nights"
+    assert hs.shown("postgresql://lab@db.example/nights") == "postgresql://lab@db.example/nights"
+    assert hs.shown("/var/lib/runner/history.sqlite") == "/var/lib/runner/history.sqlite"

@@ -8,6 +8,7 @@ their words, and every figure judged.
 from __future__ import annotations
 
 from runner.history.judge import FAILED, FigureVerdict, NightVerdict, Verdict, change_point_detection
+from runner.history.store import shown
 from runner.report.fmt import LEFT, RIGHT, Markdown, md_text
 from runner.report.markdown import Table
 
@@ -30,10 +31,10 @@ def headline(verdict: NightVerdict, target: str) -> str:
     learning = sum(f.verdict in (Verdict.LEARNING, Verdict.NEW) for f in verdict.figures)
     if failed:
         cells = list(dict.fromkeys(f.cell for f in failed))
-        shown = ", ".join(f"{f.figure.name} of {f.thread} ({f.cell})" for f in failed[:3])
-        shown += f" and {len(failed) - 3} more" if len(failed) > 3 else ""
+        named = ", ".join(f"{f.figure.name} of {f.thread} ({f.cell})" for f in failed[:3])
+        named += f" and {len(failed) - 3} more" if len(failed) > 3 else ""
         plural, cells_plural = "s" if len(failed) != 1 else "", "s" if len(cells) != 1 else ""
-        text = f"❌ {len(failed)} regression{plural} against the history in {len(cells)} cell{cells_plural}: {shown}."
+        text = f"❌ {len(failed)} regression{plural} against the history in {len(cells)} cell{cells_plural}: {named}."
     elif judged:
         most = max(f.nights for f in judged)
         text = f"✅ No regression against the history: {len(judged)} figures judged against up to {most} past nights."
@@ -44,7 +45,7 @@ def headline(verdict: NightVerdict, target: str) -> str:
     continuing = sum(f.verdict == Verdict.CONTINUING for f in verdict.figures)
     if continuing:
         text += f" {continuing} continuing a change reported on an earlier night."
-    return text + f" (history: {target})"
+    return text + f" (history: {shown(target)})"
 
 
 def render(verdict: NightVerdict, target: str) -> Markdown:

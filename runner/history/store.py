@@ -349,7 +349,7 @@ def _translated(target: str, what: str) -> Iterator[None]:
         raise HistoryError(f"runner: {what} {target}: {exc.strerror or exc}") from None
     except Exception as exc:
         if type(exc).__module__.startswith("psycopg"):
-            raise HistoryError(f"runner: {what} {_shown(target)}: {str(exc).strip() or type(exc).__name__}") from None
+            raise HistoryError(f"runner: {what} {shown(target)}: {str(exc).strip() or type(exc).__name__}") from None
         raise
 
 
@@ -375,7 +375,7 @@ def _sqlite_error(target: str, what: str, exc: Exception) -> HistoryError:
     return HistoryError(f"runner: {what} {target}: {text}")
 
 
-def _shown(target: str) -> str:
+def shown(target: str) -> str:
     """A URL without its password."""
     if "@" in target and "://" in target:
         scheme, rest = target.split("://", 1)
@@ -402,7 +402,7 @@ def _connect(target: str) -> Store:
             import psycopg
         except ImportError:
             raise HistoryError(
-                f"runner: history {_shown(target)}: PostgreSQL needs psycopg 3: pip install 'runner[history]'", ExitCode.INVALID_INPUT
+                f"runner: history {shown(target)}: PostgreSQL needs psycopg 3: pip install 'runner[history]'", ExitCode.INVALID_INPUT
             ) from None
         with _translated(target, "cannot connect to the history"):
             return Store(target, psycopg.connect(target, connect_timeout=int(BUSY_TIMEOUT_S)), "postgresql")
