@@ -20,7 +20,7 @@ from runner.collector import collector_paused
 from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
 from runner.terminal import note, put, say, stdout_lost, warn
 
-COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "import-rtapp", "completion")
+COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "history", "import-rtapp", "completion")
 _TOP_HELP = """\
 usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its matrix), write results and a report
        runner validate FILE...             check scenario files, print every problem
@@ -30,6 +30,7 @@ usage: runner SCENARIO.yaml [options]      run a scenario (every cell of its mat
        runner report RESULTS [-o FILE]     re-render the markdown report (and plots) of a run
        runner compare BASE NEW             compare two runs; exit 1 on a regression
        runner merge DIR... --out DIR       combine shard results into one results file and report
+       runner history FILE [--import R...] the trend report of a --history (fills it from old results with --import)
        runner import-rtapp JSON [-o FILE]  convert an rt-app workload into a scenario (notes on stderr)
        runner completion bash|zsh|tcsh     print a shell completion script
        runner --version
@@ -55,6 +56,10 @@ def _threshold_help() -> str:
 
 
 _LAVA_HELP = "report each cell as a LAVA test set: lava-test-set and lava-test-case when on PATH, their lines otherwise"
+_HISTORY_HELP = (
+    "judge each figure against its own past nights on this host in the history FILE (SQLite, made when absent) or "
+    "postgresql://URL, then add this night to it; a regression makes the exit code 1"
+)
 _JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
 
 
@@ -96,6 +101,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     r = p.add_argument_group("report")
     r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
+    r.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
     r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     r.add_argument("--no-report", action="store_true", help="write results.json only")
     r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
@@ -137,6 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "report": _cmd_report,
         "compare": _cmd_compare,
         "merge": _cmd_merge,
+        "history": _cmd_history,
         "import-rtapp": _cmd_import_rtapp,
         "completion": _cmd_completion,
     }
@@ -146,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return _guarded(handlers[command], rest)
 
 
-_READ_DOCUMENTS = frozenset({"report", "compare", "merge"})
+_READ_DOCUMENTS = frozenset({"report", "compare", "merge", "history"})
 
 
 def _seed(value: str) -> str:
@@ -650,6 +657,7 @@ def _merge_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
     p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
+    p.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
     p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
@@ -665,7 +673,7 @@ def _cmd_merge(argv: list[str]) -> int:
     from runner.results.merge import merge
     from runner.session import exit_code
 
-    thresholds = thresholds_for(ns.threshold, ns.baseline)
+    thresholds = thresholds_for(ns.threshold, ns.baseline, ns.history, has_history=True)
     junit = writable_file(ns.junit, "--junit") if ns.junit else None
     if ns.baseline:
         from runner.results.read import load
@@ -684,12 +692,68 @@ def _cmd_merge(argv: list[str]) -> int:
             note(f"runner merge: warning: {len(missing)} cell(s) of the matrix are in no input: {', '.join(missing)}")
         say(f"merged {len(doc.cells)} cell run(s) from {len(ns.inputs)} input(s) into {os.path.join(ns.out, 'results.json')}")
         try:
-            regressions = finish(doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit)
+            regressions = finish(
+                doc, ns.out, ns.baseline, thresholds, True, not ns.no_plots, dict(os.environ), junit=junit, history=ns.history
+            )
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", before_run=False) from None
     finally:
         held.release()
     return int(exit_code([c.status for c in doc.cells] + [Status(doc.status)], regressions))
+
+
+def _history_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="runner history",
+        description="Write the trend report of a history (--history FILE|URL of runs and merges): per thread, wake-up latency, "
+        "missed releases and involuntary switches night by night, changes of level and of environment marked.",
+    )
+    p.add_argument("history", metavar="FILE|URL", help="the history: an SQLite file, or postgresql://...")
+    p.add_argument("--out", metavar="DIR", help="folder for history.md and its plots (default: FILE's name with -report)")
+    p.add_argument("--cell", action="append", default=[], metavar="GLOB", help="only cells whose id matches (repeatable)")
+    p.add_argument("--thread", action="append", default=[], metavar="GLOB", help="only threads whose key matches (repeatable)")
+    p.add_argument("--since", metavar="DATE", default="", help="only nights from DATE on (2026-11-01, or an ISO time)")
+    p.add_argument(
+        "--import",
+        dest="imports",
+        nargs="+",
+        default=[],
+        metavar="RESULTS",
+        help="first add these results (files or folders), oldest first, each judged against the nights before it",
+    )
+    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
+    p.add_argument("--junit", metavar="FILE", help="with --import: the last night's verdicts against the history as JUnit XML")
+    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    return p
+
+
+def _cmd_history(argv: list[str]) -> int:
+    ns = _history_parser().parse_args(argv)
+    from runner.history.apply import judged_into
+    from runner.history.section import headline
+    from runner.history.store import is_url, open_store
+    from runner.history.trend import write
+    from runner.outdir import writable_file
+    from runner.report.compare import parse_threshold, thresholds_with
+    from runner.report.publish import ci_outputs
+    from runner.results.read import load
+
+    thresholds = thresholds_with(parse_threshold(t) for t in ns.threshold)
+    junit = writable_file(ns.junit, "--junit") if ns.junit else None
+    if junit and not ns.imports:
+        raise UsageError("runner history: --junit writes the verdicts of a night imported; give --import RESULTS too")
+    docs = sorted(((load(path), path) for path in ns.imports), key=lambda pair: pair[0].started_at)
+    out = ns.out or ("history-report" if is_url(ns.history) else os.path.splitext(ns.history)[0] + "-report")
+    with open_store(ns.history) as store:
+        last = None
+        for doc, path in docs:
+            last = (doc, judged_into(store, doc, os.path.abspath(path), thresholds))
+            say(f"{path}: {headline(last[1], ns.history)}")
+        report = write(store, ns.history, out, ns.cell, ns.thread, ns.since, not ns.no_plots)
+    say(f"history report: {report}")
+    if last is not None and junit:
+        ci_outputs(last[0], None, junit, dict(os.environ), run=False, history=last[1])
+    return ExitCode.OK
 
 
 def _import_rtapp_parser() -> argparse.ArgumentParser:
@@ -756,6 +820,7 @@ _PARSERS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "report": _report_parser,
     "compare": _compare_parser,
     "merge": _merge_parser,
+    "history": _history_parser,
     "import-rtapp": _import_rtapp_parser,
     "completion": _completion_parser,
 }

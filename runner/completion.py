@@ -19,7 +19,24 @@ from collections.abc import Callable, Mapping
 
 SHELLS = ("bash", "zsh", "tcsh")
 _FILES = frozenset(
-    {"scenario", "files", "file", "results", "base", "new", "inputs", "output", "baseline", "histogram", "json", "hdr", "kcidb", "junit"}
+    {
+        "scenario",
+        "files",
+        "file",
+        "results",
+        "base",
+        "new",
+        "inputs",
+        "output",
+        "baseline",
+        "histogram",
+        "json",
+        "hdr",
+        "kcidb",
+        "junit",
+        "history",
+        "imports",
+    }
 )
 _FOLDERS = frozenset({"out", "resume"})
 

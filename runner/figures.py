@@ -9,6 +9,11 @@ comparison (figures and default thresholds), the report's verdict rows and the
 terminal's columns are all derived from `REGISTRY`, so a new figure is one entry here
 plus the line of the evaluation core that measures it.
 
+A figure's sampling error (`Sampling`: how its interval is made and a change of it tested, and
+how many samples it needs to be judged at all) is part of its entry too, declared for counts
+and derived from the path for a spread's quantiles and means; runner/results/estimates.py
+applies it and runner/stats.py holds the exact statistics.
+
 The measured values of one thread live in `ThreadFigures` (typed, integers in ns; in
 runner.results.threadfigures), which the evaluation core produces and the results
 document stores.  Pure: no I/O.
@@ -127,6 +132,25 @@ class Worse(str, enum.Enum):
     LOWER = "lower"
 
 
+class Sampling(str, enum.Enum):
+    """What a figure's sampling error is made of, which sets its interval and the test of a change (runner/stats.py).
+
+    Declared in the registry for counts; derived from the path for a spread's values (a quantile,
+    the min or max, the mean), so no figure is judged by a method declared elsewhere.
+    """
+
+    QUANTILE = "quantile"  # an order statistic of the thread's histogram: distribution-free interval, exceedance test
+    MEAN = "mean"  # a mean of many samples: its standard error
+    PROPORTION = "proportion"  # events out of trials (missed of releases): exact binomial interval, Fisher's test
+    RATE = "rate"  # events over an exposure (switches per callback, faults per second): exact Poisson
+    EXACT = "exact"  # no sampling error to speak of (a count the period fixes, a total, an extreme count): its threshold alone
+
+
+_LEVELS = {"min": 0.0, "p1": 0.01, "p50": 0.5, "p90": 0.9, "p99": 0.99, "p999": 0.999, "max": 1.0}
+_HISTOGRAMS = {"latency_ns": "latency", "slack_ns": "slack", "callback_wall_ns": "callback_wall", "wakeup_ns": "wakeup"}
+MEAN_MIN_SAMPLES = 30  # below this a mean's normal interval is no interval
+
+
 @dataclass(frozen=True)
 class Threshold:
     """A default regression threshold: worse by more than `relative` (a fraction) and/or `absolute` (in the unit)."""
@@ -151,10 +175,49 @@ class Figure:
     overload: bool = False  # tells whether a thread kept up: its column is shown when some thread did not
     needs_period: bool = False  # measured against a period's next release: a thread released by resumes has no such figure
     traced: bool = False  # taken from the scheduler trace: undercounted when it lost events, so not compared then
+    sampling: Optional[Sampling] = None  # None: derived from the path (`kind`)
+    trials: Optional[str] = None  # PROPORTION: the figure counting the trials; RATE: the exposure's (None: the cell's seconds)
+    events: Optional[str] = None  # RATE given per second: the figure counting its events
 
     @property
     def is_duration(self) -> bool:
         return self.unit is Unit.NS
+
+    @property
+    def kind(self) -> Sampling:
+        """How the figure's sampling error is judged: declared, or derived from where it lives in a spread."""
+        if self.sampling is not None:
+            return self.sampling
+        last = self.path[-1]
+        if self.unit is Unit.NS and last in _LEVELS:
+            return Sampling.QUANTILE
+        if self.unit is Unit.NS and last == "mean":
+            return Sampling.MEAN
+        return Sampling.EXACT
+
+    @property
+    def level(self) -> Optional[float]:
+        """The quantile a QUANTILE figure is (0.99 for a p99, 1 for the max, 0 for the min); None for others."""
+        return _LEVELS[self.path[-1]] if self.kind is Sampling.QUANTILE else None
+
+    @property
+    def histogram(self) -> Optional[str]:
+        """The field of a thread's stored histograms (results' `histograms`) its samples are in; None: none stored."""
+        return _HISTOGRAMS.get(self.path[0]) if self.kind in (Sampling.QUANTILE, Sampling.MEAN) else None
+
+    @property
+    def samples_word(self) -> str:
+        """What one sample of the figure is, in words: `callbacks`, `wake-ups`, `events`."""
+        return {"wakeup_ns": "wake-ups"}.get(self.path[0], "callbacks" if self.scope is Scope.CALLBACKS else "events")
+
+    def min_samples(self, confidence: float) -> int:
+        """The fewest samples the figure is judged on: what its interval needs to exist (0: any number)."""
+        from runner import stats
+
+        level = self.level
+        if level is not None:
+            return stats.min_samples(level, confidence)
+        return MEAN_MIN_SAMPLES if self.kind is Sampling.MEAN else 0
 
     @property
     def needs_callbacks(self) -> bool:
@@ -186,6 +249,8 @@ REGISTRY: tuple[Figure, ...] = (
         Threshold(absolute=0),
         column="missed",
         overload=True,
+        sampling=Sampling.PROPORTION,
+        trials="releases",
     ),
     Figure(
         "overruns",
@@ -197,6 +262,8 @@ REGISTRY: tuple[Figure, ...] = (
         column="overruns",
         overload=True,
         needs_period=True,
+        sampling=Sampling.PROPORTION,
+        trials="callbacks",
     ),
     Figure(
         "slack.min",
@@ -215,7 +282,14 @@ REGISTRY: tuple[Figure, ...] = (
         Figure(f"slack.{q}", f"slack {q}", Unit.NS, Scope.CALLBACKS, ("slack_ns", q), worse=Worse.LOWER, signed=True, needs_period=True)
         for q in ("p1", "p50", "max", "mean")
     ),
-    Figure("involuntary.total", "involuntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("involuntary", "total")),
+    Figure(
+        "involuntary.total",
+        "involuntary context switches (whole thread)",
+        Unit.COUNT,
+        Scope.THREAD,
+        ("involuntary", "total"),
+        sampling=Sampling.RATE,
+    ),
     Figure(
         "involuntary.per_callback_mean",
         "involuntary switches per callback",
@@ -224,6 +298,8 @@ REGISTRY: tuple[Figure, ...] = (
         ("involuntary", "per_callback_mean"),
         Threshold(absolute=0.5),
         column="invol/cb",
+        sampling=Sampling.RATE,
+        trials="callbacks",
     ),
     Figure(
         "involuntary.per_callback_max",
@@ -239,8 +315,17 @@ REGISTRY: tuple[Figure, ...] = (
         Unit.COUNT,
         Scope.CALLBACKS,
         ("involuntary", "callbacks_with_any"),
+        sampling=Sampling.PROPORTION,
+        trials="callbacks",
     ),
-    Figure("voluntary.total", "voluntary context switches (whole thread)", Unit.COUNT, Scope.THREAD, ("voluntary", "total")),
+    Figure(
+        "voluntary.total",
+        "voluntary context switches (whole thread)",
+        Unit.COUNT,
+        Scope.THREAD,
+        ("voluntary", "total"),
+        sampling=Sampling.RATE,
+    ),
     Figure(
         "involuntary.per_second",
         "involuntary context switches per second",
@@ -248,10 +333,20 @@ REGISTRY: tuple[Figure, ...] = (
         Scope.OUTSIDE,
         ("involuntary", "per_second"),
         Threshold(relative=0.50, absolute=10),
+        sampling=Sampling.RATE,
+        events="involuntary.total",
     ),
-    Figure("voluntary.per_second", "voluntary context switches per second", Unit.PER_SECOND, Scope.OUTSIDE, ("voluntary", "per_second")),
+    Figure(
+        "voluntary.per_second",
+        "voluntary context switches per second",
+        Unit.PER_SECOND,
+        Scope.OUTSIDE,
+        ("voluntary", "per_second"),
+        sampling=Sampling.RATE,
+        events="voluntary.total",
+    ),
     Figure("cpu_time", "CPU time", Unit.NS, Scope.OUTSIDE, ("cpu_time_ns",)),
-    Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",)),
+    Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",), sampling=Sampling.RATE),
     Figure(
         "preemptions",
         "preemptions (switched out while runnable, scheduler trace)",
@@ -259,6 +354,7 @@ REGISTRY: tuple[Figure, ...] = (
         Scope.OUTSIDE,
         ("preemptions",),
         traced=True,
+        sampling=Sampling.RATE,
     ),
     *(
         Figure(
@@ -292,9 +388,27 @@ REGISTRY: tuple[Figure, ...] = (
         Scope.CALLBACKS,
         ("latency_ns", "above_bound"),
         Threshold(absolute=0),
+        sampling=Sampling.PROPORTION,
+        trials="callbacks",
     ),
-    Figure("faults.minor", "minor page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "minor"), column="minor faults"),
-    Figure("faults.major", "major page faults (whole thread)", Unit.COUNT, Scope.THREAD, ("faults", "major"), Threshold(absolute=0)),
+    Figure(
+        "faults.minor",
+        "minor page faults (whole thread)",
+        Unit.COUNT,
+        Scope.THREAD,
+        ("faults", "minor"),
+        column="minor faults",
+        sampling=Sampling.RATE,
+    ),
+    Figure(
+        "faults.major",
+        "major page faults (whole thread)",
+        Unit.COUNT,
+        Scope.THREAD,
+        ("faults", "major"),
+        Threshold(absolute=0),
+        sampling=Sampling.RATE,
+    ),
     Figure(
         "faults.minor_after_first",
         "minor page faults after the first callback",
@@ -302,6 +416,8 @@ REGISTRY: tuple[Figure, ...] = (
         Scope.CALLBACKS,
         ("faults", "minor_after_first"),
         Threshold(relative=0.20, absolute=0),
+        sampling=Sampling.RATE,
+        trials="callbacks",
     ),
 )
 

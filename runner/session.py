@@ -65,6 +65,7 @@ class RunOptions:
     shard: Optional[Shard] = None
     resume: Optional[str] = None
     baseline: Optional[str] = None
+    history: Optional[str] = None  # --history FILE|URL: judge against the past nights there, then add this one
     thresholds: list[Threshold] = field(default_factory=list)
     report: bool = True
     plots: bool = True
@@ -122,7 +123,8 @@ class RunOptions:
             shard=shard,
             resume=ns.resume,
             baseline=ns.baseline,
-            thresholds=thresholds_for(ns.threshold, ns.baseline),
+            history=ns.history,
+            thresholds=thresholds_for(ns.threshold, ns.baseline, ns.history, has_history=True),
             report=not ns.no_report,
             plots=not ns.no_plots,
             live=not (ns.quiet or in_ci),
@@ -548,7 +550,15 @@ def _run_units(loaded: LoadedScenario, run: _Claimed) -> int:
 
     try:
         regressions = finish(
-            doc, folder, options.baseline, options.thresholds, options.report, options.plots, dict(os.environ), junit=options.junit
+            doc,
+            folder,
+            options.baseline,
+            options.thresholds,
+            options.report,
+            options.plots,
+            dict(os.environ),
+            junit=options.junit,
+            history=options.history,
         )
     except OSError as exc:
         raise from_os_error(exc, "cannot write the report", before_run=False) from None

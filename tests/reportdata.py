@@ -48,6 +48,48 @@ def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocume
     return out
 
 
+def with_latencies(doc: RunDocument, cell_id: str, values: list[int]) -> RunDocument:
+    """A copy of `doc` where the periodic thread of `cell_id` answered one release per value, with that wake-up latency (ns).
+
+    Its latency histogram, its latency figures and its callbacks all come from `values`, as the native core would have
+    made them, so a comparison judges them on their samples (the recorded runs have 10 callbacks a cell, and no histogram).
+    """
+    from runner.histogram import from_values
+    from runner.results.document import ThreadHistograms
+    from runner.run.measure import spread
+
+    out = copy.deepcopy(doc)
+    cell = next(c for c in out.cells if c.id == cell_id)
+    i = cell.threads.index(main_thread(cell))
+    t = cell.threads[i]
+    hist = from_values(values)
+    mean = sum(values) / len(values)
+    m2 = sum((v - mean) ** 2 for v in values)
+    f = t.figures.model_copy(
+        update={
+            "latency_ns": spread(hist, mean, m2, len(values)),
+            "callbacks": len(values),
+            "releases": len(values) + t.figures.missed_releases,
+        }
+    )
+    cell.threads[i] = t.model_copy(update={"figures": f, "histograms": ThreadHistograms(latency=hist)})
+    return out
+
+
+def latencies(n: int, seed: int, typical: int = 50_000, spread: float = 0.1) -> list[int]:
+    """`n` wake-up latencies in ns, log-normal about `typical` (a quiet FIFO thread's shape), from a seeded generator."""
+    import random
+
+    draw = random.Random(seed)
+    return [round(typical * draw.lognormvariate(0, spread)) for _ in range(n)]
+
+
+def heavy_tail(values: list[int], share: float = 0.05, factor: int = 3) -> list[int]:
+    """`values` with their largest `share` made `factor` times as long: a p99 that grew, the rest as it was."""
+    cut = sorted(values)[int(len(values) * (1 - share))]
+    return [v * factor if v >= cut else v for v in values]
+
+
 def renamed(folder: str, names: list[tuple[str, str]], cell_ids: list[str] | None = None) -> RunDocument:
     """The recorded matrix copied to `folder` with each cell's periodic thread renamed to (process, name).
 

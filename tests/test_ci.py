@@ -15,7 +15,7 @@ import pytest
 import xmlschema
 from conftest import SCENARIOS, run_cli
 from fakebackend import Act, FakeBackend
-from reportdata import MATRIX, main_thread, matrix, with_figures
+from reportdata import MATRIX, heavy_tail, latencies, main_thread, matrix, with_latencies
 from test_merge import split
 
 from runner.cli import _run_parser
@@ -130,7 +130,8 @@ def test_cells_a_run_did_not_reach_are_skipped(tmp_path):
 
 def test_a_passing_run_has_no_failure_and_a_baseline_regression_fails(tmp_path):
     junit = tmp_path / "junit.xml"
-    code, _ = run(tmp_path, {OTHER: Act(nivcsw=5)}, "--junit", str(junit))
+    long = ("--duration", "40s")  # 400 callbacks a cell: enough for a p99 to be judged
+    code, _ = run(tmp_path, {OTHER: Act(nivcsw=5)}, "--junit", str(junit), *long)
     assert code == 0
     root = parsed(junit.read_bytes())
     assert root.get("failures") == "0" and root.get("errors") == "0" and not root.findall(".//skipped")
@@ -143,6 +144,7 @@ def test_a_passing_run_has_no_failure_and_a_baseline_regression_fails(tmp_path):
         str(tmp_path / "r"),
         "--junit",
         str(junit),
+        *long,
     )
     assert code == 1
     root = parsed(junit.read_bytes())
@@ -152,10 +154,10 @@ def test_a_passing_run_has_no_failure_and_a_baseline_regression_fails(tmp_path):
         suite(root, "policy=rr,priority=80").find("testcase[failure]").get("name")
         == "minimal_schedul/minimal_schedul (main): latency.p99 against the baseline"
     )
-    assert failure.get("message") == (
-        "minimal_schedul/minimal_schedul (main): wake-up latency p99 50 µs → 900 µs (+850 µs (+1,700%)), "
-        "threshold +20% and +10.0 µs: regression"
-    )
+    assert failure.get("message").startswith(
+        "minimal_schedul/minimal_schedul (main): wake-up latency p99 50 µs [50, 50] → 900 µs [900, 900] (+850 µs (+1,700%)), "
+        "threshold +20% and +10.0 µs: regression: beyond its sampling error: p = "
+    ), failure.get("message")
 
 
 def test_an_unwritable_junit_path_is_refused_before_anything_runs(tmp_path):
@@ -233,14 +235,15 @@ def test_merge_writes_junit(tmp_path):
 
 
 def test_compare_junit_has_a_case_per_compared_figure_and_regressions_fail(tmp_path):
-    base = matrix()
-    p99 = main_thread(base.cells[1]).figures.latency_ns.p99
-    new_doc = with_figures(base, base.cells[1].id, latency_p99=round(p99 * 1.5) + 20_000)
+    fifo = matrix().cells[1].id
+    base = with_latencies(matrix(), fifo, latencies(2_000, seed=1))
+    new_doc = with_latencies(base, fifo, heavy_tail(latencies(2_000, seed=2)))
     new_doc.cells = [c for c in new_doc.cells if c.id != OTHER]  # the baseline's other cell is not in this run
     new_doc.cell_ids = [c.id for c in new_doc.cells]  # (run with --cell)
-    (tmp_path / "new").mkdir()
-    new_doc.save(str(tmp_path / "new" / "results.json"))
-    done = run_cli("compare", MATRIX, str(tmp_path / "new"), "--junit", str(tmp_path / "j.xml"))
+    for name, doc in (("base", base), ("new", new_doc)):
+        (tmp_path / name).mkdir()
+        doc.save(str(tmp_path / name / "results.json"))
+    done = run_cli("compare", str(tmp_path / "base"), str(tmp_path / "new"), "--junit", str(tmp_path / "j.xml"))
     assert done.code == 1
     root = parsed((tmp_path / "j.xml").read_bytes())
     comparison = cmp.compare(base, load(str(tmp_path / "new")))
@@ -349,10 +352,10 @@ def test_one_annotation_per_expectation_naming_every_cell_it_failed_in():
 
 
 def test_regressions_are_warnings_on_the_scenario_file():
-    base = matrix()
-    new = base
-    for cell in base.cells:
-        new = with_figures(new, cell.id, latency_p99=5_000_000)
+    base, new = matrix(), matrix()
+    for n, cell in enumerate(base.cells):
+        base = with_latencies(base, cell.id, latencies(2_000, seed=n))
+        new = with_latencies(new, cell.id, heavy_tail(latencies(2_000, seed=10 + n)))
     found = github.for_run(new, cmp.compare(base, new), "scenarios/policy_matrix.yaml", run=False)
     assert [a.level for a in found] == ["warning"] and found[0].line is None
     assert found[0].title == "regression in 5 cells: minimal_schedul/minimal_schedul (main): latency.p99 against the baseline"

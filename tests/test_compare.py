@@ -8,7 +8,7 @@ import os
 
 import pytest
 from conftest import run_cli
-from reportdata import MATRIX, main_thread, matrix, with_figures
+from reportdata import MATRIX, heavy_tail, latencies, main_thread, matrix, with_figures, with_latencies
 
 from runner.errors import ScenarioError, UsageError
 from runner.report import compare as cmp
@@ -30,14 +30,29 @@ def test_identical_runs_pass(tmp_path):
 
 
 def test_synthetic_latency_regression_is_flagged_with_exit_1(tmp_path):
-    base = matrix()
-    p99 = main_thread(base.cells[1]).figures.latency_ns.p99
-    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=round(p99 * 1.5) + 20_000), tmp_path / "new")
-    done = run_cli("compare", MATRIX, new)
-    assert done.code == 1
+    fifo = "policy=fifo,priority=80"
+    base = with_latencies(matrix(), fifo, latencies(2_000, seed=1))
+    new = with_latencies(base, fifo, heavy_tail(latencies(2_000, seed=2)))
+    done = run_cli("compare", save(base, tmp_path / "base"), save(new, tmp_path / "new"))
+    assert done.code == 1, done.out
     assert "1 regression** in 1 of 5 cells: policy=fifo,priority=80" in done.out
     regressions = done.out.split("### Regressions")[1].split("###")[0]
     assert "policy=fifo,priority=80" in regressions and "wake-up latency p99" in regressions
+    assert "beyond its sampling error: p = " in regressions, regressions
+
+
+def test_a_p99_of_ten_callbacks_is_not_judged_and_says_what_it_needs(tmp_path):
+    """The recorded runs have 10 callbacks a cell: their p99 is their max, no figure to gate on, however much it moved."""
+    base = matrix()
+    p99 = main_thread(base.cells[1]).figures.latency_ns.p99
+    new = save(with_figures(base, "policy=fifo,priority=80", latency_p99=round(p99 * 1.5) + 20_000), tmp_path / "new")
+    junit = tmp_path / "c.xml"
+    done = run_cli("compare", MATRIX, new, "--junit", str(junit))
+    assert done.code == 0, done.out
+    row = next(line for line in done.out.splitlines() if "policy=fifo,priority=80" in line and "latency p99" in line)
+    assert "not judged" in row and "10 callbacks; p99 needs at least 368, run ≥ 49s" in row, row
+    assert "p99 needs at least 368" in junit.read_text()
+    assert "<skipped" in junit.read_text()
 
 
 def test_involuntary_regression_and_its_threshold_override(tmp_path):
@@ -70,11 +85,26 @@ def test_a_figure_whose_threshold_is_off_is_not_checked_not_within_threshold(tmp
 
 
 def test_small_latency_wobble_is_under_the_noise_floor():
-    base = matrix()
+    cell = "policy=fifo,priority=10"
+    values = latencies(2_000, seed=3)
+    base = with_latencies(matrix(), cell, values)
     p99 = main_thread(base.cells[0]).figures.latency_ns.p99
-    result = cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 9_000))  # > 20% only if p99 < 45 us
+    shifted = with_latencies(base, cell, [v + 9_000 for v in values])  # > 20% only if p99 < 45 us
+    assert cmp.compare(base, shifted).regressions == 0
+    assert cmp.compare(base, with_latencies(base, cell, [v + 11_000 + p99 // 5 for v in values])).regressions == 1
+
+
+def test_a_change_past_its_threshold_that_sampling_explains_is_within_noise():
+    """0 switches in 10 callbacks, then 6: past +0.5 per callback, but a Poisson count of 6 against 0 is p = 0.016,
+    and the comparison tests every figure at once: Holm's adjustment leaves it within noise, not a regression."""
+    base = matrix()
+    new = with_figures(base, "policy=rr,priority=80", invol_mean=0.6)
+    result = cmp.compare(base, new)
+    row = next(f for f in result.figures if f.cell == "policy=rr,priority=80" and f.figure.name == "involuntary.per_callback_mean")
+    assert row.verdict == cmp.Verdict.NOISE, row
+    assert "sampling explains it: p = " in row.why and "(Holm, " in row.why, row.why
     assert result.regressions == 0
-    assert cmp.compare(base, with_figures(base, base.cells[0].id, latency_p99=p99 + 11_000 + p99 // 5)).regressions == 1
+    assert cmp.compare(base, with_figures(base, "policy=rr,priority=80", invol_mean=3.0)).regressions == 1
 
 
 def test_improvement_is_reported_as_better_not_regression():
@@ -88,10 +118,9 @@ def test_improvement_is_reported_as_better_not_regression():
 
 def test_a_cell_with_several_regressed_figures_is_named_once():
     """The headline once said '6 regressions in 6 of 5 cells', naming a cell once per figure."""
-    base = matrix()
-    cell = base.cells[0]
-    p99 = main_thread(cell).figures.latency_ns.p99
-    worse = with_figures(with_figures(base, cell.id, latency_p99=p99 * 10 + 1_000_000), cell.id, invol_mean=9.0)
+    cell = matrix().cells[0]
+    base = with_latencies(matrix(), cell.id, latencies(2_000, seed=4))
+    worse = with_figures(with_latencies(base, cell.id, heavy_tail(latencies(2_000, seed=5))), cell.id, invol_mean=9.0)
     result = cmp.compare(base, worse)
     assert result.regressions >= 2 and result.regressed_cells() == [cell.id]
 
@@ -311,8 +340,10 @@ def test_comparison_section_matches_golden_file():
 
     from runner.report.markdown import render_comparison
 
-    base = matrix()
-    new = with_figures(with_figures(base, "policy=fifo,priority=80", latency_p99=400_000), "policy=other,priority=0", invol_mean=4.0)
+    fifo = "policy=fifo,priority=80"
+    base = with_latencies(matrix(), fifo, latencies(2_000, seed=1))
+    new = with_latencies(base, fifo, heavy_tail(latencies(2_000, seed=2)))
+    new = with_figures(with_figures(new, "policy=other,priority=0", invol_mean=4.0), "policy=rr,priority=80", invol_mean=0.6)
     golden("comparison.md", render_comparison(cmp.compare(base, new), "base/results.json", "new/results.json"))
 
 
@@ -381,7 +412,7 @@ def test_comparison_numbers_read_as_the_report_writes_them_with_one_minus_sign()
     new = with_figures(base, "policy=other,priority=0", invol_mean=4.0, latency_p99=2_100_000)
     section = render_comparison(cmp.compare(base, new), "base", "new")
     row = next(line for line in section.splitlines() if "other" in line and "involuntary switches per callback" in line)
-    assert [c.strip() for c in row.split("|")[4:7]] == ["9.89", "4.00", "−5.89 (−60%)"]
+    assert [c.strip() for c in row.split("|")[4:7]] == ["9.89 \\[7.94, 12.17\\]", "4.00 \\[2.80, 5.54\\]", "−5.89 (−60%)"]
     assert "9.89" in render_run(base)  # as the report says it
     row = next(line for line in section.splitlines() if "other" in line and "wake-up latency p99" in line)
     assert [c.strip() for c in row.split("|")[3:7]] == ["wake-up latency p99 (µs)", "3,156", "2,100", "−1,056 (−33%)"]

@@ -399,13 +399,14 @@ def test_follow_prints_the_backends_lines(tmp_path, capsys):
 
 
 def test_a_regression_against_the_baseline_exits_1(tmp_path):
-    run(FIFO80, tmp_path / "base", FakeBackend({"default": Act(latency_ns=50_000)}), "--duration", "1s")
+    """40 s at 100 ms: 400 callbacks, enough for a p99 to be judged (a 1 s run's 10 are not)."""
+    run(FIFO80, tmp_path / "base", FakeBackend({"default": Act(latency_ns=50_000)}), "--duration", "40s")
     code, _ = run(
         FIFO80,
         tmp_path / "new",
         FakeBackend({"default": Act(latency_ns=900_000)}),
         "--duration",
-        "1s",
+        "40s",
         "--baseline",
         str(tmp_path / "base"),
     )

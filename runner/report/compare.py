@@ -14,6 +14,18 @@ events are not compared.
 Every figure of the registry (runner/figures.py) can be compared; the registry's
 default thresholds are the ones checked unless told otherwise.  Values and absolute
 thresholds are in the figure's unit: integer ns for durations.
+
+A figure past its threshold regresses only when the change is also beyond what sampling
+explains: each figure is an estimate with an interval (runner/results/estimates.py: an
+order-statistic interval for a quantile, exact binomial and Poisson intervals for counts, a
+standard error for a mean), and the change is tested exactly against both runs' samples.  The
+comparison tests hundreds of figures at once, so the p-values are adjusted by Holm's step-down
+over every figure tested, keeping the chance that any verdict of the comparison is a false
+regression at most 5% (`stats.ALPHA`).  A figure past its threshold that sampling explains is
+`within noise`; one whose sample is too small to be judged (a p99 of 20 callbacks) is `not judged`,
+saying how many samples it needs and how long a run gives them.  A figure with no sampling error
+to speak of (a total, a count the period fixes), or whose sample the results do not hold (files
+of an older runner keep no histograms), is judged by its threshold alone, and says so.
 """
 
 from __future__ import annotations
@@ -22,16 +34,19 @@ import math
 import statistics
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from runner import figures as fg
-from runner import units
+from runner import stats, units
 from runner.errors import Problem, ScenarioError, UsageError, did_you_mean
 from runner.figures import Figure, Number
 from runner.report.fmt import fmt_figure
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.files import show_value
 from runner.results.merge import incomplete
+
+if TYPE_CHECKING:
+    from runner.results.estimates import Estimate
 
 
 @dataclass(frozen=True)
@@ -134,11 +149,13 @@ def thresholds_with(overrides: Iterable[Threshold]) -> list[Threshold]:
     return list(out.values())
 
 
-def thresholds_for(texts: Iterable[str], baseline: str | None) -> list[Threshold]:
-    """The --threshold options, which only a comparison reads: refused without --baseline, never ignored."""
+def thresholds_for(texts: Iterable[str], baseline: str | None, history: str | None = None, has_history: bool = False) -> list[Threshold]:
+    """The --threshold options, which only a comparison or a history reads: refused without --baseline (or --history, for a
+    command that has it: `has_history`), never ignored."""
     given = list(texts)
-    if given and not baseline:
-        raise UsageError(f"runner: --threshold {given[0]} sets a limit of a comparison; give --baseline RESULTS too")
+    if given and not baseline and not history:
+        either = "--baseline RESULTS or --history FILE" if has_history else "--baseline RESULTS"
+        raise UsageError(f"runner: --threshold {given[0]} sets a limit of a comparison; give {either} too")
     return thresholds_with(parse_threshold(t) for t in given)
 
 
@@ -151,6 +168,8 @@ class Verdict:
     MISSING = "missing"
     ERROR = "run error"  # a cell of this run that could not run or was cut short: an error whatever the baseline was
     UNCOMPARABLE = "not comparable"  # taken from a scheduler trace that lost events, in either run
+    NOISE = "within noise"  # past its threshold, but not beyond what sampling explains
+    FEW = "not judged"  # too few samples in either run for its interval (a p99 of 20 callbacks)
 
 
 REGRESSED = (Verdict.REGRESSION, Verdict.MISSING)  # a figure's verdicts that fail the comparison
@@ -167,6 +186,10 @@ class FigureChange:
     new: Number | None
     threshold: Threshold
     verdict: str
+    base_estimate: Estimate | None = None  # the baseline's figure with its interval
+    new_estimate: Estimate | None = None
+    p: float | None = None  # Holm-adjusted p-value of the change in the verdict's direction; None: not tested
+    why: str = ""  # the verdict's reason, in words (sampling, too few samples, threshold alone)
 
 
 @dataclass(frozen=True)
@@ -382,7 +405,8 @@ def compare(
         note = f"{old_status.value} → {new_status.value}" if worse or verdict == Verdict.ERROR else ""
         out.cells.append(CellChange(cell_id, old_status, new_status, verdict, note))
         out.figures.extend(_figures(cell_id, b[cell_id], n[cell_id], out.thresholds))
-        out.threads_gone.extend((cell_id, key) for key in _compared_keys(b[cell_id]) if key not in _compared_keys(n[cell_id]))
+        out.threads_gone.extend((cell_id, key) for key in compared_keys(b[cell_id]) if key not in compared_keys(n[cell_id]))
+    out.figures = judge(out.figures)
     lossy = list(dict.fromkeys(f.cell for f in out.figures if f.verdict == Verdict.UNCOMPARABLE))
     if lossy:
         names = ", ".join(dict.fromkeys(f.figure.name for f in out.figures if f.verdict == Verdict.UNCOMPARABLE))
@@ -436,21 +460,30 @@ def _status(cells: list[CellResult]) -> Status:
     return min((c.status for c in cells), key=order.index)
 
 
-def _compared_keys(cells: list[CellResult]) -> list[str]:
+def compared_keys(cells: list[CellResult]) -> list[str]:
     """The threads of a cell (all its repeats) whose figures are compared: those with callbacks, and a program's
     threads (the figures measured from outside)."""
     return list(dict.fromkeys(t.key for c in cells for t in c.threads if t.has_callbacks or t.program))
+
+
+def cell_estimate(cells: list[CellResult], key: str, fig: Figure) -> Estimate | None:
+    """`fig` of thread `key` over a cell's repeats, with its interval (`estimates.estimate`)."""
+    from runner.results.estimates import estimate  # statistics and the exact sums: only when a comparison is made
+
+    pairs = [(t, c.duration_ns) for c in cells for t in c.threads if t.key == key]
+    return estimate(fig, [t for t, _ in pairs], [d for _, d in pairs])
 
 
 def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresholds: list[Threshold]) -> list[FigureChange]:
     """Each figure of each thread of either run (a thread only the baseline has too: its figures are missing now).
 
     A figure taken from the scheduler trace is not comparable where the trace lost events in either run:
-    it is undercounted by an unknown amount, so neither better nor worse can be told.
+    it is undercounted by an unknown amount, so neither better nor worse can be told.  The verdicts past a
+    threshold are provisional here: `judge` weighs them against sampling, over every figure compared.
     """
     out = []
     lossy = any(_trace_loss(c) for c in old + now)
-    for key in dict.fromkeys(_compared_keys(now) + _compared_keys(old)):
+    for key in dict.fromkeys(compared_keys(now) + compared_keys(old)):
         for th in thresholds:
             fig = fg.figure(th.figure)
             base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
@@ -471,5 +504,62 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
                 verdict = Verdict.BETTER
             else:
                 verdict = Verdict.SAME
-            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict))
+            out.append(FigureChange(cell_id, key, fig, base, new, th, verdict, cell_estimate(old, key, fig), cell_estimate(now, key, fig)))
     return out
+
+
+_JUDGED = (Verdict.REGRESSION, Verdict.BETTER, Verdict.SAME)
+
+
+def judge(changes: list[FigureChange], alpha: float = stats.ALPHA) -> list[FigureChange]:
+    """The figures' verdicts weighed against sampling: a change past its threshold is a regression (or better) only when
+    its p-value, adjusted by Holm over every figure tested in the same direction, is at most `alpha`.
+
+    The family is every figure judged whose sampling can be tested, past its threshold or not: testing only those
+    past it would choose the hypotheses by the data they are tested on.
+    """
+    worse = [_p(f, True) for f in changes]
+    better = [_p(f, False) for f in changes]
+    worse_adjusted, better_adjusted = stats.holm(worse, alpha), stats.holm(better, alpha)
+    tested = sum(p is not None for p in worse)
+    out = []
+    for f, p_worse, p_better in zip(changes, worse_adjusted, better_adjusted):
+        out.append(_weighed(f, p_worse, p_better, tested, alpha))
+    return out
+
+
+def _p(f: FigureChange, worse: bool) -> float | None:
+    from runner.results.estimates import p_change
+
+    if f.verdict not in _JUDGED or f.base_estimate is None or f.new_estimate is None:
+        return None
+    return p_change(f.base_estimate, f.new_estimate, worse)
+
+
+def _weighed(f: FigureChange, p_worse: float | None, p_better: float | None, tested: int, alpha: float) -> FigureChange:
+    from dataclasses import replace
+
+    if f.verdict not in _JUDGED:
+        return f
+    few = [(who, e) for who, e in (("the baseline", f.base_estimate), ("this run", f.new_estimate)) if e is not None and e.few]
+    if few:
+        if len(few) == 2 and few[0][1].lacking == few[1][1].lacking:
+            return replace(f, verdict=Verdict.FEW, why=f"both runs: {few[0][1].lacking}")
+        return replace(f, verdict=Verdict.FEW, why="; ".join(f"{who}: {e.lacking}" for who, e in few))
+    if f.verdict == Verdict.SAME:
+        return replace(f, p=p_worse)
+    p = p_worse if f.verdict == Verdict.REGRESSION else p_better
+    if p is None:
+        lacking = next((e.lacking for e in (f.base_estimate, f.new_estimate) if e is not None and e.lacking), "")
+        return replace(f, why=f"by its threshold alone ({lacking or 'a figure without sampling error'})")
+    family = f"Holm, {tested} figure{'s' if tested != 1 else ''}"
+    if p <= alpha:
+        return replace(f, p=p, why=f"beyond its sampling error: p = {_p_text(p)} ({family})")
+    return replace(f, verdict=Verdict.NOISE, p=p, why=f"sampling explains it: p = {_p_text(p)} > {alpha:g} ({family})")
+
+
+def _p_text(p: float) -> str:
+    """A p-value in two significant digits: `0.031`, `3.1e-09`, `< 1e-300`."""
+    if p < 1e-300:
+        return "< 1e-300"
+    return f"{p:.2g}"

@@ -32,6 +32,7 @@ from runner.errors import Problem
 from runner.printable import for_terminal, lines_for_terminal
 
 if TYPE_CHECKING:  # the outcomes (and the report they word things as) load only when there is a run to annotate
+    from runner.history.judge import NightVerdict
     from runner.report.compare import Comparison
     from runner.report.outcomes import CellChecks, Kind, Outcome
     from runner.results.document import RunDocument
@@ -93,11 +94,13 @@ def _cells(cells: Sequence[str]) -> str:
     return f"cell {cells[0]}" if len(cells) == 1 else f"{len(cells)} cells"
 
 
-def for_run(doc: RunDocument, comparison: Optional[Comparison], file: Optional[str], run: bool = True) -> list[Annotation]:
+def for_run(
+    doc: RunDocument, comparison: Optional[Comparison], file: Optional[str], run: bool = True, history: Optional[NightVerdict] = None
+) -> list[Annotation]:
     """Every annotation of a run (`run` False: of the comparison alone), errors first, capped per level."""
     from runner.report.outcomes import Kind, Outcome, cell_checks
 
-    suites = cell_checks(doc, comparison, run)
+    suites = cell_checks(doc, comparison, run, history)
     errors = _grouped(suites, Kind.EXPECTATION, Outcome.FAILED, "error", "expectation failed", file)
     errors += [
         Annotation(
@@ -108,6 +111,7 @@ def for_run(doc: RunDocument, comparison: Optional[Comparison], file: Optional[s
         if check.outcome is Outcome.ERROR
     ]
     warnings = _grouped(suites, Kind.BASELINE, Outcome.FAILED, "warning", "regression", file)
+    warnings += _grouped(suites, Kind.HISTORY, Outcome.FAILED, "warning", "regression against the history", file)
     warnings += [Annotation("warning", for_terminal(note), file, title=f"cell {suite.title}") for suite in suites for note in suite.notes]
     return _capped(errors, "error") + _capped(warnings, "warning")
 

@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from runner.printable import for_terminal
 from runner.report.compare import Comparison
 from runner.report.outcomes import CellChecks, Check, Kind, Outcome, cell_checks
 from runner.results.document import RunDocument
+
+if TYPE_CHECKING:
+    from runner.history.judge import NightVerdict
 
 # characters XML 1.0 cannot carry at all, even escaped
 _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
@@ -45,9 +48,9 @@ def seconds(ns: int) -> str:
     return f"{max(ns, 0) / 1e9:.3f}"
 
 
-def junit_xml(doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True) -> bytes:
-    """The JUnit XML of `doc`'s cells, with `comparison`'s checks when given (`run` False: the comparison alone)."""
-    suites = cell_checks(doc, comparison, run)
+def junit_xml(doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True, history: Optional[NightVerdict] = None) -> bytes:
+    """The JUnit XML of `doc`'s cells, with `comparison`'s and `history`'s checks when given (`run` False: the comparison alone)."""
+    suites = cell_checks(doc, comparison, run, history)
     name = doc.scenario.name
     root = ET.Element("testsuites", {"name": xml_text(f"runner: {name}")})
     for suite in suites:
@@ -88,7 +91,12 @@ def _suite(scenario: str, path: Optional[str], suite: CellChecks) -> ET.Element:
 
 
 _TAG = {Outcome.FAILED: "failure", Outcome.ERROR: "error", Outcome.SKIPPED: "skipped"}
-_TYPE = {Kind.RUN: "run error", Kind.EXPECTATION: "expectation", Kind.BASELINE: "regression"}
+_TYPE = {
+    Kind.RUN: "run error",
+    Kind.EXPECTATION: "expectation",
+    Kind.BASELINE: "regression",
+    Kind.HISTORY: "regression against the history",
+}
 
 
 def _case(classname: str, path: Optional[str], check: Check) -> ET.Element:

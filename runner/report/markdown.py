@@ -57,6 +57,7 @@ from runner.scenario.plan import Settings
 
 if TYPE_CHECKING:
     from runner.report.compare import Comparison, FigureChange
+    from runner.results.estimates import Estimate
 
 MAX_SIDE_BY_SIDE = 12  # cells shown in a thread's across-cells view; beyond that the summary table serves
 
@@ -1084,6 +1085,8 @@ VERDICT_ICON = {
     "missing": "❌ missing",
     "run error": "💥 run error",
     "not comparable": "⚠️ not comparable (trace events lost)",
+    "within noise": "〰️ within noise",
+    "not judged": "⏸️ not judged",
 }
 
 
@@ -1167,28 +1170,34 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
     notes = [
         "A figure regresses when it is worse than its baseline by more than its threshold: "
         + "; ".join(f"{fg.figure(t.figure).words} {t.describe()}" for t in cmp.thresholds)
-        + "."
+        + ", and by more than sampling explains. Each figure is shown with its 95% interval [low, high] (a quantile's "
+        "from the order statistics of its histogram, a count's exact binomial or Poisson one, a mean's standard error); "
+        "the change is tested exactly against both runs' samples, and the p-values are adjusted by Holm's method over "
+        "every figure tested, so that a whole comparison calls a false regression at most 5% of the time. A change "
+        "past its threshold that sampling explains is within noise; a figure with too few samples for an interval is "
+        "not judged, and says what it needs."
     ] + list(cmp.notes)
 
     def figure_rows(items: Iterable[FigureChange]) -> list[list[str]]:
         rows = []
         for f in items:
-            sc = fg.scale(f.figure.unit, (f.base, f.new))
+            sc = fg.scale(f.figure.unit, (f.base, f.new, *interval_ends(f.base_estimate), *interval_ends(f.new_estimate)))
             rows.append(
                 [
                     f.cell,
                     labels.get(f.thread, f.thread),
                     sc.header(f.figure.words),
-                    sc.number(f.base),
-                    sc.number(f.new),
+                    sc.number(f.base) + interval_text(f.base_estimate, sc),
+                    sc.number(f.new) + interval_text(f.new_estimate, sc),
                     change_text(f, sc),
                     VERDICT_ICON[f.verdict],
+                    md_text(f.why) if f.why else "–",
                 ]
             )
         return rows
 
-    headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Verdict"]
-    align = [LEFT, LEFT, LEFT, RIGHT, RIGHT, RIGHT, LEFT]
+    headers = ["Cell", "Thread", "Figure", "Baseline", "This run", "Change", "Verdict", "Why"]
+    align = [LEFT, LEFT, LEFT, RIGHT, RIGHT, RIGHT, LEFT, LEFT]
     bad = [f for f in cmp.figures if f.verdict in ("regression", "missing")]  # a figure of the baseline this run lacks fails too
     status_rows = [
         [
@@ -1208,6 +1217,20 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         figures=Table(headers, figure_rows(cmp.figures), align) if cmp.figures else None,
         notes=notes,
     )
+
+
+def interval_ends(est: Estimate | None) -> tuple[float, ...]:
+    """The ends of an estimate's interval, to choose a row's scale with (none when it has none)."""
+    if est is None or est.low is None or est.high is None:
+        return ()
+    return (est.low, est.high)
+
+
+def interval_text(est: Estimate | None, sc: fg.Scale) -> str:
+    """` [49, 66]`: an estimate's interval in the scale of its row; "" when it has none."""
+    if est is None or est.low is None or est.high is None:
+        return ""
+    return f" [{sc.number(est.low)}, {sc.number(est.high)}]"
 
 
 def change_text(f: FigureChange, sc: fg.Scale, with_unit: bool = False) -> str:

@@ -14,15 +14,18 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from runner.figures import scale
 from runner.report.compare import CellChange, Comparison, FigureChange, Verdict
 from runner.report.fmt import fmt_figure
-from runner.report.markdown import change_text, thread_labels
+from runner.report.markdown import change_text, interval_ends, interval_text, thread_labels
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.document import Verdict as ExpectationVerdict
 from runner.scenario.matrix import format_value
+
+if TYPE_CHECKING:
+    from runner.history.judge import FigureVerdict, NightVerdict
 
 
 class Outcome(str, enum.Enum):
@@ -40,6 +43,7 @@ class Kind(str, enum.Enum):
     RUN = "run"  # the cell's run itself
     EXPECTATION = "expectation"  # one expectation on one thread
     BASELINE = "baseline"  # one figure (or the cell's status) against the baseline
+    HISTORY = "history"  # one figure against its past nights (--history)
 
 
 @dataclass(frozen=True)
@@ -93,9 +97,11 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
     `thread_gone`: this run has no such thread at all (its figures are missing for that reason).
     """
     thread = labels.get(f.thread, f.thread)
-    sc = scale(f.figure.unit, (f.base, f.new))  # the row's one unit and precision, as in the comparison table
+    ends = (*interval_ends(f.base_estimate), *interval_ends(f.new_estimate))
+    sc = scale(f.figure.unit, (f.base, f.new, *ends))  # the row's one unit and precision, as in the comparison table
     unit = f" {sc.unit}" if sc.unit else ""
-    base, new = sc.number(f.base) + unit, sc.number(f.new) + unit
+    base = sc.number(f.base) + unit + interval_text(f.base_estimate, sc)
+    new = sc.number(f.new) + unit + interval_text(f.new_estimate, sc)
     if f.verdict == Verdict.NEW:
         return f"{thread}: {f.figure.words}: no baseline (this run {new})"
     if f.verdict == Verdict.MISSING:
@@ -105,17 +111,30 @@ def figure_message(f: FigureChange, labels: dict[str, str], thread_gone: bool = 
         return f"{thread}: {f.figure.words} {base} → {new}: not checked (its threshold is off)"
     if f.verdict == Verdict.UNCOMPARABLE:
         return f"{thread}: {f.figure.words} {base} → {new}: not comparable (the scheduler trace lost events in this cell)"
+    why = f": {f.why}" if f.why else ""
     return (
-        f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: {f.verdict}"
+        f"{thread}: {f.figure.words} {base} → {new} ({change_text(f, sc, with_unit=True)}), threshold {f.threshold.describe()}: "
+        f"{f.verdict}{why}"
     )
 
 
 def _figure_check(f: FigureChange, labels: dict[str, str], thread_gone: bool = False) -> Check:
     """A figure against its baseline: failed when worse, or when the baseline has it and this run does not (never a pass)."""
-    skipped = {Verdict.NEW: Outcome.SKIPPED, Verdict.OFF: Outcome.SKIPPED, Verdict.UNCOMPARABLE: Outcome.SKIPPED}
+    skipped = {v: Outcome.SKIPPED for v in (Verdict.NEW, Verdict.OFF, Verdict.UNCOMPARABLE, Verdict.FEW)}
     outcome = {Verdict.REGRESSION: Outcome.FAILED, Verdict.MISSING: Outcome.FAILED, **skipped}.get(f.verdict, Outcome.PASSED)
     name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the baseline"
     return Check(name, Kind.BASELINE, outcome, figure_message(f, labels, thread_gone) if outcome is not Outcome.PASSED else "")
+
+
+def _history_check(f: FigureVerdict, labels: dict[str, str]) -> Check:
+    """A figure against its past nights: failed when it regressed or went missing, skipped while there is too little to judge."""
+    from runner.history.judge import FAILED, Verdict
+
+    skipped = (Verdict.LEARNING, Verdict.NEW, Verdict.FEW, Verdict.CONTINUING)
+    outcome = Outcome.FAILED if f.verdict in FAILED else Outcome.SKIPPED if f.verdict in skipped else Outcome.PASSED
+    name = f"{labels.get(f.thread, f.thread)}: {f.figure.name} against the history"
+    message = f"{labels.get(f.thread, f.thread)}: {f.figure.words}: {f.words}" if outcome is not Outcome.PASSED else ""
+    return Check(name, Kind.HISTORY, outcome, message)
 
 
 def _status_check(c: CellChange) -> Check:
@@ -146,8 +165,11 @@ def _notes(cell: CellResult) -> list[str]:
     return degraded + [f"warning: {text}" for text in cell.warnings]
 
 
-def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True) -> list[CellChecks]:
-    """Every cell run of `doc` with its checks; `comparison` adds each figure against the baseline.
+def cell_checks(
+    doc: RunDocument, comparison: Optional[Comparison] = None, run: bool = True, history: Optional[NightVerdict] = None
+) -> list[CellChecks]:
+    """Every cell run of `doc` with its checks; `comparison` adds each figure against the baseline, `history` each figure
+    against its past nights.
 
     `run` False leaves out the runs and expectations (`runner compare`: only the comparison).
     Cells `doc` was asked for but has no result of are skipped (errors when the run did not finish,
@@ -181,6 +203,8 @@ def cell_checks(doc: RunDocument, comparison: Optional[Comparison] = None, run: 
             item.checks.append(_status_check(changes[cell.id]))
             gone = set(comparison.threads_gone) if comparison else set()
             item.checks.extend(_figure_check(f, labels, (f.cell, f.thread) in gone) for f in figures.get(cell.id, []))
+        if history is not None and cell.repeat == first_repeat[cell.id]:
+            item.checks.extend(_history_check(f, labels) for f in history.figures if f.cell == cell.id)
         if item.checks:
             out.append(item)
     ran = {c.id for c in doc.cells}

@@ -7,7 +7,7 @@ atomically, so a reader never sees half a report, and never through a link (runn
 from __future__ import annotations
 
 import os
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from runner.collector import collector_paused
 from runner.errors import OutputError, RunnerError, from_os_error
@@ -21,6 +21,9 @@ from runner.results.document import RunDocument, Status
 from runner.results.read import load
 from runner.safefs import append, write_atomic, write_named
 from runner.terminal import note, say, warn
+
+if TYPE_CHECKING:
+    from runner.history.judge import NightVerdict
 
 STEP_SUMMARY_LIMIT = 1_000_000  # GitHub refuses job summaries over 1 MiB
 
@@ -137,20 +140,28 @@ def say_comparison(cmp: Comparison, base_name: str, new_name: str, where: str) -
     say(f"compared with {base_name}: {terminal_text(headline)} ({where})")
 
 
-def ci_outputs(doc: RunDocument, comparison: Optional[Comparison], junit: Optional[str], env: dict[str, str], run: bool = True) -> None:
+def ci_outputs(
+    doc: RunDocument,
+    comparison: Optional[Comparison],
+    junit: Optional[str],
+    env: dict[str, str],
+    run: bool = True,
+    history: Optional[NightVerdict] = None,
+) -> None:
     """What CI systems read: the JUnit XML file (`--junit FILE`), and in GitHub Actions the workflow annotations.
 
-    `run` False: a comparison alone (`runner compare`), without the cells' runs and expectations.
+    `run` False: a comparison alone (`runner compare`), without the cells' runs and expectations; `history`: the
+    night's verdicts against its past nights, a test case per figure judged.
     """
     if junit:
         try:
-            write_named(junit, junit_xml(doc, comparison, run))
+            write_named(junit, junit_xml(doc, comparison, run, history))
         except OSError as exc:
             raise from_os_error(exc, "cannot write the JUnit file", path=junit, before_run=False) from None
         say(f"junit: {junit}")
     if github.enabled(env):
         place = github.workspace_path(doc.scenario.path, os.getcwd(), env.get("GITHUB_WORKSPACE"))
-        for item in github.for_run(doc, comparison, place, run):
+        for item in github.for_run(doc, comparison, place, run, history):
             say(item.command())
 
 
@@ -163,13 +174,16 @@ def finish(
     plots: bool,
     env: dict[str, str],
     junit: Optional[str] = None,
+    history: Optional[str] = None,
 ) -> int:
-    """After a run or a merge: compare with the baseline, write report.md, append the job summary,
-    write the JUnit file and print the GitHub annotations (`ci_outputs`).
+    """After a run or a merge: compare with the baseline, judge against the history and add the night to it
+    (`--history`), write report.md, append the job summary, write the JUnit file and print the GitHub
+    annotations (`ci_outputs`).
 
-    Returns the number of regressions against the baseline (0 without one).  A baseline that
-    cannot be read or compared (another scenario's) raises its error once the run's own report
-    and JUnit file are written: a refused comparison never costs the run its report.  So does a
+    Returns the number of regressions against the baseline and the history (0 without either).  A baseline
+    that cannot be read or compared (another scenario's), or a history that cannot be read or written (corrupt,
+    locked, of a newer schema, a full disk), raises its error once the run's own report and JUnit file are
+    written: results.json is written before this is called, and neither costs the run its report.  So does a
     plot that could not be written (a full disk, exit 4), which is raised first.
     """
     results_path = os.path.join(folder, "results.json")
@@ -183,6 +197,13 @@ def finish(
         else:
             write_atomic(os.path.join(folder, "comparison.md"), section)
             say_comparison(cmp, baseline, results_path, os.path.join(folder, "comparison.md"))
+    judged, unjudged = None, None
+    if history:
+        judged, unjudged = _history(doc, history, results_path, thresholds)
+        if judged is not None:
+            from runner.history.section import render as render_history
+
+            section = (section + "\n" if section else "") + render_history(judged, history)
     unwritten: Optional[RunnerError] = None
     if write:
         path, failed = report_files(doc, folder, section, plots)
@@ -192,11 +213,25 @@ def finish(
             append_step_summary(handle.read(), env)
     elif section:
         append_step_summary(section, env)
-    ci_outputs(doc, cmp, junit, env)
-    if unwritten is not None:  # a full disk: the code says it (4), the refused comparison is said too
-        if refused is not None:
-            note(str(refused))
-        raise unwritten
-    if refused is not None:
-        raise refused
-    return cmp.regressions if cmp else 0
+    ci_outputs(doc, cmp, junit, env, history=judged)
+    errors = [e for e in (unwritten, refused, unjudged) if e is not None]  # a full disk first: the code says it (4)
+    for error in errors[1:]:
+        note(str(error))
+    if errors:
+        raise errors[0]
+    return (cmp.regressions if cmp else 0) + (judged.regressions if judged else 0)
+
+
+def _history(
+    doc: RunDocument, target: str, results_path: str, thresholds: list[Threshold]
+) -> tuple[Optional[NightVerdict], Optional[RunnerError]]:
+    """The night judged against the history at `target` and added to it, its headline said; or the error that stopped it."""
+    from runner.history.apply import judge_and_add
+    from runner.history.section import headline
+
+    try:
+        judged = judge_and_add(target, doc, os.path.abspath(results_path), thresholds)
+    except RunnerError as exc:
+        return None, exc
+    say(headline(judged, target))
+    return judged, None

@@ -251,11 +251,15 @@ class Verdict(_Record):
 
 
 class ThreadHistograms(_Record):
-    """A periodic thread's distributions, exact to the bucket (runner/histogram.py): what its percentiles come from."""
+    """A thread's distributions, exact to the bucket (runner/histogram.py): what its percentiles come from, what their
+    intervals are made of (runner/results/estimates.py), and what merges exactly across repeats and nights."""
 
     latency: Optional[Histogram] = Field(None, description="wake-up latency of every release answered, in ns")
     slack: Optional[Histogram] = Field(None, description="end of each callback to its next release, in ns (negative: overran)")
     callback_wall: Optional[Histogram] = Field(None, description="wake to end of each callback, in ns")
+    wakeup: Optional[Histogram] = Field(
+        None, description="scheduler trace: from each sched_waking to the switch onto a CPU, in ns (added within /2: null before)"
+    )
 
 
 def _cpus_in(value: Any) -> Any:
@@ -673,6 +677,7 @@ class MachineInfo(_Record):
     cpufreq_governors: list[str] = Field(default_factory=list)
     memory_total_bytes: Optional[int] = None
     python: Optional[str] = None
+    cpu_model: Optional[str] = Field(None, description="the CPU's model name (/proc/cpuinfo); null: not recorded or not said")
     cmdline: Optional[str] = Field(None, description="the kernel command line (/proc/cmdline)")
     clocksource: Optional[str] = Field(None, description="the current clocksource, e.g. `tsc`")
     nohz_full_cpus: Optional[str] = Field(None, description="CPUs without a scheduler tick; null: the kernel has no nohz_full")

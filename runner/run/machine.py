@@ -73,6 +73,7 @@ def machine_info() -> MachineInfo:
         cpufreq_governors=sorted(governors),
         memory_total_bytes=memory_total(_read("/proc/meminfo")),
         python=platform.python_version(),
+        cpu_model=cpu_model(_read("/proc/cpuinfo")),
         cmdline=_read("/proc/cmdline"),
         clocksource=_read("/sys/devices/system/clocksource/clocksource0/current_clocksource"),
         nohz_full_cpus=_nohz_full(),
@@ -81,6 +82,16 @@ def machine_info() -> MachineInfo:
         irqs=irqs(),
         irq_threads=irq_threads(),
     )
+
+
+def cpu_model(cpuinfo: Optional[str]) -> Optional[str]:
+    """The CPU's model as /proc/cpuinfo names it (`model name` on x86, `Model` or `Hardware` on Arm boards); None when unsaid."""
+    found: dict[str, str] = {}
+    for line in (cpuinfo or "").splitlines():
+        name, sep, rest = line.partition(":")
+        if sep and name.strip() in ("model name", "Model", "Hardware", "cpu model") and rest.strip():
+            found.setdefault(name.strip(), rest.strip())
+    return next((found[key] for key in ("model name", "Model", "cpu model", "Hardware") if key in found), None)
 
 
 def memory_total(meminfo: Optional[str]) -> Optional[int]:

@@ -18,7 +18,7 @@ from typing import Optional
 from runner.histogram import from_rows
 from runner.results.document import PreemptedRun as StoredRun
 from runner.results.document import Preemptor as StoredPreemptor
-from runner.results.document import ThreadResult, TraceInfo
+from runner.results.document import ThreadHistograms, ThreadResult, TraceInfo
 from runner.run.measure import spread
 from runner.run.tracing import PreemptedRun, TraceData, TracedThread, TraceUnavailable
 
@@ -83,11 +83,13 @@ def with_trace(thread: ThreadResult, t: TracedThread, tasks: dict[int, Task], wi
             "cpus_seen": thread.figures.cpus_seen or t.cpus,
         }
     )
+    histograms = thread.histograms.model_copy(update={"wakeup": hist}) if thread.histograms else ThreadHistograms(wakeup=hist)
     preempted_by = [_stored(p.tid, p.comm, p.prio, p.times, tasks) for p in t.preemptors]
     late = _late(t, wakeup.p99, tasks) if wakeup is not None else []
     return thread.model_copy(
         update={
             "figures": figures,
+            "histograms": histograms if hist is not None else thread.histograms,
             "preempted_by": preempted_by,
             "late_wakeups_by": late,
             "late_wakeups": sum(p.count for p in late),
