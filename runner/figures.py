@@ -3,8 +3,9 @@
 A figure's name is the one users write in expectations (`latency.p99`), in `--threshold`
 and find in results.json; its unit says how it is stored (nanoseconds as integers for
 durations, plain counts otherwise) and how it is shown; its words are what the report
-and the comparison call it; its scope says whether it exists only for threads with
-periodic callbacks.  Expectations (the scenario's `metric` enum and its schema),
+and the comparison call it; its scope says which kinds of thread have it (`ThreadKind`,
+`has`: validation refuses an expectation no thread it names can meet, a run fails it
+`not measured`).  Expectations (the scenario's `metric` enum and its schema),
 comparison (figures and default thresholds), the report's verdict rows and the
 terminal's columns are all derived from `REGISTRY`, so a new figure is one entry here
 plus the line of the evaluation core that measures it.
@@ -178,6 +179,7 @@ class Figure:
     sampling: Optional[Sampling] = None  # None: derived from the path (`kind`)
     trials: Optional[str] = None  # PROPORTION: the figure counting the trials; RATE: the exposure's (None: the cell's seconds)
     events: Optional[str] = None  # RATE given per second: the figure counting its events
+    in_trace: bool = False  # the scheduler trace measures it for every thread it follows (traced ones, and migrations)
 
     @property
     def is_duration(self) -> bool:
@@ -346,7 +348,7 @@ REGISTRY: tuple[Figure, ...] = (
         events="voluntary.total",
     ),
     Figure("cpu_time", "CPU time", Unit.NS, Scope.OUTSIDE, ("cpu_time_ns",)),
-    Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",), sampling=Sampling.RATE),
+    Figure("migrations", "migrations between CPUs", Unit.COUNT, Scope.OUTSIDE, ("migrations",), sampling=Sampling.RATE, in_trace=True),
     Figure(
         "preemptions",
         "preemptions (switched out while runnable, scheduler trace)",
@@ -355,6 +357,7 @@ REGISTRY: tuple[Figure, ...] = (
         ("preemptions",),
         traced=True,
         sampling=Sampling.RATE,
+        in_trace=True,
     ),
     *(
         Figure(
@@ -365,6 +368,7 @@ REGISTRY: tuple[Figure, ...] = (
             ("wakeup_ns", q),
             _LATENCY_THRESHOLD.get(q),
             traced=True,
+            in_trace=True,
         )
         for q, words in _QUANTILE_WORDS.items()
         if q not in ("stddev",)
@@ -447,6 +451,58 @@ BY_NAME: dict[str, Figure] = {f.name: f for f in REGISTRY}
 def figure(name: str) -> Figure:
     """The figure called `name`; KeyError for an unknown one (callers say "did you mean" with `BY_NAME`)."""
     return BY_NAME[name]
+
+
+@dataclass(frozen=True)
+class ThreadKind:
+    """A kind of thread as far as its figures go: which figures of the registry it can have at all (`has`).
+
+    The scopes say it once for every figure: per-callback figures need callbacks (those measured
+    against a period, a period too), event figures a program (`kind: phases`), figures from /proc
+    a thread measured from outside (a `command:` program's, a watched process's); the scheduler
+    trace adds its figures to any thread it follows, and every thread has the whole-thread totals.
+    """
+
+    words: str  # what it is, for messages: `a thread of a command: program (measured from /proc)`
+    callbacks: bool = False  # runs callbacks: released by a period, or by resumes
+    period: bool = False  # its callbacks are released by a period
+    events: bool = False  # runs kind: phases work, whose events have figures
+    proc: bool = False  # measured from outside, from /proc: a program's thread (command:, runner watch)
+
+
+def has(kind: ThreadKind, fig: Figure) -> bool:
+    """Whether a thread of `kind` can have `fig` (a traced one, when the scheduler trace runs and follows it)."""
+    if fig.scope is Scope.CALLBACKS:
+        return kind.callbacks and (kind.period or not fig.needs_period)
+    if fig.scope is Scope.EVENTS:
+        return kind.events
+    if fig.scope is Scope.OUTSIDE:
+        return kind.proc or fig.in_trace
+    return True
+
+
+def measured_how(fig: Figure) -> str:
+    """How `fig` is measured, as the reason a thread without it cannot have it: `is measured per callback`."""
+    if fig.scope is Scope.CALLBACKS:
+        return "is measured against a period's next release" if fig.needs_period else "is measured per callback"
+    if fig.scope is Scope.EVENTS:
+        return "is measured on a program's events (kind: phases)"
+    if fig.scope is Scope.OUTSIDE and not fig.in_trace:
+        return "is read from /proc for threads measured from outside (command: programs, runner watch)"
+    return "is measured for every thread"
+
+
+def figures_of(kind: ThreadKind) -> str:
+    """The figures a thread of `kind` has, as users write them: `callbacks, latency.*, ...`; a group it has whole as `group.*`."""
+    groups: dict[str, list[Figure]] = {}  # by the name's first part, in the registry's order
+    for f in REGISTRY:
+        groups.setdefault(f.name.partition(".")[0], []).append(f)
+    out: list[str] = []
+    for group, members in groups.items():
+        held = [f.name for f in members if has(kind, f)]
+        whole = len(held) == len(members) and "." in members[0].name
+        out += [f"{group}.*"] if whole else held
+    return ", ".join(out)
 
 
 def value(figures: ThreadFigures, fig: Figure) -> Optional[Number]:

@@ -194,10 +194,13 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         out.append(f"  ({picked.note()})")
     verdicts, more = verdicts_shown(cell.expectations, TERMINAL_ROWS)
     for v in verdicts:
-        measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-        if v.measured is not None and v.samples is not None:
-            measured += f", of {samples_words(v.figure, v.samples)}"
-        said = f"{v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
+        if v.unmeasured:  # said in place of the value: "measured not measured" reads as nothing
+            said = f"{v.thread}: {v.metric} {v.limit}: {v.unmeasured}"
+        else:
+            measured = fmt_figure(v.measured, v.figure.unit)
+            if v.samples is not None:
+                measured += f", of {samples_words(v.figure, v.samples)}"
+            said = f"{v.thread}: {v.metric} {v.limit} (measured {measured}){' - ' + v.note if v.note else ''}"
         out.append(f"  {'ok  ' if v.passed else 'FAIL'} {for_terminal(said)}")
     if more:
         failed = sum(not v.passed for v in cell.expectations) - sum(not v.passed for v in verdicts)

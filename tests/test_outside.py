@@ -272,6 +272,56 @@ def test_an_expectation_on_a_program_thread_that_never_appeared_fails_in_words(t
     assert [t.name for t in result.threads] == ["rtprog"] and result.programs[0].pid == 500
 
 
+def test_an_expectation_judges_every_thread_it_names_and_one_without_the_figure_fails_not_measured(tmp_path):
+    """Issue 40: `latency.max` on a program's thread once dropped out of the verdicts (no case in JUnit, exit 0); a bare
+    name that also names a program's thread judges that thread too, and a traced figure without the trace says why."""
+    from runner.figures import figure
+    from runner.report.junit import junit_xml
+    from runner.run.rawcell import RawThread
+    from runner.run.samples import Sample, slot_of
+    from runner.scenario.plan import plan_scenario
+    from runner.terminal import render_cell
+
+    path = tmp_path / "mixed.yaml"
+    path.write_text(
+        "name: mixed\nduration: 1s\nprocesses:\n  - name: own\n    threads: [{name: ctl_loop, work: {kind: periodic, period: 100ms}}]\n"
+        "  - {name: talker, command: [rtprog]}\n"
+        "expect:\n  - {thread: ctl_loop, metric: latency.max, max: 1ms}\n  - {thread: talker/ctl_loop, metric: wakeup.max, max: 1ms}\n"
+    )
+    cell = load_scenario(os.fspath(path)).cells[0]
+    period = 100_000_000
+    threads = []
+    for p in plan_scenario(cell.scenario, OTHER):
+        at = [T0 + k * period for k in range(10 if p.index else 0)]
+        samples = [Sample(t, t + 20_000, t + 60_000, 40_000, k, 0, 1, 0, 0, 0, 0, 0, period, t + period) for k, t in enumerate(at)]
+        slot = slot_of(samples, tid=100 + p.index, cpus_seen=(0,), work_start_ns=T0)
+        threads.append(RawThread(p, 99, slot, p.settings, ApplyErrors(), True))
+    program = _program(cell.scenario.programs[0], (_thread(500, 0, "rtprog", OTHER), _thread(501, 1, "ctl_loop", OTHER)))
+    raw = RawCell("now", tuple(threads), 1, Timeline(0, T0, T0 + SECOND, T0 + SECOND, T0 + SECOND), programs=(program,))
+    result = evaluate(cell, cell.scenario, raw, allow_degraded=False)
+    verdicts = [(v.thread, v.metric, v.passed, v.note) for v in result.expectations]
+    assert verdicts == [
+        ("own/ctl_loop #1", "latency.max", True, ""),
+        (
+            "talker/ctl_loop #1",
+            "latency.max",
+            False,
+            "not measured (latency.max is measured per callback; this is a thread of a command: program (measured from /proc))",
+        ),
+        ("talker/ctl_loop #1", "wakeup.max", False, "not measured (the scheduler trace did not run: not asked for (--no-trace))"),
+    ]
+    assert result.status is Status.FAILED
+    text = render_cell(result)
+    assert "FAIL talker/ctl_loop #1: latency.max <= 1ms: not measured (latency.max is measured per callback;" in text
+    assert "measured not measured" not in text
+    doc = RunDocument.model_validate({"scenario": {"name": "mixed", "path": os.fspath(path)}, "cells": [result.model_dump()]})
+    xml = junit_xml(doc).decode()
+    assert xml.count("<testcase") == 4, "the run and each of the three verdicts"
+    words = figure("wakeup.max").words
+    assert f"talker/ctl_loop #1: {words} &lt;= 1ms: not measured (the scheduler trace did not run: not asked for (--no-trace))" in xml
+    assert "measured not measured" not in xml and "not measured (not measured" not in xml
+
+
 def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
     from runner.errors import UsageError
     from runner.watch import parse_rule, resolve_targets

@@ -45,6 +45,7 @@ CANNOT_EXPRESS = {
     "program_references.yaml": "resource names an event uses must be declared under resources: a reference across the file",
     "program_cross.yaml": "until: exit is refused beside the runner's own processes: a rule across the items of processes",
     "expectation_needs_a_period.yaml": "whether the thread an expectation names has a period depends on its events, elsewhere in the file",
+    "expectation_a_program_thread_cannot_meet.yaml": "which figures a named thread has depends on its process, elsewhere in the file",
     "never_released.yaml": "an offset or delay compared with the scenario's duration, each written with its own unit",
     "queue_without_consumer.yaml": "whether any thread suspends on a queue another resumes is a reference across the file",
 }

@@ -81,9 +81,11 @@ _RUN_ERRORS = (Status.ERROR, Status.INTERRUPTED)
 
 
 def expectation_message(v: ExpectationVerdict) -> str:
-    """A verdict as the report's row reads: `minimal_schedul (main): latency p99 <= 2 ms, measured 3.10 ms`."""
-    measured = "not measured" if v.measured is None else fmt_figure(v.measured, v.figure.unit)
-    return f"{v.thread}: {v.figure.words} {v.limit}, measured {measured}" + (f" ({v.note})" if v.note else "")
+    """A verdict as the report's row reads: `minimal_schedul (main): latency p99 <= 2 ms, measured 3.10 ms`,
+    or `...: latency max <= 1 µs: not measured (why)` without a value."""
+    if v.measured is None:
+        return f"{v.thread}: {v.figure.words} {v.limit}: {v.unmeasured}"
+    return f"{v.thread}: {v.figure.words} {v.limit}, measured {fmt_figure(v.measured, v.figure.unit)}" + (f" ({v.note})" if v.note else "")
 
 
 def expectation_name(v: ExpectationVerdict) -> str:

@@ -249,6 +249,20 @@ class Verdict(_Record):
     def figure(self) -> fg.Figure:
         return fg.figure(self.metric)
 
+    @property
+    def unmeasured(self) -> str:
+        """Why there is no measured value, in words (`not measured (no callbacks)`); "" when there is one.
+
+        Said in place of the value, never after "measured": "measured not measured" reads as nothing.
+        """
+        if self.measured is not None:
+            return ""
+        return self.note if self.note.startswith(NOT_MEASURED) else NOT_MEASURED + (f" ({self.note})" if self.note else "")
+
+
+NOT_MEASURED = "not measured"
+"""How a verdict without a value begins its note: `not measured (why)`."""
+
 
 class ThreadHistograms(_Record):
     """A thread's distributions, exact to the bucket (runner/histogram.py): what its percentiles come from, what their

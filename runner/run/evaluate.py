@@ -13,6 +13,7 @@ import os
 from typing import Optional
 
 from runner import units
+from runner.figures import has, measured_how
 from runner.results.document import (
     Background,
     BackgroundKind,
@@ -23,6 +24,7 @@ from runner.results.document import (
     Status,
     ThreadHistograms,
     ThreadResult,
+    TraceInfo,
     Verdict,
     ps_rows,
     thread_label,
@@ -36,7 +38,7 @@ from runner.run.samples import SlotData
 from runner.scenario.listing import describe_work
 from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
 from runner.scenario.model import EventKind, Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
-from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_periodic, is_released
+from runner.scenario.plan import PROGRAM_ORIGIN, PlannedThread, Settings, has_callbacks, is_periodic, is_released, thread_kind
 
 QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
 INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
@@ -345,15 +347,55 @@ def _overhead(raw: RawCell) -> Overhead:
     )
 
 
+def judged_threads(exp: Expectation, named: list[tuple[PlannedThread, ThreadFigures]]) -> list[tuple[PlannedThread, ThreadFigures]]:
+    """The threads `exp` names that it judges (README, "Expectations and validation").
+
+    The runner's own threads are known from the file: of those it names, the ones that cannot
+    have the figure are left out when another can (a ROS process names its helper threads after
+    itself: `minimal_schedul`'s latency is its periodic main thread's), as validation showed.  A
+    program's threads are known only as the cell runs: each one named is judged, and one that
+    cannot have the figure fails `not measured` rather than drop out of the verdicts.
+    """
+    fig = metric_figure(exp.metric)
+    own = [(p, f) for p, f in named if p.origin != PROGRAM_ORIGIN]
+    if not any(has(thread_kind(p), fig) for p, _ in own):
+        return named
+    return [(p, f) for p, f in named if p.origin == PROGRAM_ORIGIN or has(thread_kind(p), fig)]
+
+
+def judged(exp: Expectation, planned: PlannedThread, figs: ThreadFigures, processes: int, trace: TraceInfo) -> Verdict:
+    """`exp` on one thread it names: checked against its figures, or failed `not measured` saying why.
+
+    A thread of a kind that cannot have the figure (a program's thread asked for a latency, a
+    thread without callbacks for a per-callback figure) fails, never drops out of the verdicts;
+    so does one whose figure comes from the scheduler trace when the trace did not run or did
+    not see it, with the trace's own reason (--no-trace, no tracefs).
+    """
+    label = verdict_label(planned, processes)
+    fig = metric_figure(exp.metric)
+    kind = thread_kind(planned)
+    if not has(kind, fig):
+        return Verdict(
+            thread=label,
+            metric=fig.name,
+            limit=exp.describe_limit(),
+            measured=None,
+            passed=False,
+            note=f"not measured ({fig.name} {measured_how(fig)}; this is {kind.words})",
+        )
+    absent = ""
+    if fig.in_trace and (fig.traced or not kind.proc):  # this thread can have it from the scheduler trace alone
+        absent = f"the scheduler trace did not run: {trace.reason}" if not trace.enabled else "the scheduler trace did not see it run"
+    return check(exp, label, figs, absent)
+
+
 def _unchecked(exp: Expectation, folded: list[tuple[PlannedThread, int]], unnamed: list[tuple[str, int]], cap: int) -> str:
     """Why threads an expectation names were not checked, in words: they exited beyond a program's cap of thread records
-    and were folded into counts; "" when none were (or the metric applies only to callbacks, which a program's thread has not).
+    and were folded into counts; "" when none were.
 
     A folded thread's figures are not kept, so an expectation cannot be checked on it: a
     cell must neither pass on the kept threads of a name alone nor say none of it ran.
     """
-    if metric_figure(exp.metric).needs_callbacks:
-        return ""
     matched = {id(t) for t in match_threads([planned for planned, _ in folded], exp.thread)}
     count = sum(n for planned, n in folded if id(planned) in matched)
     records = f"beyond {cap:,} thread records"
@@ -476,12 +518,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if mark is not None:
                 verdict.line, verdict.col = mark.line, mark.col
             result.expectations.append(verdict)
-        for planned, fig in measured:
-            if id(planned) in targets and (has_callbacks(planned.work) or not metric_figure(exp.metric).needs_callbacks):
-                verdict = check(exp, verdict_label(planned, raw.processes), fig)
-                if mark is not None:  # where the expectation is written: CI annotations point there
-                    verdict.line, verdict.col = mark.line, mark.col
-                result.expectations.append(verdict)
+        for planned, fig in judged_threads(exp, [(planned, fig) for planned, fig in measured if id(planned) in targets]):
+            verdict = judged(exp, planned, fig, raw.processes, result.trace)
+            if mark is not None:  # where the expectation is written: CI annotations point there
+                verdict.line, verdict.col = mark.line, mark.col
+            result.expectations.append(verdict)
     own = [scenario.expect[i] for i in expectations_for(scenario, cell)]
     implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own)
     result.expectations += implicit

@@ -101,8 +101,9 @@ def _slack(st: CallbackStats) -> Optional[Slack]:
     return Slack(min=hist.min, **dict(zip(("p1", "p50"), hist.quantiles((0.01, 0.5), low=True))), max=hist.max, mean=round(st.slack_mean))
 
 
-def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
-    """Evaluate `exp` on one thread's figures; a missing figure fails with a note saying why.
+def check(exp: Expectation, thread: str, figs: ThreadFigures, absent: str = "") -> Verdict:
+    """Evaluate `exp` on one thread's figures; a missing figure fails `not measured` with a note saying why
+    (`absent`, when the caller knows it better: the scheduler trace did not run).
 
     Limits and values are in the figure's unit (ns for durations), as the registry declares it.
     """
@@ -110,9 +111,9 @@ def check(exp: Expectation, thread: str, figs: ThreadFigures) -> Verdict:
     fig = fg.figure(name)
     value = fg.value(figs, fig)
     if value is None:
-        why = {
+        why = absent or {
             fg.Scope.EVENTS: "no such events ran",
-            fg.Scope.OUTSIDE: "measured for programs' threads, and from the scheduler trace when it ran",
+            fg.Scope.OUTSIDE: "/proc gave no reading of it while it ran",
         }.get(fig.scope, "no callbacks")
         return Verdict(thread=thread, metric=name, limit=exp.describe_limit(), measured=None, passed=False, note=f"not measured ({why})")
     ok = (exp.max is None or value <= exp.max) and (exp.min is None or value >= exp.min)

@@ -24,10 +24,9 @@ from runner.run.rawcell import ApplyErrors, OutputCount, RawProgram, RawProgramT
 from runner.run.rawcell import FoldedThreads as RawFolded
 from runner.run.rawcell import HistoryGap as RawGap
 from runner.scenario.model import ProgramSpec, SleepWork, Until
-from runner.scenario.plan import PlannedThread, Settings, program_settings, rule_settings
+from runner.scenario.plan import PROGRAM_ORIGIN, PlannedThread, Settings, program_settings, rule_settings
 
 DegradationFn = Callable[[Settings, Optional[Settings], ApplyErrors], list[str]]
-ORIGIN = "program"  # how a program thread's PlannedThread says it was not created by the runner
 
 
 @dataclass(frozen=True)
@@ -297,7 +296,7 @@ def outcome(
             wanted, errors, checked = others_wanted, ApplyErrors(), False  # only where the runner asked for something
         first = next((s.settings for s in t.history if s.why == ("rule" if rule is not None else "appeared")), None)
         thread_degraded = degradation(wanted, first, errors) if checked and first is not None else []
-        planned = PlannedThread(spec.name, 0, ordinal[t.index], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, ORIGIN)
+        planned = PlannedThread(spec.name, 0, ordinal[t.index], t.comm, rule.match if rule else t.comm, SleepWork(), wanted, PROGRAM_ORIGIN)
         threads.append(
             (
                 planned,
@@ -327,7 +326,7 @@ def outcome(
         rule = spec.threads[group.rule] if group.rule is not None else None
         wanted = rule_settings(spec, rule, start) if rule is not None else others_wanted
         name = rule.match if rule is not None else group.comm
-        folded.append((PlannedThread(spec.name, 0, 0, group.comm, name, SleepWork(), wanted, ORIGIN), group.count))
+        folded.append((PlannedThread(spec.name, 0, 0, group.comm, name, SleepWork(), wanted, PROGRAM_ORIGIN), group.count))
     folded_rules = {r.rule for r in raw.folded.rules} if raw.folded is not None else set()
     for i, rule in enumerate(spec.threads):
         if not raw.failure and not never_ran and not any(t.rule == i for t in raw.threads) and i not in folded_rules:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from runner.errors import Problem, ScenarioError, did_you_mean
-from runner.figures import Scope
+from runner.figures import ThreadKind, figures_of, has, measured_how
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
 from runner.scenario import program
@@ -30,7 +30,6 @@ from runner.scenario.model import (
     CPUS_CONTEXT,
     AnyProcess,
     Expectation,
-    PhasesWork,
     ProgramSpec,
     Resource,
     Scenario,
@@ -38,7 +37,7 @@ from runner.scenario.model import (
     metric_figure,
     workers,
 )
-from runner.scenario.plan import PlannedThread, Settings, has_callbacks, is_released, plan_process
+from runner.scenario.plan import PROGRAM_THREAD, PlannedThread, Settings, plan_process, thread_kind
 from runner.scenario.typed import Invalid, parse
 from runner.scenario.validate import problems_from, written_path
 from runner.scenario.yamlsource import Document, Mark, load_file, load_text
@@ -331,12 +330,15 @@ def _cross_checks(
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
         process, sep, thread = exp.thread.rpartition("/")
-        if process in programs if sep else not targets and programs:
-            continue  # a program's threads are known only once it runs: one that never appears fails its expectation then
-        if invalid is not None and (not sep or process in invalid):
+        if invalid is not None and (not sep or process in invalid) and not (sep and process in programs):
             continue  # may name threads of a process that did not validate (its problems are reported)
-        if sep and process not in names:
+        if process in programs if sep else not targets and programs:
+            # a program's threads are known only once it runs (one that never appears fails its expectation then),
+            # but which figures a program's thread has is known now
+            unmeasurable = measure_problem(exp, [], PROGRAM_THREAD)
+        elif sep and process not in names:
             out.append(doc.problem(path + ("thread",), f"no process named {process!r}{did_you_mean(process, names)}"))
+            unmeasurable = ""
         elif not targets:
             pool = names.get(process, []) if sep else every
             out.append(
@@ -344,25 +346,11 @@ def _cross_checks(
                     path + ("thread",), f"no thread named {thread!r}{did_you_mean(thread, pool)}; threads: {', '.join(sorted(set(pool)))}"
                 )
             )
-        elif metric_figure(exp.metric).scope is Scope.EVENTS and not any(isinstance(t.work, PhasesWork) for t in targets):
-            out.append(
-                doc.problem(
-                    path + ("metric",),
-                    f"{exp.metric.value} is measured on a program's events, but {exp.thread!r} runs no kind: phases work",
-                )
-            )
-        elif metric_figure(exp.metric).needs_callbacks and not any(has_callbacks(t.work) for t in targets):
-            out.append(
-                doc.problem(path + ("metric",), f"{exp.metric.value} is measured per callback, but {exp.thread!r} runs no periodic work")
-            )
-        elif metric_figure(exp.metric).needs_period and all(is_released(t.work) for t in targets):
-            out.append(
-                doc.problem(
-                    path + ("metric",),
-                    f"{exp.metric.value} is measured against a period, but {exp.thread!r} is released by resumes, not a timer; "
-                    "expected a figure such as latency.p99 or involuntary.per_callback_mean",
-                )
-            )
+            unmeasurable = ""
+        else:
+            unmeasurable = measure_problem(exp, targets)
+        if unmeasurable:
+            out.append(doc.problem(path + ("metric",), unmeasurable))
         for key, wanted in exp.cells.items():
             if key not in keys:
                 known = ", ".join(keys) if keys else "none (there is no matrix)"
@@ -383,6 +371,25 @@ def _cross_checks(
     return out
 
 
+def measure_problem(exp: Expectation, targets: list[PlannedThread], kind: ThreadKind | None = None) -> str:
+    """Why `exp` can never be met on the threads it names, or "": none of them can have its figure at all.
+
+    `targets` are the runner's own threads it names, known from the file: it judges those that can
+    have the figure (a ROS process names its helper threads after itself, so `minimal_schedul` names
+    its periodic main thread and its sleeping helpers, and a latency judges the main thread), and is
+    refused when none can.  `kind` (a program's thread) stands for threads known only once the cell
+    runs, each of which a run judges: refused when that kind of thread cannot have the figure.
+    """
+    fig = metric_figure(exp.metric)
+    if kind is None:
+        if not targets or any(has(thread_kind(t), fig) for t in targets):
+            return ""
+        kind = thread_kind(targets[0])
+    elif has(kind, fig):
+        return ""
+    return f"{exp.metric.value} {measured_how(fig)}, but {exp.thread!r} is {kind.words}, which has {figures_of(kind)}"
+
+
 def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:
     """Indexes of the scenario's expectations that apply to `cell`."""
     values = cell.values if isinstance(cell, mx.Cell) else cell.matrix
@@ -393,7 +400,7 @@ def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[i
 def match_threads(planned: list[PlannedThread], target: str) -> list[PlannedThread]:
     """Threads an expectation's `thread` names: `name` or `process/name`; numbered threads match their base name.
 
-    Metrics measured per callback only apply to threads that run periodic work.
+    Which of them an expectation judges: `measure_problem` (validation) and `evaluate.judged_threads` (a run).
     """
     proc, sep, name = target.rpartition("/")
     return [t for t in planned if (not sep or t.process == proc) and name in (t.name, t.spec_name)]

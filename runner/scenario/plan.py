@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from typing import Optional
 
 from runner import units
+from runner.figures import ThreadKind
 from runner.scenario.model import (
     ApplyWhen,
     EventKind,
@@ -80,6 +81,7 @@ class Settings:
 
 
 EXPLICIT_DEFAULTS = Settings()
+PROGRAM_ORIGIN = "program"  # a PlannedThread's origin when it is a program's thread, found running (not created by the runner)
 
 
 @dataclass(frozen=True)
@@ -222,3 +224,21 @@ def is_released(work: Work) -> bool:
 def has_callbacks(work: Work) -> bool:
     """Whether the thread runs callbacks at all: periodic, or released by resumes."""
     return is_periodic(work) or is_released(work)
+
+
+PROGRAM_THREAD = ThreadKind("a thread of a command: program (measured from /proc)", proc=True)
+
+
+def thread_kind(t: PlannedThread) -> ThreadKind:
+    """What kind of thread `t` is, for the figures it can have (figures.has)."""
+    if t.origin == PROGRAM_ORIGIN:
+        return PROGRAM_THREAD
+    work = t.work
+    phases = isinstance(work, PhasesWork)
+    if is_periodic(work):
+        return ThreadKind("a kind: phases thread with a timer" if phases else "a periodic thread", True, True, phases)
+    if is_released(work):
+        return ThreadKind("a kind: phases thread released by resumes (no period)", True, False, True)
+    if phases:
+        return ThreadKind("a kind: phases thread without a timer or a suspend (no callbacks)", events=True)
+    return ThreadKind(f"a thread without callbacks (kind: {work.kind})")
