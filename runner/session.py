@@ -624,6 +624,7 @@ def _cell_loop(units: list[Unit], run: _Claimed, store: ResultsStore) -> _Loop:
                 progress.line if not options.follow else None,
                 stop.requested,
                 trace=options.trace,
+                allow_priority_99=options.allow_priority_99,
             )
             began = time.monotonic()
             relative = cell_dir(unit.cell, unit.repeat, options.repeat > 1)
@@ -667,7 +668,7 @@ def _one_cell(
                 writer.abort()
             return unrun(cell, f"the cell's files could not be created: {exc.strerror or exc} ({exc.filename})", started_at), exc, None
         scenario = cell.scenario.replace(duration=options.duration_ns)
-        result = evaluate(cell, scenario, raw, options.allow_degraded)
+        result = evaluate(cell, scenario, raw, options.allow_degraded, options.allow_priority_99)
     except BaseException:  # a defect: no half-written samples file or open descriptor is left behind
         if writer is not None:
             writer.abort()

@@ -184,7 +184,11 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         shown = [f for f in fg.REGISTRY if f.column and (overloaded or not f.overload)]
         headers = ["thread", "tid", "applied"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in shown]
         rows = [
-            [for_terminal(f"{t.name}{' (main)' if t.index == 0 else ''}"), str(t.tid), t.applied.label() if t.applied else "?"]
+            [
+                for_terminal(f"{t.name}{' (main)' if t.index == 0 else ''}"),
+                str(t.tid),
+                ", ".join(s.label() for s in t.callback_settings()) or "?",  # as read back where its callbacks ran
+            ]
             + [_cell_value(fg.value(t.figures, f), f) for f in shown]
             for t in periodic
         ]

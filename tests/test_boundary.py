@@ -382,6 +382,44 @@ def test_a_hog_at_priority_99_obeys_the_threads_rule(write_scenario, tmp_path):
     assert not (tmp_path / "r").exists()
 
 
+def test_a_phase_at_priority_99_obeys_the_threads_rule(write_scenario, tmp_path):
+    """Issue 40: a program phase's `sched: fifo:99` ran without --allow-priority-99 (and its report said `at OTHER`)."""
+    path = write_scenario(
+        "name: phase99\nduration: 1s\nprocesses:\n  - name: phased\n    threads:\n      - name: mover\n        work:\n"
+        "          kind: phases\n          phases:\n"
+        "            - {name: urgent, sched: 'fifo:99', events: [{timer: {period: 10ms}}, {run: 100us}]}\n"
+    )
+    done = run_cli(path, "--out", str(tmp_path / "r"))
+    assert done.code == 2, done.err
+    assert "phased/mover phase urgent asks for RT priority 99" in done.err and "--allow-priority-99" in done.err
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(
+    "background, who",
+    [
+        ({"hogs": [{"count": 2}]}, "background hog hog"),
+        ({"commands": [{"argv": ["stress-ng", "--cpu", "2"]}]}, "background command stress-ng"),
+    ],
+)
+def test_load_inheriting_the_runners_priority_99_obeys_the_threads_rule(background, who):
+    """Issue 40: `chrt -f 99 runner ...` (or a service at priority 99) gave hogs and background commands without a sched of
+    their own the watchdog's priority, spinning on every CPU; the measured threads, asking for their own, were let through."""
+    from runner.run import preflight
+    from runner.scenario.model import Policy, Scenario
+    from runner.scenario.plan import Settings
+
+    scenario = Scenario.parse({"name": "x", "processes": [{"name": "p", "main": {"sched": "fifo:50"}}], "background": background})
+    at_99 = Settings(Policy.FIFO, 99)
+    with pytest.raises(UsageError) as refused:
+        preflight.needs([scenario], at_99, False, {0, 1})
+    words = str(refused.value)
+    assert words.startswith(f"{who} inherits RT priority 99, the runner watchdog's own, from the runner, which runs at SCHED_FIFO 99")
+    assert "start the runner at 98 or less" in words and "--allow-priority-99" in words
+    preflight.needs([scenario], at_99, True, {0, 1})  # allowed
+    preflight.needs([scenario], Settings(Policy.FIFO, 98), False, {0, 1})  # the runner at 98: its load at 98, below the watchdog
+
+
 def test_a_folder_with_a_report_of_no_run_is_refused(tmp_path):
     """`--out docs` once replaced the user's own docs/report.md with the run's."""
     (tmp_path / "report.md").write_text("# my notes\n")

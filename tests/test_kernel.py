@@ -332,6 +332,20 @@ def test_unprivileged_fifo_fails_before_starting_with_exit_3(tmp_path):
     assert done.results is None and not find_pids("minimal_schedul")
 
 
+def test_a_runner_at_priority_99_refuses_to_let_its_hogs_inherit_it(tmp_path):
+    """Issue 40: `chrt -f 99 runner ...` (or a service at priority 99) spun hogs without a sched at the watchdog's priority."""
+    path = tmp_path / "hogs.yaml"
+    path.write_text(
+        "name: hogs\nduration: 1s\nprocesses:\n  - name: p\n    main: {sched: 'fifo:50', work: {kind: periodic, period: 100ms}}\n"
+        "background:\n  hogs: [{count: cpus}]\n"
+    )
+    out = str(tmp_path / "r")
+    done = finish(start_runner(str(path), "--out", out, cwd=str(tmp_path), prefix=("chrt", "-f", "99")), out)
+    assert done.code == 2, done.err
+    assert "background hog hog inherits RT priority 99, the runner watchdog's own, from the runner" in done.err
+    assert done.results is None and not find_pids("hog")
+
+
 def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
     prefix, who = _unprivileged_prefix()
     os.chmod(tmp_path, 0o777)

@@ -483,3 +483,39 @@ def test_the_watchdog_kills_every_process_it_holds_past_4096_and_refuses_a_pid_o
         watchdog.close()
         child.kill()
         child.wait()
+
+
+def test_a_program_that_raises_itself_to_priority_99_is_an_error_unless_allowed(tmp_path):
+    """Issue 40: `chrt -f 99` in a program's command (its own doing, after the runner's exec) passed without a word."""
+    path = _scenario(tmp_path, {"command": ["chrt", "-f", "99", "sleep", "5"]})
+    done = _run(tmp_path, path)
+    cell = done.results["cells"][0]
+    assert done.code == 4 and cell["status"] == "error", (done.code, done.err)
+    assert "program talker raised thread sleep (tid " in cell["reason"] and "fifo:99" in cell["reason"]
+    assert "--allow-priority-99" in cell["reason"]
+    main = thread(done.results, "sleep")
+    assert main["applied"]["policy"] == "fifo" and main["applied"]["priority"] == 99, "the kernel's read-back, not the YAML"
+    allowed = _run(tmp_path, path, "--allow-priority-99", out_name="allowed")
+    cell = allowed.results["cells"][0]
+    assert allowed.code == 0 and cell["status"] == "passed", allowed.err
+    assert any("program talker ran thread sleep" in w and "(--allow-priority-99)" in w for w in cell["warnings"]), cell["warnings"]
+
+
+def test_an_expectation_a_programs_thread_cannot_meet_is_refused_and_a_traced_one_without_the_trace_is_not_measured(tmp_path, program):
+    """Issue 40: latency.max and missed_releases on a program's thread validated and vanished from the run (exit 0)."""
+    bad = _scenario(
+        tmp_path,
+        {"command": [program]},
+        expect=[
+            {"thread": "talker/ctl_loop", "metric": "latency.max", "max": "1us"},
+            {"thread": "talker/ctl_loop", "metric": "missed_releases", "max": 0},
+        ],
+    )
+    refused = finish(start_runner("validate", bad, cwd=str(tmp_path)), str(tmp_path / "none"))
+    assert refused.code == 2 and refused.err.count("is a thread of a command: program (measured from /proc), which has") == 2
+    traced = _scenario(tmp_path, {"command": [program]}, expect=[{"thread": "talker/ctl_loop", "metric": "wakeup.p99", "max": "10ms"}])
+    done = _run(tmp_path, traced, "--no-trace")
+    (verdict,) = done.results["cells"][0]["expectations"]
+    assert done.code == 1 and not verdict["passed"] and verdict["measured"] is None
+    assert verdict["note"] == "not measured (the scheduler trace did not run: not asked for (--no-trace))"
+    assert "FAIL talker/ctl_loop #1: wakeup.p99 <= 10ms: not measured (the scheduler trace" in done.out

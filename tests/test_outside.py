@@ -322,6 +322,36 @@ def test_an_expectation_judges_every_thread_it_names_and_one_without_the_figure_
     assert "measured not measured" not in xml and "not measured (not measured" not in xml
 
 
+def test_a_program_that_raises_a_thread_to_priority_99_is_an_error_unless_allowed_and_then_a_warning():
+    """Issue 40: a program that made itself FIFO 99 (chrt -f 99, sched_setscheduler) passed without a word.  The runner cannot
+    refuse it beforehand; the kernel's read-back shows it, and a spinning thread at 99 can starve the watchdog (FIFO 99 too)."""
+    fifo99 = Settings(Policy.FIFO, 99)
+    raised = _thread(
+        501,
+        1,
+        "ctl_loop",
+        fifo99,
+        history=(Snapshot(T0 - 5, "ctl_loop", OTHER, "appeared"), Snapshot(T0 + SECOND // 4, "ctl_loop", fifo99, "changed")),
+    )
+    raw = _program(_spec(sched=None, cpus=None), (_thread(500, 0, "rtprog", OTHER), raised))
+    out = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert out.failures == [
+        "program talker raised thread ctl_loop (tid 501, fifo:99 0.25s into the cell) to RT priority 99, the runner watchdog's own, "
+        "which the runner refuses without --allow-priority-99: spinning there it could have kept the watchdog from stopping the "
+        "cell; lower the program's priority to 98 or less, or pass --allow-priority-99"
+    ]
+    allowed = outcome(raw, T0, T0 + SECOND, False, degradation, allow_priority_99=True)
+    assert allowed.failures == [] and allowed.warnings == [
+        "program talker ran thread ctl_loop (tid 501, fifo:99 0.25s into the cell) at RT priority 99, the runner watchdog's own "
+        "(--allow-priority-99)"
+    ]
+    assert outcome(raw, T0, T0 + SECOND, False, degradation).result.degraded == [], "its own doing, not a setting refused"
+    watched = _program(_spec(sched=None, cpus=None), raw.threads, attached=True, exited_ns=None)
+    assert outcome(watched, T0, T0 + SECOND, False, degradation).failures == [], "runner watch only looks"
+    at_80 = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80),))
+    assert outcome(at_80, T0, T0 + SECOND, False, degradation).failures == []
+
+
 def test_watch_rules_are_written_pattern_sched_at_cpus_and_refused_in_words():
     from runner.errors import UsageError
     from runner.watch import parse_rule, resolve_targets

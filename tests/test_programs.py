@@ -561,3 +561,26 @@ def test_a_callbacks_burn_ends_at_a_stop_whenever_the_run_ends(end_ms: int, tmp_
     )
     assert done.returncode == 0, done.stderr
     assert int(done.stdout) < 1_000, f"joined {done.stdout.strip()} ms after the release, the stop came at 200 ms"
+
+
+def test_the_report_says_the_policy_a_programs_callbacks_ran_at_as_its_phases_read_it_back():
+    """Issue 40: a thread whose one phase ran at FIFO 99 read `at OTHER` (its settings as it started, not the phase's)."""
+    from reportdata import main_thread, matrix
+
+    from runner.report.markdown import thread_finding
+    from runner.results.document import EventResult, PhaseResult
+    from runner.terminal import render_cell
+
+    cell = matrix().cells[0]
+    base = main_thread(cell).model_copy(update={"applied": Settings()})
+    timer = EventResult(phase="urgent", index=1, event="timer 10ms", kind="timer", measures="latency", count=99)
+    setup = PhaseResult(name="setup", passes=1, entered=1, applied=Settings())
+    urgent = PhaseResult(name="urgent", passes=99, entered=1, applied=Settings(Policy.FIFO, 99))
+    one = base.model_copy(update={"events": [timer], "phases": [setup, urgent]})
+    assert one.callback_settings() == [Settings(Policy.FIFO, 99)], "its callbacks ran in the phase with the timer"
+    assert "**phased/mover** at FIFO 99:" in thread_finding(one, "phased/mover")
+    both = one.model_copy(update={"events": [timer, timer.model_copy(update={"phase": "setup"})]})
+    assert "**phased/mover** at OTHER, then FIFO 99:" in thread_finding(both, "phased/mover")
+    assert thread_finding(base, "x").startswith("**x** at OTHER:"), "a thread without phases: as read back at its start"
+    cell = cell.model_copy(update={"threads": [one]})
+    assert "fifo:99" in render_cell(cell) and " other " not in render_cell(cell).split("applied", 1)[1]

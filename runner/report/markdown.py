@@ -128,11 +128,17 @@ def _switches(f: ThreadFigures) -> str:
     )
 
 
+def held_label(t: ThreadResult) -> str:
+    """The policy a thread's callbacks ran at, as the kernel reported it: `FIFO 80`, or by phase `OTHER, then FIFO 50`."""
+    held = t.callback_settings()
+    return ", then ".join(policy_label(s) for s in held) if held else "?"
+
+
 def thread_finding(t: ThreadResult, label: str) -> Markdown:
     """One sentence of what a periodic thread measured, e.g. `at FIFO 80: 0 involuntary switches in 98 callbacks`."""
     f = t.figures
     lat = figure(t, "latency.p99")
-    where = f"**{md_text(label)}** at {policy_label(t.applied)}"
+    where = f"**{md_text(label)}** at {held_label(t)}"
     if not f.callbacks:
         return Markdown(f"{where}: no callback ran")
     what = _switches(f)
@@ -176,7 +182,8 @@ def matrix_finding(cells: Sequence[CellResult], labels: dict[str, str]) -> list[
             continue
         groups: dict[str, list[ThreadResult]] = {}
         for _, t in entries:
-            groups.setdefault(t.applied.policy.name if t.applied else "?", []).append(t)
+            held = t.callback_settings()
+            groups.setdefault(held[0].policy.name if len(held) == 1 else held_label(t), []).append(t)
         ranked = sorted(groups.items(), key=lambda kv: -max(t.figures.involuntary.per_callback_mean or 0.0 for t in kv[1]))
         out.append(Markdown(f"**{md_text(labels[key])}**: " + "; ".join(_group_finding(name, ts) for name, ts in ranked) + "."))
         faults = [t.figures.faults.minor_after_first for _, t in entries]
@@ -201,7 +208,8 @@ def _span(values: list[Number | None], fmt: Any) -> str:
 
 def _group_finding(policy: str, threads: list[ThreadResult]) -> str:
     """One policy's cells of a thread: its switches and wake-up p99, as a single figure or a range."""
-    prios = sorted({t.applied.priority for t in threads if t.applied and t.applied.policy.is_realtime})
+    single = [held[0] for held in (t.callback_settings() for t in threads) if len(held) == 1]  # a thread held one policy
+    prios = sorted({s.priority for s in single if s.policy.is_realtime})
     where = f"at {policy}" + (f" {', '.join(map(str, prios))}" if prios else "")
     if len(threads) > 1 and not prios:
         where += f" ({len(threads)} cells)"

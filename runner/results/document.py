@@ -510,6 +510,22 @@ class ThreadResult(_Record):
         """It runs callbacks: periodic, or released by resumes."""
         return self.periodic or self.released
 
+    def callback_settings(self) -> list[Settings]:
+        """The settings the kernel reported for the thread while it ran its callbacks, each once, in order.
+
+        A program (`kind: phases`) changes its settings phase by phase, and each phase reads them back
+        on entry: its callbacks ran under those of its phases with a timer or a suspend (every phase it
+        entered when none has), not under `applied`, read as it started.  Other threads: `applied`.
+        """
+        entered = [p for p in self.phases if p.entered and p.applied is not None]
+        releasing = {e.phase for e in self.events if e.kind in ("timer", "suspend")}
+        phases = [p for p in entered if p.name in releasing] or entered
+        out: list[Settings] = []
+        for p in phases:
+            if p.applied is not None and p.applied not in out:
+                out.append(p.applied)
+        return out or ([self.applied] if self.applied is not None else [])
+
     @computed_field(description="the thread's identity across cells and runs: `process[instance]/name (main)` or `... #index`")  # type: ignore[prop-decorator]
     @property
     def key(self) -> str:

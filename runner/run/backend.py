@@ -42,6 +42,7 @@ class CellOptions:
     stop_requested: Callable[[], bool] = _never  # Ctrl-C or SIGTERM reached the runner: stop at the next safe point
     samples: Optional[SampleSink] = None  # per-callback samples, streamed while the cell runs; None: not kept
     trace: bool = False  # trace the scheduler for the cell's processes (tracefs), where the kernel allows
+    allow_priority_99: bool = False  # --allow-priority-99: a program that raised a thread to 99 is a warning, not an error
 
 
 class SampleSink(Protocol):

@@ -412,8 +412,11 @@ def _unchecked(exp: Expectation, folded: list[tuple[PlannedThread, int]], unname
     return ""
 
 
-def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool) -> CellResult:
-    """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason."""
+def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degraded: bool, allow_priority_99: bool = False) -> CellResult:
+    """Decide what one cell run means: figures per thread, verdicts, degradations, status and reason.
+
+    `allow_priority_99`: the run allowed RT priority 99, so a program that raised a thread there is a warning, not an error.
+    """
     result = CellResult(
         id=cell.id,
         matrix=dict(cell.matrix),
@@ -484,7 +487,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
     cap = 0
     for prog in raw.programs:
         end = raw.timeline.stopped_ns or raw.timeline.ended_ns
-        out = outside.outcome(prog, raw.timeline.start_ns, end, raw.interrupted, degradation, before_start)
+        out = outside.outcome(prog, raw.timeline.start_ns, end, raw.interrupted, degradation, before_start, allow_priority_99)
         folded += out.folded
         if out.folded_unnamed:
             unnamed.append((prog.spec.name, out.folded_unnamed))

@@ -164,6 +164,46 @@ def _ordinals(threads: tuple[RawProgramThread, ...]) -> dict[int, int]:
     return out
 
 
+WATCHDOG_PRIORITY = 99  # the runner's watchdog's RT priority (spawn.py): above every thread the runner starts
+
+
+def at_watchdog_priority(raw: RawProgram, t0: Optional[int], allowed: bool) -> tuple[list[str], list[str]]:
+    """(failures, warnings): the program's threads the kernel showed at RT priority 99, the watchdog's own.
+
+    The runner refuses priority 99 up front for what it starts (a program's sched, a rule) unless
+    --allow-priority-99; a program can still raise a thread there itself (chrt, sched_setscheduler),
+    which only the read-back shows, after the fact.  A thread that spins at 99 can keep the watchdog
+    (also at 99, FIFO, never preempting an equal) off its CPU, so the cell's deadline no longer
+    holds: the cell is an error unless the run allowed priority 99, and then a warning still says
+    so.  A process the runner only watches is not its doing, and is not judged.
+    """
+    if raw.attached:
+        return [], []
+    seen = []
+    for t in raw.threads:
+        first = next((s for s in t.history if _at_99(s.settings)), None)
+        if first is not None:
+            when = f"{max(0, first.at_ns - t0) / 1e9:.2f}s into the cell" if t0 is not None else "before the cell started"
+            seen.append(f"{t.comm} (tid {t.tid}, {first.settings.label()} {when})")
+        elif t.applied is not None and _at_99(t.applied):  # the history left that change out: its last reading shows it
+            seen.append(f"{t.comm} (tid {t.tid}, {t.applied.label()} when last read)")
+    if not seen:
+        return [], []
+    named = ", ".join(seen[:3]) + (f" and {len(seen) - 3} more" if len(seen) > 3 else "")
+    threads = f"thread{'s' if len(seen) != 1 else ''} {named}"
+    if allowed:
+        return [], [f"program {raw.spec.name} ran {threads} at RT priority 99, the runner watchdog's own (--allow-priority-99)"]
+    return [
+        f"program {raw.spec.name} raised {threads} to RT priority 99, the runner watchdog's own, which the runner refuses "
+        "without --allow-priority-99: spinning there it could have kept the watchdog from stopping the cell; lower the "
+        "program's priority to 98 or less, or pass --allow-priority-99"
+    ], []
+
+
+def _at_99(settings: Settings) -> bool:
+    return settings.policy.is_realtime and settings.priority >= WATCHDOG_PRIORITY
+
+
 def outcome(
     raw: RawProgram,
     t0: Optional[int],
@@ -171,6 +211,7 @@ def outcome(
     interrupted: bool,
     degradation: DegradationFn,
     before_start: str = "",
+    allow_priority_99: bool = False,
 ) -> ProgramOutcome:
     """A program's result, its threads and its failures; `start` is what it inherited from the runner.
 
@@ -178,6 +219,7 @@ def outcome(
     `before_start` is why the cell stopped before its start gate, when it did (another program
     not found, an interrupt): a program it left at its gate, or never launched, did not start,
     and its record says so and why; it adds no failure of its own, nor claims a duration or a signal.
+    A thread at RT priority 99 fails it unless `allow_priority_99` (at_watchdog_priority).
     """
     spec, start = raw.spec, raw.start
     never_ran = not raw.attached and not raw.failure and raw.released_ns is None
@@ -247,6 +289,9 @@ def outcome(
                 f"program {spec.name} held other settings than the runner gave it before exec when first seen: {'; '.join(changed)} "
                 "(the program, or the kernel, changed them; its history says when)"
             )
+    high, allowed_high = at_watchdog_priority(raw, t0, allow_priority_99)
+    failures += high
+    warnings += allowed_high
     if raw.oom_kills and not oom:
         warnings.append(
             f"program {spec.name}: the OOM killer ended {raw.oom_kills} of its tasks at its memory_max of "

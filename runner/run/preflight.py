@@ -20,7 +20,7 @@ from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
 from runner.run import memcg
 from runner.scenario.model import PhasesWork, Policy, Scenario, ThreadRule
-from runner.scenario.plan import Settings, plan_scenario, program_settings, rule_settings
+from runner.scenario.plan import Settings, phase_settings, plan_scenario, program_settings, rule_settings
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
@@ -164,13 +164,25 @@ def _grant_rt(perm: Permissions, priority: int) -> str:
     )
 
 
-def _refuse_priority_99(where: str, rt_priority: int | bool | None, allowed: bool) -> None:
-    """Priority 99 is the watchdog's (and the kernel's own per-CPU threads'): a thread at it could starve them."""
-    if rt_priority == 99 and not allowed:
+def _refuse_priority_99(where: str, settings: Settings, allowed: bool, start: Settings) -> None:
+    """Priority 99 is the watchdog's (and the kernel's own per-CPU threads'): a thread at it could starve them.
+
+    Asked for, or inherited from the runner (`chrt -f 99 runner`, a service's CPUSchedulingPriority=99):
+    hogs and background commands without a sched of their own would then spin at the watchdog's priority.
+    """
+    if allowed or not (settings.policy.is_realtime and settings.priority == 99):
+        return
+    if start.policy is settings.policy and start.priority == 99:
         raise UsageError(
-            f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
-            "or pass --allow-priority-99 (the runner may then be unable to stop a runaway thread)"
+            f"{where} inherits RT priority 99, the runner watchdog's own, from the runner, which runs at "
+            f"SCHED_{start.policy.value.upper()} 99 (chrt, or a service's CPUSchedulingPriority=); start the runner at 98 or "
+            "less (it needs no RT priority itself), give it a sched of its own, or pass --allow-priority-99 "
+            "(the runner may then be unable to stop a runaway thread)"
         )
+    raise UsageError(
+        f"{where} asks for RT priority 99, the runner watchdog's own; use 98 or less, "
+        "or pass --allow-priority-99 (the runner may then be unable to stop a runaway thread)"
+    )
 
 
 @dataclass
@@ -188,23 +200,25 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
     """What the cells ask for that needs a right; refuses (exit 2) priority 99 and CPUs this machine does not allow."""
     out = Needs()
     for sc in scenarios:
-        asked = [(f"{t.process}/{t.name}", t.settings) for t in plan_scenario(sc, start)]
+        asked = []
+        for t in plan_scenario(sc, start):
+            asked.append((f"{t.process}/{t.name}", t.settings))
+            if isinstance(t.work, PhasesWork):  # each phase applies its own settings as the thread enters it
+                named = zip(t.work.phase_names(), phase_settings(t.work, t.settings))
+                asked += [(f"{t.process}/{t.name} phase {name}", settings) for name, settings in named if settings is not None]
         for prog in sc.programs:
             asked.append((f"program {prog.name}", program_settings(prog, start)[0]))
             asked += [(f"program {prog.name} rule {rule.match!r}", rule_settings(prog, rule, start)) for rule in prog.threads]
+        # the load inherits the runner's settings unless it has its own: at FIFO 99 it would spin at the watchdog's priority
+        asked += [(f"background hog {h.name}", start.with_sched(h.sched, h.cpus)) for h in sc.background.hogs]
+        asked += [(f"background command {c.name or c.argv[0]}", start) for c in sc.background.commands]
         for where, settings in asked:
-            _refuse_priority_99(where, settings.policy.is_realtime and settings.priority, allow_priority_99)
+            _refuse_priority_99(where, settings, allow_priority_99, start)
             _refuse_cpus(where, settings.cpus, online)
             if settings.policy.is_realtime and (settings.policy != start.policy or settings.priority > start.priority):
                 out.rt.setdefault((settings.policy, settings.priority), where)
             if settings.nice < start.nice and (out.min_nice is None or settings.nice < out.min_nice[0]):
                 out.min_nice = (settings.nice, where)
-        for h in sc.background.hogs:
-            where, sched = f"background hog {h.name}", h.sched
-            _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
-            _refuse_cpus(where, h.cpus, online)
-            if sched is not None and sched.policy.is_realtime:
-                out.rt.setdefault((sched.policy, sched.rt_priority), where)
         out.lock = out.lock or next((proc.name for proc in sc.workers if proc.memory.lock), None)
         out.uclamp = out.uclamp or _asks_uclamp(sc)
         out.memory_max = out.memory_max or next((f"program {prog.name}" for prog in sc.programs if prog.memory_max is not None), None)
@@ -215,8 +229,7 @@ def check_rules(rules: list[ThreadRule], allow_priority_99: bool, online: set[in
     """`runner watch --rule`: refused (exit 2) as a scenario's rules are, priority 99 and CPUs this machine does not allow."""
     for rule in rules:
         where = f"--rule {rule.match!r}"
-        sched = rule.sched
-        _refuse_priority_99(where, sched is not None and sched.policy.is_realtime and sched.rt_priority, allow_priority_99)
+        _refuse_priority_99(where, Settings().with_sched(rule.sched, rule.cpus), allow_priority_99, Settings())
         _refuse_cpus(where, rule.cpus, online)
 
 

@@ -24,7 +24,7 @@ from runner.run.measure import spread
 from runner.run.rawcell import RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario
-from runner.scenario.plan import Settings
+from runner.scenario.plan import Settings, phase_settings
 from runner.scenario.program import admitted_words, asked_words, deadline_asks
 
 _MEASURES = {
@@ -98,11 +98,8 @@ def program_results(
     figures["chain_ns"] = spread(chain.histogram, chain.mean, chain.m2, chain.count)
 
     phases: list[PhaseResult] = []
-    current = base
-    for k, phase in enumerate(work.phases):
+    for k, requested in enumerate(phase_settings(work, base)):
         ph = slot.phases[k] if k < len(slot.phases) else PhaseStats()
-        requested = current.with_sched(phase.sched, phase.cpus) if (phase.sched is not None or phase.cpus is not None) else None
-        current = requested or current
         applied = settings_of(ph, every)
         degraded = _phase_degraded(requested, applied, ph) if ph.entered else []
         phases.append(

@@ -174,6 +174,18 @@ def _at_site(proc: ProcessSpec, site: SpawnSite, main: Settings, settings_of: Ca
     return current
 
 
+def phase_settings(work: PhasesWork, base: Settings) -> list[Optional[Settings]]:
+    """What each phase of a program asks its thread to hold on entering it, None for a phase that asks nothing:
+    the thread's settings (`base`) with the sched and cpus of every phase up to it applied, as the native core does."""
+    out: list[Optional[Settings]] = []
+    current = base
+    for phase in work.phases:
+        asked = current.with_sched(phase.sched, phase.cpus) if (phase.sched is not None or phase.cpus is not None) else None
+        current = asked or current
+        out.append(asked)
+    return out
+
+
 def program_settings(prog: ProgramSpec, start: Settings) -> tuple[Settings, Settings]:
     """What a program's main thread and the threads it creates hold before any thread rule: as `chrt` and `taskset` give them.
 
