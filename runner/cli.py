@@ -303,7 +303,7 @@ def _cmd_validate(argv: list[str]) -> int:
     worst = ExitCode.OK
     for path in ns.files:
         try:
-            loaded = load_scenario(path, for_run=False)  # a CPU this machine lacks is a warning here
+            loaded = load_scenario(path, for_run=False)  # what this machine lacks, and this user's rights, are warnings here
         except ScenarioError as exc:
             note(str(exc))
             _annotate(exc.problems)
@@ -431,7 +431,7 @@ def _cmd_run(argv: list[str]) -> int:
     ns = _run_parser().parse_args(argv)
     from runner.scenario.loader import load_scenario
 
-    loaded = load_scenario(ns.scenario)
+    loaded = load_scenario(ns.scenario, for_run=not ns.list)  # --list, as validate: what this machine lacks is a warning
     _print_warnings(loaded.warnings)
     from runner.session import RunOptions, checked_cells, run_scenario
 
@@ -793,8 +793,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     # found by the scenario's own checks: said now, at the lines of the scenario written, not at the first run.
     where = ns.output or f"{ns.file} (as `runner import-rtapp` converts it)"
     loaded = parse_scenario(load_text(scenario, where), MachineLimits.read(), for_run=False)
-    for problem in loaded.warnings:
-        warn(str(problem))
+    _print_warnings(loaded.warnings)  # each says `warning:` itself, at its line
     return ExitCode.OK
 
 

@@ -418,7 +418,7 @@ def test_rights_advice_to_root_without_the_capability_says_it_is_missing_not_sud
     from runner.scenario.model import Policy
 
     monkeypatch.setattr(preflight, "_try_on_thread", lambda action: errno.EPERM)  # the kernel refuses, as it would
-    wanted = Needs(rt={(Policy.FIFO, 80): "p/t"}, min_nice=(-5, "p/n"), lock="p")
+    wanted = Needs(rt={(Policy.FIFO, 80): "p/t"}, min_nice=(-5, "p/n"), lock=(80 << 20, "process p locks its memory"))
     missing = preflight.missing_rights(Permissions("root" if uid == 0 else "rt", uid, False, False, 0, 65536), wanted)
     assert len(missing) == 3
     for line, cap, container in zip(

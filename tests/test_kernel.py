@@ -332,6 +332,27 @@ def test_unprivileged_fifo_fails_before_starting_with_exit_3(tmp_path):
     assert done.results is None and not find_pids("minimal_schedul")
 
 
+def test_unprivileged_a_files_validity_does_not_depend_on_its_rights_and_a_run_is_refused_with_exit_3_whatever_the_size(tmp_path):
+    """Issue 40: as an ordinary user (RLIMIT_MEMLOCK 8 MiB, no CAP_IPC_LOCK) memory_lock.yaml's --list and an rt-app import
+    exited 2, invalid input, and a run exited 2 or 3 by the size locked.  Rights are warnings of validate, --list and
+    imports; a run is refused with exit 3 and how to grant the right, for a small lock and a large one alike."""
+    prefix, who = _unprivileged_prefix()
+    prefix = ("prlimit", "--memlock=8388608:8388608", *prefix)
+    os.chmod(tmp_path, 0o777)
+    lock = os.path.join(SCENARIOS, "memory_lock.yaml")
+    rtapp = os.path.join(os.path.dirname(SCENARIOS), "tests", "rtapp", "mp3-short.json")
+    for command in (("validate", lock), (lock, "--list"), ("import-rtapp", rtapp), ("validate", os.path.join(SCENARIOS, "fifo80.yaml"))):
+        done = finish(start_runner(*command, cwd=str(tmp_path), prefix=prefix), str(tmp_path / "none"))
+        assert done.code == 0, (who, command, done.err)
+        assert "warning:" in done.err and "Traceback" not in done.err, (command, done.err)
+    for cell in ("*memory=locked,*", "*prealloc=128MiB"):
+        out = str(tmp_path / "r")
+        done = finish(start_runner(lock, "--cell", cell, "--out", out, cwd=str(tmp_path), prefix=prefix), out)
+        assert done.code == 3, (who, cell, done.code, done.err)
+        assert "RLIMIT_MEMLOCK is 8MiB and this user has no CAP_IPC_LOCK" in done.err and "limits.d" in done.err
+        assert done.results is None and not find_pids("minimal_memory_")
+
+
 def test_a_runner_at_priority_99_refuses_to_let_its_hogs_inherit_it(tmp_path):
     """Issue 40: `chrt -f 99 runner ...` (or a service at priority 99) spun hogs without a sched at the watchdog's priority."""
     path = tmp_path / "hogs.yaml"

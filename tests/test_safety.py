@@ -18,7 +18,7 @@ import sys
 import time
 
 import pytest
-from conftest import SCENARIOS
+from conftest import REPO, SCENARIOS
 from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
 
 from runner.run import memcg
@@ -272,8 +272,9 @@ def test_a_full_disk_keeps_the_finished_cells_and_marks_the_one_in_flight(tmp_pa
 def test_root_without_cap_ipc_lock_is_bound_by_rlimit_memlock(tmp_path):
     """As in a container: uid 0 but no CAP_IPC_LOCK, so mlockall is limited by RLIMIT_MEMLOCK.
 
-    Locking is refused before anything starts (exit 3, permission); preallocating more than the
-    limit is refused already by validation (exit 2, the limit named), since no right can fix the file.
+    Locking is refused before anything starts (exit 3, permission, with how to grant it), whatever
+    the size asked: preallocating more than the limit once was invalid input (exit 2) while a
+    small lock was a missing permission (exit 3), for the same missing right.
     """
     if os.geteuid() != 0:
         pytest.skip("needs root to drop CAP_IPC_LOCK while staying uid 0")
@@ -287,6 +288,14 @@ def test_root_without_cap_ipc_lock_is_bound_by_rlimit_memlock(tmp_path):
     assert "RLIMIT_MEMLOCK is 64KiB" in done.err and "CAP_IPC_LOCK" in done.err and "Traceback" not in done.err
     assert done.results is None
 
-    prealloc = finish(start_runner(os.path.join(SCENARIOS, "memory_lock.yaml"), "--out", out, cwd=str(tmp_path), prefix=prefix), out)
-    assert prealloc.code == 2, (prealloc.code, prealloc.err)
-    assert "memory_lock.yaml:" in prealloc.err and "Traceback" not in prealloc.err and prealloc.results is None
+    lock = os.path.join(SCENARIOS, "memory_lock.yaml")
+    prealloc = finish(start_runner(lock, "--cell", "*prealloc=128MiB", "--out", out, cwd=str(tmp_path), prefix=prefix), out)
+    assert prealloc.code == 3, (prealloc.code, prealloc.err)
+    assert "prealloc 128MiB and 6 thread stacks pin about 240MiB" in prealloc.err and "RLIMIT_MEMLOCK is 64KiB" in prealloc.err
+    assert "LimitMEMLOCK=infinity" in prealloc.err and "Traceback" not in prealloc.err and prealloc.results is None
+    listed = finish(start_runner(lock, "--list", cwd=str(tmp_path), prefix=prefix), out)
+    assert listed.code == 0 and "warning: processes[0].memory: process minimal_memory_ locks its memory" in listed.err, listed.err
+    assert "minimal_memory_" in listed.out
+    for command in (("validate", lock), ("import-rtapp", os.path.join(REPO, "tests", "rtapp", "mp3-short.json"))):
+        checked = finish(start_runner(*command, cwd=str(tmp_path), prefix=prefix), out)
+        assert checked.code == 0 and "RLIMIT_MEMLOCK is 64KiB and this user has no CAP_IPC_LOCK" in checked.err, (command, checked.err)

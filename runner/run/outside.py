@@ -23,6 +23,7 @@ from runner.run.child import signal_name
 from runner.run.rawcell import ApplyErrors, OutputCount, RawProgram, RawProgramThread
 from runner.run.rawcell import FoldedThreads as RawFolded
 from runner.run.rawcell import HistoryGap as RawGap
+from runner.scenario.limits import WATCHDOG_PRIORITY
 from runner.scenario.model import ProgramSpec, SleepWork, Until
 from runner.scenario.plan import PROGRAM_ORIGIN, PlannedThread, Settings, program_settings, rule_settings
 
@@ -162,9 +163,6 @@ def _ordinals(threads: tuple[RawProgramThread, ...]) -> dict[int, int]:
         seen[t.comm] = seen.get(t.comm, 0) + 1
         out[t.index] = seen[t.comm]
     return out
-
-
-WATCHDOG_PRIORITY = 99  # the runner's watchdog's RT priority (spawn.py): above every thread the runner starts
 
 
 def at_watchdog_priority(raw: RawProgram, t0: Optional[int], allowed: bool) -> tuple[list[str], list[str]]:

@@ -19,12 +19,12 @@ from runner import units
 from runner.errors import PermissionProblem, UsageError
 from runner.results.document import PermissionsInfo
 from runner.run import memcg
+from runner.scenario.limits import WATCHDOG_PRIORITY, MachineLimits, memlock_needed, memlock_words
 from runner.scenario.model import PhasesWork, Policy, Scenario, ThreadRule
 from runner.scenario.plan import Settings, phase_settings, plan_scenario, program_settings, rule_settings
 
 CAP_IPC_LOCK = 14
 CAP_SYS_NICE = 23
-MEMLOCK_NEEDED = 512 << 20  # an mlockall'ed Python worker with its threads' stacks, generously
 UCLAMP_KNOB = "/proc/sys/kernel/sched_util_clamp_min"  # present exactly when the kernel has uclamp (CONFIG_UCLAMP_TASK)
 
 
@@ -170,9 +170,9 @@ def _refuse_priority_99(where: str, settings: Settings, allowed: bool, start: Se
     Asked for, or inherited from the runner (`chrt -f 99 runner`, a service's CPUSchedulingPriority=99):
     hogs and background commands without a sched of their own would then spin at the watchdog's priority.
     """
-    if allowed or not (settings.policy.is_realtime and settings.priority == 99):
+    if allowed or not (settings.policy.is_realtime and settings.priority >= WATCHDOG_PRIORITY):
         return
-    if start.policy is settings.policy and start.priority == 99:
+    if start.policy is settings.policy and start.priority >= WATCHDOG_PRIORITY:
         raise UsageError(
             f"{where} inherits RT priority 99, the runner watchdog's own, from the runner, which runs at "
             f"SCHED_{start.policy.value.upper()} 99 (chrt, or a service's CPUSchedulingPriority=); start the runner at 98 or "
@@ -191,7 +191,7 @@ class Needs:
 
     rt: dict[tuple[Policy, int], str] = field(default_factory=dict)  # (policy, priority) -> the first thread asking
     min_nice: tuple[int, str] | None = None  # the lowest nice asked for, and by whom
-    lock: str | None = None  # a process that locks its memory
+    lock: tuple[int, str] | None = None  # the RLIMIT_MEMLOCK the locking processes need (the most any one needs), and its words
     uclamp: str | None = None  # a thread that asks for util_min / util_max
     memory_max: str | None = None  # a program with a memory limit
 
@@ -219,7 +219,11 @@ def needs(scenarios: list[Scenario], start: Settings, allow_priority_99: bool, o
                 out.rt.setdefault((settings.policy, settings.priority), where)
             if settings.nice < start.nice and (out.min_nice is None or settings.nice < out.min_nice[0]):
                 out.min_nice = (settings.nice, where)
-        out.lock = out.lock or next((proc.name for proc in sc.workers if proc.memory.lock), None)
+        stack = MachineLimits.read_stack()
+        for proc in sc.workers:
+            needed = memlock_needed(proc, stack) if proc.memory.lock else 0
+            if needed and (out.lock is None or needed > out.lock[0]):
+                out.lock = (needed, memlock_words(proc, stack))
         out.uclamp = out.uclamp or _asks_uclamp(sc)
         out.memory_max = out.memory_max or next((f"program {prog.name}" for prog in sc.programs if prog.memory_max is not None), None)
     return out
@@ -288,11 +292,11 @@ def missing_rights(perm: Permissions, wanted: Needs) -> list[str]:
                 "remove memory_max, or run where the runner may create memory cgroups (root on the host, or a delegated cgroup)"
             )
     memlock = perm.rlimit_memlock
-    if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < MEMLOCK_NEEDED:
-        # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits)
+    if wanted.lock is not None and not perm.cap_ipc_lock and memlock != -1 and memlock < wanted.lock[0]:
+        # root is bound by RLIMIT_MEMLOCK like anyone once CAP_IPC_LOCK is gone (containers, securebits); whatever the
+        # size asked, the missing right is this one (exit 3), with how to grant it
         missing.append(
-            f"process {wanted.lock} locks its memory, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no "
-            "CAP_IPC_LOCK; "
+            f"{wanted.lock[1]}, but RLIMIT_MEMLOCK is {units.format_size(memlock)} and this user has no CAP_IPC_LOCK; "
             + _grant(perm, "CAP_IPC_LOCK", "memlock", "unlimited", "LimitMEMLOCK=infinity", "--cap-add IPC_LOCK or --ulimit memlock=-1")
         )
     return missing

@@ -45,6 +45,7 @@ from runner.run.traced import Task
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.safefs import make_folders, open_write
 from runner.scenario import program as programs
+from runner.scenario.limits import WATCHDOG_PRIORITY
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import (
     BurnClock,
@@ -109,7 +110,7 @@ class KernelBackend:
     """The real backend: this machine's kernel, permissions and processes, a watchdog and a guard."""
 
     def __init__(self) -> None:
-        self.watchdog = _probe.Watchdog(99)  # above every scenario thread: priority 99 needs --allow-priority-99
+        self.watchdog = _probe.Watchdog(WATCHDOG_PRIORITY)  # above every scenario thread: priority 99 needs --allow-priority-99
         self.guard = Guard()
         self.traces = tracing.TraceInstances(guard=self.guard)  # set up once, kept to the end of the run
         self.zygote: Optional[Zygote] = None

@@ -8,9 +8,15 @@ Two kinds of limit, kept apart so validation stays testable:
 * `MachineLimits`: what this machine allows (pid_max, threads-max, RLIMIT_MEMLOCK,
   MemAvailable, the CPUs the runner may use).  `MachineLimits.read()` does the /proc and
   resource I/O; `check()` is pure and takes the limits as an argument, so tests pass fake
-  limits (a tiny pid_max) without touching the machine.  Its findings are errors *for this
-  machine* and say so: "on this machine (pid_max 32768)".  A CPU the machine lacks is marked
-  `elsewhere`: the file is valid, and only a run (or `--list`) on this machine is refused.
+  limits (a tiny pid_max) without touching the machine.  Its findings say they are *this
+  machine's*: "on this machine (pid_max 32768)".
+
+A file's validity does not depend on the machine: every finding of `check` is a warning of
+`runner validate`, `--list` and `import-rtapp`.  What this machine cannot provide (a CPU, threads,
+memory, SCHED_DEADLINE bandwidth: `elsewhere`) refuses a run here (exit 2, invalid here); what
+this user may not do (RT priorities, negative nice, deadline, locked memory) and priority 99 (a
+run option) are `right`s, which a run leaves to its preflight: tried on the kernel, refused with
+how to grant them (exit 3; priority 99 without --allow-priority-99, exit 2).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import resource
 from dataclasses import dataclass, field
 
 from runner import units
-from runner.scenario.model import HogKind, PeriodicWork, PhasesWork, ProcessSpec, ProgramSpec, Scenario
+from runner.scenario.model import HogKind, PeriodicWork, Phase, PhasesWork, Policy, ProcessSpec, ProgramSpec, Scenario, Sched, Work
 from runner.scenario.program import admitted_words, asked_words, deadline_asks
 
 Path = tuple[str | int, ...]
@@ -28,7 +34,11 @@ Path = tuple[str | int, ...]
 MAX_THREADS = 1 << 17  # threads of one cell, hogs included: far above any scenario, below the kernel maximum
 RUNNER_THREADS = 8  # the runner's own threads and helpers, counted so a cell at the limit still starts
 
+MEMLOCK_BASE = 64 << 20  # what mlockall pins of a worker beyond prealloc and stacks: the interpreter, its libraries (under 33 MiB measured)
+WATCHDOG_PRIORITY = 99  # the runner watchdog's RT priority: refused to scenario threads unless --allow-priority-99
+
 CAP_IPC_LOCK = 14
+CAP_SYS_NICE = 23
 _CAP_SYS_ADMIN = 21
 _CAP_SYS_RESOURCE = 24
 
@@ -44,6 +54,9 @@ class MachineLimits:
     nproc: int | None = None  # RLIMIT_NPROC soft limit; None: unlimited or not enforced (root)
     memlock: int | None = None  # RLIMIT_MEMLOCK soft limit in bytes; None: unlimited or CAP_IPC_LOCK
     cap_ipc_lock: bool = False
+    rtprio: int | None = None  # RLIMIT_RTPRIO soft limit; None: unlimited, or CAP_SYS_NICE (any RT priority, deadline, nice)
+    nice_limit: int | None = None  # RLIMIT_NICE soft limit (a nice down to 20 - it); None: unlimited, or CAP_SYS_NICE
+    cap_sys_nice: bool = True  # False: SCHED_DEADLINE is refused (no limit grants it)
     mem_available: int | None = None  # MemAvailable from /proc/meminfo, bytes
     default_stack: int = 8 << 20  # default thread stack (glibc takes RLIMIT_STACK, 2 MiB if unlimited)
     cpus: tuple[int, ...] | None = None  # CPUs the runner may use (its affinity)
@@ -57,7 +70,8 @@ class MachineLimits:
         caps = _capabilities()
         root_like = os.geteuid() == 0 or bool(caps >> _CAP_SYS_ADMIN & 1) or bool(caps >> _CAP_SYS_RESOURCE & 1)
         ipc_lock = bool(caps >> CAP_IPC_LOCK & 1)
-        stack = _rlimit(resource.RLIMIT_STACK)
+        sys_nice = bool(caps >> CAP_SYS_NICE & 1)
+        nice_limit = _rlimit(resource.RLIMIT_NICE)
         loadavg = _read("/proc/loadavg").split()
         running = loadavg[3].partition("/")[2] if len(loadavg) > 3 else ""
         try:
@@ -76,13 +90,22 @@ class MachineLimits:
             nproc=None if root_like else _rlimit(resource.RLIMIT_NPROC),
             memlock=None if ipc_lock else _rlimit(resource.RLIMIT_MEMLOCK),
             cap_ipc_lock=ipc_lock,
+            rtprio=None if sys_nice else _rlimit(resource.RLIMIT_RTPRIO),
+            nice_limit=None if sys_nice else nice_limit,
+            cap_sys_nice=sys_nice,
             mem_available=_meminfo("MemAvailable"),
-            default_stack=stack if stack is not None and stack > 0 else 2 << 20,
+            default_stack=cls.read_stack(),
             cpus=cpus,
             online=online,
             rt_runtime_us=_read_int("/proc/sys/kernel/sched_rt_runtime_us"),
             rt_period_us=_read_int("/proc/sys/kernel/sched_rt_period_us"),
         )
+
+    @staticmethod
+    def read_stack() -> int:
+        """The default thread stack: RLIMIT_STACK, as glibc takes it, or 2 MiB when unlimited."""
+        stack = _rlimit(resource.RLIMIT_STACK)
+        return stack if stack is not None and stack > 0 else 2 << 20
 
 
 @dataclass(frozen=True)
@@ -91,7 +114,8 @@ class Finding:
 
     path: Path
     message: str
-    elsewhere: bool = False  # the file is fine on a machine that has it (a CPU this one lacks): `runner validate` warns
+    elsewhere: bool = False  # what this machine cannot provide: a warning of validate, --list and imports; a run here exits 2
+    right: bool = False  # what this user may not do (or priority 99): a warning of validate, --list and imports; a run's preflight decides
 
 
 @dataclass
@@ -131,6 +155,11 @@ def _work_bytes(work: object) -> int:
     return work.resident_bytes() if isinstance(work, PhasesWork) else 0
 
 
+def memlock_needed(proc: ProcessSpec, default_stack: int) -> int:
+    """RLIMIT_MEMLOCK a locking process needs: what mlockall pins of it (`locked_bytes`) and of the interpreter (MEMLOCK_BASE)."""
+    return MEMLOCK_BASE + locked_bytes(proc, default_stack)
+
+
 def static_check(scenario: Scenario) -> list[Finding]:
     """Ceilings that hold on every machine (no limits needed): the thread count of a cell."""
     threads = cell_threads(scenario)
@@ -146,10 +175,72 @@ def static_check(scenario: Scenario) -> list[Finding]:
 
 def check(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     """Everything in one cell that this machine cannot provide; pure, the limits are given."""
-    out = _check_threads(scenario, limits) or static_check(scenario)  # this machine's limit is the one to name
+    out = static_check(scenario) or _check_threads(scenario, limits)  # a cell past the ceiling is too large on any machine
     out.extend(_check_memory(scenario, limits))
     out.extend(_check_cpus(scenario, limits))
     out.extend(_check_deadline(scenario, limits))
+    out.extend(_check_rights(scenario, limits))
+    return out
+
+
+def written_scheds(scenario: Scenario) -> list[tuple[Path, Sched, str]]:
+    """Every `sched` the file writes, where, and whose it is: processes' threads and their phases, programs and
+    their rules, hogs.  (A spec with priospread asks its written priority of its first thread, less of the others.)"""
+    found: list[tuple[Path, Sched | None, str]] = []
+    for i, proc in enumerate(scenario.processes):
+        if isinstance(proc, ProgramSpec):
+            found.append((("processes", i, "sched"), proc.sched, f"program {proc.name}"))
+            found += [
+                (("processes", i, "threads", j, "sched"), r.sched, f"program {proc.name} rule {r.match!r}")
+                for j, r in enumerate(proc.threads)
+            ]
+            continue
+        for at, sched, work, who in _owners(i, proc):
+            found.append((at + ("sched",), sched, who))
+            if isinstance(work, PhasesWork):
+                found += [(at + ("work", "phases", k, "sched"), ph.sched, f"{who} phase {name}") for k, (name, ph) in _phases(work)]
+    found += [
+        (("background", "hogs", h, "sched"), hog.sched, f"background hog {hog.name}") for h, hog in enumerate(scenario.background.hogs)
+    ]
+    return [(path, sched, who) for path, sched, who in found if sched is not None]
+
+
+def _owners(i: int, proc: ProcessSpec) -> list[tuple[Path, Sched | None, Work, str]]:
+    """The main thread and the thread specs of process `i`: where each is written, its sched, its work, its name."""
+    out: list[tuple[Path, Sched | None, Work, str]] = [
+        (("processes", i, "main"), proc.main.sched, proc.main.work, f"{proc.name}/{proc.main_name}")
+    ]
+    return out + [(("processes", i, "threads", j), t.sched, t.work, f"{proc.name}/{t.name}") for j, t in enumerate(proc.threads)]
+
+
+def _phases(work: PhasesWork) -> list[tuple[int, tuple[str, Phase]]]:
+    return list(enumerate(zip(work.phase_names(), work.phases)))
+
+
+def _check_rights(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
+    """What this user may not set (RLIMIT_RTPRIO, RLIMIT_NICE, CAP_SYS_NICE), and priority 99, which a run refuses unless
+    --allow-priority-99: warnings of validate, --list and imports, each where it is written; a run's preflight decides."""
+    out = []
+    refused = "a run here is refused (exit 3) unless this user gets the right (README, Permissions) or --allow-degraded"
+    for path, sched, who in written_scheds(scenario):
+        if sched.policy.is_realtime and sched.rt_priority >= WATCHDOG_PRIORITY:
+            why = (
+                f"{who} asks for RT priority 99, the runner watchdog's own; a run refuses it unless --allow-priority-99 "
+                "(the runner may then be unable to stop a runaway thread); use 98 or less"
+            )
+            out.append(Finding(path, why, right=True))
+        if sched.policy.is_realtime and limits.rtprio is not None and sched.rt_priority > limits.rtprio:
+            what = f"{who} asks for {sched.label()}, but on this machine this user has RLIMIT_RTPRIO {limits.rtprio} and no CAP_SYS_NICE"
+            out.append(Finding(path, f"{what}; {refused}", right=True))
+        elif sched.policy is Policy.DEADLINE and not limits.cap_sys_nice:
+            what = f"{who} asks for SCHED_DEADLINE, which needs CAP_SYS_NICE (no limit grants it), and this user has not it"
+            out.append(Finding(path, f"{what}; {refused}", right=True))
+        elif sched.nice is not None and sched.nice < 0 and limits.nice_limit is not None and 20 - sched.nice > limits.nice_limit:
+            what = (
+                f"{who} asks for nice {sched.nice}, which needs CAP_SYS_NICE or RLIMIT_NICE {20 - sched.nice}, but on this machine "
+                f"this user has RLIMIT_NICE {limits.nice_limit} and no CAP_SYS_NICE"
+            )
+            out.append(Finding(path, f"{what}; {refused}", right=True))
     return out
 
 
@@ -201,6 +292,7 @@ def _check_threads(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
                 f"but on this machine ({named}, {limits.threads_running} threads running) at most {max(room, 0)} can start; "
                 "lower count or instances"
             ),
+            elsewhere=True,
         )
     ]
 
@@ -210,19 +302,18 @@ def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
     for i, proc in enumerate(scenario.processes):
         if not isinstance(proc, ProcessSpec) or not proc.memory.lock or limits.memlock is None:
             continue
-        pinned = locked_bytes(proc, limits.default_stack)
-        if pinned > limits.memlock:
-            stacks = sum(t.count for t in proc.threads)
-            what = f"prealloc {units.format_size(proc.memory.prealloc)}" + (f" and {stacks} thread stacks" if stacks else "")
+        needed = memlock_needed(proc, limits.default_stack)
+        if needed > limits.memlock:
             out.append(
                 Finding(
                     ("processes", i, "memory"),
                     (
-                        f"process {proc.name} locks its memory: {what} pin at least {approx_size(pinned)}, "
-                        f"but on this machine RLIMIT_MEMLOCK is {approx_size(limits.memlock)} and the runner has no "
-                        "CAP_IPC_LOCK; lower prealloc (or stack_size), or raise the limit ('ulimit -l unlimited', "
-                        "'memlock unlimited' in /etc/security/limits.conf)"
+                        f"{memlock_words(proc, limits.default_stack)}, but on this machine RLIMIT_MEMLOCK is "
+                        f"{approx_size(limits.memlock)} and this user has no CAP_IPC_LOCK; a run here is refused (exit 3) "
+                        "unless it gets the right ('ulimit -l unlimited', 'memlock unlimited' in /etc/security/limits.d/, "
+                        "README, Permissions) or --allow-degraded"
                     ),
+                    right=True,
                 )
             )
     if limits.mem_available is not None:
@@ -236,9 +327,17 @@ def _check_memory(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
                         "programs' mem buffers and allocs, times instances and counts), but on this machine MemAvailable is "
                         f"{approx_size(limits.mem_available)}; lower prealloc, alloc, mem, count or instances"
                     ),
+                    elsewhere=True,
                 )
             )
     return out
+
+
+def memlock_words(proc: ProcessSpec, default_stack: int) -> str:
+    """`process app locks its memory: prealloc 128MiB and 6 thread stacks pin about 240MiB with the interpreter`."""
+    stacks = sum(t.count for t in proc.threads)
+    what = f"prealloc {units.format_size(proc.memory.prealloc)}" + (f" and {stacks} thread stacks" if stacks else "")
+    return f"process {proc.name} locks its memory: {what} pin about {approx_size(memlock_needed(proc, default_stack))} with the interpreter"
 
 
 def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
@@ -252,8 +351,11 @@ def _check_cpus(scenario: Scenario, limits: MachineLimits) -> list[Finding]:
             wanted.append((("processes", i, "cpus"), proc.cpus))
             wanted.extend((("processes", i, "threads", j, "cpus"), r.cpus) for j, r in enumerate(proc.threads))
             continue
-        wanted.append((("processes", i, "main", "cpus"), proc.main.cpus))
-        wanted.extend((("processes", i, "threads", j, "cpus"), t.cpus) for j, t in enumerate(proc.threads))
+        cpus_of = [proc.main.cpus] + [t.cpus for t in proc.threads]
+        for (at, _, work, _), cpus in zip(_owners(i, proc), cpus_of):
+            wanted.append((at + ("cpus",), cpus))
+            if isinstance(work, PhasesWork):
+                wanted.extend((at + ("work", "phases", k, "cpus"), ph.cpus) for k, (_, ph) in _phases(work))
     wanted.extend((("background", "hogs", h, "cpus"), hog.cpus) for h, hog in enumerate(scenario.background.hogs))
     online = set(limits.online) if limits.online else None
     for path, cpus in wanted:

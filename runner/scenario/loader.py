@@ -138,8 +138,10 @@ def load_scenario(path: str, machine: lim.MachineLimits | None = None, for_run: 
     """Read, validate and expand a scenario file, checked against this machine's limits
     (read here unless given); raise ScenarioError with all problems.
 
-    `for_run` False (`runner validate`) makes what only this machine lacks (a CPU) a warning:
-    the file is valid, it would run on a machine that has it.
+    A file's validity does not depend on the machine: with `for_run` False (`runner validate`,
+    `--list`, `import-rtapp`) what this machine lacks (a CPU, memory, threads, deadline bandwidth)
+    and what this user may not do (RT priorities, locked memory, priority 99) are warnings.  For a
+    run, what the machine lacks is an error (exit 2); rights are left to the run's preflight (exit 3).
     """
     notes: list[str] = []
     doc = _rtapp_document(path, notes, for_run) if path.endswith(".json") else load_file(path)
@@ -225,9 +227,11 @@ def _check_cell(
     cell_problems.extend(doc.problem(written_path(doc.data, path), message) for path, message in late)
     findings = lim.check(scenario, machine) if machine is not None else lim.static_check(scenario)
     for f in findings:
-        warn = f.elsewhere and not for_run
-        message = f.message + ("; the file is valid, but it cannot run here" if warn else "")
-        cell_problems.append(doc.problem(f.path, message, severity="warning" if warn else "error"))
+        if f.right and for_run:
+            continue  # the run's preflight tries each right on the kernel and says how to grant it (exit 3)
+        warn = (f.elsewhere or f.right) and not for_run
+        message = f.message + ("; the file is valid, but it cannot run here" if warn and f.elsewhere else "")
+        cell_problems.append(doc.problem(written_path(doc.data, f.path), message, severity="warning" if warn else "error"))
     return scenario, cell_problems
 
 
