@@ -111,16 +111,25 @@ def test_exit_code_1_when_an_expectation_fails(tmp_path):
 
 
 def test_exit_code_1_on_a_regression_against_the_baseline(tmp_path):
-    scenario = small(tmp_path)
+    # enough callbacks for a p99 to be judged (368 of 450), and a baseline nobody can match: every one of its
+    # 100,000 wake-ups at 1 ns, where SCHED_OTHER's 50 us timer slack alone puts each far above
+    scenario = tmp_path / "often.yaml"
+    scenario.write_text(
+        "name: often\nduration: 1800ms\nprocesses:\n  - name: often\n    main: {work: {kind: periodic, period: 4ms, burn: 100us}}\n"
+        "expect:\n  - {thread: often, metric: missed_releases, max: 50}\n"  # the comparison is tested here, not keeping up
+    )
     base = str(tmp_path / "base")
-    assert cli(scenario, "--cell", "sched=other,period=50ms", "--out", base, "--quiet", cwd=str(tmp_path)).returncode == 0
+    assert cli(str(scenario), "--out", base, "--quiet", cwd=str(tmp_path)).returncode == 0
     doc = json.load(open(os.path.join(base, "results.json")))
-    doc["cells"][0]["threads"][0]["figures"]["latency_ns"]["p99"] = 1  # a baseline nobody can match
+    thread = doc["cells"][0]["threads"][0]
+    thread["figures"]["latency_ns"].update({q: 1 for q in ("min", "p50", "p90", "p99", "p999", "max", "mean")})
+    thread["histograms"]["latency"] = {"buckets": [[1, 1, 100_000]], "min": 1, "max": 1}
     json.dump(doc, open(os.path.join(base, "results.json"), "w"))
     new = str(tmp_path / "new")
-    done = cli(scenario, "--cell", "sched=other,period=50ms", "--out", new, "--baseline", base, "--quiet", cwd=str(tmp_path))
+    done = cli(str(scenario), "--out", new, "--baseline", base, "--quiet", cwd=str(tmp_path))
     assert done.returncode == 1, done.stderr
-    assert "regression" in open(os.path.join(new, "comparison.md")).read()
+    comparison = open(os.path.join(new, "comparison.md")).read()
+    assert "regression" in comparison and "wake-up latency p99" in comparison
     assert "## Comparison with the baseline" in open(os.path.join(new, "report.md")).read()
 
 
