@@ -28,6 +28,16 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != REPO]
 SCENARIOS = os.path.join(REPO, "scenarios")
 
 
+def pyproject() -> dict[str, Any]:
+    """The repository's pyproject.toml (tomllib; on Python 3.10 tomli, which pytest itself requires there)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    with open(os.path.join(REPO, "pyproject.toml"), "rb") as handle:
+        return tomllib.load(handle)
+
+
 def _in_ci() -> bool:
     return os.environ.get("CI", "") not in ("", "0", "false")
 

