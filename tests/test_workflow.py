@@ -9,6 +9,7 @@ self-hosted labels.  In CI a missing linter fails the tests instead of skipping 
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import re
@@ -122,6 +123,49 @@ def test_workflow_shards_match_the_shard_count():
     assert flow[True]["schedule"]  # PyYAML reads the key `on` as True
 
 
+MATRIX_JOBS = 256  # GitHub runs at most this many jobs of one matrix in a workflow run
+
+
+def test_each_host_class_is_a_runner_label_with_its_shards_its_merge_and_its_own_artifacts():
+    """One shard job per class and shard on hosts labelled realtime and the class, one merge job per class; every artifact
+    of a class is named after it, so classes never take each other's shards or history."""
+    flow = yaml.safe_load(open(WORKFLOW))
+    shard, merge = flow["jobs"]["shard"], flow["jobs"]["merge"]
+    classes = shard["strategy"]["matrix"]["host_class"]
+    assert classes and merge["strategy"]["matrix"]["host_class"] == classes and len(set(classes)) == len(classes)
+    assert shard["runs-on"] == ["self-hosted", "linux", "realtime", "${{ matrix.host_class }}"]
+    assert len(classes) * len(shard["strategy"]["matrix"]["shard"]) <= MATRIX_JOBS and len(classes) <= MATRIX_JOBS
+    with open(CONFIG) as handle:
+        assert set(classes) <= set(yaml.safe_load(handle)["self-hosted-runner"]["labels"])
+    # `@` is in no label the docs allow, so `shard-*@CLASS` cannot match another class's artifact, even one named CLASS-2
+    assert all(re.fullmatch(r"[A-Za-z0-9_.-]+", c) for c in classes)
+    upload = {step["with"]["name"] for job in (shard, merge) for step in job["steps"] if "upload-artifact" in step.get("uses", "")}
+    assert upload == {"shard-${{ matrix.shard }}@${{ matrix.host_class }}", "nightly-history@${{ matrix.host_class }}",
+                      "nightly-results@${{ matrix.host_class }}"}  # fmt: skip
+    (download,) = [step for step in merge["steps"] if "download-artifact" in step.get("uses", "")]
+    pattern = download["with"]["pattern"].replace("${{ matrix.host_class }}", "rt-x86")
+    names = [f"shard-{k}@{c}" for k in (1, 2, 12) for c in ("rt-x86", "rt-x86-2", "big-rt-x86", "rt-x86.old")]
+    assert [n for n in names if fnmatch.fnmatchcase(n, pattern)] == ["shard-1@rt-x86", "shard-2@rt-x86", "shard-12@rt-x86"]
+    fetch = next(step for step in merge["steps"] if step.get("id") == "history")
+    assert '--name "nightly-history@$HOST_CLASS"' in fetch["run"] and merge["env"]["HOST_CLASS"] == "${{ matrix.host_class }}"
+
+
+# the first major of each action whose action.yml says `runs.using: node24` (checkout v5, upload-artifact v6, download-artifact v7,
+# setup-python v6): the Actions Runner runs Node 24 actions from 2.327.0, and these actions' READMEs ask for 2.327.1
+NODE24_FROM = {"actions/checkout": 5, "actions/setup-python": 6, "actions/upload-artifact": 6, "actions/download-artifact": 7}
+
+
+def test_the_header_says_which_actions_runner_and_what_else_the_hosts_need():
+    text = open(WORKFLOW).read()
+    flow = yaml.safe_load(text)
+    on_hosts = [step["uses"] for job in flow["jobs"].values() if "self-hosted" in job["runs-on"] for step in job["steps"] if "uses" in step]
+    assert on_hosts and all(int(ref.partition("@v")[2]) >= NODE24_FROM[ref.partition("@")[0]] for ref in on_hosts), on_hosts
+    header = " ".join(line.lstrip("# ") for line in text.split("\nname:", 1)[0].splitlines())
+    for needs in ("Actions Runner 2.327.1 or later", "python3-venv, python3-dev and gcc", "CAP_SYS_NICE", "tracefs", "root",
+                  "realtime,rt-x86", "256", "nightly-constraints.txt"):  # fmt: skip
+        assert needs in header, needs
+
+
 def _steps(flow: dict) -> list[dict]:
     return [step for job in flow["jobs"].values() for step in job["steps"]]
 
@@ -154,8 +198,9 @@ def test_the_night_is_judged_by_its_history_carried_from_night_to_night_and_a_pi
     flow = yaml.safe_load(open(WORKFLOW))
     steps = flow["jobs"]["merge"]["steps"]
     fetch = next(step for step in steps if step.get("id") == "history")
-    assert "--status" not in fetch["run"] and "--name nightly-history" in fetch["run"] and "RUNNER_HISTORY_URL" in str(fetch["env"])
-    keep = next(step for step in steps if step.get("with", {}).get("name") == "nightly-history")
+    assert "--status" not in fetch["run"] and '--name "nightly-history@$HOST_CLASS"' in fetch["run"]
+    assert "RUNNER_HISTORY_URL" in str(fetch["env"])
+    keep = next(step for step in steps if step.get("with", {}).get("name", "").startswith("nightly-history@"))
     assert keep["if"].startswith("always()") and keep["with"]["retention-days"] == 90
     merge = next(step["run"] for step in steps if "runner merge" in step.get("run", ""))
     assert "--junit merged/junit.xml" in merge and '--history "$history"' in merge and "runner history" in merge
@@ -166,3 +211,4 @@ def test_the_night_is_judged_by_its_history_carried_from_night_to_night_and_a_pi
     assert "history" in install
     shard = next(step for step in flow["jobs"]["shard"]["steps"] if "--shard" in step.get("run", ""))
     assert shard["env"]["RUNNER_ANNOTATIONS"] == "off"  # the merge job annotates once
+
