@@ -8,12 +8,15 @@ backend (tests/fakebackend.py); merge and compare run on the recorded matrix in 
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
+import subprocess
 import xml.etree.ElementTree as ET
 
 import pytest
 import xmlschema
-from conftest import SCENARIOS, run_cli
+from conftest import REPO, SCENARIOS, _in_ci, run_cli
 from fakebackend import Act, FakeBackend
 from reportdata import MATRIX, heavy_tail, latencies, main_thread, matrix, with_latencies
 from test_merge import split
@@ -75,7 +78,10 @@ def test_the_schema_refuses_what_readers_would_misread():
         '<testcase classname="c" name="n" time="0.5"/></testsuite></testsuites>'
     )
     SCHEMA.validate(good)
+    SCHEMA.validate(good.replace('name="n" ', 'name="n" file="s.yaml" line="12" '))  # where a reader annotates it
     for bad in (
+        good.replace('name="n" ', 'name="n" line="0" '),  # lines count from 1
+        good.replace('name="n" ', 'name="n" line="12:5" '),  # a line is a number, as readers parseInt it
         good.replace('tests="1"', 'tests="one"'),  # a count that is not a number
         good.replace('time="0.5"', 'time="1,5"'),  # a time that is not decimal seconds
         good.replace('name="n" ', ""),  # a test case without a name
@@ -107,6 +113,7 @@ def test_run_junit_has_a_suite_per_cell_with_matrix_properties_failures_and_erro
     # the report's words: the figure as the report names it, the limit, what was measured
     assert failure.get("message") == "minimal_schedul/minimal_schedul (main): involuntary switches per callback >= 1, measured 0.00"
     assert failure.text.startswith(f"{POLICY_MATRIX}:{line_of('min: 1')}:5: ")
+    assert (case.get("file"), case.get("line")) == (POLICY_MATRIX, str(line_of("min: 1")))  # where readers annotate it
 
     fifo = suite(root, FIFO10)
     (error,) = fifo.findall("testcase/error")
@@ -116,6 +123,60 @@ def test_run_junit_has_a_suite_per_cell_with_matrix_properties_failures_and_erro
         "minimal_schedul/minimal_schedul (main): involuntary.per_callback_mean <= 0.5",
         "minimal_schedul/minimal_schedul (main): latency.p99 <= 2ms",
     ]
+
+
+def _readers(junit: str) -> dict[str, list[dict[str, object]]]:
+    """Each test case as three report actions' own XML parsers read it: junitparser as EnricoMi's reads `file` and `line`
+    (publish/junit.py), xml-js as mikepenz's reads `_attributes`, xml2js as dorny's phpunit-junit reader reads `$`."""
+    import junitparser
+
+    enrico = [
+        {"name": c.name, "classname": c.classname, "file": c._elem.get("file"), "line": c._elem.get("line"), "failed": False}
+        for s in junitparser.JUnitXml.fromfile(junit)
+        for c in s
+    ]
+    for got, case in zip(enrico, ET.parse(junit).getroot().iter("testcase")):
+        got["failed"] = case.find("failure") is not None
+    modules = os.path.join(REPO, ".ci", "node_modules")
+    if shutil.which("node") is None or not all(os.path.isdir(os.path.join(modules, m)) for m in ("xml-js", "xml2js")):
+        if _in_ci():
+            pytest.fail("node, xml-js or xml2js is not installed; .ci/run installs them with npm")
+        pytest.skip("xml-js and xml2js are not installed (.ci/run's npm install line puts them in .ci/node_modules)")
+    done = subprocess.run(["node", os.path.join(REPO, ".ci", "junit-readers.cjs"), junit], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return {"junitparser": enrico, **json.loads(done.stdout)}
+
+
+def test_each_test_case_names_the_scenario_and_a_line_of_it_as_the_report_actions_read_them(tmp_path, monkeypatch):
+    """A failed expectation at its own line; the run, and a thread that could not keep up (an implicit verdict, no line of the
+    scenario declares it), at the file's first line.  The file as the run was given it, relative to where it ran."""
+    monkeypatch.chdir(REPO)
+    given = os.path.relpath(POLICY_MATRIX, REPO)
+    ns = _run_parser().parse_args(
+        [given, "--out", str(tmp_path / "r"), "--quiet", "--settle", "0", "--no-plots", "--junit", str(tmp_path / "j.xml")]
+    )
+    acts = {OTHER: Act(nivcsw=0), "policy=rr,priority=80": Act(served=0.5)}
+    assert run_scenario(load_scenario(given), RunOptions.from_namespace(ns, env={}), FakeBackend(acts)) == 1
+    junit = str(tmp_path / "j.xml")
+    parsed(open(junit, encoding="utf-8").read())
+    readers = _readers(junit)
+    assert readers["junitparser"] == readers["xml-js"] == readers["xml2js"], readers
+    cases = readers["junitparser"]
+    assert cases and all(c["file"] == given == "scenarios/policy_matrix.yaml" for c in cases)
+    by_name = {(c["classname"], c["name"]): (c["line"], c["failed"]) for c in cases}
+    other = f"policy_matrix.{OTHER}"
+    assert by_name[(other, "minimal_schedul/minimal_schedul (main): involuntary.per_callback_mean >= 1")] == (str(line_of("min: 1")), True)
+    assert by_name[(other, "run")] == ("1", False)
+    rr = "policy_matrix.policy=rr,priority=80"
+    implicit = [(name, line) for (suite, name), (line, failed) in by_name.items() if suite == rr and failed]
+    assert implicit and all(line == "1" and "missed_releases" in name for name, line in implicit), implicit
+
+
+def test_a_test_case_without_a_scenario_path_names_no_file_or_line():
+    doc = matrix()
+    doc.scenario.path = None
+    root = parsed(junit_xml(doc))
+    assert all(case.get("file") is None and case.get("line") is None for case in root.iter("testcase"))
 
 
 def test_cells_a_run_did_not_reach_are_skipped(tmp_path):

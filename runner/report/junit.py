@@ -6,10 +6,16 @@ what every reader takes (tests/junit.xsd checks it):
     <testsuites name="runner: SCENARIO" tests= failures= errors= time=>
       <testsuite name="SCENARIO: CELL" tests= failures= errors= skipped= time= timestamp= hostname= file=>
         <properties>   matrix.KEY = value for each matrix value, and the cell's status
-        <testcase classname="SCENARIO.CELL" name="run" time=>           the cell's run: <error> if it could not run
-        <testcase ... name="THREAD: FIGURE LIMIT">                      each expectation: <failure> if not met
-        <testcase ... name="THREAD: FIGURE against the baseline">       each compared figure: <failure> on a regression
+        <testcase classname="SCENARIO.CELL" name="run" file= line= time=>   the cell's run: <error> if it could not run
+        <testcase ... name="THREAD: FIGURE LIMIT">                          each expectation: <failure> if not met
+        <testcase ... name="THREAD: FIGURE against the baseline">           each compared figure: <failure> on a regression
         <system-out>   the cell's warnings and degradations, in words
+
+Each test case names the scenario file as the run was given it (`file`, relative to where it ran)
+and a line of it (`line`): an expectation's own line, and the file's first line for what no line of
+it declares (the run, an implicit verdict such as a thread that could not keep up, a figure against
+the baseline or the history).  GitLab shows `file`; the JUnit-report actions (mikepenz's, EnricoMi's,
+dorny's phpunit-junit reader) put a failure's annotation at `file`:`line`.
 
 One test suite per cell run, so a reader groups by cell and shows the matrix values.
 Test case names stay the same from run to run (they name the check, not its result), so
@@ -100,7 +106,10 @@ _TYPE = {
 
 
 def _case(classname: str, path: Optional[str], check: Check) -> ET.Element:
-    case = ET.Element("testcase", {"classname": xml_text(classname), "name": xml_text(check.name), "time": seconds(check.time_ns)})
+    attrs = {"classname": xml_text(classname), "name": xml_text(check.name)}
+    if path:
+        attrs.update(file=xml_text(path), line=str(check.line or 1))  # no line of its own: the scenario's first
+    case = ET.Element("testcase", {**attrs, "time": seconds(check.time_ns)})
     tag = _TAG.get(check.outcome)
     if tag is None:
         return case
