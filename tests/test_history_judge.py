@@ -197,3 +197,22 @@ def test_a_night_judged_twice_a_shard_then_the_merge_is_a_regression_both_times(
     first = judge([cell], P99, {}, "2026-01-11T02:16:00+00:00")
     again = judge([CellInput(**{**cell.__dict__, "recorded": first.change_points})], P99, {}, "2026-01-11T02:16:00+00:00")
     assert [f.verdict for f in first.figures] == [f.verdict for f in again.figures] == [Verdict.REGRESSION]
+
+
+def test_the_nights_after_a_reported_change_list_it_among_the_regressions_and_changes_not_only_in_every_figure():
+    """Night N+1 of a lasting regression passes (it was reported on night N): the section's table of regressions and
+    changes still shows it continued, not only the folded table of every figure."""
+    from runner.history.section import render
+
+    values = noise(20, seed=7) + [v * 4 for v in noise(2, seed=8)]
+    past = [point(n, v) for n, v in enumerate(values[:-1])]
+    reported = judge(
+        [CellInput("cell", "spec", past[-1].started_at, [row(past[-1])], {(THREAD, FIGURE): past[:-1]})], P99, {}, past[-1].started_at
+    )
+    tonight = point(21, values[-1])
+    cell = CellInput("cell", "spec", tonight.started_at, [row(tonight)], {(THREAD, FIGURE): past}, recorded=reported.change_points)
+    verdict = judge([cell], P99, {}, tonight.started_at)
+    assert [f.verdict for f in verdict.figures] == [Verdict.CONTINUING]
+    text = str(render(verdict, "history.sqlite"))
+    changes = text.split("### Regressions and changes", 1)[1].split("<details>", 1)[0] if "### Regressions and changes" in text else ""
+    assert "continuing a change" in changes, text
