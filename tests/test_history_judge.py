@@ -216,3 +216,19 @@ def test_the_nights_after_a_reported_change_list_it_among_the_regressions_and_ch
     text = str(render(verdict, "history.sqlite"))
     changes = text.split("### Regressions and changes", 1)[1].split("<details>", 1)[0] if "### Regressions and changes" in text else ""
     assert "continuing a change" in changes, text
+
+
+def test_a_fivefold_p99_on_the_sixth_night_is_a_regression_among_twenty_calm_figures():
+    """Five calm nights (p99 62 to 64 µs), then one thread's p99 ×5 while 20 others stay calm.  The range's tails had the
+    MAD's degrees of freedom, round(0.37 × 4) = 1 (Cauchy's): p = 0.005 for a jump of 70 spreads, 0.1 after Holm over 21
+    figures, so no jump at all was a regression before a history had a dozen nights, nor on the five after each change."""
+    draw = random.Random(5)
+    past: dict[tuple[str, str], list[Point]] = {}
+    rows = []
+    for t in range(21):
+        thread = f"t{t}"
+        past[(thread, FIGURE)] = [point(n, 63_000 * math.exp(draw.gauss(0, 0.01)), half=0.025) for n in range(5)]
+        tonight = point(5, 63_000 * (5 if t == 0 else math.exp(draw.gauss(0, 0.01))), half=0.025)
+        rows.append(FigureRow(thread, FIGURE, tonight.value, tonight.samples, tonight.low, tonight.high))
+    verdict = judge([CellInput("cell", "spec", stamp(5), rows, past)], P99, {}, stamp(5))
+    assert [(f.thread, f.verdict) for f in verdict.figures if f.verdict != Verdict.WITHIN] == [("t0", Verdict.REGRESSION)]

@@ -46,7 +46,6 @@ from runner.report.compare import Threshold
 MIN_NIGHTS = 5  # nights of a level before it is a range to judge against
 REFERENCE_NIGHTS = 30  # the most nights a range is learnt from (the first of a level, or the latest)
 KNOWN_DF = 1_000  # a spread known from the nights' sampling, not estimated from few of them: normal tails
-MAD_EFFICIENCY = 0.37  # the MAD's asymptotic efficiency against the standard deviation, for a normal law
 ALPHA = 0.01  # a night's family-wise level: a nightly gate at 5% would still cry wolf every three weeks
 WILD = 8.0  # a night this many robust standard deviations from the median is a wild one, left out of the standard deviation
 PENALTY = 3.0  # change-point penalty, in robust standard deviations per log(nights)
@@ -340,8 +339,10 @@ def _spread(fig: fg.Figure, level: Sequence[Point], centre_of: Sequence[Point] =
 
     The MAD, made consistent for a normal law and for few nights (k / (k - 0.8), Croux and Rousseeuw's
     correction), never below the nights' own sampling error; a new night varies by that and by the
-    centre's own uncertainty, sqrt(1 + 1/k); Student's t for its tails, with the degrees of freedom of a standard
-    deviation as certain as the MAD of k nights is (37% as efficient: 0.37 (k - 1)).  Night-to-night figures have heavy
+    centre's own uncertainty, sqrt(1 + 1/k); Student's t for its tails with the k - 1 degrees of freedom of the nights'
+    standard deviation: the spread is never below that standard deviation, so the range is at least as wide as normal
+    theory's prediction interval for a new night.  (With the MAD's own, 0.37 (k - 1), a history of five nights had
+    Cauchy's tails: a p99 ×5 was not a regression among 21 figures.)  Night-to-night figures have heavy
     tails (a calm fortnight, then a night 1.7 times as high, nothing changed): when the nights' standard deviation is
     larger than their MAD says, it is the spread (k - 1 degrees of freedom), so one calm stretch does not make the range
     too narrow to hold the next ordinary wild night.  When the nights vary less than
@@ -363,9 +364,8 @@ def _spread(fig: fg.Figure, level: Sequence[Point], centre_of: Sequence[Point] =
         centre, k = _median([y(fig, p.value, add) for p in centre_of]), len(centre_of)
     if max(robust, classical) < sampling:  # the nights vary less than their sampling says they must
         return centre, max(sampling, 1e-9) * math.sqrt(1 + 1 / k), KNOWN_DF
-    if classical > robust:  # tails heavier than the calm nights' MAD says: the spread of every night counts
-        return centre, classical * math.sqrt(1 + 1 / k), max(1, len(trimmed) - 1)
-    return centre, max(robust, 1e-9) * math.sqrt(1 + 1 / k), max(1, round(MAD_EFFICIENCY * (len(ys) - 1)))
+    # tails heavier than the calm nights' MAD says: the spread of every night counts
+    return centre, max(robust, classical, 1e-9) * math.sqrt(1 + 1 / k), max(1, len(trimmed) - 1)
 
 
 def _t_quantile(p: float, df: int) -> float:
