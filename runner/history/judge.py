@@ -28,6 +28,7 @@ comparison); a cell whose spec changed starts a history of its own (its spec has
 from __future__ import annotations
 
 import enum
+import functools
 import itertools
 import math
 import statistics
@@ -368,8 +369,9 @@ def _spread(fig: fg.Figure, level: Sequence[Point], centre_of: Sequence[Point] =
     return centre, max(robust, classical, 1e-9) * math.sqrt(1 + 1 / k), max(1, len(trimmed) - 1)
 
 
+@functools.cache
 def _t_quantile(p: float, df: int) -> float:
-    """The t quantile by bisection on `stats.t_sf` (for the range shown)."""
+    """The t quantile by bisection on `stats.t_sf` (for the range shown); remembered: a night asks for the same few."""
     low, high = 0.0, 1_000.0
     for _ in range(80):
         mid = (low + high) / 2
