@@ -176,7 +176,11 @@ def normal_sf(z: float) -> float:
 
 
 def t_sf(t: float, df: int) -> float:
-    """P(T >= t) for Student's T with `df` (whole) degrees of freedom: the closed sums of Abramowitz and Stegun 26.7.3-4."""
+    """P(T >= t) for Student's T with `df` (whole) degrees of freedom: the closed sums of Abramowitz and Stegun 26.7.3-4.
+
+    They give P(|T| < t); far out (a tail below 1e-3) the tail is summed itself, the rest of the same series (its terms
+    shrink by cos² θ = df / (df + t²) each), since 1 minus a sum near 1 keeps no digit of a tail below 1e-16.
+    """
     if df < 1:
         raise ValueError(f"t_sf: df {df}: expected at least 1")
     theta = math.atan(abs(t) / math.sqrt(df))
@@ -194,7 +198,34 @@ def t_sf(t: float, df: int) -> float:
             total += term
         inside = sin * total
     tail = max(0.0, (1 - inside) / 2)
+    if tail < 1e-3:  # 1 minus a sum near 1: the tail summed itself keeps its digits
+        tail = _t_far(abs(t), df) / 2
     return tail if t >= 0 else 1 - tail
+
+
+def _t_far(t: float, df: int) -> float:
+    """P(|T| >= t): the terms of 26.7.3-4's series past the last one they keep, summed.
+
+    With x = cos² θ = df / (df + t²): even df, sin θ · Σ_{k >= df/2} c_k x^k with c_k = Γ(k + 1/2) / (√π Γ(k + 1));
+    odd df, (2/π) sin θ cos θ · Σ_{k >= (df-1)/2} d_k x^k with d_k = √π Γ(k + 1) / (2 Γ(k + 3/2)) (the whole series
+    sum to 1 / sin θ and (π/2 - θ) / (sin θ cos θ)).
+    """
+    x = df / (df + t * t)
+    sin, cos = t / math.sqrt(df + t * t), math.sqrt(x)
+    even = df % 2 == 0
+    k = df // 2 if even else (df - 1) // 2
+    if even:
+        log_first = math.lgamma(k + 0.5) - 0.5 * math.log(math.pi) - math.lgamma(k + 1) + k * math.log(x)
+        front = sin
+    else:
+        log_first = 0.5 * math.log(math.pi) + math.lgamma(k + 1) - math.log(2) - math.lgamma(k + 1.5) + k * math.log(x)
+        front = 2 / math.pi * sin * cos
+    term = total = math.exp(log_first) if log_first > -745 else 0.0
+    while term > total * _TINY:
+        term *= x * ((2 * k + 1) / (2 * k + 2) if even else (2 * k + 2) / (2 * k + 3))
+        total += term
+        k += 1
+    return min(1.0, front * total)
 
 
 def normal_quantile(p: float) -> float:
@@ -243,8 +274,8 @@ def min_samples(q: float, confidence: float = CONFIDENCE) -> int:
     """The fewest samples for which the q-quantile has a two-sided distribution-free interval at `confidence`.
 
     Its ends are order statistics: the top one exists only when the chance that every sample falls
-    below the quantile, q^n, is below half the error allowed (367 samples for a p99, 3,687 for a
-    p99.9, 6 for a median).  An extreme (q 0 or 1) never has one.
+    below the quantile, q^n, is below half the error allowed (368 samples for a p99: 0.99^367 is
+    0.02501; 3,688 for a p99.9, 6 for a median).  An extreme (q 0 or 1) never has one.
     """
     if q <= 0 or q >= 1:
         return 0

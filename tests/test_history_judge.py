@@ -158,3 +158,77 @@ def test_a_worst_slack_is_judged_by_how_many_samples_lie_beyond_the_past_nights_
 
     assert tonight(1) == Verdict.WITHIN
     assert tonight(10) == Verdict.REGRESSION
+
+
+def regressions_of(values: list[float]) -> list[int]:
+    return [n for n, v, _ in nights(values) if v == Verdict.REGRESSION]
+
+
+def test_a_wild_night_the_nights_came_back_from_does_not_restart_the_history_nor_widen_its_range():
+    """One night ×5, reported, then four nights back at the old level: it was a wild night, not a level.  The history
+    restarted at it, its range [20 µs, 168 µs] held a lasting +60% step from night 25 on, never reported."""
+    values = noise(25, seed=9)
+    values[12] *= 5
+    values += [v * 1.6 for v in noise(10, seed=10)]
+    assert regressions_of(values) == [12, 25]
+
+
+def test_a_wild_night_while_learning_does_not_hide_a_later_step():
+    """Night 2 ×5 (learning, so never judged) stayed in every range after it: the nights' standard deviation, taken as the
+    spread whenever larger than their MAD, made a range too wide for a lasting +60% step from night 20."""
+    values = noise(20, seed=9)
+    values[2] *= 5
+    values += [v * 1.6 for v in noise(10, seed=10)]
+    assert regressions_of(values) == [20]
+
+
+def test_a_further_step_while_a_change_is_continued_is_reported_too():
+    """+60% from night 20 (reported), then ×2.5 more from night 22: the nights after a change were 'continuing' it
+    whatever they were, so the second, larger step was never reported."""
+    values = noise(20, seed=9) + [v * 1.6 for v in noise(2, seed=10)] + [v * 4 for v in noise(13, seed=11)]
+    assert regressions_of(values) == [20, 22]
+
+
+def test_a_night_judged_twice_a_shard_then_the_merge_is_a_regression_both_times():
+    """The merge of the shards judges a cell the shard already judged and reported: its change point is tonight's own."""
+    past = [point(n, v) for n, v in enumerate(noise(10, seed=1))]
+    tonight = point(10, 60_000 * 3)
+    cell = CellInput("cell", "spec", tonight.started_at, [row(tonight)], {(THREAD, FIGURE): past})
+    first = judge([cell], P99, {}, "2026-01-11T02:16:00+00:00")
+    again = judge([CellInput(**{**cell.__dict__, "recorded": first.change_points})], P99, {}, "2026-01-11T02:16:00+00:00")
+    assert [f.verdict for f in first.figures] == [f.verdict for f in again.figures] == [Verdict.REGRESSION]
+
+
+def test_the_nights_after_a_reported_change_list_it_among_the_regressions_and_changes_not_only_in_every_figure():
+    """Night N+1 of a lasting regression passes (it was reported on night N): the section's table of regressions and
+    changes still shows it continued, not only the folded table of every figure."""
+    from runner.history.section import render
+
+    values = noise(20, seed=7) + [v * 4 for v in noise(2, seed=8)]
+    past = [point(n, v) for n, v in enumerate(values[:-1])]
+    reported = judge(
+        [CellInput("cell", "spec", past[-1].started_at, [row(past[-1])], {(THREAD, FIGURE): past[:-1]})], P99, {}, past[-1].started_at
+    )
+    tonight = point(21, values[-1])
+    cell = CellInput("cell", "spec", tonight.started_at, [row(tonight)], {(THREAD, FIGURE): past}, recorded=reported.change_points)
+    verdict = judge([cell], P99, {}, tonight.started_at)
+    assert [f.verdict for f in verdict.figures] == [Verdict.CONTINUING]
+    text = str(render(verdict, "history.sqlite"))
+    changes = text.split("### Regressions and changes", 1)[1].split("<details>", 1)[0] if "### Regressions and changes" in text else ""
+    assert "continuing a change" in changes, text
+
+
+def test_a_fivefold_p99_on_the_sixth_night_is_a_regression_among_twenty_calm_figures():
+    """Five calm nights (p99 62 to 64 µs), then one thread's p99 ×5 while 20 others stay calm.  The range's tails had the
+    MAD's degrees of freedom, round(0.37 × 4) = 1 (Cauchy's): p = 0.005 for a jump of 70 spreads, 0.1 after Holm over 21
+    figures, so no jump at all was a regression before a history had a dozen nights, nor on the five after each change."""
+    draw = random.Random(5)
+    past: dict[tuple[str, str], list[Point]] = {}
+    rows = []
+    for t in range(21):
+        thread = f"t{t}"
+        past[(thread, FIGURE)] = [point(n, 63_000 * math.exp(draw.gauss(0, 0.01)), half=0.025) for n in range(5)]
+        tonight = point(5, 63_000 * (5 if t == 0 else math.exp(draw.gauss(0, 0.01))), half=0.025)
+        rows.append(FigureRow(thread, FIGURE, tonight.value, tonight.samples, tonight.low, tonight.high))
+    verdict = judge([CellInput("cell", "spec", stamp(5), rows, past)], P99, {}, stamp(5))
+    assert [(f.thread, f.verdict) for f in verdict.figures if f.verdict != Verdict.WITHIN] == [("t0", Verdict.REGRESSION)]

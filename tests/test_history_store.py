@@ -195,3 +195,30 @@ def test_a_urls_password_is_never_shown():
     assert hs.shown("postgresql://lab:s3cret@db.example:5432/nights") == "postgresql://lab:***@db.example:5432/nights"
     assert hs.shown("postgresql://lab@db.example/nights") == "postgresql://lab@db.example/nights"
     assert hs.shown("/var/lib/runner/history.sqlite") == "/var/lib/runner/history.sqlite"
+
+
+def test_a_night_and_the_change_points_it_reported_go_in_together_or_not_at_all(target, monkeypatch):
+    """A night whose regression was reported, stored without its change point (the write of it failed, the runner was
+    killed between the two), would report the same change again the next night: one transaction holds both."""
+    from runner.history.apply import judged_into
+    from runner.report.compare import DEFAULT_THRESHOLDS
+
+    with hs.open_store(target) as store:
+        for hour in range(5):
+            judged_into(store, night(hour * 24, seed=hour + 1), f"r{hour}", list(DEFAULT_THRESHOLDS))
+    regressed = with_latencies(night(5 * 24), "policy=fifo,priority=80", [v * 5 for v in latencies(2_000, seed=9)])
+    real = hs.Store._run
+
+    def failing(self, text, args=()):
+        if text.startswith("INSERT INTO change_points"):
+            raise sqlite3.OperationalError("disk I/O error")
+        return real(self, text, args)
+
+    monkeypatch.setattr(hs.Store, "_run", failing)
+    with pytest.raises(hs.HistoryError), hs.open_store(target) as store:
+        judged_into(store, regressed, "r5", list(DEFAULT_THRESHOLDS))
+    monkeypatch.setattr(hs.Store, "_run", real)
+    with hs.open_store(target) as store:
+        assert len(store.nights()) == 5 and store.change_points() == []
+        verdict = judged_into(store, regressed, "r5", list(DEFAULT_THRESHOLDS))
+        assert verdict.change_points and len(store.change_points()) == len(verdict.change_points)

@@ -200,3 +200,17 @@ def test_a_spread_that_says_how_many_values_it_holds_is_judged_on_that_count_wit
     thread = thread.model_copy(update={"figures": thread.figures.model_copy(update={"lock_wait_ns": spread20})})
     got = estimate(fg.figure("lock_wait.p99"), [thread], [2_000_000_000])
     assert got is not None and got.few and got.lacking.startswith("20 events; p99 needs at least 368")
+
+
+def test_students_t_tail_keeps_its_precision_far_out():
+    """The closed sums gave 1 - (1 - tail): 1.1e-16 for 7e-73 (df 30, t 50), 0 for 1.4e-274 (df 1000, t 50).  Far out, the
+    tail is summed itself.  Closed forms for df 1 and 2; for others, scipy's (boost's incomplete beta) values."""
+    for t in (0.5, 3.0, 40.0, 1e3, 1e8):
+        assert stats.t_sf(t, 1) == pytest.approx(math.atan(1 / t) / math.pi, rel=1e-12, abs=0)
+        root = math.sqrt(2 + t * t)
+        assert stats.t_sf(t, 2) == pytest.approx(1 / (root * (root + t)), rel=1e-12, abs=0)
+    known = {(30, 50.0): 9.357708829611355e-31, (1000, 10.0): 8.335351479300069e-23, (1000, 50.0): 1.379336206162586e-274}
+    known |= {(5, 10.0): 8.547378787148181e-05, (7, 2.5): 0.020496109292876444, (1000, 5.0): 3.3836281823243174e-07}
+    for (df, t), want in known.items():
+        assert stats.t_sf(t, df) == pytest.approx(want, rel=1e-9, abs=0), (df, t)
+        assert stats.t_sf(-t, df) == pytest.approx(1 - want, rel=1e-12)

@@ -2,7 +2,7 @@
 
 Called once the night's results.json is written (a run, a merge) or for each results file imported
 (`runner history FILE --import`): its cells' past series are read from the store, judged, and the
-night is added with the change points it reported, in one transaction each.
+night is added with the change points it reported, in one transaction.
 """
 
 from __future__ import annotations
@@ -51,9 +51,7 @@ def judged_into(store: Store, doc: RunDocument, results: str, thresholds: Sequen
             )
         )
     verdict = judge(cells, thresholds, environments, night.started_at)
-    store.add(night, results)
-    for point in verdict.change_points:
-        store.add_change_point(night.host, point)
+    store.add(night, results, verdict.change_points)
     return verdict
 
 

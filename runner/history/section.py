@@ -1,7 +1,7 @@
 """A night's verdicts against its history as the report's section and the terminal's headline.  Pure.
 
 `## Against the history`: a headline (regressions first, or what was judged and how many nights it
-stood on), the night's notes (cells whose spec changed), the regressions and changes of level with
+stood on), the night's notes (cells whose spec changed), the regressions and changes of level (and those continued) with
 their words, and every figure judged.
 """
 
@@ -65,7 +65,7 @@ def render(verdict: NightVerdict, target: str) -> Markdown:
         "first night, with what changed in the environment that night.",
         "",
     ]
-    bad = [f for f in verdict.figures if f.verdict in (*FAILED, Verdict.BETTER)]
+    bad = [f for f in verdict.figures if f.verdict in (*FAILED, Verdict.BETTER, Verdict.CONTINUING)]
     if bad:
         lines += ["### Regressions and changes", "", _table(bad).render(), ""]
     if verdict.figures:

@@ -201,11 +201,15 @@ class Store:
 
     # ------------------------------------------------------------ writing
 
-    def add(self, night: NightRecord, results: str) -> int:
-        """Add a night in one transaction; return how many of its cells were new (a cell already there is left as it is)."""
+    def add(self, night: NightRecord, results: str, change_points: Sequence[ChangePoint] = ()) -> int:
+        """Add a night and the change points it reported in one transaction (never one without the other: a night kept
+        without its change point would report it again the next night); return how many of its cells were new (a cell
+        already there is left as it is)."""
         added = 0
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
         with self._write():
+            for point in change_points:
+                self._change_point(night.host, point)
             row = self._run(
                 "INSERT INTO nights (host, started_at, finished_at, added_at, scenario, scenario_hash, runner_version, shard, results, "
                 "environment) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) RETURNING id",
@@ -248,19 +252,18 @@ class Store:
                     )
         return added
 
-    def add_change_point(self, host: str, point: ChangePoint) -> None:
-        with self._write():
-            there = self._run(
-                "SELECT 1 FROM change_points WHERE host = ? AND cell = ? AND spec_hash = ? AND thread = ? AND figure = ? "
-                "AND started_at = ?",
-                (host, point.cell, point.spec_hash, point.thread, point.figure, point.started_at),
-            ).fetchone()
-            if not there:
-                self._run(
-                    "INSERT INTO change_points (host, cell, spec_hash, started_at, thread, figure, reported_at, words) "
-                    "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                    (host, point.cell, point.spec_hash, point.started_at, point.thread, point.figure, point.reported_at, point.words),
-                )
+    def _change_point(self, host: str, point: ChangePoint) -> None:
+        """Record a change point (in the caller's transaction); one already there is left as it is."""
+        there = self._run(
+            "SELECT 1 FROM change_points WHERE host = ? AND cell = ? AND spec_hash = ? AND thread = ? AND figure = ? AND started_at = ?",
+            (host, point.cell, point.spec_hash, point.thread, point.figure, point.started_at),
+        ).fetchone()
+        if not there:
+            self._run(
+                "INSERT INTO change_points (host, cell, spec_hash, started_at, thread, figure, reported_at, words) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (host, point.cell, point.spec_hash, point.started_at, point.thread, point.figure, point.reported_at, point.words),
+            )
 
     # ------------------------------------------------------------ reading
 
