@@ -294,6 +294,7 @@ def test_the_claim_is_the_kernels_lock_so_another_process_sees_it(tmp_path):
         [sys.executable, "-c", "import sys; from runner import outdir; outdir.claim(sys.argv[1])", str(tmp_path)],
         capture_output=True,
         text=True,
+        cwd="/",
     )
     held.release()
     assert probe.returncode != 0 and "in use by another runner" in probe.stderr
@@ -341,7 +342,7 @@ def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path, killed):
         "print(p.pid, g.proc.pid, flush=True)\n"
         "time.sleep(60)\n"
     )
-    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd="/")
     assert owner.stdout is not None
     pgid, guard_pid = map(int, owner.stdout.readline().split())
     time.sleep(0.3)

@@ -123,6 +123,7 @@ def _runner_ps() -> subprocess.Popen[str]:
         stderr=subprocess.PIPE,
         text=True,
         env=env(),
+        cwd="/",  # the installed runner, not the clone's source tree (a non-editable install leaves no native core there)
     )
 
 
@@ -236,7 +237,7 @@ def test_runner_ps_shows_names_with_escape_sequences_and_newlines_as_real_ps_doe
         assert proc.stdout is not None
         pid = proc.stdout.readline().strip()
         ps = subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", pid], capture_output=True, env=utf8, check=True).stdout
-        ours = subprocess.run([sys.executable, "-m", "runner", "ps", pid], capture_output=True, env=utf8, check=True).stdout
+        ours = subprocess.run([sys.executable, "-m", "runner", "ps", pid], capture_output=True, env=utf8, check=True, cwd="/").stdout
     finally:
         proc.kill()
         proc.wait()

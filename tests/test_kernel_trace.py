@@ -201,7 +201,8 @@ def _sweep_in_another_pid_namespace(root: str, owner: int) -> list[str]:
         f"assert not os.path.exists('/proc/{owner}'), 'the namespace sees the owner'\n"
         f"print(' '.join(tracing.remove_stale({root!r}, owner={owner})))\n"
     )
-    done = subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", code], capture_output=True, text=True)
+    argv = ["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", code]
+    done = subprocess.run(argv, capture_output=True, text=True, cwd="/")
     assert done.returncode == 0, done.stderr
     return done.stdout.split()
 
