@@ -93,7 +93,8 @@ def test_a_process_named_in_bytes_that_are_not_utf8_is_read_listed_and_shown() -
         text=True,
     )
     try:
-        assert named.stdout is not None and named.stdout.readline() == "\n"  # named by now
+        assert named.stdout is not None and select.select([named.stdout], [], [], 10)[0], "not named within 10 s"  # never a hang
+        assert named.stdout.readline() == "\n"  # named by now
         assert kernel.thread_comm(named.pid, named.pid) == "bad\ufffd\ufffdname"
         assert kernel.find_pids("bad") == []  # every process on the machine listed, this one too
         assert kernel.thread_counters(named.pid, named.pid) is not None
