@@ -11,11 +11,11 @@ import time
 from multiprocessing import Process
 
 import pytest
-from kernelrun import can_use_rt, env
+from kernelrun import env, needs_rt
 
 from runner.history.store import open_store
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIFO80 = os.path.join(REPO, "scenarios", "fifo80.yaml")
