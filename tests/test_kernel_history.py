@@ -23,7 +23,7 @@ FIFO80 = os.path.join(REPO, "scenarios", "fifo80.yaml")
 
 def night(tmp_path, name: str, history: str) -> subprocess.CompletedProcess[str]:
     argv = [sys.executable, "-m", "runner", FIFO80, "--duration", "1s", "--out", str(tmp_path / name), "--quiet", "--no-plots"]
-    return subprocess.run([*argv, "--history", history], capture_output=True, text=True, env=env(), timeout=120, check=False)
+    return subprocess.run([*argv, "--history", history], capture_output=True, text=True, env=env(), timeout=120, check=False, cwd=tmp_path)
 
 
 def steal(cpu: int, stop_at: float) -> None:
