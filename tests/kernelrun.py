@@ -10,10 +10,13 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional
 
+import pytest
+
 from runner.run.kernel import find_pids, thread_rows
 
 
 def can_use_rt() -> bool:
+    """Whether this process may use SCHED_FIFO: tried on the kernel, and put back."""
     try:
         param = os.sched_getparam(0)
         policy = os.sched_getscheduler(0)
@@ -22,6 +25,33 @@ def can_use_rt() -> bool:
         return True
     except OSError:
         return False
+
+
+# The skips of tests that need a right, declared once so every reason in the `-ra` summary names the right
+# and how one has it (an ordinary user's README test command passes, skipping these; CI refuses to, conftest.py).
+RT_REASON = "needs the right to use SCHED_FIFO (root, CAP_SYS_NICE or RLIMIT_RTPRIO above 0)"
+needs_rt = pytest.mark.skipif(not can_use_rt(), reason=RT_REASON)
+TRACING_REASON = "tracing needs root (tracefs is root's)"
+needs_tracing = pytest.mark.skipif(os.geteuid() != 0, reason=TRACING_REASON)
+
+
+def unprivileged_prefix() -> tuple[tuple[str, ...], str]:
+    """The command prefix that drops this process's RT rights, and who that leaves: always the same way down, whatever
+    the machine: root stripped of every capability (securebits), or, when the tests do not run as root (their RT
+    rights then come from RLIMIT_RTPRIO), this user with RLIMIT_RTPRIO lowered to 0, soft and hard.
+
+    Not `nobody`: whether nobody can reach the interpreter and the test's folder depends on where the
+    virtual environment and the temporary folder happen to be, and made the outcome machine-dependent.
+    """
+    if os.geteuid() != 0:
+        return ("prlimit", "--rtprio=0:0", "--nice=0:0"), f"uid {os.geteuid()} with RLIMIT_RTPRIO 0"
+    return (
+        "setpriv",
+        "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
+        "--bounding-set=-all",
+        "--inh-caps=-all",
+        "--ambient-caps=-all",
+    ), "root without capabilities"
 
 
 def env() -> dict[str, str]:

@@ -249,7 +249,8 @@ def test_an_os_error_on_a_path_is_one_line_naming_it(capsys):
 
 @pytest.mark.parametrize("out", ["/proc/nope", "/proc/version", "/dev/null/x"])
 def test_an_output_folder_that_cannot_be_made_is_invalid_input(out):
-    done = run_cli(os.path.join(SCENARIOS, "fifo80.yaml"), "--out", out, "--duration", "1s")
+    # other.yaml asks for no right: an ordinary user's run reaches the folder too (fifo80's stopped at its rights, exit 3)
+    done = run_cli(os.path.join(SCENARIOS, "other.yaml"), "--out", out, "--duration", "1s")
     assert done.code == 2, done.err
     assert "Traceback" not in done.err and out in done.err and len(done.err.strip().splitlines()) == 1
 
@@ -294,6 +295,7 @@ def test_the_claim_is_the_kernels_lock_so_another_process_sees_it(tmp_path):
         [sys.executable, "-c", "import sys; from runner import outdir; outdir.claim(sys.argv[1])", str(tmp_path)],
         capture_output=True,
         text=True,
+        cwd="/",
     )
     held.release()
     assert probe.returncode != 0 and "in use by another runner" in probe.stderr
@@ -341,7 +343,7 @@ def test_guard_kills_a_watched_group_when_its_owner_dies(tmp_path, killed):
         "print(p.pid, g.proc.pid, flush=True)\n"
         "time.sleep(60)\n"
     )
-    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd="/")
     assert owner.stdout is not None
     pgid, guard_pid = map(int, owner.stdout.readline().split())
     time.sleep(0.3)

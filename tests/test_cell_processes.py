@@ -86,13 +86,15 @@ def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:
 def test_a_process_named_in_bytes_that_are_not_utf8_is_read_listed_and_shown() -> None:
     """comm is any 15 bytes a process sets (a UTF-8 name cut mid-character): once an internal error, a dead monitor."""
     named = subprocess.Popen(
-        [sys.executable, "-c", "import ctypes, sys; ctypes.CDLL(None).prctl(15, b'bad\\xff\\xfename', 0, 0, 0); print(); sys.stdin.read()"],
+        # flushed: a pipe is block-buffered unless PYTHONUNBUFFERED is set, which an ordinary user's shell does not set
+        [sys.executable, "-c", "import ctypes; ctypes.CDLL(None).prctl(15, b'bad\\xff\\xfename', 0, 0, 0); print(flush=True); input()"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
     )
     try:
-        assert named.stdout is not None and named.stdout.readline() == "\n"  # named by now
+        assert named.stdout is not None and select.select([named.stdout], [], [], 10)[0], "not named within 10 s"  # never a hang
+        assert named.stdout.readline() == "\n"  # named by now
         assert kernel.thread_comm(named.pid, named.pid) == "bad\ufffd\ufffdname"
         assert kernel.find_pids("bad") == []  # every process on the machine listed, this one too
         assert kernel.thread_counters(named.pid, named.pid) is not None

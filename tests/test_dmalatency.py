@@ -16,7 +16,7 @@ import time
 import pytest
 from conftest import SCENARIOS, run_cli
 from fakebackend import FakeBackend
-from kernelrun import can_use_rt, finish, start_runner, wait_for_threads
+from kernelrun import finish, needs_rt, start_runner, wait_for_threads
 
 from runner.cli import _run_parser
 from runner.errors import UsageError
@@ -179,7 +179,7 @@ def test_dma_the_kernel_holds_the_value_while_the_device_is_open():
 
 @pytest.mark.kernel
 @writable
-@pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")
+@needs_rt
 @pytest.mark.parametrize(("args", "held"), [((), True), (("--no-dma-latency",), False)])
 def test_dma_a_real_run_holds_the_device_at_0_and_lets_it_go(tmp_path, args, held):
     before = dmalatency.read_value()

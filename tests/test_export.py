@@ -18,6 +18,7 @@ from hdrh.histogram import HdrHistogram
 from hdrh.log import HistogramLogReader
 from hypothesis import given as examples
 from hypothesis import strategies as st
+from kernelrun import needs_rt
 
 from runner import histogram as hg
 from runner.errors import UsageError
@@ -166,6 +167,7 @@ def test_a_run_of_several_cells_needs_cell_and_a_wrong_one_is_named():
 
 @pytest.mark.kernel
 @pytest.mark.skipif(shutil.which("cyclictest") is None, reason="cyclictest (rt-tests) not installed")
+@needs_rt  # cyclictest refuses to start without it, whatever its --policy
 def test_the_formats_match_a_real_cyclictests(tmp_path):
     out = tmp_path / "c.json"
     done = subprocess.run(

@@ -126,11 +126,14 @@ BAD_ROWS = [
 ]
 
 
-def _spoil_samples(folder: str, how: str, index: int) -> None:
+def _spoil_samples(folder: str, how: str, index: int, outside: str = "/etc/hostname") -> None:
+    """Spoil one of the folder's sample files as `how` says; "symlink" makes it a link to `outside`, a file out of the folder."""
     files = sorted(os.path.join(d, f) for d, _, fs in os.walk(os.path.join(folder, "cells")) for f in fs)
     if not files:
         return
     path = Path(files[index % len(files)])
+    if path.is_symlink():  # spoilt into a link already: a write would go into `outside` (as root, /etc/hostname)
+        return
     if how == "truncate":
         data = path.read_bytes()
         path.write_bytes(data[: len(data) // 2])
@@ -142,7 +145,7 @@ def _spoil_samples(folder: str, how: str, index: int) -> None:
         os.unlink(path)
     elif how == "symlink":
         os.unlink(path)
-        os.symlink("/etc/hostname", path)
+        os.symlink(outside, path)
 
 
 def _lay_out(tmp: str, case: tuple[str, str, list[tuple[str, Any]]]) -> str:
@@ -194,6 +197,19 @@ def test_mutated_results_never_crash_report_compare_or_merge(case):
 def test_mutated_results_never_crash_the_plots(case):
     with tempfile.TemporaryDirectory() as tmp:
         _check(("report", _lay_out(tmp, case)))
+
+
+def test_a_sample_spoilt_into_a_link_is_never_written_through(tmp_path):
+    """A link, then rows: as root the fuzz once wrote gzip bytes into /etc/hostname; as anyone else it failed on EACCES."""
+    folder = tmp_path / "run"
+    (folder / "cells" / "c").mkdir(parents=True)
+    (folder / "cells" / "c" / "samples.csv.gz").write_bytes(gzip.compress(b"thread\n"))
+    outside = tmp_path / "outside"
+    outside.write_bytes(b"kept\n")
+    for how in ("truncate", "rows", "empty"):
+        _spoil_samples(str(folder), "symlink", 0, outside=str(outside))
+        _spoil_samples(str(folder), how, 0, outside=str(outside))
+        assert outside.read_bytes() == b"kept\n", how
 
 
 def test_the_fuzzer_reaches_every_outcome():

@@ -16,13 +16,24 @@ import time
 
 import pytest
 from conftest import SCENARIOS
-from kernelrun import can_use_rt, documented_exit, env, failed_metrics, finish, ps_table, start_runner, thread, wait_for_threads
+from kernelrun import (
+    documented_exit,
+    env,
+    failed_metrics,
+    finish,
+    needs_rt,
+    ps_table,
+    start_runner,
+    thread,
+    unprivileged_prefix,
+    wait_for_threads,
+)
 
 from runner import units
 from runner.results.pstable import render_ps
 from runner.run.kernel import find_pids, pid_width, thread_rows
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 MW = ["minimal_schedul", "gc", "dq.builtins", "dq.user", "tev", "recv", "recvMC", "recvUC", "minimal_schedul"]
 TS, FF80, RR80 = ("-", "TS"), ("80", "FF"), ("80", "RR")
@@ -123,6 +134,7 @@ def _runner_ps() -> subprocess.Popen[str]:
         stderr=subprocess.PIPE,
         text=True,
         env=env(),
+        cwd="/",  # the installed runner, not the clone's source tree (a non-editable install leaves no native core there)
     )
 
 
@@ -236,7 +248,7 @@ def test_runner_ps_shows_names_with_escape_sequences_and_newlines_as_real_ps_doe
         assert proc.stdout is not None
         pid = proc.stdout.readline().strip()
         ps = subprocess.run(["ps", "-L", "-o", "tid,comm,rtprio,cls,psr", "-p", pid], capture_output=True, env=utf8, check=True).stdout
-        ours = subprocess.run([sys.executable, "-m", "runner", "ps", pid], capture_output=True, env=utf8, check=True).stdout
+        ours = subprocess.run([sys.executable, "-m", "runner", "ps", pid], capture_output=True, env=utf8, check=True, cwd="/").stdout
     finally:
         proc.kill()
         proc.wait()
@@ -299,27 +311,8 @@ def test_count_cpus_threads_land_one_per_cpu(tmp_path):
     assert sorted(seen) == allowed and len(set(seen)) == len(seen), "one thread per CPU, every allowed CPU covered"
 
 
-def _unprivileged_prefix() -> tuple[tuple[str, ...], str]:
-    """Always the same way down, whatever the machine: root stripped of every capability (securebits), or,
-    when the tests do not run as root (their RT rights then come from RLIMIT_RTPRIO), this user with
-    RLIMIT_RTPRIO lowered to 0, soft and hard.
-
-    Not `nobody`: whether nobody can reach the interpreter and the test's folder depends on where the
-    virtual environment and the temporary folder happen to be, and made the outcome machine-dependent.
-    """
-    if os.geteuid() != 0:
-        return ("prlimit", "--rtprio=0:0", "--nice=0:0"), f"uid {os.geteuid()} with RLIMIT_RTPRIO 0"
-    return (
-        "setpriv",
-        "--securebits=+noroot,+noroot_locked,+no_setuid_fixup,+no_setuid_fixup_locked",
-        "--bounding-set=-all",
-        "--inh-caps=-all",
-        "--ambient-caps=-all",
-    ), "root without capabilities"
-
-
 def test_unprivileged_fifo_fails_before_starting_with_exit_3(tmp_path):
-    prefix, who = _unprivileged_prefix()
+    prefix, who = unprivileged_prefix()
     os.chmod(tmp_path, 0o777)
     proc = start_runner(
         os.path.join(SCENARIOS, "fifo80.yaml"), "--duration", "1s", "--out", str(tmp_path / "r"), cwd=str(tmp_path), prefix=prefix
@@ -336,7 +329,7 @@ def test_unprivileged_a_files_validity_does_not_depend_on_its_rights_and_a_run_i
     """Issue 40: as an ordinary user (RLIMIT_MEMLOCK 8 MiB, no CAP_IPC_LOCK) memory_lock.yaml's --list and an rt-app import
     exited 2, invalid input, and a run exited 2 or 3 by the size locked.  Rights are warnings of validate, --list and
     imports; a run is refused with exit 3 and how to grant the right, for a small lock and a large one alike."""
-    prefix, who = _unprivileged_prefix()
+    prefix, who = unprivileged_prefix()
     prefix = ("prlimit", "--memlock=8388608:8388608", *prefix)
     os.chmod(tmp_path, 0o777)
     lock = os.path.join(SCENARIOS, "memory_lock.yaml")
@@ -368,7 +361,7 @@ def test_a_runner_at_priority_99_refuses_to_let_its_hogs_inherit_it(tmp_path):
 
 
 def test_unprivileged_allow_degraded_runs_and_says_so(tmp_path):
-    prefix, who = _unprivileged_prefix()
+    prefix, who = unprivileged_prefix()
     os.chmod(tmp_path, 0o777)
     out = str(tmp_path / "r")
     proc = start_runner(

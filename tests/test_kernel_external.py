@@ -18,14 +18,14 @@ import time
 
 import pytest
 import yaml
-from kernelrun import can_use_rt, finish, ps_table, start_runner, thread, wait_for_threads
+from kernelrun import finish, needs_rt, needs_tracing, ps_table, start_runner, thread, wait_for_threads
 
 from runner.run import kernel, memcg
 from runner.run.external import Monitor, ProgramRun
 from runner.run.kernel import find_pids
 from runner.scenario.model import Policy, ProgramSpec
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 NAME = "rtprog-kt"  # the program's comm: the file name it is exec'd from
@@ -213,7 +213,7 @@ def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_pat
     assert ctl["tid"] != pid and thread(results, NAME)["tid"] == pid
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason="tracing needs root")
+@needs_tracing
 def test_watch_traces_the_scheduler_as_a_run_does_and_says_so_when_told_not_to(tmp_path, program):
     """`runner watch` never traced: its report had no wake-up latency, no preemptions, and said nothing about it."""
     proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)

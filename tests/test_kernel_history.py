@@ -11,11 +11,11 @@ import time
 from multiprocessing import Process
 
 import pytest
-from kernelrun import can_use_rt, env
+from kernelrun import env, needs_rt
 
 from runner.history.store import open_store
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIFO80 = os.path.join(REPO, "scenarios", "fifo80.yaml")
@@ -23,7 +23,7 @@ FIFO80 = os.path.join(REPO, "scenarios", "fifo80.yaml")
 
 def night(tmp_path, name: str, history: str) -> subprocess.CompletedProcess[str]:
     argv = [sys.executable, "-m", "runner", FIFO80, "--duration", "1s", "--out", str(tmp_path / name), "--quiet", "--no-plots"]
-    return subprocess.run([*argv, "--history", history], capture_output=True, text=True, env=env(), timeout=120, check=False)
+    return subprocess.run([*argv, "--history", history], capture_output=True, text=True, env=env(), timeout=120, check=False, cwd=tmp_path)
 
 
 def steal(cpu: int, stop_at: float) -> None:

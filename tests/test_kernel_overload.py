@@ -13,13 +13,13 @@ import os
 
 import pytest
 import yaml
-from kernelrun import can_use_rt, finish, ran_cleanly, start_runner, thread
+from kernelrun import finish, needs_rt, ran_cleanly, start_runner, thread
 
 from runner import histogram as hg
 from runner.results.samplesfile import SAMPLE_COLUMNS
 from runner.run.samples import Sample, stats_of
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 PERIOD = 30_000_000
 

@@ -20,11 +20,11 @@ import time
 
 import pytest
 import yaml
-from kernelrun import can_use_rt, finish, start_runner, thread
+from kernelrun import finish, needs_rt, start_runner, thread
 
 from runner.run.kernel import find_pids
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TWO_CPUS = pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="the shipped scenario pins threads to CPU 1")
@@ -419,7 +419,7 @@ def test_a_deadlock_late_in_the_run_is_stuck_and_a_stage_waiting_as_ever_is_not(
     assert "ld/stage" not in c["reason"], "waiting up to 300 ms for its next release, as it always did"
 
 
-@pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")
+@needs_rt
 def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
     """A consumer 5 ms a resume behind a 2 ms producer once passed, its 583 dropped resumes a warning only."""
     scenario = {
@@ -456,7 +456,7 @@ def test_a_stage_its_queue_drops_resumes_for_could_not_keep_up(tmp_path):
     assert [thread(pool, f"consumer-{i}")["figures"]["missed_releases"] for i in (0, 1)] == [0, 0]
 
 
-@pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")
+@needs_rt
 def test_a_stage_whose_backlog_grows_could_not_keep_up_before_its_queue_drops_one(tmp_path):
     """12 ms of work a resume behind a 10 ms producer: about 17 resumes queued at the end of 1 s, none dropped yet.
 

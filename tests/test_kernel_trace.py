@@ -15,11 +15,12 @@ from collections.abc import Iterator
 from typing import Optional
 
 import pytest
+from kernelrun import needs_rt, needs_tracing
 
 from runner import histogram
 from runner.run import tracing
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(os.geteuid() != 0, reason="tracing needs root")]
+pytestmark = [pytest.mark.kernel, needs_tracing]
 
 CPU = max(os.sched_getaffinity(0))
 SPIN = "while True:\n    pass\n"
@@ -97,6 +98,7 @@ def test_two_busy_loops_on_one_cpu_preempt_each_other(procs):
     assert not any(os.path.exists(p) for p in paths), "the instances are removed"
 
 
+@needs_rt  # tracing is root's, and root may have no CAP_SYS_NICE (a container, securebits)
 def test_a_fifo_sleeper_beside_a_hog_is_woken_and_never_preempted(procs):
     hog = spawn(procs, "trt-hog", SPIN)
     rt = spawn(procs, "trt-fifo80", SLEEP_1MS, fifo=80)
@@ -201,7 +203,8 @@ def _sweep_in_another_pid_namespace(root: str, owner: int) -> list[str]:
         f"assert not os.path.exists('/proc/{owner}'), 'the namespace sees the owner'\n"
         f"print(' '.join(tracing.remove_stale({root!r}, owner={owner})))\n"
     )
-    done = subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", code], capture_output=True, text=True)
+    argv = ["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", code]
+    done = subprocess.run(argv, capture_output=True, text=True, cwd="/")
     assert done.returncode == 0, done.stderr
     return done.stdout.split()
 
@@ -211,6 +214,8 @@ def test_a_runner_in_another_pid_namespace_leaves_a_live_runners_instances_alone
     """PIDs are not unique across PID namespaces: a runner in a container sees no process with this runner's PID,
     and must still leave its instances, and their tracing, alone: between two traces (a run keeps its instances
     from its first cell to its end) and during one."""
+    if subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", "true"], capture_output=True).returncode != 0:
+        pytest.skip("a PID namespace needs CAP_SYS_ADMIN (unshare --pid)")
     root = tracing.find_tracefs()
     assert isinstance(root, tracing.TracefsRoot)
     instances = tracing.TraceInstances()

@@ -207,7 +207,7 @@ def test_standard_output_named_as_a_file_is_still_written_into(tmp_path, artifac
     argv = ["compare", str(artifact), str(artifact), "--junit", "/dev/stdout"]
     code = f"from runner.cli import main; raise SystemExit(main({argv!r}))"
     with open(tmp_path / "log", "w") as log:
-        done = subprocess.run([sys.executable, "-c", code], stdout=log, stderr=subprocess.PIPE, text=True, timeout=120)
+        done = subprocess.run([sys.executable, "-c", code], stdout=log, stderr=subprocess.PIPE, text=True, timeout=120, cwd="/")
     assert done.returncode == 0, done.stderr
     assert "<testsuites" in (tmp_path / "log").read_text()
 

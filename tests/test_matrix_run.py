@@ -11,11 +11,11 @@ import time
 
 import pytest
 from conftest import SCENARIOS, run_cli
-from kernelrun import can_use_rt, documented_exit, env, failed_metrics, start_runner
+from kernelrun import documented_exit, env, failed_metrics, needs_rt, start_runner
 
 from runner.run.kernel import find_pids
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 
 def small(tmp_path, duration="400ms", min_callbacks=1) -> str:

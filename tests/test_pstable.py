@@ -64,7 +64,7 @@ def test_runner_ps_imports_no_validation_library_and_no_scenario_model():
         "import os, sys; from runner import cli; code = cli.main(['ps', str(os.getpid())]); "
         "print(code, sorted(m for m in sys.modules if m.split('.')[0] == 'pydantic' or m.startswith('runner.scenario')))"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     lines = done.stdout.splitlines()
     assert lines[0].split() == ["TID", "COMMAND", "RTPRIO", "CLS", "PSR"], done.stdout
     assert lines[-1] == "0 []", done.stdout

@@ -918,7 +918,7 @@ def test_the_core_import_path_imports_no_plotting_and_no_numpy():
         "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy))); "
         "print('runner.scenario.rtapp' in sys.modules)"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     # tabulate (with wcwidth and importlib.metadata, about 50 ms) only when a listing is printed, rt-app's converter for rt-app files
     assert done.stdout.splitlines() == ["[]", "[]", "False"], done.stdout
 

@@ -19,12 +19,12 @@ import time
 
 import pytest
 from conftest import REPO, SCENARIOS
-from kernelrun import can_use_rt, finish, start_runner, thread, wait_for_threads
+from kernelrun import finish, needs_rt, start_runner, thread, wait_for_threads
 
 from runner.run import memcg
 from runner.run.kernel import find_pids
 
-pytestmark = [pytest.mark.kernel, pytest.mark.skipif(not can_use_rt(), reason="needs the right to use SCHED_FIFO")]
+pytestmark = [pytest.mark.kernel, needs_rt]
 
 FIFO80 = os.path.join(SCENARIOS, "fifo80.yaml")
 

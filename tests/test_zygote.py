@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from kernelrun import needs_tracing
 
 from runner.run import kernel, samples, tracing
 from runner.run.spawn import Worker, _gate_late, _read_done, work_tuple
@@ -163,7 +164,7 @@ def test_workers_die_with_the_zygote_and_later_ones_start_without_it(tmp_path, z
 
 
 @pytest.mark.kernel
-@pytest.mark.skipif(os.geteuid() != 0, reason="tracing needs root")
+@needs_tracing
 def test_the_trace_follows_the_zygotes_workers_without_writing_their_pids(tmp_path, zygote):
     if isinstance(tracing.find_tracefs(), tracing.TraceUnavailable):
         pytest.skip("no tracefs")
