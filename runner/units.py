@@ -13,6 +13,8 @@ import re
 from collections.abc import Iterable
 from typing import Any
 
+from runner.errors import quoted
+
 NS_PER = {
     "ns": 1,
     "us": 1_000,
@@ -66,7 +68,7 @@ def parse_duration(value: object) -> int:
         raise UnitError(f"expected {DURATION_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {_shorten(value)}; expected {DURATION_EXPECTED}")
+        raise UnitError(f"cannot read {quoted(value, 40)}; expected {DURATION_EXPECTED}")
     number, unit = match.groups()
     if unit not in NS_PER:
         hint = _did_you_mean(unit, NS_PER)
@@ -82,7 +84,7 @@ def parse_size(value: object) -> int:
         raise UnitError(f"expected {SIZE_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {_shorten(value)}; expected {SIZE_EXPECTED}")
+        raise UnitError(f"cannot read {quoted(value, 40)}; expected {SIZE_EXPECTED}")
     number, unit = match.groups()
     if unit not in BYTES_PER:
         if unit in _SI_SIZE_HINT:
@@ -100,17 +102,12 @@ def _scaled(number: str, scale: int, written: str, expected: str) -> int:
     to even, as Python's round() does.
     """
     if len(number.replace(".", "").lstrip("0")) > MAX_DIGITS:
-        raise UnitError(f"the number in {_shorten(written)} has more than {MAX_DIGITS} digits; expected {expected}")
+        raise UnitError(f"the number in {quoted(written, 40)} has more than {MAX_DIGITS} digits; expected {expected}")
     whole, _, decimals = number.partition(".")
     digits = (whole + decimals).lstrip("0") or "0"  # int() refuses more than 4,300 digits, leading zeros too
     quotient, remainder = divmod(int(digits) * scale, 10 ** len(decimals))
     twice = 2 * remainder
     return quotient + (twice > 10 ** len(decimals) or (twice == 10 ** len(decimals) and quotient % 2 == 1))
-
-
-def _shorten(text: str, keep: int = 40) -> str:
-    """`text` quoted, its middle cut out when it is long (a hostile value can be a megabyte)."""
-    return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4 :])
 
 
 def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int, ...]:
@@ -132,7 +129,7 @@ def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int
             cpus.add(item)
     elif isinstance(value, str):
         if not re.fullmatch(CPUS_PATTERN, value):
-            raise UnitError(f"cannot read CPUs {_shorten(value)}; expected {CPUS_EXPECTED}")
+            raise UnitError(f"cannot read CPUs {quoted(value, 40)}; expected {CPUS_EXPECTED}")
         text = value.strip()
         if re.fullmatch(_ALL, text):
             if not every:
@@ -143,9 +140,9 @@ def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int
                 mask = int(text.replace("_", ""), 0)
             except ValueError:  # a prefix with no digit after it: 0b_, 0x
                 why = "a mask needs digits after its 0b or 0x"
-                raise UnitError(f"cannot read CPUs {_shorten(value)}: {why}; expected {CPUS_EXPECTED}") from None
+                raise UnitError(f"cannot read CPUs {quoted(value, 40)}: {why}; expected {CPUS_EXPECTED}") from None
             if mask.bit_length() > MAX_CPUS:
-                raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
+                raise UnitError(f"mask {quoted(value, 40)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
         else:
             for part in text.split(","):
@@ -167,7 +164,7 @@ def _region(part: str) -> range | list[int]:
     assert match is not None  # the whole text matched CPUS_PATTERN
     low, high, step, group = match.groups()
     if max(len(low), len(high or "")) > len(str(MAX_CPUS)) + 1:
-        raise UnitError(f"CPU number in {_shorten(part)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
+        raise UnitError(f"CPU number in {quoted(part, 40)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
     first, last = int(low), int(high or low)
     if last < first:
         raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")
