@@ -114,9 +114,12 @@ class ScenarioError(RunnerError):
 
 
 class UsageError(RunnerError):
-    """A command line or environment mistake that is not tied to a line of a file."""
+    """A command line or environment mistake that is not tied to a line of a file; its message is `bounded` as a problem's."""
 
     exit_code = ExitCode.INVALID_INPUT
+
+    def __init__(self, message: str):
+        super().__init__(bounded(message, MAX_MESSAGE))
 
 
 class PermissionProblem(RunnerError):

@@ -1,8 +1,10 @@
-"""Durations, sizes and CPU sets as users write them, and back again.
+"""Durations, sizes, CPU sets and whole numbers as users write them, and back again.
 
 Pure functions, no I/O.  Durations are integer nanoseconds, sizes integer bytes,
 CPU sets sorted tuples of CPU numbers: the internal units never change, only the
-way they are written does.  A bare number for a duration or a size is refused on
+way they are written does.  A number is written in ASCII digits: Python's int() also takes
+other scripts' digits (`٣` is 3) and raises past 4,300 digits, so every number a user gives
+is matched as 0-9 and its length bounded before it is converted.  A bare number for a duration or a size is refused on
 purpose: `period: 500` is ambiguous (ms? us?) and a wrong guess silently turns a
 500 ms period into a 500 ns one.  Zero is the exception: 0 is 0 in every unit.
 """
@@ -13,7 +15,7 @@ import re
 from collections.abc import Iterable
 from typing import Any
 
-from runner.errors import quoted
+from runner.errors import quoted, shorten
 
 NS_PER = {
     "ns": 1,
@@ -36,6 +38,7 @@ _NUMBER = r"(?:[0-9]+(?:\.[0-9]+)?|\.[0-9]+)"
 _QUANTITY = re.compile(rf"^\s*({_NUMBER})\s*([A-Za-zµ]+)\s*$")
 MAX_DIGITS = 24  # no duration or size needs more; longer numbers are refused before any arithmetic
 MAX_CPUS = 8192  # CONFIG_NR_CPUS at its largest
+PID_MAX = (1 << 31) - 1  # pid_t's range: a larger number names no process on any system
 
 DURATION_EXPECTED = "a duration with a unit, such as 500ms, 200us, 1.5s or 10m"
 SIZE_EXPECTED = "a size with a unit, such as 50MiB, 200KiB or 0B"
@@ -92,6 +95,36 @@ def parse_size(value: object) -> int:
         hint = _did_you_mean(unit, BYTES_PER)
         raise UnitError(f"unknown size unit {unit!r}{hint}; expected one of B, KiB, MiB, GiB, TiB")
     return _scaled(number, BYTES_PER[unit], value, SIZE_EXPECTED)
+
+
+_WHOLE = re.compile(r"\s*([-+]?)([0-9]+)\s*")
+
+
+def parse_whole(text: str, low: int, high: int, what: str = "") -> int:
+    """A whole number written in ASCII digits (a sign allowed, spaces around), from `low` to `high`.
+
+    The digits are counted before int() sees them, so a number of a million digits is out of
+    range, not a ValueError; `٣` and `²` are no digits here.  `what` names the number in the
+    message (`--repeat 0`); by default, the text quoted.
+    """
+    match = _WHOLE.fullmatch(text)
+    what = what or quoted(text.strip(), 40)
+    if match is None:
+        raise UnitError(f"{what} is not a whole number (digits 0-9); expected {low:,} to {high:,}")
+    sign, digits = match.group(1), match.group(2).lstrip("0") or "0"
+    if len(digits) > len(str(max(abs(low), abs(high)))) or not low <= int(sign + digits) <= high:
+        raise UnitError(f"{what} is out of range; expected {low:,} to {high:,}")
+    return int(sign + digits)
+
+
+def parse_pid(text: str) -> int | None:
+    """The PID `text` names when it is written in ASCII digits, else None (it may be a process's name, `٣` too).
+
+    A number no PID can be (beyond pid_t's range) is a UnitError saying so.
+    """
+    if not text.isascii() or not text.isdigit():
+        return None
+    return parse_whole(text, 0, PID_MAX, f"PID {shorten(text, 40)}")
 
 
 def _scaled(number: str, scale: int, written: str, expected: str) -> int:
