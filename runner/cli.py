@@ -18,7 +18,7 @@ from typing import Any
 
 from runner import __version__
 from runner.collector import collector_paused
-from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
+from runner.errors import MAX_MESSAGE, ExitCode, RunnerError, ScenarioError, UsageError, bounded, did_you_mean, from_os_error
 from runner.terminal import note, put, say, stdout_lost, warn
 
 COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "history", "import-rtapp", "completion")
@@ -784,7 +784,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     text = read(ns.file)
     conversion = convert(text, ns.file)
     for text_note in conversion.notes:
-        warn(f"{ns.file}: {text_note}")
+        warn(f"{ns.file}: {bounded(text_note, MAX_MESSAGE)}")  # a task's name may be 100 KB: quoted cut, as a problem's
     scenario = conversion.yaml()
     if not ns.output:
         put(scenario)

@@ -579,6 +579,14 @@ def test_a_task_name_with_a_lone_surrogate_is_made_valid_text_with_a_note(key):
     Scenario.parse(yaml.safe_load(c.yaml()))  # the scenario written reads back
 
 
+def test_the_notes_of_a_task_named_in_100_kb_print_a_few_lines(tmp_path):
+    """import-rtapp printed each note whole: a task's name of 100 KB, twice, on stderr."""
+    path = tmp_path / "w.json"
+    path.write_text('{"tasks": {"' + "n" * 100_000 + '": {"run": 1000}}}', encoding="utf-8")
+    done = run_cli("import-rtapp", str(path))
+    assert done.code == 0 and len(done.err) < 10_000 and "…" in done.err
+
+
 def test_the_process_is_named_after_the_file():
     c = conv('{"tasks": {"t": {"run": 1}}}', "/some/where/a very-long workload name.json")
     assert c.scenario["name"] == "a_very-long_workload_name"
