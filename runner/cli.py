@@ -9,6 +9,7 @@ import argparse
 import errno
 import json
 import os
+import re
 import signal
 import sys
 import time
@@ -17,7 +18,7 @@ from typing import Any
 
 from runner import __version__
 from runner.collector import collector_paused
-from runner.errors import ExitCode, RunnerError, ScenarioError, UsageError, did_you_mean, from_os_error
+from runner.errors import MAX_MESSAGE, ExitCode, RunnerError, ScenarioError, UsageError, bounded, did_you_mean, from_os_error
 from runner.terminal import note, put, say, stdout_lost, warn
 
 COMMANDS = ("run", "validate", "schema", "ps", "watch", "report", "compare", "merge", "history", "import-rtapp", "completion")
@@ -79,7 +80,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="no progress display")
     m = p.add_argument_group("matrix runs")
-    m.add_argument("--repeat", type=int, metavar="N", help="run every cell N times; the report gives the spread")
+    m.add_argument("--repeat", metavar="N", help="run every cell N times; the report gives the spread")
     m.add_argument(
         "--shuffle", nargs="?", const="random", type=_seed, metavar="SEED", help="run cells in a random order (a SEED repeats an order)"
     )
@@ -158,7 +159,7 @@ _READ_DOCUMENTS = frozenset({"report", "compare", "merge", "history"})
 
 def _seed(value: str) -> str:
     """--shuffle's SEED: an integer or `random`; anything else (a scenario's path after it) is said as such."""
-    if value != "random" and not value.lstrip("-").isdecimal():
+    if value != "random" and not re.fullmatch(r"-?[0-9]+", value):  # ASCII digits: isdecimal() takes `٣` too
         raise argparse.ArgumentTypeError(f"{value!r} is no seed (an integer); give the scenario before --shuffle, or write --shuffle=SEED")
     return value
 
@@ -356,11 +357,16 @@ def _ps_parser() -> argparse.ArgumentParser:
 
 def _cmd_ps(argv: list[str]) -> int:
     ns = _ps_parser().parse_args(argv)
+    from runner import units
     from runner.results.pstable import parse_columns, render_ps
     from runner.run.kernel import find_pids, pid_width, thread_rows
 
     columns = parse_columns(ns.columns)
-    pids = [int(ns.target)] if ns.target.isdecimal() else find_pids(ns.target)
+    try:
+        pid = units.parse_pid(ns.target)
+    except units.UnitError as exc:
+        raise UsageError(f"runner ps: {exc}") from None
+    pids = [pid] if pid is not None else find_pids(ns.target)
     rows = [row for pid in pids for row in thread_rows(pid)]
     if not rows:
         raise UsageError(f"runner ps: no live process matches {ns.target!r}")
@@ -457,7 +463,7 @@ def _report_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="no SVG plots")
     x = p.add_argument_group("cyclictest formats (instead of the report, unless -o is given too)")
     x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
-    x.add_argument("--histogram-max", type=int, metavar="US", help="--histogram's size in microseconds (cyclictest -h US; default 1000)")
+    x.add_argument("--histogram-max", metavar="US", help="--histogram's size in microseconds (cyclictest -h US; default 1000)")
     x.add_argument("--json", metavar="FILE", help="latency summary in the shape of `cyclictest --json`; - for stdout")
     x.add_argument(
         "--hdr",
@@ -584,10 +590,9 @@ def _export(doc: Any, ns: argparse.Namespace) -> None:
     from runner.report.export import histogram_text, json_summary, pick_cell
     from runner.report.hdrlog import hdr_log
     from runner.safefs import write_named
+    from runner.session import parse_number
 
-    size = 1000 if ns.histogram_max is None else ns.histogram_max  # the default size of cyclictest -h
-    if not 1 <= size <= 1_000_000:
-        raise UsageError(f"runner report: --histogram-max {size} is out of range; expected 1 to 1000000 (us)")
+    size = 1000 if ns.histogram_max is None else parse_number(ns.histogram_max, "runner report: --histogram-max", 1, 1_000_000)  # µs
     exports: list[tuple[str | None, Callable[[], str]]] = [(ns.kcidb, lambda: _kcidb_text(doc, ns))]  # the whole run
     if ns.histogram or ns.json or ns.hdr:  # one cell
         cell = pick_cell(doc, ns.cell)
@@ -779,7 +784,7 @@ def _cmd_import_rtapp(argv: list[str]) -> int:
     text = read(ns.file)
     conversion = convert(text, ns.file)
     for text_note in conversion.notes:
-        warn(f"{ns.file}: {text_note}")
+        warn(f"{ns.file}: {bounded(text_note, MAX_MESSAGE)}")  # a task's name may be 100 KB: quoted cut, as a problem's
     scenario = conversion.yaml()
     if not ns.output:
         put(scenario)

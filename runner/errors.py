@@ -12,9 +12,11 @@ from __future__ import annotations
 import enum
 import errno
 import os
+import re
 import stat
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 
 class ExitCode(enum.IntEnum):
@@ -29,9 +31,53 @@ class ExitCode(enum.IntEnum):
     INTERRUPTED = 130
 
 
+QUOTE_KEEP = 80
+"""Characters of a value a message quotes whole: a longer one keeps its first half and last quarter around `…`."""
+MAX_MESSAGE = 4000  # a problem's message at most (the longest a runner writes lists 70 metric names, 1,066 characters)
+MAX_PATH = 256  # a problem's key path at most
+
+
+def shorten(text: str, keep: int = QUOTE_KEEP) -> str:
+    """`text`, its middle cut out when it is longer than `keep` characters: `start…end` (a hostile value can be a megabyte)."""
+    if len(text) <= keep:
+        return text
+    return text[: keep // 2] + "…" + text[-max(1, keep // 4) :]
+
+
+def quoted(value: Any, keep: int = QUOTE_KEEP) -> str:
+    """A value as a message quotes it: its repr, cut to `keep` characters (text is cut before it is quoted, so the quotes stay).
+
+    An integer too long for repr (Python refuses more than 4,300 digits) is said by its size.
+    """
+    if isinstance(value, str):
+        return repr(shorten(value, keep))
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value).bit_length() > 64 * 8:
+        return f"an integer of about {int(abs(value).bit_length() * 0.30103) + 1:,} digits"
+    return shorten(repr(value), keep)
+
+
+# A quoted value in a message, as repr writes one: a quote where a word starts, then the same quote where it ends
+# (an apostrophe inside a word, `thread's`, starts nothing), more than QUOTE_KEEP characters between.
+_LONG_QUOTE = re.compile(r"""(?<![^\s(\[{=:,])(['"])((?:(?!\1)[^\\]|\\.){""" + str(QUOTE_KEEP + 1) + r""",}?)\1(?=$|[\s)\]},;:.!?])""")
+
+
+def bounded(text: str, most: int) -> str:
+    """`text` as a problem says it: each long quoted value cut to QUOTE_KEEP characters, and the whole to `most`.
+
+    Every Problem passes here, so a value quoted whole by whatever raised it (a megabyte-long
+    `sched:`, one long text aliased into a thousand places) prints as a line, not as megabytes.
+    """
+    if len(text) > QUOTE_KEEP:
+        text = _LONG_QUOTE.sub(lambda m: m.group(1) + shorten(m.group(2)) + m.group(1), text)
+    return shorten(text, most)
+
+
 @dataclass(frozen=True, order=True)
 class Problem:
-    """One problem in an input file: where it is, which key, what is wrong and what is expected."""
+    """One problem in an input file: where it is, which key, what is wrong and what is expected.
+
+    Its message and key path are `bounded`: whatever a value holds, a problem is a readable line.
+    """
 
     file: str
     line: int
@@ -39,6 +85,10 @@ class Problem:
     path: str
     message: str
     severity: str = "error"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "message", bounded(self.message, MAX_MESSAGE))
+        object.__setattr__(self, "path", bounded(self.path, MAX_PATH))
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}:{self.col}"
@@ -64,9 +114,12 @@ class ScenarioError(RunnerError):
 
 
 class UsageError(RunnerError):
-    """A command line or environment mistake that is not tied to a line of a file."""
+    """A command line or environment mistake that is not tied to a line of a file; its message is `bounded` as a problem's."""
 
     exit_code = ExitCode.INVALID_INPUT
+
+    def __init__(self, message: str):
+        super().__init__(bounded(message, MAX_MESSAGE))
 
 
 class PermissionProblem(RunnerError):

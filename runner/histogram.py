@@ -148,17 +148,37 @@ def merge(histograms: Iterable[Optional[Histogram]]) -> Optional[Histogram]:
     return Histogram(buckets=buckets, min=min(h.min for h in present), max=max(h.max for h in present))
 
 
+class Counter:
+    """Values counted one at a time into the native core's buckets: the memory of a histogram, however many values come."""
+
+    def __init__(self) -> None:
+        self.pos = [0] * BUCKETS
+        self.neg = [0] * BUCKETS
+        self.low: Optional[int] = None
+        self.high: Optional[int] = None
+
+    def add(self, value: int) -> None:
+        if value >= 0:
+            self.pos[index(value)] += 1
+        else:
+            self.neg[index(-value)] += 1
+        if self.low is None or self.high is None:
+            self.low = self.high = value
+        elif value < self.low:
+            self.low = value
+        elif value > self.high:
+            self.high = value
+
+    def histogram(self) -> Optional[Histogram]:
+        """What was counted, as the native core would have reported it; None when nothing was."""
+        if self.low is None or self.high is None:
+            return None
+        return from_counts(self.pos, self.low, self.high, self.neg if any(self.neg) else None)
+
+
 def from_values(values: Iterable[int]) -> Optional[Histogram]:
     """The histogram the native core would have built from these values (signed allowed); None when empty."""
-    pos = [0] * BUCKETS
-    neg = [0] * BUCKETS
-    seen: list[int] = []
+    counter = Counter()
     for v in values:
-        seen.append(v)
-        if v >= 0:
-            pos[index(v)] += 1
-        else:
-            neg[index(-v)] += 1
-    if not seen:
-        return None
-    return from_counts(pos, min(seen), max(seen), neg if any(neg) else None)
+        counter.add(v)
+    return counter.histogram()

@@ -13,7 +13,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Optional
 
-from runner.errors import UsageError
+from runner import units
+from runner.errors import UsageError, quoted
+from runner.scenario.matrix import MAX_CELLS
 
 
 @dataclass(frozen=True)
@@ -23,12 +25,15 @@ class Shard:
 
     @classmethod
     def parse(cls, text: str) -> Shard:
-        m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", text)
+        m = re.fullmatch(r"\s*([0-9]+)\s*/\s*([0-9]+)\s*", text)  # ASCII digits: \d takes `٣` too
         if not m:
-            raise UsageError(f"runner: --shard {text!r}: expected K/N, e.g. 1/4")
-        k, n = int(m.group(1)), int(m.group(2))
+            raise UsageError(f"runner: --shard {quoted(text)}: expected K/N, e.g. 1/4")
+        try:
+            k, n = (units.parse_whole(m.group(i), 0, MAX_CELLS) for i in (1, 2))
+        except units.UnitError:
+            raise UsageError(f"runner: --shard {quoted(text)}: K and N are at most {MAX_CELLS:,}, the cells a matrix may have") from None
         if n < 1 or not 1 <= k <= n:
-            raise UsageError(f"runner: --shard {text!r}: K must be between 1 and N (N >= 1)")
+            raise UsageError(f"runner: --shard {quoted(text)}: K must be between 1 and N (N >= 1)")
         return cls(k, n)
 
     def __str__(self) -> str:

@@ -24,7 +24,7 @@ from typing import Any, Optional
 
 from runner import outdir, units
 from runner.collector import collector_paused
-from runner.errors import ExitCode, OutputError, Problem, RunnerError, ScenarioError, UsageError, from_os_error
+from runner.errors import ExitCode, OutputError, Problem, RunnerError, ScenarioError, UsageError, from_os_error, shorten
 from runner.report.compare import Threshold, check_common, check_comparable, thresholds_for
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
@@ -80,15 +80,12 @@ class RunOptions:
     def from_namespace(cls, ns: argparse.Namespace, env: dict[str, str]) -> RunOptions:
         duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN) if ns.duration else None
         settle = parse_duration(ns.settle, "--settle", 0, MAX_SETTLE) if ns.settle is not None else DEFAULT_SETTLE_NS
-        repeat = 1 if ns.repeat is None else ns.repeat
-        if not 1 <= repeat <= MAX_REPEAT:
-            raise UsageError(f"runner: --repeat {repeat} is out of range; expected 1 to {MAX_REPEAT:,}")
+        repeat = 1 if ns.repeat is None else parse_number(ns.repeat, "runner: --repeat", 1, MAX_REPEAT)
         seed = None
-        if ns.shuffle is not None:
-            try:
-                seed = int(ns.shuffle) if ns.shuffle != "random" else random.SystemRandom().randrange(1 << 31)
-            except ValueError:
-                raise UsageError(f"runner: --shuffle {ns.shuffle!r}: expected a seed (an integer) or 'random'") from None
+        if ns.shuffle == "random":
+            seed = random.SystemRandom().randrange(1 << 31)
+        elif ns.shuffle is not None:
+            seed = parse_number(ns.shuffle, "runner: --shuffle", -(1 << 63), (1 << 63) - 1)
         if ns.resume and ns.out:
             raise UsageError("runner: --resume DIR writes into DIR; leave out --out")
         in_ci = env.get("CI", "") not in ("", "0", "false")
@@ -165,17 +162,26 @@ def parse_duration(text: str, option: str, minimum: int, maximum: int) -> int:
     return value
 
 
+def parse_number(text: str, option: str, low: int, high: int) -> int:
+    """A whole-number option (ASCII digits; `option` as said: `runner: --repeat`), held to its range; a UsageError otherwise."""
+    try:
+        return units.parse_whole(text, low, high, f"{option} {shorten(text.strip(), 40)}")
+    except units.UnitError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _dma_latency(text: Optional[str]) -> int:
     """--dma-latency US: whole microseconds the CPU latency QoS accepts (0, the default, keeps CPUs out of deep idle)."""
     if text is None:
         return 0
     digits = text.strip().removesuffix("us")
-    if not digits.isdecimal() or int(digits) > MAX_DMA_LATENCY_US:
+    try:
+        return units.parse_whole(digits, 0, MAX_DMA_LATENCY_US)
+    except units.UnitError:
         raise UsageError(
-            f"runner: --dma-latency {text}: expected whole microseconds from 0 to {MAX_DMA_LATENCY_US:,}, e.g. 0 or 10us; "
+            f"runner: --dma-latency {shorten(text)}: expected whole microseconds from 0 to {MAX_DMA_LATENCY_US:,}, e.g. 0 or 10us; "
             "--no-dma-latency leaves /dev/cpu_dma_latency alone"
-        )
-    return int(digits)
+        ) from None
 
 
 def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:

@@ -1,8 +1,10 @@
-"""Durations, sizes and CPU sets as users write them, and back again.
+"""Durations, sizes, CPU sets and whole numbers as users write them, and back again.
 
 Pure functions, no I/O.  Durations are integer nanoseconds, sizes integer bytes,
 CPU sets sorted tuples of CPU numbers: the internal units never change, only the
-way they are written does.  A bare number for a duration or a size is refused on
+way they are written does.  A number is written in ASCII digits: Python's int() also takes
+other scripts' digits (`٣` is 3) and raises past 4,300 digits, so every number a user gives
+is matched as 0-9 and its length bounded before it is converted.  A bare number for a duration or a size is refused on
 purpose: `period: 500` is ambiguous (ms? us?) and a wrong guess silently turns a
 500 ms period into a 500 ns one.  Zero is the exception: 0 is 0 in every unit.
 """
@@ -12,6 +14,8 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from typing import Any
+
+from runner.errors import quoted, shorten
 
 NS_PER = {
     "ns": 1,
@@ -34,6 +38,7 @@ _NUMBER = r"(?:[0-9]+(?:\.[0-9]+)?|\.[0-9]+)"
 _QUANTITY = re.compile(rf"^\s*({_NUMBER})\s*([A-Za-zµ]+)\s*$")
 MAX_DIGITS = 24  # no duration or size needs more; longer numbers are refused before any arithmetic
 MAX_CPUS = 8192  # CONFIG_NR_CPUS at its largest
+PID_MAX = (1 << 31) - 1  # pid_t's range: a larger number names no process on any system
 
 DURATION_EXPECTED = "a duration with a unit, such as 500ms, 200us, 1.5s or 10m"
 SIZE_EXPECTED = "a size with a unit, such as 50MiB, 200KiB or 0B"
@@ -66,7 +71,7 @@ def parse_duration(value: object) -> int:
         raise UnitError(f"expected {DURATION_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {_shorten(value)}; expected {DURATION_EXPECTED}")
+        raise UnitError(f"cannot read {quoted(value, 40)}; expected {DURATION_EXPECTED}")
     number, unit = match.groups()
     if unit not in NS_PER:
         hint = _did_you_mean(unit, NS_PER)
@@ -82,7 +87,7 @@ def parse_size(value: object) -> int:
         raise UnitError(f"expected {SIZE_EXPECTED}, got {type(value).__name__}")
     match = _QUANTITY.match(value)
     if not match:
-        raise UnitError(f"cannot read {_shorten(value)}; expected {SIZE_EXPECTED}")
+        raise UnitError(f"cannot read {quoted(value, 40)}; expected {SIZE_EXPECTED}")
     number, unit = match.groups()
     if unit not in BYTES_PER:
         if unit in _SI_SIZE_HINT:
@@ -90,6 +95,36 @@ def parse_size(value: object) -> int:
         hint = _did_you_mean(unit, BYTES_PER)
         raise UnitError(f"unknown size unit {unit!r}{hint}; expected one of B, KiB, MiB, GiB, TiB")
     return _scaled(number, BYTES_PER[unit], value, SIZE_EXPECTED)
+
+
+_WHOLE = re.compile(r"\s*([-+]?)([0-9]+)\s*")
+
+
+def parse_whole(text: str, low: int, high: int, what: str = "") -> int:
+    """A whole number written in ASCII digits (a sign allowed, spaces around), from `low` to `high`.
+
+    The digits are counted before int() sees them, so a number of a million digits is out of
+    range, not a ValueError; `٣` and `²` are no digits here.  `what` names the number in the
+    message (`--repeat 0`); by default, the text quoted.
+    """
+    match = _WHOLE.fullmatch(text)
+    what = what or quoted(text.strip(), 40)
+    if match is None:
+        raise UnitError(f"{what} is not a whole number (digits 0-9); expected {low:,} to {high:,}")
+    sign, digits = match.group(1), match.group(2).lstrip("0") or "0"
+    if len(digits) > len(str(max(abs(low), abs(high)))) or not low <= int(sign + digits) <= high:
+        raise UnitError(f"{what} is out of range; expected {low:,} to {high:,}")
+    return int(sign + digits)
+
+
+def parse_pid(text: str) -> int | None:
+    """The PID `text` names when it is written in ASCII digits, else None (it may be a process's name, `٣` too).
+
+    A number no PID can be (beyond pid_t's range) is a UnitError saying so.
+    """
+    if not text.isascii() or not text.isdigit():
+        return None
+    return parse_whole(text, 0, PID_MAX, f"PID {shorten(text, 40)}")
 
 
 def _scaled(number: str, scale: int, written: str, expected: str) -> int:
@@ -100,17 +135,12 @@ def _scaled(number: str, scale: int, written: str, expected: str) -> int:
     to even, as Python's round() does.
     """
     if len(number.replace(".", "").lstrip("0")) > MAX_DIGITS:
-        raise UnitError(f"the number in {_shorten(written)} has more than {MAX_DIGITS} digits; expected {expected}")
+        raise UnitError(f"the number in {quoted(written, 40)} has more than {MAX_DIGITS} digits; expected {expected}")
     whole, _, decimals = number.partition(".")
     digits = (whole + decimals).lstrip("0") or "0"  # int() refuses more than 4,300 digits, leading zeros too
     quotient, remainder = divmod(int(digits) * scale, 10 ** len(decimals))
     twice = 2 * remainder
     return quotient + (twice > 10 ** len(decimals) or (twice == 10 ** len(decimals) and quotient % 2 == 1))
-
-
-def _shorten(text: str, keep: int = 40) -> str:
-    """`text` quoted, its middle cut out when it is long (a hostile value can be a megabyte)."""
-    return repr(text) if len(text) <= keep else repr(text[: keep // 2] + "…" + text[-keep // 4 :])
 
 
 def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int, ...]:
@@ -132,7 +162,7 @@ def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int
             cpus.add(item)
     elif isinstance(value, str):
         if not re.fullmatch(CPUS_PATTERN, value):
-            raise UnitError(f"cannot read CPUs {_shorten(value)}; expected {CPUS_EXPECTED}")
+            raise UnitError(f"cannot read CPUs {quoted(value, 40)}; expected {CPUS_EXPECTED}")
         text = value.strip()
         if re.fullmatch(_ALL, text):
             if not every:
@@ -143,9 +173,9 @@ def parse_cpus(value: object, every: tuple[int, ...] | None = None) -> tuple[int
                 mask = int(text.replace("_", ""), 0)
             except ValueError:  # a prefix with no digit after it: 0b_, 0x
                 why = "a mask needs digits after its 0b or 0x"
-                raise UnitError(f"cannot read CPUs {_shorten(value)}: {why}; expected {CPUS_EXPECTED}") from None
+                raise UnitError(f"cannot read CPUs {quoted(value, 40)}: {why}; expected {CPUS_EXPECTED}") from None
             if mask.bit_length() > MAX_CPUS:
-                raise UnitError(f"mask {_shorten(value)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
+                raise UnitError(f"mask {quoted(value, 40)} names CPU {mask.bit_length() - 1} or more; Linux supports {MAX_CPUS} CPUs")
             cpus.update(bit for bit in range(mask.bit_length()) if mask >> bit & 1)
         else:
             for part in text.split(","):
@@ -167,7 +197,7 @@ def _region(part: str) -> range | list[int]:
     assert match is not None  # the whole text matched CPUS_PATTERN
     low, high, step, group = match.groups()
     if max(len(low), len(high or "")) > len(str(MAX_CPUS)) + 1:
-        raise UnitError(f"CPU number in {_shorten(part)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
+        raise UnitError(f"CPU number in {quoted(part, 40)} is beyond what Linux supports ({MAX_CPUS} CPUs)")
     first, last = int(low), int(high or low)
     if last < first:
         raise UnitError(f"range {part!r} runs backwards; write {last}-{first}")

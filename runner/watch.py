@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from datetime import datetime, timezone
 
+from runner import units
 from runner.errors import UsageError
 from runner.results.document import CellResult, PermissionsInfo, RunDocument, ScenarioInfo, Status, ps_rows, worst
 from runner.results.pstable import ThreadRow
@@ -56,10 +57,14 @@ def resolve_targets(targets: list[str]) -> list[int]:
     """PIDs of the targets: a number is a PID that must be alive, a name every live process whose COMMAND it is."""
     pids: list[int] = []
     for target in targets:
-        if target.isdecimal():
-            if not kernel.process_alive(int(target)):
+        try:
+            pid = units.parse_pid(target)  # ASCII digits; anything else is a name (`٣` may be one)
+        except units.UnitError as exc:
+            raise UsageError(f"runner watch: {exc}") from None
+        if pid is not None:
+            if not kernel.process_alive(pid):
                 raise UsageError(f"runner watch: no live process has PID {target}")
-            found = [int(target)]
+            found = [pid]
         else:
             found = kernel.find_pids(target)
             if not found:

@@ -143,6 +143,61 @@ def test_digits_python_calls_digits_but_int_refuses_are_a_usage_error(argv, tmp_
     assert not os.path.exists(tmp_path / "r"), "refused before anything ran"
 
 
+HUGE = "9" * 5_000  # past the 4,300 digits int() converts: a ValueError, and exit 70, where a number was taken without a bound
+
+
+def _given(argv: list[str], tmp_path) -> tuple[int, str]:
+    """The exit code and stderr of `runner ARGV` (argparse's own refusals included); {fifo80} is the scenario, {run} a results folder."""
+    run = ""
+    if "{run}" in argv:
+        from reportdata import many_threads
+
+        run = str(tmp_path / "run")
+        many_threads(run, threads=1, processes=1, callbacks=10)  # a cell with native histograms, as --histogram exports
+    words = [a.format(fifo80=os.path.join(SCENARIOS, "fifo80.yaml"), out=tmp_path / "r", run=run) for a in argv]
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            done = run_cli(*words)
+        return done.code, done.err
+    except SystemExit as exc:
+        return int(exc.code or 0), err.getvalue()
+
+
+NUMBERS = [
+    ["ps", "{n}"],
+    ["watch", "{n}", "--duration", "100ms", "--out", "{out}"],
+    ["{fifo80}", "--list", "--repeat", "{n}"],
+    ["{fifo80}", "--list", "--shuffle", "{n}"],
+    ["{fifo80}", "--list", "--shard", "1/{n}"],
+    ["{fifo80}", "--list", "--dma-latency", "{n}"],
+    ["report", "{run}", "--histogram", "-", "--histogram-max", "{n}"],
+]
+
+
+@pytest.mark.parametrize("argv", NUMBERS, ids=lambda a: " ".join(w for w in a if w.startswith("-") or w in ("ps", "watch")))
+def test_a_number_of_thousands_of_digits_is_out_of_range_not_a_crash(argv, tmp_path):
+    """`runner watch 999...9` (5,000 digits) and --shard, --dma-latency, ps: int() raised, exit 70 with a traceback saved."""
+    code, err = _given([w.replace("{n}", HUGE) for w in argv], tmp_path)
+    assert code == 2 and "internal error" not in err and "Traceback" not in err, err[:500]
+    assert "out of range" in err or "at most" in err or "expected whole microseconds" in err, err[:500]
+    assert len(err) < 1_000 and "…" in err  # the number is quoted cut, not 5,000 digits
+    assert not os.path.exists(tmp_path / "r")
+
+
+@pytest.mark.parametrize("argv", NUMBERS, ids=lambda a: " ".join(w for w in a if w.startswith("-") or w in ("ps", "watch")))
+def test_digits_of_other_scripts_are_no_numbers(argv, tmp_path):
+    """`runner watch ١` watched PID 1 (int() reads Arabic-Indic digits), `--repeat ٣` ran three times: a PID or number is 0-9.
+
+    For ps and watch such a word is a process name, which no process has here.
+    """
+    code, err = _given([w.replace("{n}", "١" if argv[0] in ("ps", "watch") else "٣") for w in argv], tmp_path)
+    assert code == 2 and "internal error" not in err and "Traceback" not in err, err[:500]
+    if argv[0] in ("ps", "watch"):
+        assert "no live process" in err and "'١'" in err
+    assert not os.path.exists(tmp_path / "r")
+
+
 class _FailingStdout(io.StringIO):
     def __init__(self, error: int):
         super().__init__()

@@ -3,7 +3,9 @@
 `runner report`, `runner compare` and `runner merge` read files that may come from another
 machine, another version, or an attacker: every mutation of the recorded runs in tests/data
 (values, types, keys, NaN, huge numbers, unicode and control characters, samples paths,
-truncated text and samples files) must end in a result or a one-line error.  Each run is
+truncated text and samples files, values and keys of up to 100,000 characters, a plan asking for
+up to two million cell runs) must end in a result or one-line errors, none longer than
+`LINE_BOUND`.  Each run is
 mutated in both forms a reader meets: as recorded (runner.results/1, upgraded on load) and
 as this runner writes it (runner.results/2, read strictly).
 
@@ -16,17 +18,21 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import resource
 import shutil
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from conftest import run_cli
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from reportdata import DATA, MATRIX
 
 EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "120"))
+LINE_BOUND = 5_000  # characters of a line a reader prints: a problem quotes a long value cut (errors.bounded)
 RUNS = sorted(name for name in os.listdir(DATA) if os.path.isfile(os.path.join(DATA, name, "results.json")))  # recorded runs, not rtapp/
 
 
@@ -55,6 +61,7 @@ LEAF = st.one_of(
     st.sampled_from([0, -1, 2**63, -(2**63) - 1, 1e300, -0.0, "", "all", "fifo", "passed", "0-1", "p99"]),
 )
 VALUE = st.recursive(LEAF, lambda inner: st.lists(inner, max_size=3) | st.dictionaries(TEXT, inner, max_size=3), max_leaves=6)
+LONG = st.builds(lambda unit, n: unit * n, st.sampled_from(["y", "线", "a b ", "'", '"', "\\", "\n"]), st.integers(500, 100_000))
 SAMPLES_PATHS = st.sampled_from(
     ["/etc/passwd", "../../x", "cells/../../x", "cells/../cells", "", ".", "cells", "cells/x/samples.csv.gz", "\x00", "results.json"]
 )
@@ -92,8 +99,17 @@ def mutated(draw: st.DrawFn) -> tuple[str, str, list[tuple[str, Any]]]:
             parent[path[-1]]  # the path may be gone after an earlier mutation
         except (KeyError, IndexError, TypeError):
             continue
-        op = draw(st.sampled_from(["replace", "replace", "delete", "add", "samples_file", "copy"]))
-        if op == "replace":
+        op = draw(st.sampled_from(["replace", "replace", "delete", "add", "samples_file", "copy", "long", "amplify"]))
+        if op == "long":  # a long value where one was, or a long key beside it
+            if isinstance(parent, dict) and draw(st.booleans()):
+                parent[draw(LONG)] = parent[path[-1]]
+            else:
+                parent[path[-1]] = draw(LONG)
+        elif op == "amplify" and isinstance(doc.get("plan"), dict):  # cells times repeats: up to twice what a run may ask for
+            cells = draw(st.integers(1, 2_000))
+            doc["cell_ids"] = [f"c{i}" for i in range(cells)]
+            doc["plan"]["repeat"] = draw(st.integers(1, 2_000_000 // cells))
+        elif op == "replace":
             parent[path[-1]] = draw(VALUE)
         elif op == "delete":
             del parent[path[-1]]
@@ -167,6 +183,8 @@ def _check(argv: tuple[str, ...]) -> None:
     assert done.code in (0, 1, 2, 4, 130), (argv, done.code, done.err[-2000:])
     for bad in ("Traceback", "internal error"):
         assert bad not in done.err and bad not in done.out, (argv, done.err[-2000:])
+    longest = max((len(line) - len(max(argv, key=len)) for line in done.err.splitlines()), default=0)
+    assert longest < LINE_BOUND, (argv, f"a line of {longest:,} characters", done.err[:500])
 
 
 @settings(
@@ -235,3 +253,46 @@ def _written(folder: str, doc: Any) -> str:
     with open(os.path.join(folder, "results.json"), "w", encoding="utf-8") as handle:
         json.dump(doc, handle)
     return folder
+
+
+def _limited(argv: tuple[str, ...], memory: int = 1 << 30) -> subprocess.CompletedProcess[str]:
+    """`runner ARGV` in a child process that may use at most `memory` bytes: a blow-up fails the child, not the machine."""
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+
+    code = "import sys; from runner.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, preexec_fn=limit, timeout=300)
+
+
+@settings(
+    max_examples=max(1, EXAMPLES // 60),  # and the explicit examples: a child process each
+    derandomize=True,
+    database=None,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+@given(
+    name=st.sampled_from(FORMS),
+    cells=st.sampled_from([1, 5, 1_000, 4_000]) | st.integers(1, 4_000),
+    repeat=st.sampled_from([1, 1_000, 1_000_000]) | st.integers(1, 1_000_000),
+    status=st.sampled_from(["passed", "running", "interrupted", "error"]),
+    command=st.sampled_from(["report", "compare", "merge"]),
+)
+@example(name="policy_matrix@2", cells=2_000, repeat=1_000_000, status="passed", command="report")  # the file the issue reported
+@example(name="policy_matrix", cells=4_000, repeat=500_000, status="running", command="compare")
+@example(name="memory_lock@2", cells=1_001, repeat=1_000, status="interrupted", command="merge")
+def test_a_plan_asking_for_billions_of_cell_runs_costs_no_memory(name, cells, repeat, status, command):
+    """A 44 KB file asking for 10^6 repeats of 2,000 cells took 7 to 9 GB to count them: in 1 GiB, it is refused or read."""
+    doc = json.loads(json.dumps(ORIGINAL[name]))
+    doc["cell_ids"] = [f"c{i}" for i in range(cells)]
+    doc.setdefault("plan", {})["repeat"] = repeat
+    doc["status"] = status
+    with tempfile.TemporaryDirectory() as tmp:
+        run = _lay_out(tmp, (name, json.dumps(doc), []))
+        argv = {"report": (run, "-o", "-", "--no-plots"), "compare": (MATRIX, run), "merge": (run, "--out", os.path.join(tmp, "m"))}
+        done = _limited((command, *argv[command]))
+        assert done.returncode in (0, 1, 2, 4, 130), (command, cells, repeat, done.stderr[-2000:])
+        assert "Traceback" not in done.stderr and "internal error" not in done.stderr, done.stderr[-2000:]
+        if cells * repeat > 1_000_000:
+            assert "no run asks for more than 1,000,000" in done.stderr, done.stderr[-2000:]

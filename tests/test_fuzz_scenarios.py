@@ -2,8 +2,10 @@
 
 Hypothesis generates scenarios and mutates the shipped ones (keys, values, types, units, huge
 and negative numbers, NaN, .inf, unicode and control characters, anchors, aliases, merge keys,
-matrix references, include/exclude) and checks that both commands exit 0 or 2 within
-`TIME_BOUND` seconds, with no "Traceback" and no "internal error" in what they print.
+matrix references, include/exclude, values and keys of up to 100,000 characters, one long text
+aliased into many places) and checks that both commands exit 0 or 2 within `TIME_BOUND`
+seconds, with no "Traceback" and no "internal error" in what they print, and no problem line
+longer than `LINE_BOUND`.
 
 The default test run is short; `RUNNER_FUZZ_EXAMPLES=5000 pytest tests/test_fuzz_scenarios.py`
 is the long run CI does.  Runs are derandomized and keep no example database, so a run is
@@ -26,6 +28,7 @@ from hypothesis import strategies as st
 SHIPPED = sorted(glob.glob(os.path.join(SCENARIOS, "*.yaml")))
 EXAMPLES = int(os.environ.get("RUNNER_FUZZ_EXAMPLES", "0") or 0)
 TIME_BOUND = 2.0  # seconds of CPU for validate and --list of one case, each: a blow-up, not the machine's load, exceeds it
+LINE_BOUND = 5_000  # characters of a line on stderr, past the file's path: a problem quotes a long value cut (errors.bounded)
 
 FUZZ = settings(
     max_examples=EXAMPLES or 60,
@@ -200,6 +203,8 @@ def _check(text: str) -> None:
             assert outcome.code in (0, 2), f"runner {' '.join(argv)} exited {outcome.code}:\n{printed[:2000]}"
             assert "Traceback" not in printed and "internal error" not in printed, printed[:2000]
             assert took < TIME_BOUND, f"runner {' '.join(argv)} took {took:.1f}s of CPU"
+            longest = max((len(line) - len(path) for line in outcome.err.splitlines()), default=0)
+            assert longest < LINE_BOUND, f"runner {' '.join(argv)} printed a line of {longest:,} characters"
             if outcome.code == 2:
                 assert outcome.err.strip(), "exit 2 with no problem printed"
 
@@ -325,3 +330,50 @@ def test_generated_scenarios_never_crash(axes, include, exclude, name, instances
         scenario["matrix"] = matrix
         process["main"] = {**main, "sched": "${{ matrix.policy }}"}
     _check(_dump(scenario))
+
+
+LONG = st.builds(
+    lambda unit, n: unit * n,
+    st.sampled_from(["y", "é", "线", "a b ", "'", '"', "\\", "${{ matrix.x }}", "0"]),
+    st.integers(min_value=500, max_value=100_000),
+)
+
+
+@FUZZ
+@given(
+    index=st.integers(min_value=0, max_value=100),
+    choice=st.integers(min_value=0, max_value=10**6),
+    long=LONG,
+    as_key=st.booleans(),
+)
+def test_long_values_and_keys_give_bounded_problems(index, choice, long, as_key):
+    """A value or key of up to 100,000 characters anywhere: every problem about it still fits a line."""
+    data = _shipped(index)
+    paths = _paths(data)
+    path = paths[choice % len(paths)]
+    text = _dump(_mutate(data, path, "rename" if as_key else "replace", long, long[:100_000]))
+    _check(text[: 1 << 20])  # a file of at most 1 MiB: past it, the size alone is refused
+
+
+@settings(FUZZ, max_examples=EXAMPLES or 20)  # each example loads up to 4 million characters: fewer in the short run
+@given(
+    index=st.integers(min_value=0, max_value=100),
+    choice=st.integers(min_value=1, max_value=10**6),
+    length=st.integers(min_value=1, max_value=100_000),
+    copies=st.integers(min_value=1, max_value=200),
+    nested=st.booleans(),
+)
+def test_a_long_text_aliased_into_many_places_is_bounded(index, choice, length, copies, nested):
+    """One text anchored once, aliased `copies` times (or copies squared, through an aliased list) where a value was.
+
+    A 0.4 MB file of this kind took 16 s and 1.6 GB and printed its text once per alias: the loader
+    bounds what aliases expand to (yamlsource.MAX_CHARS) and every problem quotes the text cut.
+    """
+    data = _shipped(index)
+    paths = [p for p in _paths(data) if p and p[0] != "description"]
+    data = _mutate(data, paths[choice % len(paths)], "replace", "ZZALIASESZZ", "")
+    data = {"description": "ZZTEXTZZ", **{k: v for k, v in data.items() if k != "description"}}  # anchored before any alias
+    aliases = ", ".join(["*big"] * copies)
+    uses = f"[&many [{aliases}], " + ", ".join(["*many"] * copies) + "]" if nested else f"[{aliases}]"
+    text = _dump(data).replace("ZZTEXTZZ", '&big "' + "x" * length + '"', 1).replace("ZZALIASESZZ", uses, 1)
+    _check(text)

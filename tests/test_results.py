@@ -6,7 +6,10 @@ import copy
 import json
 import os
 import re
+import resource
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import jsonschema
@@ -485,3 +488,43 @@ def test_a_threads_settings_are_stored_with_every_field_they_have():
     assert list(_SettingsRecord.model_fields) == [f.name for f in dataclasses.fields(Settings)]
     deadline = Settings(Policy.DEADLINE, 0, 0, (1, 3), 2_000_000, 8_000_000, 10_000_000)
     assert _settings_in(_SettingsRecord.model_validate(_settings_out(deadline))) == deadline
+
+
+# ---------------------------------------------------------------- what a file may cost to read
+
+
+def limited_cli(*argv: str, memory: int = 1 << 30) -> subprocess.CompletedProcess[str]:
+    """`runner ARGV` in a child process that may use at most `memory` bytes of address space (a runaway read fails, not the machine)."""
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+
+    code = "import sys; from runner.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, preexec_fn=limit, timeout=300)
+
+
+@pytest.mark.parametrize("command", ["report", "compare", "merge"])
+def test_a_file_asking_for_more_cell_runs_than_any_run_is_refused_before_they_are_counted(tmp_path, command):
+    """44 KB asking for 10^6 repeats of 2,000 cells: report, compare and merge took 7 to 9 GB to count its cell runs."""
+
+    def ask(d):
+        d["cell_ids"] = [f"c{i}" for i in range(2_000)]
+        d["plan"]["repeat"] = 10**6
+
+    path = edited(tmp_path, ask)
+    argv = {"report": [path, "-o", "-"], "compare": [MATRIX, path], "merge": [path, "--out", str(tmp_path / "m")]}[command]
+    done = limited_cli(command, *argv)
+    assert done.returncode == 2, done.stderr
+    assert f"{path}:1:1: plan.repeat: asks for 1,000,000 runs of each of 2,000 cells, 2,000,000,000 cell runs; no run asks" in done.stderr
+    ask_less = edited(tmp_path / "fits", lambda d: d["plan"].update(repeat=200_000))  # 5 cells: 10^6 cell runs, as a run may ask
+    assert "cell runs it was asked for are not in it" in refusal(ask_less)
+
+
+@pytest.mark.parametrize("name", ["results.json", "cells.jsonl"])
+def test_a_results_file_or_journal_past_the_size_cap_is_refused_before_it_is_read(tmp_path, name):
+    path = Path(saved(matrix(), tmp_path / "run")) / name
+    with open(path, "ab") as handle:
+        handle.truncate((512 << 20) + 1)  # sparse: no disk, but read whole it was 512 MiB of bytes, then of text
+    done = limited_cli("report", str(tmp_path / "run"), "-o", "-", memory=768 << 20)
+    assert done.returncode == 2, done.stderr
+    assert f"{path}:1:1: is larger than 512 MiB, the most a results file or journal may be" in done.stderr

@@ -568,6 +568,25 @@ def test_long_thread_names_are_cut_to_15_bytes_and_kept_unique():
     assert any('"my task/1" made valid and unique: my_task_1' in n for n in c.notes)
 
 
+@pytest.mark.parametrize("key", ["t\\ud800", "\\udfffname", "\\ud800\\udc00\\ud800very-long-task-name"])
+def test_a_task_name_with_a_lone_surrogate_is_made_valid_text_with_a_note(key):
+    """JSON may escape half a UTF-16 pair (YAML refuses one): encoding the name to measure it raised (exit 70)."""
+    c = conv('{"tasks": {"' + key + '": {"run": 1}}}')
+    (thread,) = c.scenario["processes"][0]["threads"]
+    thread["name"].encode()  # valid text: no surrogate left
+    assert len(thread["name"].encode()) <= 15 and "_" in thread["name"]
+    assert any("thread name" in n and ("\\ud800" in n or "\\udfff" in n) for n in c.notes), c.notes  # said escaped
+    Scenario.parse(yaml.safe_load(c.yaml()))  # the scenario written reads back
+
+
+def test_the_notes_of_a_task_named_in_100_kb_print_a_few_lines(tmp_path):
+    """import-rtapp printed each note whole: a task's name of 100 KB, twice, on stderr."""
+    path = tmp_path / "w.json"
+    path.write_text('{"tasks": {"' + "n" * 100_000 + '": {"run": 1000}}}', encoding="utf-8")
+    done = run_cli("import-rtapp", str(path))
+    assert done.code == 0 and len(done.err) < 10_000 and "…" in done.err
+
+
 def test_the_process_is_named_after_the_file():
     c = conv('{"tasks": {"t": {"run": 1}}}', "/some/where/a very-long workload name.json")
     assert c.scenario["name"] == "a_very-long_workload_name"

@@ -76,6 +76,19 @@ def test_samples_the_writer_overwrote_are_counted_lost_not_returned(ring: tuple[
     assert _seqs(reader.drain(1)) == list(range(16, 23)) and reader.lost[1] == 5
 
 
+def test_a_drain_of_at_most_n_takes_the_oldest_and_leaves_the_rest(ring: tuple[samples.Buffer, _Writer]) -> None:
+    """A runner that fell a ring behind holds a chunk of it at a time (spawn.DRAIN_CHUNK), not 20,000 samples at once."""
+    reader, writer = ring
+    writer.write(7)
+    assert _seqs(reader.drain(1, most=3)) == [0, 1, 2]
+    assert _seqs(reader.drain(1, most=3)) == [3, 4, 5]
+    writer.write(6)  # 7..12: the ring holds 5..12, and a live writer may be replacing 5 (read already)
+    assert _seqs(reader.drain(1, most=3)) == [6, 7, 8] and reader.lost[1] == 0
+    writer.write(10)  # 13..22: 9..14 overwritten before they were read
+    assert _seqs(reader.drain(1, most=3)) == [16, 17, 18] and reader.lost[1] == 7
+    assert _seqs(reader.drain(1, stopped=True, most=100)) == [19, 20, 21, 22] and reader.drain(1, most=3) == []
+
+
 def test_the_buffer_can_be_unmapped_after_a_drain(ring: tuple[samples.Buffer, _Writer]) -> None:
     reader, writer = ring
     writer.write(CAPACITY + 3)

@@ -3,6 +3,8 @@ from __future__ import annotations
 import re
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from runner import figures as fg
 from runner import units
@@ -166,3 +168,29 @@ def test_the_duration_pattern_refuses_what_the_parser_refuses(text):
 def test_a_duration_column_shows_no_value_that_is_not_zero_as_zero(values, shown):
     column = fg.scale(fg.Unit.NS, values)
     assert [column.number(v) for v in values] == shown
+
+
+@given(st.integers(min_value=-(10**30), max_value=10**30), st.sampled_from(["", " ", "\t", "  "]))
+def test_a_whole_number_reads_back_exactly_within_its_range(n, pad):
+    low, high = -(10**20), 10**20
+    text = f"{pad}{n}{pad}"
+    if low <= n <= high:
+        assert units.parse_whole(text, low, high) == n
+    else:
+        with pytest.raises(units.UnitError, match="is out of range; expected -100,000,000,000,000,000,000 to"):
+            units.parse_whole(text, low, high)
+
+
+@pytest.mark.parametrize("text", ["٣", "²", "３", "1_000", "1e3", "0x10", "", "-", "+-1", "1 2", "9" * 5_000 + "x"])
+def test_a_whole_number_is_ascii_digits_only(text):
+    """int() reads Arabic-Indic and fullwidth digits and `1_000`; a number a user types here is 0-9."""
+    with pytest.raises(units.UnitError, match="is not a whole number"):
+        units.parse_whole(text, 0, 10**6)
+
+
+def test_a_pid_is_ascii_digits_in_pid_ts_range_and_anything_else_is_a_name():
+    assert units.parse_pid("1") == 1 and units.parse_pid("2147483647") == 2**31 - 1
+    assert units.parse_pid("١") is None and units.parse_pid("sshd") is None and units.parse_pid("-1") is None
+    for far in ("2147483648", "9" * 5_000):
+        with pytest.raises(units.UnitError, match=r"PID .* is out of range; expected 0 to 2,147,483,647"):
+            units.parse_pid(far)

@@ -131,3 +131,51 @@ def test_a_byte_that_is_not_utf8_is_reported_at_its_line_and_column(tmp_path):
     with pytest.raises(ScenarioError) as err:
         load_file(str(path))
     assert str(err.value.problems[0]) == f"{path}:5:6: not UTF-8 text: byte 0xe9 (invalid continuation byte)"
+
+
+def _scenario(tmp_path, name: str, body: str) -> str:
+    path = tmp_path / f"{name}.yaml"
+    path.write_text("name: t\nprocesses:\n  - name: p\n" + body, encoding="utf-8")
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "name, body",
+    [
+        ("value", "    main: {work: sleep, sched: '" + "y" * 100_000 + "'}\n"),
+        ("key", "    main:\n      work: sleep\n      ? " + "k" * 100_000 + "\n      : 1\n"),  # YAML's explicit key: no 1,024 limit
+        ("tag", "    main: {work: sleep, sched: !" + "t" * 100_000 + " x}\n"),
+        ("spaced", "    main: {work: sleep, sched: '" + "a b " * 25_000 + "'}\n"),
+        (
+            "repeated",
+            "    main: {work: sleep}\n    threads:\n" + "".join(f"      - {{name: t{i}, sched: '{'z' * 1000}'}}\n" for i in range(100)),
+        ),
+        (
+            "aliased",
+            "    main: {work: sleep, sched: &a '"
+            + "w" * 100_000
+            + "'}\n    threads:\n"
+            + "".join(f"      - {{name: t{i}, sched: *a}}\n" for i in range(30)),  # 3 MB: short of the aliases' bound
+        ),
+    ],
+)
+def test_problems_quote_long_values_cut_to_a_readable_line(tmp_path, name, body):
+    """A 0.1 MB file printed 100 MB: each problem quoted its value whole, and an aliased one in every place it went."""
+    from conftest import run_cli
+
+    path = _scenario(tmp_path, name, body)
+    done = run_cli("validate", path)
+    assert done.code == 2 and "Traceback" not in done.err
+    lines = done.err.splitlines()
+    assert lines and all(len(line) < len(path) + 1_000 for line in lines), max(map(len, lines))
+    assert len(done.err) < 120_000 and "…" in done.err
+
+
+def test_a_problem_cuts_long_quoted_values_but_not_its_words():
+    from runner.errors import Problem
+
+    long = "x" * 500
+    said = Problem("f", 1, 1, "a", f"the thread's {long} and {long!r} is not 'ok'; expected 'fifo:80'").message
+    assert said.startswith(f"the thread's {long} and 'xxxx") and "…" in said and said.endswith(" is not 'ok'; expected 'fifo:80'")
+    assert len(said) < 700
+    assert Problem("f", 1, 1, "a", "x" * 10_000).message.count("x") < 4_000  # no quote at all: the whole is bounded

@@ -17,6 +17,12 @@ file for results written before those existed.  Each line has its own colour and
 so lines stay apart past ten cells.  The switch plots put each series in its own panel, so
 threads at 0 switches do not hide behind one another.
 
+Nothing here grows with the run: the samples file is streamed once per cell, and each series
+keeps a bounded digest of it (`Envelope`: at most MAX_POINTS bins of callbacks, each bin's
+fewest and most switches, as long-run plotters keep a min/max envelope per pixel column;
+`histogram.Counter` for the latency of results without native histograms).  A run of up to
+MAX_POINTS callbacks is drawn callback by callback; a longer one in bins, which its plot says.
+
 matplotlib is an extra (`PLOTS_EXTRA_INSTALL` from a clone): `available()` says whether it is
 installed, and the report says plots were skipped when it is not.  Output is deterministic
 (no dates, a fixed SVG id salt) so re-rendering the same results gives the same files.
@@ -40,9 +46,10 @@ from runner.report.fmt import Markdown, md_code, md_text
 from runner.report.markdown import Plot, callback_threads, first_runs, matrix_order, threads_of_interest
 from runner.results.document import CellResult, RunDocument, ThreadResult
 from runner.results.files import slug
-from runner.results.samplesfile import SampleRow, read_samples
+from runner.results.samplesfile import scan_samples
 from runner.safefs import make_folders, write_atomic
 
+MAX_POINTS = 2048  # bins of a switch series at most: one callback each up to this many callbacks, then 2, 4, 8, ... callbacks
 MAX_SERIES = 12  # lines (or panels) in one plot; beyond that the plot's title says how many it shows
 MAX_BINS = 200  # bins of a latency histogram at most: the bin width is the first of 1, 2, 5, 10, 20, ... µs that keeps to it
 LINE_STYLES = ("-", "--", ":", "-.")  # with the ten colours of tab10: 40 lines, no two alike
@@ -93,11 +100,46 @@ def skipped_note(failure: BaseException | None = None) -> Markdown:
     return Markdown(f"Plots skipped: drawing them failed ({md_text(why)}); the rest of the report is complete.")
 
 
+class Envelope:
+    """A series of counts, one per callback, kept in at most `limit` bins: each bin's fewest and most.
+
+    Streamed as the samples file is read: bins start one callback wide; when `limit` bins are
+    full and another callback comes, neighbours merge pairwise and the width doubles.  So it
+    holds between limit/2 and `limit` bins whatever the run's length, and the most switches of
+    any callback (the spike a plot is for) is in the bin that holds it, never averaged away.
+    """
+
+    def __init__(self, limit: int = MAX_POINTS):
+        assert limit >= 2 and limit % 2 == 0
+        self.limit = limit
+        self.width = 1  # callbacks per bin
+        self.count = 0  # callbacks seen
+        self.low: list[int] = []
+        self.high: list[int] = []
+
+    def add(self, value: int) -> None:
+        if self.count % self.width:
+            self.low[-1] = min(self.low[-1], value)
+            self.high[-1] = max(self.high[-1], value)
+        else:
+            if len(self.high) == self.limit:  # every bin full: count is limit * width, a multiple of the width doubled
+                self.low = [min(pair) for pair in zip(self.low[::2], self.low[1::2])]
+                self.high = [max(pair) for pair in zip(self.high[::2], self.high[1::2])]
+                self.width *= 2
+            self.low.append(value)
+            self.high.append(value)
+        self.count += 1
+
+    def edges(self) -> list[float]:
+        """Where each bin starts on the callback axis (callback n drawn centred on n), and where the last ends."""
+        return [i * self.width + 0.5 for i in range(len(self.high))] + [self.count + 0.5]
+
+
 @dataclass(frozen=True)
 class Series:
     label: str
     latency: Histogram | None  # wake-up latency of every release answered, ns
-    involuntary: list[int]  # involuntary switches in each callback, in order (empty without a samples file)
+    involuntary: Envelope | None  # involuntary switches in each callback, in order (None without a samples file, or no rows)
 
 
 # ---------------------------------------------------------------- data
@@ -108,34 +150,51 @@ def _label(cell: CellResult) -> str:
     return " " + label if label.startswith("_") else label  # matplotlib leaves `_...` labels out of the legend
 
 
+@dataclass(frozen=True)
+class _Digest:
+    """What the plots keep of one thread's rows in a samples file: bounded, whatever the run's length."""
+
+    switches: Envelope
+    latency: histogram.Counter
+
+
 class _Samples:
-    """Samples files read once per cell, only the rows of the threads asked for."""
+    """Samples files streamed once per cell, keeping a digest of the rows of the threads asked for."""
 
     def __init__(self, doc: RunDocument, wanted: set[str]):
         self.doc, self.wanted = doc, wanted
-        self.cache: dict[int, dict[str, list[SampleRow]]] = {}
+        self.cache: dict[int, dict[str, _Digest]] = {}
 
-    def rows(self, cell: CellResult, key: str) -> list[SampleRow]:
+    def digest(self, cell: CellResult, key: str) -> _Digest | None:
         if id(cell) not in self.cache:
             path = self.doc.samples_path(cell)
-            self.cache[id(cell)] = read_samples(path, self.wanted) if path else {}
-        return self.cache[id(cell)].get(key, [])
+            digests: dict[str, _Digest] = {}
+            for row_key, row in scan_samples(path, self.wanted) if path else ():
+                digest = digests.get(row_key)
+                if digest is None:
+                    digest = digests[row_key] = _Digest(Envelope(), histogram.Counter())
+                digest.switches.add(row.nivcsw)
+                digest.latency.add(row.latency_ns)
+            self.cache[id(cell)] = digests
+        return self.cache[id(cell)].get(key)
 
 
 def _latency(t: ThreadResult, cell: CellResult, samples: _Samples) -> Histogram | None:
     """A thread's wake-up latency histogram: the native one, or (results from before those) built from its samples."""
     if t.histograms is not None and t.histograms.latency is not None:
         return t.histograms.latency
-    return histogram.from_values(r.latency_ns for r in samples.rows(cell, t.key))
+    digest = samples.digest(cell, t.key)
+    return digest.latency.histogram() if digest is not None else None
 
 
 def _series(label: str, t: ThreadResult, cell: CellResult, samples: _Samples) -> Series:
-    return Series(label, _latency(t, cell, samples), [r.nivcsw for r in samples.rows(cell, t.key)])
+    digest = samples.digest(cell, t.key)
+    return Series(label, _latency(t, cell, samples), digest.switches if digest is not None else None)
 
 
 def _aggregate(cell: CellResult, samples: _Samples, label: str) -> Series:
     """Every periodic thread of `cell` as one latency histogram (the aggregate line); no switch series."""
-    return Series(label, histogram.merge(_latency(t, cell, samples) for t in callback_threads(cell)), [])
+    return Series(label, histogram.merge(_latency(t, cell, samples) for t in callback_threads(cell)), None)
 
 
 def osadl_bins(hists: Sequence[Histogram]) -> tuple[list[float], list[list[int]]]:
@@ -200,20 +259,40 @@ def latency_histogram(title: str, series: Sequence[Series], path: str, total: in
 
 
 def involuntary_panels(title: str, series: Sequence[Series], path: str, total: int | None = None, what: str = "cells") -> None:
-    """Involuntary context switches in each callback, one panel per series (shared axes), so lines at 0 stay apart."""
+    """Involuntary context switches in each callback, one panel per series (shared axes), so lines at 0 stay apart.
+
+    A series of more than MAX_POINTS callbacks comes in bins (`Envelope`): its line is each bin's
+    most switches, under it a band down to the bin's fewest, and the axis says how wide the bins are.
+    """
     plt = _pyplot()
-    drawn = [s for s in series if s.involuntary] or list(series[:1])
+    drawn = [s for s in series if s.involuntary is not None and s.involuntary.count] or list(series[:1])
     fig, axes = plt.subplots(len(drawn), 1, figsize=(9, 0.5 + 0.75 * len(drawn)), sharex=True, sharey=True, squeeze=False)
-    top = max((max(s.involuntary, default=0) for s in drawn), default=0)
+    top = max((max(s.involuntary.high, default=0) for s in drawn if s.involuntary is not None), default=0)
     for i, (s, ax) in enumerate(zip(drawn, axes[:, 0])):
-        ax.step(range(1, len(s.involuntary) + 1), s.involuntary, where="mid", linewidth=1.1, **style(i))
+        env = s.involuntary
+        if env is not None and env.width == 1:  # callback by callback
+            ax.step(range(1, env.count + 1), env.high, where="mid", linewidth=1.1, **style(i))
+        elif env is not None:
+            edges = env.edges()
+            low, high = env.low + env.low[-1:], env.high + env.high[-1:]  # step="post" draws the last value to the last edge
+            ax.fill_between(edges, low, high, step="post", alpha=0.3, linewidth=0, color=style(i)["color"])
+            ax.step(edges, high, where="post", linewidth=1.1, **style(i))
         ax.set_ylim(-0.5, max(1, top) * 1.15 + 0.5)
         ax.text(1.01, 0.5, s.label, transform=ax.transAxes, va="center", ha="left", fontsize=7)
         ax.grid(True, alpha=0.3)
-    axes[-1, 0].set_xlabel("callback")
+    axes[-1, 0].set_xlabel(_callback_axis([s.involuntary.width for s in drawn if s.involuntary is not None]))
     axes[len(drawn) // 2, 0].set_ylabel("involuntary switches")
     axes[0, 0].set_title(_title(f"{title}: involuntary context switches per callback", len(series), total or len(series), what))
     _save(fig, path)
+
+
+def _callback_axis(widths: Sequence[int]) -> str:
+    """The callback axis's label, saying when series are drawn in bins and how wide they are."""
+    binned = sorted({w for w in widths if w > 1})
+    if not binned:
+        return "callback"
+    size = f"{binned[0]:,}" if len(binned) == 1 else f"{binned[0]:,} to {binned[-1]:,}"
+    return f"callback (in bins of {size} callbacks: the line is each bin's most switches, the band its fewest to most)"
 
 
 def _plain_numbers():  # type: ignore[no-untyped-def]
@@ -281,7 +360,7 @@ def write_plots(doc: RunDocument, folder: str, labels: dict[str, str] | None = N
         hist = os.path.join("plots", f"{name}.latency.svg")
         latency_histogram(title, series, os.path.join(folder, hist), total, what)
         out.append(Plot(f"{title}: wake-up latency histogram", hist))
-        if switches and any(s.involuntary for s in series):
+        if switches and any(s.involuntary is not None and s.involuntary.count for s in series):
             inv = os.path.join("plots", f"{name}.involuntary.svg")
             involuntary_panels(title, series, os.path.join(folder, inv), total, what)
             out.append(Plot(f"{title}: involuntary context switches per callback", inv))

@@ -7,7 +7,7 @@ import json
 import math
 import os
 import re
-from typing import Any
+from typing import Any, BinaryIO
 
 from pydantic import (
     ValidationError,
@@ -18,11 +18,20 @@ from runner.errors import Problem, ScenarioError, special_file
 from runner.results.document import LEGACY_SCHEMA, SCHEMA, CellResult, RunDocument, Status, worst
 from runner.results.files import INT64, results_file, samples_path_problem, show_value
 from runner.results.journal import journal_path, merge_journal
+from runner.scenario.model import MAX_REPEAT
 from runner.terminal import warn
 
 # ---------------------------------------------------------------- reading a results file
 
 MAX_DEPTH = 64  # JSON nesting a results file never needs; deeper is refused before anything recurses into it
+MAX_BYTES = 512 << 20
+"""The largest results.json (and cells journal) read: a larger one is refused before it is read.
+
+A results file is read whole, and reading one takes about nine times its size in memory (a
+16 MiB file of 1,000 cells of 10 threads: 145 MiB at peak), so this keeps a report, comparison
+or merge under about 4.5 GiB.  A run writes 16 KiB or so per cell run of 10 threads: 30,000 such
+cell runs (100 cells, 300 times each) fit.
+"""
 MAX_PROBLEMS = 20
 _SCHEMA_NAME = re.compile(r"runner\.results/([0-9]{1,6})")
 
@@ -45,7 +54,7 @@ def load(path: str) -> RunDocument:
     journal_data = _journal_bytes(journal)
     try:
         with open(path, "rb") as handle:
-            raw = handle.read()
+            raw = _capped(path, handle, "a results file")
     except OSError as exc:
         raise ScenarioError([Problem(path, 1, 1, "", f"cannot read results: {exc.strerror}")]) from None
     data = parse_json(path, raw)
@@ -63,6 +72,8 @@ def load(path: str) -> RunDocument:
     except ValidationError as exc:
         raise ScenarioError(validation_problems(path, exc)) from None
     doc.folder, doc.source = os.path.dirname(os.path.realpath(path)), path  # where the file is: a link to it (/dev/stdin) is not its folder
+    if problem := _runs_asked(path, doc):
+        raise ScenarioError([problem])
     journaled = journal_cells(journal, journal_data)
     problems = [
         Problem(
@@ -88,6 +99,31 @@ def load(path: str) -> RunDocument:
     if problems:
         raise ScenarioError(problems)
     return doc
+
+
+def _capped(path: str, handle: BinaryIO, what: str) -> bytes:
+    """What `handle` holds, refused (ScenarioError) past MAX_BYTES: a file by its size, before any of it is read; a pipe as it is read."""
+    if os.fstat(handle.fileno()).st_size > MAX_BYTES or len(raw := handle.read(MAX_BYTES + 1)) > MAX_BYTES:
+        why = f"is larger than {MAX_BYTES >> 20} MiB, the most a results file or journal may be (reading one takes nine times that)"
+        raise ScenarioError([Problem(path, 1, 1, "", f"{why}; is it really {what}?")])
+    return raw
+
+
+def _runs_asked(path: str, doc: RunDocument) -> Problem | None:
+    """Why the cell runs `doc` asks for are more than any run asks for, before anything counts them one by one; None when not.
+
+    A run refuses more than MAX_REPEAT cell runs (cells times --repeat), and a file asking for
+    more (10^6 repeats of 2,000 cells in 44 KB) would have the report, comparison and merge
+    count two billion of them.  A merge asks for none of its own (`RunDocument.planned_runs`).
+    """
+    runs = len(set(doc.cell_ids)) * doc.plan.repeat
+    if doc.merged_from or runs <= MAX_REPEAT:
+        return None
+    why = (
+        f"asks for {doc.plan.repeat:,} runs of each of {len(set(doc.cell_ids)):,} cells, {runs:,} cell runs; "
+        f"no run asks for more than {MAX_REPEAT:,}"
+    )
+    return Problem(path, 1, 1, "plan.repeat", why)
 
 
 def _inconsistencies(path: str, doc: RunDocument) -> list[Problem]:
@@ -125,7 +161,7 @@ def _journal_bytes(path: str) -> bytes | None:
         raise ScenarioError([Problem(path, 1, 1, "", f"is {kind}, not a file; a cells journal is the file a run appends its cells to")])
     try:
         with open(path, "rb") as handle:
-            return handle.read()
+            return _capped(path, handle, "a cells journal")
     except FileNotFoundError:
         return None
     except OSError as exc:

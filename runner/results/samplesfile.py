@@ -28,7 +28,7 @@ import os
 import re
 import tempfile
 import zlib
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Optional
 
@@ -171,15 +171,17 @@ class SampleRow:
 _READ = ("seq", "latency_ns", "nivcsw", "minflt", "cpu_end")  # the columns a SampleRow keeps, in its order
 
 
-def read_samples(path: str, threads: Optional[Collection[str]] = None) -> dict[str, list[SampleRow]]:
-    """Per-callback samples of a cell by thread key (only `threads`, when given); empty when the file does not exist.
+def scan_samples(path: str, threads: Optional[Collection[str]] = None) -> Iterator[tuple[str, SampleRow]]:
+    """A cell's per-callback samples as (thread key, row), in the file's order; only `threads`, when given; none without a file.
 
-    A file that is there but unusable (not gzip, cut short, rows that are not numbers) is a
-    ScenarioError naming the file and the line, not a traceback and not a silently empty plot.
-    Rows of threads not asked for are checked (integers where numbers belong) but not kept, so
-    plotting a few threads of a 256-thread cell costs a third of reading them all.
+    A stream: nothing is kept, so reading the samples of an hour-long run takes the memory of
+    reading a second of it (the plots keep a bounded digest of what they need).  A file that is
+    there but unusable (not gzip, cut short, rows that are not numbers) is a ScenarioError
+    naming the file and the line, not a traceback and not a silently empty plot; rows before
+    it have been yielded.  Rows of threads not asked for are checked (integers where numbers
+    belong) but not turned into rows, so plotting a few threads of a 256-thread cell costs a
+    third of reading them all.
     """
-    out: dict[str, list[SampleRow]] = {}
     line = 1
     try:
         with gzip.open(path, "rt", encoding="utf-8", newline="") as handle:
@@ -196,19 +198,18 @@ def read_samples(path: str, threads: Optional[Collection[str]] = None) -> dict[s
                     raise ValueError(f"{len(record)} fields; expected {width}, as in the header")
                 key = record[key_at]
                 if threads is None or key in threads:
-                    out.setdefault(key, []).append(SampleRow(*(_number(record[i], c) for i, c in zip(at, _READ))))
+                    yield key, SampleRow(*(_number(record[i], c) for i, c in zip(at, _READ)))
                 elif not all(_INTEGER.fullmatch(record[i]) for i in at):
                     for i, c in zip(at, _READ):
                         _number(record[i], c)  # raises, naming the column
     except FileNotFoundError:
-        return out
+        return
     except (OSError, EOFError, zlib.error) as exc:
         raise ScenarioError(
             [Problem(path, line, 1, "", f"cannot read samples: {exc}; expected a gzip'd CSV as runner writes it")]
         ) from None
     except (ValueError, csv.Error) as exc:
         raise ScenarioError([Problem(path, line, 1, "", f"not a samples row: {exc}")]) from None
-    return out
 
 
 _INTEGER = re.compile(r"-?[0-9]{1,18}")  # surely inside 64 bits; anything else goes through _number

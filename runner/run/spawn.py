@@ -185,6 +185,7 @@ class KernelBackend:
 
 RING_MAX = 1 << 17  # samples per thread's ring at most (8 MiB): 1.3 s of a 10 us period
 RING_SECONDS = 2  # otherwise, the ring holds this long of callbacks: the runner drains it five times a second
+DRAIN_CHUNK = 4096  # samples drained and written at a time: the runner's memory does not follow how far it fell behind
 _RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
 
 
@@ -711,8 +712,10 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool, holder
     if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
         return
     for t in w.planned:
-        if t.has_callbacks:
-            taken = w.buffer.drain(t.index, stopped=final)
+        if not t.has_callbacks:
+            continue
+        for _ in range(w.layout.capacity // DRAIN_CHUNK + 1):  # a ring at most: a writer ahead of the drain waits for the next tick
+            taken = w.buffer.drain(t.index, stopped=final, most=DRAIN_CHUNK)
             if taken:
                 options.samples.write(
                     thread_key(t.process, t.instance, t.index, t.name),
@@ -722,6 +725,8 @@ def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool, holder
                     holders,
                 )
                 w.written[t.index] += len(taken)
+            if len(taken) < DRAIN_CHUNK:
+                break
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend) -> RawCell:

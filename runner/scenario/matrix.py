@@ -259,6 +259,11 @@ def references(data: Any, path: Path = ()) -> list[tuple[Path, str]]:
     return found
 
 
+def referenced_keys(data: Any) -> list[str]:
+    """The matrix keys `data` refers to (`${{ matrix.x }}`), sorted: what `substitute` reads of a cell's values."""
+    return sorted({m.group(1) for _, expr in references(data) if (m := _NAME.match(expr))})
+
+
 def check_references(doc: Document, data: Any, spec: MatrixSpec, problems: list[Problem]) -> None:
     """Every reference names a defined key; every axis is referenced somewhere."""
     keys = spec.keys()

@@ -1487,8 +1487,9 @@ def _samples_text(value: Any) -> Any:
         word, _, count = value.strip().partition(" ")
         if word == "last":
             try:
-                return {"mode": "last", "last": int(count)}
-            except ValueError:
+                n = units.parse_whole(count, -(1 << 63), (1 << 63) - 1)  # ASCII digits, bounded; the field checks the range
+                return {"mode": "last", "last": n}
+            except units.UnitError:
                 raise ValueError(f"samples {value!r}: expected 'last N' with a whole number N, e.g. 'last 10000'") from None
         return {"mode": word}
     if not isinstance(value, (dict, Samples)):  # null, a number: the model's own message would name its class

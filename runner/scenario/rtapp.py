@@ -1237,8 +1237,9 @@ class _Converter:
             n += 1
         self.thread_names.update(self._names(name, count))
         if name != key:
-            why = "cut to fit the 15 bytes the kernel keeps" if len(key.encode()) > room else "made valid and unique"
-            extra = f" with room for -0..-{count - 1}" if count > 1 and len(key.encode()) > room else ""
+            size = len(key.encode("utf-8", "surrogatepass"))  # JSON may hold half a UTF-16 pair, which `clean` replaced
+            why = "cut to fit the 15 bytes the kernel keeps" if size > room else "made valid and unique"
+            extra = f" with room for -0..-{count - 1}" if count > 1 and size > room else ""
             self.note(at, f'thread name "{printable(key)}" {why}{extra}: {name}')
         return name
 

@@ -7,8 +7,9 @@ built here from the composed node tree so that
 * duplicate keys are an error (PyYAML silently keeps the last one),
 * mapping keys are the text the user wrote (`on:` stays "on", not True),
 * only plain data comes out: no tags that build objects, no timestamps,
-* aliases cannot blow up: expansion is bounded in node count and nesting depth, and an alias
-  (or a `<<` merge) inside the node it refers to is an error, not endless recursion,
+* aliases cannot blow up: expansion is bounded in node count, in characters (one long text
+  aliased a thousand times is a gigabyte to every later stage) and in nesting depth, and an
+  alias (or a `<<` merge) inside the node it refers to is an error, not endless recursion,
 * any text at all gives problems, never an exception: control characters, lone surrogates,
   numbers past Python's limits and tags applied to text they cannot read are all reported,
   and problems never print a raw control character (a newline would forge another line).
@@ -17,6 +18,7 @@ built here from the composed node tree so that
 from __future__ import annotations
 
 import functools
+import re
 import unicodedata
 from dataclasses import dataclass, field
 from typing import Any, Union
@@ -24,13 +26,20 @@ from typing import Any, Union
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from runner.errors import Problem, ScenarioError, special_file
+from runner.errors import Problem, ScenarioError, quoted, special_file
 
 Path = tuple[Union[str, int], ...]
 
 MAX_BYTES = 1 << 20
 MAX_DEPTH = 48
 MAX_NODES = 100_000
+MAX_CHARS = 4 * MAX_BYTES
+"""Characters of text (keys and values) the file may expand to through its aliases: four times the largest file.
+
+A file without aliases holds fewer than MAX_BYTES; a real scenario's aliases (shared settings,
+a list of CPUs) repeat a few short values.  Past this the cost is the aliases' alone: 1.6 GB and
+16 s for a 0.4 MB file of one long text aliased many times, before the guard.
+"""
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 _COLLECTION_TAGS = ("tag:yaml.org,2002:map", "tag:yaml.org,2002:seq")
 _PLAIN_TYPES = (str, int, float, bool, type(None))
@@ -54,10 +63,11 @@ def printable(text: str) -> str:
 
 def _surrogate(text: str) -> str | None:
     """The first lone UTF-16 surrogate in `text` (YAML's "\\ud800" escape makes one), or None."""
-    for char in text:
-        if "\ud800" <= char <= "\udfff":
-            return char
-    return None
+    found = _SURROGATE.search(text)
+    return found.group() if found else None
+
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
 
 
 @dataclass(frozen=True)
@@ -104,7 +114,7 @@ def dotted(path: Path) -> str:
         elif str(part).isprintable() and str(part) and not any(c in str(part) for c in ".[]'\" "):
             out += ("." if out else "") + str(part)
         else:
-            out += f"[{part!r}]"
+            out += f"[{quoted(part)}]"
     return out
 
 
@@ -231,6 +241,8 @@ class _Builder:
         self.doc = doc
         self.problems: list[Problem] = []
         self.nodes = 0
+        self.chars = 0  # of the keys and scalars built, aliases counted each time they are used
+        self.expanded = False  # past MAX_NODES or MAX_CHARS: said once, nothing more is built
         self.active: set[int] = set()  # ids of the collection nodes being built: an alias to one of them is a cycle
 
     def _mark(self, node: Node) -> Mark:
@@ -259,16 +271,23 @@ class _Builder:
 
     def _build(self, node: Node, path: Path, depth: int) -> Any:
         self.nodes += 1
-        if self.nodes > MAX_NODES:
-            if self.nodes == MAX_NODES + 1:
-                self._fail(node, (), f"document expands to more than {MAX_NODES} values (alias bomb?)")
+        if isinstance(node, ScalarNode):
+            self.chars += len(node.value)
+        elif isinstance(node, MappingNode):
+            self.chars += sum(len(key.value) for key, _ in node.value if isinstance(key, ScalarNode))
+        if self.nodes > MAX_NODES or self.chars > MAX_CHARS:
+            if not self.expanded:
+                self.expanded = True
+                what = f"{MAX_NODES:,} values" if self.nodes > MAX_NODES else f"{MAX_CHARS:,} characters"
+                why = "its aliases repeat too much (an alias bomb?); a scenario needs far less, write the values out or alias fewer"
+                self._fail(node, (), f"the file expands to more than {what}; {why}")
             return None
         if depth > MAX_DEPTH:
             self._fail(node, path, f"nesting is too deep; at most {MAX_DEPTH} levels")
             return None
         self.doc.marks.setdefault(path, self._mark(node))
         if isinstance(node, (MappingNode, SequenceNode)) and node.tag not in _COLLECTION_TAGS:
-            self._fail(node, path, f"unsupported YAML tag {node.tag!r}; only plain data is allowed")
+            self._fail(node, path, f"unsupported YAML tag {quoted(node.tag)}; only plain data is allowed")
             return None
         if isinstance(node, MappingNode):
             return self._mapping(node, path, depth)
@@ -285,20 +304,20 @@ class _Builder:
         if node.tag == "tag:yaml.org,2002:int" and node.value.lower().lstrip("+-").startswith(("0b", "0x")):
             return node.value  # a CPU mask such as 0b1100 keeps its spelling; YAML would make it 12
         if node.tag not in _SCALAR_TAGS:
-            self._fail(node, path, f"unsupported YAML tag {node.tag!r}; only plain data is allowed")
+            self._fail(node, path, f"unsupported YAML tag {quoted(node.tag)}; only plain data is allowed")
             return None
         try:
             value = self.loader.construct_object(node, deep=True)
         except yaml.constructor.ConstructorError as exc:
-            self._fail(node, path, f"unsupported YAML tag {node.tag!r}: {exc.problem}; only plain data is allowed")
+            self._fail(node, path, f"unsupported YAML tag {quoted(node.tag)}: {exc.problem}; only plain data is allowed")
             return None
         except _CONSTRUCT_ERRORS:
             kind = node.tag.rpartition(":")[2]
-            shown = node.value if len(node.value) <= 40 else node.value[:20] + "…" + node.value[-10:]
-            self._fail(node, path, f"{shown!r} cannot be read as {kind} (too long, or not written as one); quote it to make it a string")
+            why = f"cannot be read as {kind} (too long, or not written as one); quote it to make it a string"
+            self._fail(node, path, f"{quoted(node.value, 40)} {why}")
             return None
         if not isinstance(value, _PLAIN_TYPES):
-            self._fail(node, path, f"value {node.value!r} reads as a {type(value).__name__}; quote it to make it a string")
+            self._fail(node, path, f"value {quoted(node.value)} reads as a {type(value).__name__}; quote it to make it a string")
             return None
         return value
 
@@ -318,13 +337,13 @@ class _Builder:
             key = str(key_node.value)
             bad = _surrogate(key)
             if bad is not None:
-                self._fail(key_node, path, f"key {key!r} contains {bad!r}, which is not a character (a lone surrogate)")
+                self._fail(key_node, path, f"key {quoted(key)} contains {bad!r}, which is not a character (a lone surrogate)")
                 continue
             child = path + (key,)
             if key in own:
                 first = self.doc.key_marks.get(child)
                 where = f" (first at line {first.line})" if first else ""
-                self._fail(key_node, child, f"duplicate key {key!r}{where}; each key may appear once")
+                self._fail(key_node, child, f"duplicate key {quoted(key)}{where}; each key may appear once")
                 continue
             own.add(key)
             self.doc.key_marks[child] = self._mark(key_node)
