@@ -355,7 +355,8 @@ def test_an_absolute_use_makes_the_whole_timer_catch_up():
 # ---------------------------------------------------------------- synchronisation
 
 
-def test_suspend_and_resume_are_queues_named_after_the_suspended_thread():
+def test_suspend_and_resume_are_queues_named_after_the_suspended_thread_that_drop_a_resume_nobody_waits_for():
+    """rt-app's resume is a broadcast of the condition of its name: lost when no thread is suspended (issue 40, 13)."""
     c = conv(
         """
         {"tasks": {
@@ -369,8 +370,9 @@ def test_suspend_and_resume_are_queues_named_after_the_suspended_thread():
     assert ts[0]["work"]["phases"][0]["events"] == [{"run": "10ms"}, {"resume": "thread1"}, {"suspend": "thread0"}]
     assert ts[1]["work"]["phases"][0]["events"] == [{"run": "10ms"}, {"resume": "thread0"}, {"suspend": "thread1"}]
     assert ts[2]["work"]["phases"][0]["events"][0] == {"suspend": "thread2"}  # empty: workgen fills the thread's name
-    assert c.scenario["resources"] == {"thread1": {"kind": "queue"}, "thread0": {"kind": "queue"}, "thread2": {"kind": "queue"}}
-    assert any("suspend/resume became queues" in n for n in c.notes)
+    queue = {"kind": "queue", "pending": "drop"}
+    assert c.scenario["resources"] == {"thread1": queue, "thread0": queue, "thread2": queue}
+    assert not any("queue" in n and "counted" in n for n in c.notes)  # no longer a difference from rt-app to note
     assert any("nothing resumes thread2" in n for n in c.notes)
 
 
@@ -803,7 +805,7 @@ def test_mp3_short_notes():
     c = _example("mp3-short.json")
     assert c.scenario["duration"] == "6s" and c.scenario["processes"][0]["memory"] == {"lock": True}
     assert c.scenario["resources"]["tick"] == {"kind": "timer", "period": "6ms", "overrun": "rebase"}
-    assert any("suspend/resume became queues" in n for n in c.notes)
+    assert c.scenario["resources"]["AudioOut"] == {"kind": "queue", "pending": "drop"}
 
 
 def test_every_converted_example_loads_through_the_scenario_loader():
@@ -833,14 +835,15 @@ def test_cli_writes_yaml_to_stdout_and_notes_to_stderr():
     done = run_cli("import-rtapp", path)
     assert done.code == 0
     assert yaml.safe_load(done.out)["name"] == "mp3-short"
-    assert f"runner: warning: {path}: suspend/resume became queues" in done.err
+    assert f"runner: warning: {path}: global.lock_pages: rt-app locks pages for real-time threads only" in done.err
 
 
 def test_cli_writes_a_file_with_o(tmp_path):
     target = tmp_path / "example4.yaml"
     done = run_cli("import-rtapp", os.path.join(RTAPP, "example4.json"), "-o", str(target))
     assert done.code == 0 and done.out == f"wrote {target}\n"
-    assert yaml.safe_load(target.read_text())["resources"] == {"thread1": {"kind": "queue"}, "thread0": {"kind": "queue"}}
+    queue = {"kind": "queue", "pending": "drop"}
+    assert yaml.safe_load(target.read_text())["resources"] == {"thread1": queue, "thread0": queue}
 
 
 def test_cli_says_what_a_scenario_cannot_hold_at_the_lines_it_wrote_and_exits_2(tmp_path):

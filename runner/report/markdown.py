@@ -41,6 +41,7 @@ from runner.results.document import (
     NOT_STARTED,
     BackgroundKind,
     CellResult,
+    EventResult,
     FoldedThreads,
     PreemptedRun,
     Preemptor,
@@ -574,6 +575,16 @@ def timing_table(rows: Rows, first: str = "Thread") -> Table | None:
 EVENT_HEADERS = ["Thread", "Phase: event", "Measures", "Count", "p50", "p99", "max", "Contended", "Held by"]
 
 
+def event_count(e: EventResult) -> str:
+    """`41`, `41 + 1 cut` (under way at the end: in no figure), `8, 2 lost` (resumes nobody waited for, pending: drop)."""
+    text = fmt_int(e.count)
+    if e.cut:
+        text += f" + {fmt_int(e.cut)} cut"
+    if e.lost:
+        text += f", {fmt_int(e.lost)} lost"
+    return text
+
+
 def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
     """Per event of every program: how often it ran and what it took (lock wait, timer latency, run time), who held a lock."""
     events = [(t, e) for t in cell.threads for e in t.events]
@@ -589,7 +600,7 @@ def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
                 labels[t.key],
                 Markdown(f"{md_text(e.phase, in_table=True)}: {md_text(e.event, in_table=True)}"),
                 e.measures,
-                fmt_int(e.count),
+                event_count(e),
                 *(sc.number(getattr(sp, q)) if sp is not None else "–" for q in ("p50", "p99", "max")),
                 fmt_int(e.contended) if e.kind == "lock" else "",
                 md_text(held, in_table=True),

@@ -196,6 +196,16 @@ def _missed_words(queue: str, dropped: int, left: int) -> str:
     return "; ".join(parts)
 
 
+def lost_words(queue: ResourceState) -> str:
+    """What a queue that drops resumes (pending: drop, rt-app's resume) lost, in words: never a miss, always said."""
+    n = queue.lost
+    return (
+        f"queue {queue.name}: {n:,} resume{'s' if n != 1 else ''} came while no thread was suspended on it and "
+        f"{'were' if n != 1 else 'was'} lost, as rt-app loses a resume nobody waits for (pending: drop); "
+        "no thread's missed releases count them"
+    )
+
+
 def pool_verdicts(raw: RawCell, consumers: dict[str, list[PlannedThread]], expectations: list[Expectation]) -> list[Verdict]:
     """A failed verdict for each queue several stages take from that dropped resumes or left some behind: the pool could not keep up.
 
@@ -474,6 +484,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 events=events,
                 phases=phases,
                 spawned=p.spawned,
+                began_ns=t.slot.work_start_ns - raw.timeline.start_ns if t.slot.work_start_ns and raw.timeline.start_ns else None,
             )
         )
         measured.append((p, fig))
@@ -553,6 +564,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             for r in raw.resources
             if r.dropped
         ]
+        + [lost_words(r) for r in raw.resources if r.lost]
         + [
             f"{r.kind} {r.name}: {r.owner_died:,} time{'s' if r.owner_died != 1 else ''} a thread found its mutex held by a thread"
             " that had died holding it (its process was killed or crashed), and took it over; what that holder was doing"

@@ -510,6 +510,13 @@ class Protocol(str, enum.Enum):
     INHERIT = "inherit"
 
 
+class Pending(str, enum.Enum):
+    """What a queue does with a resume that comes while no thread is suspended on it."""
+
+    KEEP = "keep"  # counted: the next suspend takes it (32 at most); each resume wakes one thread
+    DROP = "drop"  # rt-app's resume: it wakes every thread suspended at that moment, and is lost (counted) when none is
+
+
 _EVENT_TAKES = {
     EventKind.RUN: "duration",
     EventKind.RUNTIME: "duration",
@@ -828,6 +835,11 @@ class Resource(Strict):
     protocol: Protocol = Field(default=Protocol.NONE, description="mutex: none, or inherit (priority inheritance)")
     period: Optional[Duration] = Field(default=None, description="timer: the period of its release grid")
     overrun: Overrun = Field(default=Overrun.SKIP, description="timer: skip, rebase or catchup on a late release")
+    pending: Pending = Field(
+        default=Pending.KEEP,
+        description="queue: keep (a resume no thread waits for is kept for the next suspend, 32 at most; each wakes one "
+        "thread) or drop (rt-app's resume: it wakes every thread suspended at that moment, and is lost, counted, when none is)",
+    )
 
     def _after(self, written: Any, context: Context) -> None:
         if self.kind is ResourceKind.TIMER:
@@ -843,6 +855,14 @@ class Resource(Strict):
             raise KeyProblem("period", f"period is for timers, not a {self.kind.value}")
         if self.protocol is not Protocol.NONE and self.kind is not ResourceKind.MUTEX:
             raise KeyProblem("protocol", f"protocol is for mutexes, not a {self.kind.value}")
+        if self.pending is not Pending.KEEP and self.kind is not ResourceKind.QUEUE:
+            raise KeyProblem("pending", f"pending is for queues, not a {self.kind.value}")
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
+        """Leave pending out while it is keep, so a cell's spec (and the hash stored baselines hold) reads as before it existed."""
+        if self.pending is Pending.KEEP:
+            data.pop("pending", None)
+        return data
 
 
 def _work_shorthand(value: Any, context: Context) -> Any:
@@ -1117,6 +1137,13 @@ class Memory(Strict):
             )
 
 
+class Start(str, enum.Enum):
+    """When a process's threads begin their work."""
+
+    TOGETHER = "together"  # all at the common start
+    IN_ORDER = "in_order"  # in the order listed, each once the one before it has begun (as rt-app creates its threads)
+
+
 class ProcessSpec(Strict):
     """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
 
@@ -1129,11 +1156,23 @@ class ProcessSpec(Strict):
     memory: Memory = Field(default_factory=Memory)
     main: MainThread = Field(default_factory=MainThread)
     threads: list[ThreadSpec] = Field(default_factory=list, description="threads the main thread creates, in order")
+    start: Start = Field(
+        default=Start.TOGETHER,
+        description="together: every thread begins its work at the common start; in_order: the threads (not the main "
+        "thread, nor spawned ones) begin in the order listed, each once the one before it has begun, as rt-app creates its "
+        "threads one after the other (delays count from the common start still)",
+    )
 
     @property
     def main_name(self) -> str:
         """The main thread's name is the process name: the kernel keeps one comm for both."""
         return self.name
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
+        """Leave start out while it is together, so a cell's spec (and the hash stored baselines hold) reads as before."""
+        if self.start is Start.TOGETHER:
+            data.pop("start", None)
+        return data
 
 
 # ----------------------------------------------------------------------- programs

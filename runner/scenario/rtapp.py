@@ -29,7 +29,10 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   `"CPUn"` only says where rt-app calibrates its loop; `io_device` only matters to `iorun`, which
   is noted where it is used; unknown keys (`frag`, `spacing`) are ignored by rt-app too.
 * The tasks become the threads of one process named after the file (15 bytes, a valid comm,
-  never a thread's name: the main thread carries it).
+  never a thread's name: the main thread carries it), with `start: in_order`: rt-app creates
+  its threads one after the other in file order, so a thread listed earlier is under way before
+  a later one starts (mp3-short's `OMXCall` waits on `queue` before `mp3.decoder` first signals
+  it only so); here each thread begins once the one listed before it has begun.
   `instance: N` -> `count: N` (`instance: 0`: left out unless a fork names it); names are cut to
   15 bytes (room kept for `-N` suffixes), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
   SCHED_OTHER/BATCH, the RT priority for FIFO/RR, default 10 as rt-app);
@@ -48,8 +51,10 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   a named `kind: timer` resource shared by every thread naming it.  Mode `relative` (rt-app's
   default: the next release is a period after a late one) -> `overrun: rebase`, `absolute` ->
   `overrun: catchup`.  `suspend: X` blocks on, and `resume: X` wakes, the queue `X` (rt-app
-  names the thread; an empty suspend is the thread's own); where a wait, sync, signal or lock
-  also names `X`, they take that condition and mutex instead, as rt-app's do (see `_Wake`).  `iorun` -> `iorun` (to /dev/null,
+  names the thread; an empty suspend is the thread's own) with `pending: drop`: as rt-app's
+  resume (a broadcast of the condition X), it wakes every thread suspended at that moment and
+  is lost when none is; the cell counts and says what was lost.  Where a wait, sync, signal or
+  lock also names `X`, they take that condition and mutex instead, as rt-app's do (see `_Wake`).  `iorun` -> `iorun` (to /dev/null,
   rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
   the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
   `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
@@ -402,10 +407,10 @@ class _Wake:
     rt-app's suspend and resume of X take the condition and the mutex X (lock, wait or
     broadcast, unlock): a resume with no thread suspended at that moment is lost.  Where a
     wait, sync, signal or lock also names X, that sharing is what the workload relies on, so
-    they take them here too.  Otherwise they take the queue X, whose resumes are counted: the
-    threads here start together at the common start, where rt-app starts them one after the
-    other, and a pair that resume each other would lose their first wake-ups to that race
-    (rt-app's example4 deadlocked at once).
+    they take them here too.  Otherwise they take the queue X with `pending: drop`, which
+    behaves as that condition does (a resume wakes every thread suspended then, and is lost
+    when none is) and measures what a queue does: the wake-up latency of each resume, and the
+    activations of a thread that suspends without a timer.
     """
 
     kind: str  # suspend or resume
@@ -690,6 +695,8 @@ class _Converter:
             raise ScenarioError(self.problems)
 
         process: dict[str, Any] = {"name": self.process_name()}
+        if sum(1 for t in threads if not t.get("spawned")) > 1:
+            process["start"] = "in_order"  # as rt-app creates its threads
         if lock_pages:
             process["memory"] = {"lock": True}
             if not self.realtime:
@@ -1299,12 +1306,6 @@ class _Converter:
                 kinds_used = list(kinds)
                 uses = ", a ".join(kinds_used[:-1]) + " and a " + kinds_used[-1]
                 self.note("", f'"{printable(name)}" is used as a {uses} (rt-app keeps them apart); here they are {", ".join(finals)}')
-        if any("queue" in kinds for kinds in self.uses.values()):
-            self.note(
-                "",
-                "suspend/resume became queues: a resume is counted, waking one suspended thread or the next to suspend; "
-                "rt-app's resume wakes every thread suspended at that moment and is lost when none is",
-            )
         return out
 
     def resource(self, kind: str, final: str, use: _Use) -> dict[str, Any]:
@@ -1333,6 +1334,8 @@ class _Converter:
             self.note(use.first, f"nothing resumes {final}: a suspend on it blocks until the run ends, as in rt-app")
         if kind == "queue" and "suspend" not in use.ops:
             self.note(use.first, f"no thread suspends on {final}: its resumes wake nobody")
+        if kind == "queue":
+            return {"kind": "queue", "pending": "drop"}  # rt-app's resume: lost when no thread is suspended
         if kind == "barrier":
             twice = [t for t, n in use.mentions.items() if n > 1]
             if twice:
