@@ -864,6 +864,24 @@ def test_cli_says_what_a_scenario_cannot_hold_at_the_lines_it_wrote_and_exits_2(
     assert printed.code == 2 and f"{src} (as `runner import-rtapp` converts it):{line}:" in printed.err
 
 
+def test_a_direct_run_of_a_json_file_says_its_problems_at_the_lines_of_the_json(tmp_path):
+    """`runner validate FILE.json` (and `runner FILE.json`) once located them in the converted text, which the user never
+    saw (issue 40, 15): now at the phase and event of the JSON, by its key path, with the converted scenario's path."""
+    src = tmp_path / "lp.json"
+    src.write_text(
+        '{"tasks": {\n  "t": {"loop": -1, "phases": {\n    "take": {"lock": "m", "run": 1000},\n'
+        '    "hold": {"run": 2000, "unlock": "m", "timer": {"ref": "unique", "period": 10000}}}}}}\n'
+    )
+    for command in ("validate", "run"):
+        done = run_cli(command, str(src))
+        assert done.code == 2, done.err
+        problems = [line for line in done.err.splitlines() if not line.startswith("runner:")]
+        assert f"{src}:3:5: tasks.t.phases.take: the phase ends holding m; unlock in the same phase (a phase may loop) " in done.err
+        assert "(the converted scenario's processes[0].threads[0].work.phases[0].events)" in done.err
+        assert f"{src}:4:27: tasks.t.phases.hold.unlock: unlock m without a lock m before it in this phase " in done.err, problems
+        assert "converts it)" not in done.err
+
+
 def test_cli_bad_input_exits_2_with_the_problems(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"tasks": {"t": {"run": "x"}}}')

@@ -73,7 +73,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Optional, Union
 
@@ -82,7 +82,7 @@ import yaml
 from runner import units
 from runner.errors import Problem, ScenarioError, special_file
 from runner.scenario.model import COMM_MAX, control_character
-from runner.scenario.yamlsource import byte_position, dotted, printable
+from runner.scenario.yamlsource import Document, Mark, Path, byte_position, dotted, load_text, printable
 
 MAX_BYTES = 1 << 20  # rt-app files are a few KiB; a megabyte is not a workload
 DEFAULT_DURATION_S = 10
@@ -373,6 +373,14 @@ class _At:
         return dotted(self.names)
 
 
+class _Located(dict[str, Any]):
+    """A mapping of the scenario (a thread, its work, a phase, an event, a resource) and where in the rt-app file it came from."""
+
+    def __init__(self, items: dict[str, Any], at: _At):
+        super().__init__(items)
+        self.at = at
+
+
 @dataclass(frozen=True)
 class _Ref:
     """A named resource an event uses; its final name is decided once every use is known."""
@@ -425,6 +433,7 @@ class _Use:
     """How the scenario uses one resource name as one kind."""
 
     first: str  # where it is first used, for notes
+    first_at: _At = field(default_factory=_At)  # and in the file, for problems
     ops: set[str] = field(default_factory=set)
     mentions: dict[int, int] = field(default_factory=dict)  # task index -> events naming it
     periods: list[int] = field(default_factory=list)  # timer periods, in microseconds
@@ -451,6 +460,15 @@ class Conversion:
     scenario: dict[str, Any]
     notes: list[str]
     source: str = ""
+    origins: dict[Path, _At] = field(default_factory=dict)  # where each thread, work, phase, event and resource came from
+    locate: Optional[Callable[[_At], tuple[int, int]]] = None  # the line and column of a place in the file
+
+    def document(self, file: str) -> Document:
+        """The scenario loaded from its YAML, its problems located in the rt-app file `file` (a direct run of the JSON)."""
+        doc = load_text(self.yaml(), f"{file} (as `runner import-rtapp` converts it)")
+        if self.locate is None:
+            return doc
+        return _JsonDocument(file, doc.data, origins=self.origins, locate=self.locate)
 
     def yaml(self) -> str:
         """The scenario as readable YAML, with the notes as a comment header."""
@@ -461,6 +479,34 @@ class Conversion:
             head.extend(f"#   - {printable(note)}" for note in self.notes)
         body = yaml.dump(_flowing(self.scenario), Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120, allow_unicode=True)
         return "\n".join(head) + "\n" + body
+
+
+@dataclass
+class _JsonDocument(Document):
+    """A converted scenario whose problems are located in the rt-app file it came from.
+
+    A problem the scenario's checks find (a mutex held from one phase into the next) is said at
+    the line of the task, phase or event it came from, by the file's key path, with the path of
+    the scenario it converts to: that is the line to edit, not one of a text the user never saw."""
+
+    origins: dict[Path, _At] = field(default_factory=dict)
+    locate: Callable[[_At], tuple[int, int]] = lambda at: (1, 1)
+
+    def _origin(self, path: Path) -> _At:
+        path = tuple(path)
+        while path and path not in self.origins:
+            path = path[:-1]
+        return self.origins.get(path, _At())
+
+    def mark(self, path: Path, *, key: bool = False) -> Mark:
+        return Mark(*self.locate(self._origin(path)))
+
+    def problem(self, path: Path, message: str, *, key: bool = False, severity: str = "error") -> Problem:
+        at = self._origin(path)
+        line, col = self.locate(at)
+        scenario = dotted(tuple(path))
+        text = f"{message} (the converted scenario's {scenario})" if scenario else message
+        return Problem(self.file, line, col, str(at), printable(text), severity)
 
 
 class _Flow(dict[str, Any]):
@@ -601,11 +647,17 @@ class _Converter:
         self.forks: list[tuple[str, dict[str, Any], list[Any], _At]] = []  # task key, its spawn event, the event's list, where
         self.io_device: Optional[tuple[str, _At]] = None
         self.started_keys: set[str] = set()
+        self.duration_at = _At()  # where global.duration is (or the file's start), for problems of the scenario's duration
+        self.tasks_at = _At()
 
     # -- reporting
 
+    def locate(self, at: _At) -> tuple[int, int]:
+        """The line and column in the file of the key or item `at` leads to."""
+        return self.relaxed.position(_locate(self.relaxed.json, at.steps))
+
     def problem(self, at: _At, message: str) -> None:
-        line, col = self.relaxed.position(_locate(self.relaxed.json, at.steps))
+        line, col = self.locate(at)
         self.problems.append(Problem(self.file, line, col, str(at), printable(message)))
 
     def note(self, at: _At | str, message: str) -> None:
@@ -682,6 +734,7 @@ class _Converter:
             )
         else:
             tasks, tasks_at = tasks_entry
+            self.tasks_at = tasks_at
             for index, (key, value) in enumerate(tasks):
                 thread = self.task(index, key, value, tasks_at.key(index, key))
                 if thread is not None:
@@ -719,12 +772,15 @@ class _Converter:
         if resources:
             scenario["resources"] = resources
         scenario["processes"] = [process]
-        return Conversion(self.resolve(scenario), list(self.notes), self.file)
+        origins: dict[Path, _At] = {("duration",): self.duration_at, ("processes", 0): self.tasks_at}
+        plain = _unlocated(self.resolve(scenario), (), origins)
+        return Conversion(plain, list(self.notes), self.file, origins, self.locate)
 
     def global_settings(self, glob: Pairs, at: _At) -> int:
         """Read the global keys that change the scenario; return the duration in seconds."""
         duration = DEFAULT_DURATION_S
         entry = self.last(glob, "duration", at)
+        self.duration_at = entry[1] if entry else at
         given = self.integer(entry[0], entry[1], "a whole number of seconds (-1: until the threads end)", -MAX_INT) if entry else -1
         if given is not None and given > 0:
             duration = given
@@ -800,7 +856,7 @@ class _Converter:
         phases: list[dict[str, Any]]
         if phases_entry is None:
             events = self.events(obj, at, index, at)
-            phases = [{"events": events}] if events else []
+            phases = [_Located({"events": events}, at)] if events else []
             work_loop = max(loop, 0) if loop_entry is not None else 0  # rt-app loops a task of bare events forever
         else:
             value, phases_at = phases_entry
@@ -813,7 +869,7 @@ class _Converter:
                 self.note(loop_entry[1] if loop_entry else at, "loop 0: rt-app runs none of the phases; the thread only sleeps here")
                 phases = []
         name = self.thread_name(key, count, at)
-        thread: dict[str, Any] = {"name": name}
+        thread: dict[str, Any] = _Located({"name": name}, at)
         self.instances[index] = count
         if count > 1:
             thread["count"] = count
@@ -826,7 +882,7 @@ class _Converter:
                 self.note(at, "has no event left to run; the thread only sleeps here")
             thread["work"] = {"kind": "sleep"}
             return thread
-        work: dict[str, Any] = {"kind": "phases"}
+        work: dict[str, Any] = _Located({"kind": "phases"}, at)
         if delay:
             work["delay"] = _us(delay)
         work["loop"] = work_loop
@@ -896,7 +952,7 @@ class _Converter:
                 loop = value if value is not None else 1
             sched = self.read_sched(body, here, current)
             events = self.events(body, here, task, here)
-            phase: dict[str, Any] = {}
+            phase: dict[str, Any] = _Located({}, here)
             base = "".join("_" if control_character(c) else c for c in key).strip() or f"p{i}"
             name, n = base, 2
             while name in names:
@@ -961,7 +1017,7 @@ class _Converter:
                 if isinstance(ev, _Fork):
                     self.forks.append((ev.target, ev.spawn, out, ev.at))
                     ev = ev.spawn
-                out.append(ev)
+                out.append(_Located(ev, here) if type(ev) is dict else ev)
         return out
 
     def event(self, kind: str, key: str, value: Any, at: _At, task: int, phase_at: _At) -> list[Any]:
@@ -1001,7 +1057,7 @@ class _Converter:
             target = self.string(value, at, "the name of the task to start")
             if target is None:
                 return []
-            spawn: dict[str, Any] = {"spawn": target}
+            spawn: dict[str, Any] = _Located({"spawn": target}, at)
             return [_Fork(self, target, spawn, at)]
         if kind == "yield":
             return ["yield"]
@@ -1073,7 +1129,7 @@ class _Converter:
         if not self.last(value, "ref", at):
             self.note(at, 'a timer without "ref": rt-app shares one timer named "unknown" among all such events')
         if ref.startswith("unique"):
-            use = self.unique.setdefault((task, ref), _Use(str(at)))
+            use = self.unique.setdefault((task, ref), _Use(str(at), at))
             use.absolute = use.absolute or absolute
             use.mentions[task] = use.mentions.get(task, 0) + 1
             use.periods.append(period)
@@ -1094,7 +1150,7 @@ class _Converter:
             )
 
     def use(self, kind: str, name: str, at: _At, task: int, op: str) -> _Ref:
-        use = self.uses.setdefault(name, {}).setdefault(kind, _Use(str(at)))
+        use = self.uses.setdefault(name, {}).setdefault(kind, _Use(str(at), at))
         use.ops.add(op)
         use.mentions[task] = use.mentions.get(task, 0) + 1
         return _Ref(kind, name)
@@ -1298,7 +1354,7 @@ class _Converter:
                 taken.add(final)
                 self.final[(kind, name)] = final
                 finals.append(final)
-                out[final] = self.resource(kind, final, kinds[kind])
+                out[final] = _Located(self.resource(kind, final, kinds[kind]), kinds[kind].first_at)
             if finals[0] != name and not several:  # several kinds: the note below names each
                 why = "letters, digits, _ . - only" if base != name else f"{base} is taken"
                 self.note("", f'resource "{printable(name)}" is named {finals[0]} here ({why})')
@@ -1353,18 +1409,32 @@ class _Converter:
             use = self.unique[(value.task, value.ref)]
             return {"period": _us(value.period_us), "overrun": "catchup" if use.absolute else "rebase"}
         if isinstance(value, dict):
-            return {k: self.resolve(v) for k, v in value.items()}
+            resolved = {k: self.resolve(v) for k, v in value.items()}
+            return _Located(resolved, value.at) if isinstance(value, _Located) else resolved
         if isinstance(value, list):
             return [e for v in value for e in (self.wake_events(v) if isinstance(v, _Wake) else [self.resolve(v)])]
         return value
 
     def wake_events(self, wake: _Wake) -> list[dict[str, Any]]:
         if not wake.shared:
-            return [{wake.kind: self.final[("queue", wake.name)]}]
+            return [_Located({wake.kind: self.final[("queue", wake.name)]}, wake.at)]
         mutex, cond = self.final[("mutex", wake.name)], self.final[("cond", wake.name)]
         if wake.kind == "suspend":
-            return [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
-        return [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
+            events: list[dict[str, Any]] = [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
+        else:
+            events = [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
+        return [_Located(e, wake.at) for e in events]
+
+
+def _unlocated(value: Any, path: Path, origins: dict[Path, _At]) -> Any:
+    """`value` as plain data, with where each located mapping came from added to `origins` by its path in the scenario."""
+    if isinstance(value, dict):
+        if isinstance(value, _Located):
+            origins[path] = value.at
+        return {k: _unlocated(v, path + (k,), origins) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_unlocated(v, path + (i,), origins) for i, v in enumerate(value)]
+    return value
 
 
 def _comments(text: str) -> Iterator[str]:
