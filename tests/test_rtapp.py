@@ -563,11 +563,36 @@ def test_long_thread_names_are_cut_to_15_bytes_and_kept_unique():
         '"CodecLooperThread": {"instance": 12, "run": 1}, "my task/1": {"run": 1}}}'
     )
     names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
-    assert names == ["NuPlayerRendere", "NuPlayerRende_2", "CodecLooperT", "my_task_1"]
+    assert names == ["NuPlayerRender1", "NuPlayerRender2", "CodecLooperT", "my_task_1"]
     assert all(len(n.encode()) <= 15 for n in names)
     assert len(f"{names[2]}-11") == 15  # room for the count's suffix
     assert any('"NuPlayerRenderer1" cut to fit the 15 bytes' in n for n in c.notes)
     assert any('"my task/1" made valid and unique: my_task_1' in n for n in c.notes)
+
+
+def test_names_the_cut_would_make_alike_keep_what_sets_them_apart():
+    """video-short's OMXCallbackDisp2 and OMXCallbackDisp1 (16 bytes) once became OMXCallbackDisp and OMXCallbackDi_2
+    (issue 40, 15): each keeps its head and what sets it apart from the closest other name its cut would make it; a
+    name no other is cut to keeps its head, as the kernel cuts a comm."""
+    c = conv('{"tasks": {"NuPlayerRenderer": {"run": 1}, "OMXCallbackDisp2": {"run": 1}, "OMXCallbackDisp1": {"run": 1}}}')
+    names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
+    assert names == ["NuPlayerRendere", "OMXCallbackDis2", "OMXCallbackDis1"]
+    assert 'tasks.OMXCallbackDisp1: thread name "OMXCallbackDisp1" cut to fit the 15 bytes the kernel keeps: OMXCallbackDis1' in c.notes
+    c = conv(
+        '{"tasks": {"thread_with_a_long_name_one": {"run": 1}, "thread_with_a_long_name_two": {"run": 1}, '
+        '"VeryLongThreadNameA": {"run": 1}, "VeryLongThreadNameB": {"run": 1}, "abcdefghijklmnop": {"run": 1, "instance": 3}, '
+        '"abcdefghijklmnoq": {"run": 1, "instance": 3}, "abcdefghijklm": {"run": 1}}}'
+    )
+    names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
+    assert names == [
+        "thread_with_one",
+        "thread_with_two",
+        "VeryLongThreadA",
+        "VeryLongThreadB",
+        "abcdefghijklp",
+        "abcdefghijklq",
+        "abcdefghijklm",
+    ]
 
 
 def test_the_process_is_named_after_the_file():

@@ -30,11 +30,12 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   is noted where it is used; unknown keys (`frag`, `spacing`) are ignored by rt-app too.
 * The tasks become the threads of one process named after the file (15 bytes, a valid comm,
   never a thread's name: the main thread carries it), with `start: in_order`: rt-app creates
-  its threads one after the other in file order, so a thread listed earlier is under way before
-  a later one starts (mp3-short's `OMXCall` waits on `queue` before `mp3.decoder` first signals
-  it only so); here each thread begins once the one listed before it has begun.
+  its threads one after the other in file order, and here each thread begins once the one
+  listed before it has begun (example4's two threads, which resume each other, lost both
+  resumes to the race of a common start now and then, and deadlocked).
   `instance: N` -> `count: N` (`instance: 0`: left out unless a fork names it); names are cut to
-  15 bytes (room kept for `-N` suffixes), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
+  15 bytes (room kept for `-N` suffixes; a name the cut would make another's keeps what sets it
+  apart, `OMXCallbackDis1`), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
   SCHED_OTHER/BATCH, the RT priority for FIFO/RR, default 10 as rt-app);
   `dl-runtime`/`dl-period`/`dl-deadline` -> `{policy: deadline, runtime, deadline, period}`
   (period defaults to runtime, deadline to period); `util_min`/`util_max` go into the sched
@@ -562,6 +563,16 @@ def _what(value: Any) -> str:
     return f"the number {value!r}"
 
 
+def _clean_name(key: str) -> str:
+    """A task's name made a valid thread name: no control characters, spaces or '/'."""
+    return "".join("_" if (control_character(c) or c.isspace() or c == "/") else c for c in key) or "task"
+
+
+def _shared(a: str, b: str) -> int:
+    """How many characters `a` and `b` start with alike."""
+    return next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+
+
 def _stem(name: str) -> str:
     base = name.replace("\\", "/").rsplit("/", 1)[-1]
     return base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
@@ -649,6 +660,7 @@ class _Converter:
         self.started_keys: set[str] = set()
         self.duration_at = _At()  # where global.duration is (or the file's start), for problems of the scenario's duration
         self.tasks_at = _At()
+        self.task_keys: list[str] = []  # every task's name, for cutting one without making it another's
 
     # -- reporting
 
@@ -735,6 +747,7 @@ class _Converter:
         else:
             tasks, tasks_at = tasks_entry
             self.tasks_at = tasks_at
+            self.task_keys = tasks.names()
             for index, (key, value) in enumerate(tasks):
                 thread = self.task(index, key, value, tasks_at.key(index, key))
                 if thread is not None:
@@ -1289,10 +1302,19 @@ class _Converter:
         return re.sub(r"[^A-Za-z0-9_.+-]", "_", _stem(self.file)) or "rtapp"
 
     def thread_name(self, key: str, count: int, at: _At) -> str:
-        """A valid, unique thread name for task `key` (room kept for the `-N` that count adds)."""
-        clean = "".join("_" if (control_character(c) or c.isspace() or c == "/") else c for c in key) or "task"
+        """A valid, unique thread name for task `key` (room kept for the `-N` that count adds).
+
+        A name cut to its room keeps its head, as the kernel cuts a comm; where that would make it
+        another task's (`OMXCallbackDisp1` and `OMXCallbackDisp2` both `OMXCallbackDisp`), it
+        keeps what sets it apart from the closest of them too, cutting its head a little shorter for
+        it (`OMXCallbackDis1`, `OMXCallbackDis2`); a name still taken gets a number (`_2`)."""
+        clean = _clean_name(key)
         room = COMM_MAX - (len(f"-{count - 1}") if count > 1 else 0)
         name = _cut(clean, room)
+        rivals = [c for c in map(_clean_name, self.task_keys) if c != clean and _cut(c, room) == name] if name != clean else []
+        tail = clean[max((_shared(clean, r) for r in rivals), default=len(clean)) :]  # what sets it apart from the closest
+        if tail and len(tail.encode()) <= room // 2:
+            name = _cut(clean, room - len(tail.encode())) + tail
         n = 2
         while self._taken(name, count):
             suffix = f"_{n}"
