@@ -75,10 +75,13 @@ ICON = {
 
 
 def policy_label(settings: Settings | None) -> str:
-    """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`: how people say a thread's scheduling."""
+    """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`, `DEADLINE 2ms/8ms/10ms` (runtime/deadline/period, as the terminal
+    says them): how people say a thread's scheduling."""
     if settings is None:
         return "?"
     text = settings.policy.name
+    if settings.policy is Policy.DEADLINE:
+        text += " " + "/".join(units.format_duration(v) for v in (settings.runtime, settings.deadline, settings.period))
     if settings.policy.is_realtime:
         text += f" {settings.priority}"
     if settings.nice and settings.policy in (Policy.OTHER, Policy.BATCH):
