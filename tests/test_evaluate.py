@@ -131,6 +131,18 @@ def test_a_background_commands_log_beyond_its_limit_is_counted_and_said_in_words
     ]
 
 
+def test_a_background_commands_name_is_kept_in_the_results_and_the_report():
+    """A command's `name:` was dropped from results.json and the report (issue 40, 15)."""
+    from runner.report.markdown import _load_line
+
+    cell, raw = _raw(10)
+    named = BackgroundProcess("command", "disk load", 4242, ("fio", "job.fio"), "command-0.log", OutputCount(0, 0, 1024))
+    plain = BackgroundProcess("command", "stress-ng", 4243, ("stress-ng", "--cpu", "2"), "command-1.log", OutputCount(0, 0, 1024))
+    result = evaluate(cell, cell.scenario, dataclasses.replace(raw, background=(named, plain)), allow_degraded=False)
+    assert [b.name for b in result.background] == ["disk load", "stress-ng"]
+    assert str(_load_line(result)) == "disk load (`fio job.fio`), `stress-ng --cpu 2`"
+
+
 def test_failures_interrupts_and_degradations_decide_the_status_in_order():
     cell, raw = _raw(10, failures=("process x (pid 1) was killed by SIGKILL",))
     result = evaluate(cell, cell.scenario, raw, False)

@@ -39,6 +39,7 @@ from runner.report.fmt import (
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
 from runner.results.document import (
     NOT_STARTED,
+    Background,
     BackgroundKind,
     CellResult,
     EventResult,
@@ -937,8 +938,14 @@ def _load_line(cell: CellResult) -> Markdown:
     parts = []
     if hogs:
         parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
-    parts += [md_code(shlex.join(c.argv)) for c in commands]
+    parts += [_command(c) for c in commands]
     return Markdown(", ".join(parts) or "none")
+
+
+def _command(c: Background) -> str:
+    """A background command as the load line names it: `stress-ng --cpu 2`, or by its name when the scenario gave it one."""
+    line = md_code(shlex.join(c.argv))
+    return f"{md_text(c.name)} ({line})" if c.name and c.argv and c.name != c.argv[0] else line
 
 
 def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width: int) -> CellSection:

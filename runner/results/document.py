@@ -637,7 +637,7 @@ class Background(_Record):
     """One background load process of a cell: a busy-loop hog or a command."""
 
     kind: BackgroundKind
-    name: str = ""
+    name: str = Field("", description="a hog's process name; a command's name: (its program when it has none; empty in older files)")
     argv: list[str] = Field(default_factory=list)
     pid: Optional[int] = None
     log: Optional[str] = Field(None, description="a command's output file in the cell's folder, stdout and stderr together")

@@ -546,6 +546,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if b.kind == "hog"
         else Background(
             kind=BackgroundKind.COMMAND,
+            name=b.name,  # the scenario's name: for it (else the program's)
             argv=list(b.argv),
             pid=b.pid,
             log=b.log or None,
