@@ -707,3 +707,56 @@ def test_a_slot_that_begins_after_another_begins_once_that_one_has():
             )
         finally:
             os.close(fd)
+
+
+def _issues(data: dict) -> dict[str, str]:
+    """Every issue of a scenario that does not parse, by its dotted key path."""
+    from runner.scenario.yamlsource import dotted
+
+    with pytest.raises(Invalid) as caught:
+        Scenario.parse(data)
+    return {dotted(i.path): i.message for i in caught.value.issues}
+
+
+def test_words_of_rt_app_and_cyclictest_are_answered_with_what_they_are_here():
+    """instance once answered "did you mean 'distance'?", fork named no spawn, a thread's loop and phases did not point at
+    its work, and an unknown key of a timer listed the event's inner fields under the event's path (issue 40, 16)."""
+    thread = {
+        "name": "t",
+        "instance": 2,
+        "loop": 3,
+        "phases": [],
+        "priority": 80,
+        "work": {"kind": "phases", "events": [{"fork": "job"}, {"timer": {"period": "1ms", "mode": "absolute"}}]},
+    }
+    said = _issues({"name": "s", "tasks": {}, "processes": [{"name": "app", "threads": [thread]}]})
+    at = "processes[0].threads[0]"
+    assert said[f"{at}.instance"] == "unknown key 'instance'; rt-app's instance is count here (count: 4 makes name-0 .. name-3)"
+    assert said[f"{at}.loop"].startswith("unknown key 'loop'; a thread's loop belongs to its program: work: {kind: phases, loop: 3")
+    assert said[f"{at}.phases"].startswith("unknown key 'phases'; phases belong to the thread's program: work: {kind: phases, phases:")
+    assert said[f"{at}.priority"].startswith("unknown key 'priority'; the priority is part of sched: sched: fifo:80 (cyclictest -p80)")
+    assert said["tasks"].startswith("unknown key 'tasks'; rt-app's tasks are the threads of a process here")
+    assert said[f"{at}.work.phases[0].events[0]"].startswith("unknown event 'fork'; rt-app's fork is spawn here: {spawn: job}")
+    assert said[f"{at}.work.phases[0].events[1].timer.mode"] == (
+        "unknown key 'mode'; rt-app's timer mode is overrun here: relative is overrun: rebase, absolute is overrun: catchup"
+    )
+    assert not any("distance" in m or "expected one of: event, duration" in m for m in said.values()), said
+
+
+def test_an_unknown_key_of_a_timer_or_a_wait_is_said_at_its_place_among_that_mappings_own_keys():
+    events = [
+        {"timer": {"period": "1ms", "overun": "skip"}},
+        {"timer": {"period": "1ms", "phase": 1}},
+        {"wait": {"ref": "c", "mutex": "m"}},
+    ]
+    thread = {"name": "t", "work": {"kind": "phases", "events": events}}
+    said = _issues({"name": "s", "processes": [{"name": "app", "threads": [thread]}]})
+    at = "processes[0].threads[0].work.phases[0].events"  # (the model's path: events: is its one phase)
+    assert said[f"{at}[0].timer.overun"] == "unknown key 'overun'; did you mean 'overrun'?"
+    assert said[f"{at}[1].timer.phase"] == "unknown key 'phase'; expected one of: period, overrun"
+    assert said[f"{at}[2].wait.ref"] == "unknown key 'ref'; rt-app's ref is cond here: {wait: {cond: c, mutex: m}}"
+    periodic = {"name": "t", "work": {"kind": "periodic", "interval": "1ms"}}
+    said = _issues({"name": "s", "processes": [{"name": "app", "threads": [periodic]}]})
+    assert said == {
+        "processes[0].threads[0].work.interval": "unknown key 'interval'; cyclictest's interval is period here (-i1000: period: 1ms)"
+    }
