@@ -196,6 +196,21 @@ def _missed_words(queue: str, dropped: int, left: int) -> str:
     return "; ".join(parts)
 
 
+def queue_words(planned: PlannedThread, raw: RawCell) -> str:
+    """`: 12 resumes of queue frames were still waiting at the end ...`: where a stage released by resumes missed them, named
+    (its missed releases are its sole queues' drops and backlog); "" for any other thread."""
+    if not isinstance(planned.work, PhasesWork) or not is_released(planned.work):
+        return ""
+    consumers = queue_consumers(raw)
+    parts = [
+        _missed_words(r.name, r.dropped, 0 if raw.interrupted else left_behind(r, raw))
+        for r in raw.resources
+        if r.name in planned.work.suspends_on() and len(consumers.get(r.name, ())) == 1
+    ]
+    text = "; ".join(p for p in parts if p)
+    return f": {text}" if text else ""
+
+
 def lost_words(queue: ResourceState) -> str:
     """What a queue that drops resumes (pending: drop, rt-app's resume) lost, in words: never a miss, always said."""
     n = queue.lost
@@ -300,7 +315,8 @@ def keeps_up(
                     limit="<= 0",
                     measured=fig.missed_releases or fig.overruns,
                     passed=False,
-                    note=f"could not keep up: {behind(fig)}{throttled(planned.settings, fig)}; implicit (every release served) unless "
+                    note=f"could not keep up: {behind(fig)}{throttled(planned.settings, fig)}{queue_words(planned, raw)}; "
+                    "implicit (every release served) unless "
                     "the scenario bounds missed_releases or overruns for this thread itself",
                 )
             )
