@@ -131,6 +131,18 @@ def test_a_background_commands_log_beyond_its_limit_is_counted_and_said_in_words
     ]
 
 
+def test_a_background_commands_name_is_kept_in_the_results_and_the_report():
+    """A command's `name:` was dropped from results.json and the report (issue 40, 15)."""
+    from runner.report.markdown import _load_line
+
+    cell, raw = _raw(10)
+    named = BackgroundProcess("command", "disk load", 4242, ("fio", "job.fio"), "command-0.log", OutputCount(0, 0, 1024))
+    plain = BackgroundProcess("command", "stress-ng", 4243, ("stress-ng", "--cpu", "2"), "command-1.log", OutputCount(0, 0, 1024))
+    result = evaluate(cell, cell.scenario, dataclasses.replace(raw, background=(named, plain)), allow_degraded=False)
+    assert [b.name for b in result.background] == ["disk load", "stress-ng"]
+    assert str(_load_line(result)) == "disk load (`fio job.fio`), `stress-ng --cpu 2`"
+
+
 def test_failures_interrupts_and_degradations_decide_the_status_in_order():
     cell, raw = _raw(10, failures=("process x (pid 1) was killed by SIGKILL",))
     result = evaluate(cell, cell.scenario, raw, False)
@@ -213,3 +225,45 @@ def test_a_deadline_thread_whose_callbacks_outlast_its_runtime_is_said_to_be_thr
     words = throttled(dl, figures(12_140_000))
     assert "2.00 ms of runtime every 10.00 ms and its callbacks took up to 12.14 ms" in words and "stops it" in words
     assert throttled(dl, figures(1_900_000)) == "" and throttled(FIFO80, figures(12_140_000)) == ""
+
+
+def test_a_stage_that_missed_resumes_left_in_its_queue_is_failed_by_a_verdict_that_names_the_queue():
+    """browser-short's BrowserMain "missed 13 of 14 releases" and the verdict did not say where (issue 40, 13): the resumes
+    its queue still held at the end, beyond one burst of them, are named with the queue."""
+    from runner.run.rawcell import ResourceState
+    from runner.run.samples import EventStats
+    from runner.scenario.model import Scenario
+
+    sc = Scenario.parse(
+        {
+            "name": "chain",
+            "resources": {"frames": {"kind": "queue"}},
+            "processes": [
+                {
+                    "name": "app",
+                    "threads": [
+                        {"name": "producer", "work": {"kind": "phases", "events": [{"timer": {"period": "10ms"}}, {"resume": "frames"}]}},
+                        {"name": "stage", "work": {"kind": "phases", "events": [{"suspend": "frames"}, {"run": "12ms"}]}},
+                    ],
+                }
+            ],
+        }
+    )
+    cell = dataclasses.replace(load_scenario(os.path.join(SCENARIOS, "fifo80.yaml")).cells[0], scenario=sc)
+    t0 = 1_000_000_000
+    threads = []
+    for p in plan_scenario(sc, OTHER):
+        n = {"producer": 100, "stage": 83}.get(p.name, 0)
+        samples = [
+            Sample(t0 + k * 12_000_000, t0 + k * 12_000_000, t0 + k * 12_000_000 + 100, 100, k, 0, 1, 0, 0, 0, 0, 0) for k in range(n)
+        ]
+        slot = dataclasses.replace(slot_of(samples, tid=100 + p.index, work_start_ns=t0), events=(EventStats(count=n), EventStats(count=n)))
+        threads.append(RawThread(p, 99, slot, p.settings, ApplyErrors(), True))
+    timeline = Timeline(0, t0, t0 + 1_000_000_000, t0 + 1_000_000_000, t0 + 1_100_000_000)
+    raw = RawCell("now", tuple(threads), 1, timeline, resources=(ResourceState("frames", "queue", queued=17),))
+    result = evaluate(cell, sc, raw, allow_degraded=False)
+    (verdict,) = [v for v in result.expectations if not v.passed and "stage" in v.thread]
+    assert verdict.measured == 16 and verdict.note.startswith(
+        "could not keep up: missed 16 of 99 releases: 16 resumes of queue frames were still waiting at the end beyond one burst "
+        "of its resumes; implicit"
+    ), verdict.note

@@ -10,7 +10,7 @@ import signal
 import jsonschema
 import pytest
 
-from runner.report.markdown import program_lines
+from runner.report.markdown import program_lines, threads_table
 from runner.results.document import CellResult, RunDocument, Status, results_schema
 from runner.results.read import load
 from runner.run.evaluate import degradation, evaluate
@@ -166,6 +166,20 @@ def test_how_a_program_ended_decides_whether_the_cell_was_measured_as_written(un
         assert out.failures == []
     else:
         assert len(out.failures) == 1 and failure in out.failures[0], out.failures
+
+
+def test_a_thread_that_ended_on_its_own_finished_and_only_a_program_cut_short_did_not():
+    """A program's thread that exited mid-run (rt-app's threads, once their loops are done) was labelled "(did not finish)"
+    (issue 40, 15): a thread exits only by itself, or with its process; only a program killed by a signal the runner did
+    not send (a crash) or an interrupted cell leaves its threads unfinished."""
+    done = _thread(501, 1, "worker", FIFO80, gone_ns=T0 + SECOND // 4)
+    raw = _program(_spec(), (_thread(500, 0, "rtprog", FIFO80), done))
+    finished = outcome(raw, T0, T0 + SECOND, False, degradation)
+    assert [t.figures.complete for _, t in finished.threads] == [True, True]
+    assert "(did not finish)" not in str(threads_table([(t.label(False), t) for _, t in finished.threads]).render())
+    crashed = RawProgram(**{**raw.__dict__, "exit_signal": signal.SIGSEGV, "stopped": "", "exited_ns": T0 + SECOND // 2})
+    assert [t.figures.complete for _, t in outcome(crashed, T0, T0 + SECOND, False, degradation).threads] == [False, False]
+    assert [t.figures.complete for _, t in outcome(raw, T0, T0 + SECOND, True, degradation).threads] == [False, False]
 
 
 MISSING = "program 'nosuch' is not in PATH (/usr/bin)"

@@ -1052,3 +1052,14 @@ def test_spreads_keep_their_count_and_older_files_without_it_read_as_unknown():
     assert t.figures.wakeup_ns is not None and t.figures.wakeup_ns.count == 20
     assert t.figures.latency_ns is not None and t.figures.latency_ns.count is None  # recorded before the count was kept
     assert Spread.model_validate({"min": 1, "p50": 1, "p90": 1, "p99": 1, "p999": 1, "max": 1}).count is None
+
+
+def test_a_deadline_thread_is_reported_with_its_runtime_deadline_and_period_as_the_terminal_says_them():
+    """The report said only "DEADLINE" where the terminal says deadline 2ms/8ms/10ms (issue 40, 15)."""
+    from runner.scenario.model import Policy
+    from runner.scenario.plan import Settings
+
+    dl = Settings(Policy.DEADLINE, runtime=2_000_000, deadline=8_000_000, period=10_000_000)
+    assert report.policy_label(dl) == "DEADLINE 2ms/8ms/10ms"
+    assert dl.label() == "deadline 2ms/8ms/10ms"
+    assert report.policy_label(Settings(Policy.FIFO, 80)) == "FIFO 80"

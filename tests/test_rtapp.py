@@ -355,7 +355,8 @@ def test_an_absolute_use_makes_the_whole_timer_catch_up():
 # ---------------------------------------------------------------- synchronisation
 
 
-def test_suspend_and_resume_are_queues_named_after_the_suspended_thread():
+def test_suspend_and_resume_are_queues_named_after_the_suspended_thread_that_drop_a_resume_nobody_waits_for():
+    """rt-app's resume is a broadcast of the condition of its name: lost when no thread is suspended (issue 40, 13)."""
     c = conv(
         """
         {"tasks": {
@@ -369,8 +370,9 @@ def test_suspend_and_resume_are_queues_named_after_the_suspended_thread():
     assert ts[0]["work"]["phases"][0]["events"] == [{"run": "10ms"}, {"resume": "thread1"}, {"suspend": "thread0"}]
     assert ts[1]["work"]["phases"][0]["events"] == [{"run": "10ms"}, {"resume": "thread0"}, {"suspend": "thread1"}]
     assert ts[2]["work"]["phases"][0]["events"][0] == {"suspend": "thread2"}  # empty: workgen fills the thread's name
-    assert c.scenario["resources"] == {"thread1": {"kind": "queue"}, "thread0": {"kind": "queue"}, "thread2": {"kind": "queue"}}
-    assert any("suspend/resume became queues" in n for n in c.notes)
+    queue = {"kind": "queue", "pending": "drop"}
+    assert c.scenario["resources"] == {"thread1": queue, "thread0": queue, "thread2": queue}
+    assert not any("queue" in n and "counted" in n for n in c.notes)  # no longer a difference from rt-app to note
     assert any("nothing resumes thread2" in n for n in c.notes)
 
 
@@ -561,7 +563,7 @@ def test_long_thread_names_are_cut_to_15_bytes_and_kept_unique():
         '"CodecLooperThread": {"instance": 12, "run": 1}, "my task/1": {"run": 1}}}'
     )
     names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
-    assert names == ["NuPlayerRendere", "NuPlayerRende_2", "CodecLooperT", "my_task_1"]
+    assert names == ["NuPlayerRender1", "NuPlayerRender2", "CodecLooperT", "my_task_1"]
     assert all(len(n.encode()) <= 15 for n in names)
     assert len(f"{names[2]}-11") == 15  # room for the count's suffix
     assert any('"NuPlayerRenderer1" cut to fit the 15 bytes' in n for n in c.notes)
@@ -585,6 +587,31 @@ def test_the_notes_of_a_task_named_in_100_kb_print_a_few_lines(tmp_path):
     path.write_text('{"tasks": {"' + "n" * 100_000 + '": {"run": 1000}}}', encoding="utf-8")
     done = run_cli("import-rtapp", str(path))
     assert done.code == 0 and len(done.err) < 10_000 and "…" in done.err
+
+
+def test_names_the_cut_would_make_alike_keep_what_sets_them_apart():
+    """video-short's OMXCallbackDisp2 and OMXCallbackDisp1 (16 bytes) once became OMXCallbackDisp and OMXCallbackDi_2
+    (issue 40, 15): each keeps its head and what sets it apart from the closest other name its cut would make it; a
+    name no other is cut to keeps its head, as the kernel cuts a comm."""
+    c = conv('{"tasks": {"NuPlayerRenderer": {"run": 1}, "OMXCallbackDisp2": {"run": 1}, "OMXCallbackDisp1": {"run": 1}}}')
+    names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
+    assert names == ["NuPlayerRendere", "OMXCallbackDis2", "OMXCallbackDis1"]
+    assert 'tasks.OMXCallbackDisp1: thread name "OMXCallbackDisp1" cut to fit the 15 bytes the kernel keeps: OMXCallbackDis1' in c.notes
+    c = conv(
+        '{"tasks": {"thread_with_a_long_name_one": {"run": 1}, "thread_with_a_long_name_two": {"run": 1}, '
+        '"VeryLongThreadNameA": {"run": 1}, "VeryLongThreadNameB": {"run": 1}, "abcdefghijklmnop": {"run": 1, "instance": 3}, '
+        '"abcdefghijklmnoq": {"run": 1, "instance": 3}, "abcdefghijklm": {"run": 1}}}'
+    )
+    names = [t["name"] for t in c.scenario["processes"][0]["threads"]]
+    assert names == [
+        "thread_with_one",
+        "thread_with_two",
+        "VeryLongThreadA",
+        "VeryLongThreadB",
+        "abcdefghijklp",
+        "abcdefghijklq",
+        "abcdefghijklm",
+    ]
 
 
 def test_the_process_is_named_after_the_file():
@@ -822,7 +849,7 @@ def test_mp3_short_notes():
     c = _example("mp3-short.json")
     assert c.scenario["duration"] == "6s" and c.scenario["processes"][0]["memory"] == {"lock": True}
     assert c.scenario["resources"]["tick"] == {"kind": "timer", "period": "6ms", "overrun": "rebase"}
-    assert any("suspend/resume became queues" in n for n in c.notes)
+    assert c.scenario["resources"]["AudioOut"] == {"kind": "queue", "pending": "drop"}
 
 
 def test_every_converted_example_loads_through_the_scenario_loader():
@@ -852,14 +879,15 @@ def test_cli_writes_yaml_to_stdout_and_notes_to_stderr():
     done = run_cli("import-rtapp", path)
     assert done.code == 0
     assert yaml.safe_load(done.out)["name"] == "mp3-short"
-    assert f"runner: warning: {path}: suspend/resume became queues" in done.err
+    assert f"runner: warning: {path}: global.lock_pages: rt-app locks pages for real-time threads only" in done.err
 
 
 def test_cli_writes_a_file_with_o(tmp_path):
     target = tmp_path / "example4.yaml"
     done = run_cli("import-rtapp", os.path.join(RTAPP, "example4.json"), "-o", str(target))
     assert done.code == 0 and done.out == f"wrote {target}\n"
-    assert yaml.safe_load(target.read_text())["resources"] == {"thread1": {"kind": "queue"}, "thread0": {"kind": "queue"}}
+    queue = {"kind": "queue", "pending": "drop"}
+    assert yaml.safe_load(target.read_text())["resources"] == {"thread1": queue, "thread0": queue}
 
 
 def test_cli_says_what_a_scenario_cannot_hold_at_the_lines_it_wrote_and_exits_2(tmp_path):
@@ -878,6 +906,24 @@ def test_cli_says_what_a_scenario_cannot_hold_at_the_lines_it_wrote_and_exits_2(
     assert problem.startswith(f"{target}:") and lines[line - 1].strip() == "- {lock: m}", (problem, lines[line - 1])  # the events
     printed = run_cli("import-rtapp", str(src))
     assert printed.code == 2 and f"{src} (as `runner import-rtapp` converts it):{line}:" in printed.err
+
+
+def test_a_direct_run_of_a_json_file_says_its_problems_at_the_lines_of_the_json(tmp_path):
+    """`runner validate FILE.json` (and `runner FILE.json`) once located them in the converted text, which the user never
+    saw (issue 40, 15): now at the phase and event of the JSON, by its key path, with the converted scenario's path."""
+    src = tmp_path / "lp.json"
+    src.write_text(
+        '{"tasks": {\n  "t": {"loop": -1, "phases": {\n    "take": {"lock": "m", "run": 1000},\n'
+        '    "hold": {"run": 2000, "unlock": "m", "timer": {"ref": "unique", "period": 10000}}}}}}\n'
+    )
+    for command in ("validate", "run"):
+        done = run_cli(command, str(src))
+        assert done.code == 2, done.err
+        problems = [line for line in done.err.splitlines() if not line.startswith("runner:")]
+        assert f"{src}:3:5: tasks.t.phases.take: the phase ends holding m; unlock in the same phase (a phase may loop) " in done.err
+        assert "(the converted scenario's processes[0].threads[0].work.phases[0].events)" in done.err
+        assert f"{src}:4:27: tasks.t.phases.hold.unlock: unlock m without a lock m before it in this phase " in done.err, problems
+        assert "converts it)" not in done.err
 
 
 def test_cli_bad_input_exits_2_with_the_problems(tmp_path):

@@ -39,8 +39,10 @@ from runner.report.fmt import (
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown, verdicts_shown
 from runner.results.document import (
     NOT_STARTED,
+    Background,
     BackgroundKind,
     CellResult,
+    EventResult,
     FoldedThreads,
     PreemptedRun,
     Preemptor,
@@ -74,10 +76,13 @@ ICON = {
 
 
 def policy_label(settings: Settings | None) -> str:
-    """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`: how people say a thread's scheduling."""
+    """`FIFO 80`, `RR 10`, `OTHER`, `OTHER nice -5`, `DEADLINE 2ms/8ms/10ms` (runtime/deadline/period, as the terminal
+    says them): how people say a thread's scheduling."""
     if settings is None:
         return "?"
     text = settings.policy.name
+    if settings.policy is Policy.DEADLINE:
+        text += " " + "/".join(units.format_duration(v) for v in (settings.runtime, settings.deadline, settings.period))
     if settings.policy.is_realtime:
         text += f" {settings.priority}"
     if settings.nice and settings.policy in (Policy.OTHER, Policy.BATCH):
@@ -574,6 +579,16 @@ def timing_table(rows: Rows, first: str = "Thread") -> Table | None:
 EVENT_HEADERS = ["Thread", "Phase: event", "Measures", "Count", "p50", "p99", "max", "Contended", "Held by"]
 
 
+def event_count(e: EventResult) -> str:
+    """`41`, `41 + 1 cut` (under way at the end: in no figure), `8, 2 lost` (resumes nobody waited for, pending: drop)."""
+    text = fmt_int(e.count)
+    if e.cut:
+        text += f" + {fmt_int(e.cut)} cut"
+    if e.lost:
+        text += f", {fmt_int(e.lost)} lost"
+    return text
+
+
 def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
     """Per event of every program: how often it ran and what it took (lock wait, timer latency, run time), who held a lock."""
     events = [(t, e) for t in cell.threads for e in t.events]
@@ -589,7 +604,7 @@ def events_table(cell: CellResult, labels: dict[str, str]) -> Table | None:
                 labels[t.key],
                 Markdown(f"{md_text(e.phase, in_table=True)}: {md_text(e.event, in_table=True)}"),
                 e.measures,
-                fmt_int(e.count),
+                event_count(e),
                 *(sc.number(getattr(sp, q)) if sp is not None else "–" for q in ("p50", "p99", "max")),
                 fmt_int(e.contended) if e.kind == "lock" else "",
                 md_text(held, in_table=True),
@@ -923,8 +938,14 @@ def _load_line(cell: CellResult) -> Markdown:
     parts = []
     if hogs:
         parts.append(f"{len(hogs)} busy-loop hog{'s' if len(hogs) != 1 else ''}")
-    parts += [md_code(shlex.join(c.argv)) for c in commands]
+    parts += [_command(c) for c in commands]
     return Markdown(", ".join(parts) or "none")
+
+
+def _command(c: Background) -> str:
+    """A background command as the load line names it: `stress-ng --cpu 2`, or by its name when the scenario gave it one."""
+    line = md_code(shlex.join(c.argv))
+    return f"{md_text(c.name)} ({line})" if c.name and c.argv and c.name != c.argv[0] else line
 
 
 def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width: int) -> CellSection:

@@ -359,6 +359,13 @@ class EventResult(_Record):
     contended: NonNegativeInt = Field(0, description="lock: acquisitions that had to wait")
     holders: list[Holder] = Field(default_factory=list, description="lock: who held the mutex when this thread waited")
     dropped: NonNegativeInt = Field(0, description="spawn: spawns that found every instance of the thread taken, or the kernel refused")
+    lost: NonNegativeInt = Field(
+        0, description="resume of a queue with pending: drop: resumes that came while no thread was suspended on it (rt-app's loss)"
+    )
+    cut: NonNegativeInt = Field(
+        0,
+        description="times the event was under way when the run ended (or was stopped): cut short, so in neither count nor figures",
+    )
 
 
 class PhaseResult(_Record):
@@ -485,6 +492,11 @@ class ThreadResult(_Record):
     events: list[EventResult] = Field(default_factory=list, description="programs (kind: phases): per event")
     phases: list[PhaseResult] = Field(default_factory=list, description="programs (kind: phases): per phase")
     spawned: bool = Field(False, description="created mid-run by a spawn event of another thread (rt-app's fork)")
+    began_ns: Optional[int] = Field(
+        None,
+        description="when it began its work, since the cell's common start, as the thread read its clock (start: in_order, a spawn "
+        "or a late release make it later); null: it never began, or is measured from outside",
+    )
     program: bool = Field(False, description="a thread of a user's program (command:), measured from outside")
     rule: Optional[str] = Field(None, description="programs: the pattern of the thread rule applied to it")
     rule_after_ns: Optional[int] = Field(None, description="programs: from its matching name appearing to the rule applied")
@@ -625,7 +637,7 @@ class Background(_Record):
     """One background load process of a cell: a busy-loop hog or a command."""
 
     kind: BackgroundKind
-    name: str = ""
+    name: str = Field("", description="a hog's process name; a command's name: (its program when it has none; empty in older files)")
     argv: list[str] = Field(default_factory=list)
     pid: Optional[int] = None
     log: Optional[str] = Field(None, description="a command's output file in the cell's folder, stdout and stderr together")

@@ -356,6 +356,7 @@ enum ev_type {
     EV_BARRIER, EV_SUSPEND, EV_RESUME, EV_YIELD, EV_MEM, EV_ALLOC, EV_SPAWN, EV_IORUN
 };
 enum res_kind { RES_MUTEX = 1, RES_COND, RES_BARRIER, RES_QUEUE, RES_TIMER };
+enum queue_mode { QUEUE_KEEP = 0, QUEUE_DROP = 1 }; /* a queue's protocol: what becomes of a resume no thread waits for */
 enum overrun_mode { OVR_SKIP = 0, OVR_REBASE = 1, OVR_CATCHUP = 2 };
 
 struct event {
@@ -395,8 +396,10 @@ struct event_stats {
     uint64_t holder_count[4];
     int64_t holder_wait[4];
     uint64_t other_holders;      /* contentions by holders beyond the four above */
-    uint64_t dropped;            /* spawn: spawns that found every instance of the template taken, or failed */
-    uint8_t reserved[EV_HDR - 152];
+    uint64_t dropped;            /* spawn: spawns that found every instance of the template taken, or failed;
+                                  * resume: resumes of a queue that drops them that found no thread suspended */
+    uint64_t cut;                /* events under way when the run ended (or the runner stopped it): not in count or figures */
+    uint8_t reserved[EV_HDR - 160];
 };
 
 struct phase_stats {
@@ -412,7 +415,10 @@ struct phase_stats {
     uint8_t reserved[PHASE_BYTES - 360];
 };
 
-/* One synchronisation object in the shared segment; pthread objects are process-shared. */
+/* One synchronisation object in the shared segment; pthread objects are process-shared.  `protocol` is a mutex's
+ * (1: priority inheritance) or a queue's (QUEUE_DROP: rt-app's resume).  A queue that keeps its resumes counts them in
+ * `pending` from `head`, each with its origin and time; one that drops them counts its suspended threads in `arrived`
+ * and its resumes in `generation`, each resume's origin and time at its generation. */
 struct resource {
     int32_t kind, parties, owner, protocol;
     int64_t period;
@@ -478,6 +484,8 @@ struct slot {
     pthread_t thread;
     int started;
     int deferred;        /* created by a spawn event of another thread, not at setup */
+    int after;           /* the slot whose thread must have begun its work before this one begins (start: in_order); -1: none */
+    _Atomic int follower; /* another slot begins after this one: wake it when this one begins */
     _Atomic int claimed; /* a spawn event took this instance (set on a template's first instance: the next to take) */
 };
 
@@ -745,6 +753,9 @@ static void ev_record(struct slot *s, int i, int64_t v) {
     hist[hist_index(v)]++;
 }
 
+/* An event the end of the run (or the runner's stop) cut short: counted apart, its partial time in no figure. */
+static inline void ev_cut(struct slot *s, int i) { ev_stats(s, i)->cut++; }
+
 static void ev_holder(struct slot *s, int i, int32_t holder, int64_t wait) {
     struct event_stats *e = ev_stats(s, i);
     e->contended++;
@@ -809,14 +820,15 @@ static void res_wait(struct resource *c, struct resource *m, const struct group 
     taken_over(m, pthread_cond_timedwait(&c->c, &m->m, &ts));
 }
 
-/* Burn thread CPU time (run) or wall time (runtime); gives up at the end of the run. */
-static void burn_until_end(const struct group *g, int64_t ns, int wall) {
+/* Burn thread CPU time (run) or wall time (runtime); gives up at the end of the run.  Whether it burnt it all. */
+static int burn_until_end(const struct group *g, int64_t ns, int wall) {
     clockid_t clock = wall ? CLOCK_MONOTONIC : CLOCK_THREAD_CPUTIME_ID;
     int64_t until = now_ns(clock) + ns;
     unsigned k = 0;
     while (now_ns(clock) < until) {
-        if ((++k & 255) == 0 && (g_stop || now_ns(CLOCK_MONOTONIC) >= run_end(g))) break;
+        if ((++k & 255) == 0 && (g_stop || now_ns(CLOCK_MONOTONIC) >= run_end(g))) return 0;
     }
+    return 1;
 }
 
 /* The release after the open activation's by its own timer's period, as if its timer went on (0: released by a resume). */
@@ -948,7 +960,10 @@ static int lock_mutex(struct slot *s, struct program_state *ps, int i, int r, in
         if (rc == 0) ev_holder(s, i, holder, now_ns(CLOCK_MONOTONIC) - t0);
         if (rc == 0) __atomic_add_fetch(&m->contended, 1, __ATOMIC_RELAXED);
     }
-    if (rc != 0) return rc;
+    if (rc != 0) {
+        ev_cut(s, i);
+        return rc;
+    }
     m->owner = s->prog->gid;
     __atomic_add_fetch(&m->acquisitions, 1, __ATOMIC_RELAXED);
     int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
@@ -990,7 +1005,10 @@ static void ev_wait(struct slot *s, struct program_state *ps, int i, const struc
     m->owner = -1;
     while (c->generation == gen && live(s->group)) res_wait(c, m, s->group);
     m->owner = s->prog->gid;
-    if (c->generation == gen) return; /* the run ended while waiting: the slot keeps where it stood */
+    if (c->generation == gen) { /* the run ended while waiting: the slot keeps where it stood */
+        ev_cut(s, i);
+        return;
+    }
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t now = now_ns(CLOCK_MONOTONIC);
     ev_record(s, i, now - t0);
@@ -1019,7 +1037,10 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
     struct resource *b = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
     s->hdr->blocked_since_ns = t0;
-    if (res_lock(b, s->group) != 0) return; /* the run ended before the barrier's count could be reached */
+    if (res_lock(b, s->group) != 0) { /* the run ended before the barrier's count could be reached */
+        ev_cut(s, i);
+        return;
+    }
     int64_t gen = b->generation;
     if (++b->arrived >= b->parties) {
         b->arrived = 0;
@@ -1031,7 +1052,10 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
     }
     int passed = b->generation != gen;
     pthread_mutex_unlock(&b->m);
-    if (!passed) return; /* the run ended at the barrier: the slot keeps where it stood */
+    if (!passed) { /* the run ended at the barrier: the slot keeps where it stood */
+        ev_cut(s, i);
+        return;
+    }
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t waited = now_ns(CLOCK_MONOTONIC) - t0;
     ev_record(s, i, waited);
@@ -1041,8 +1065,25 @@ static void ev_barrier(struct slot *s, struct program_state *ps, int i, const st
 static void ev_resume(struct slot *s, struct program_state *ps, int i, const struct event *e) {
     struct resource *q = res_at(s, e->res);
     int64_t t0 = now_ns(CLOCK_MONOTONIC);
-    if (res_lock(q, s->group) != 0) return; /* the run ended before the queue could be reached */
-    if (q->pending < QDEPTH) {
+    if (res_lock(q, s->group) != 0) { /* the run ended before the queue could be reached */
+        ev_cut(s, i);
+        return;
+    }
+    if (q->protocol == QUEUE_DROP) {
+        /* rt-app's resume (pthread_cond_broadcast under the queue's mutex): it wakes every thread suspended at this
+         * moment, and is lost when none is. */
+        if (q->arrived > 0) {
+            int64_t at = (q->generation + 1) % QDEPTH;
+            q->q_origin[at] = ps->origin > 0 ? ps->origin : t0;
+            q->q_time[at] = t0;
+            q->arrived = 0;
+            q->generation++;
+            pthread_cond_broadcast(&q->c);
+        } else {
+            q->dropped++;
+            ev_stats(s, i)->dropped++;
+        }
+    } else if (q->pending < QDEPTH) {
         int64_t at = (q->head + q->pending) % QDEPTH;
         q->q_origin[at] = ps->origin > 0 ? ps->origin : t0;
         q->q_time[at] = t0;
@@ -1061,18 +1102,38 @@ static void ev_suspend(struct slot *s, struct program_state *ps, int i, const st
     if (s->prog->released) activation_close(s, ps, t0, 0);
     chain_close(s, ps, t0);
     s->hdr->blocked_since_ns = t0;
-    if (res_lock(q, s->group) != 0) return; /* the run ended before the queue could be reached: the slot keeps where it stood */
-    while (q->pending == 0 && live(s->group)) res_wait(q, q, s->group);
+    if (res_lock(q, s->group) != 0) { /* the run ended before the queue could be reached: the slot keeps where it stood */
+        ev_cut(s, i);
+        return;
+    }
     int64_t origin = 0, resumed = 0;
-    int got = q->pending > 0;
-    if (got) {
-        origin = q->q_origin[q->head];
-        resumed = q->q_time[q->head];
-        q->head = (q->head + 1) % QDEPTH;
-        q->pending--;
+    int got;
+    if (q->protocol == QUEUE_DROP) { /* only a resume that comes while it waits wakes it (rt-app's suspend) */
+        int64_t gen = q->generation;
+        q->arrived++;
+        while (q->generation == gen && live(s->group)) res_wait(q, q, s->group);
+        got = q->generation != gen;
+        if (got) {
+            origin = q->q_origin[(gen + 1) % QDEPTH];
+            resumed = q->q_time[(gen + 1) % QDEPTH];
+        } else {
+            q->arrived--; /* the resume that counts it has not come */
+        }
+    } else {
+        while (q->pending == 0 && live(s->group)) res_wait(q, q, s->group);
+        got = q->pending > 0;
+        if (got) {
+            origin = q->q_origin[q->head];
+            resumed = q->q_time[q->head];
+            q->head = (q->head + 1) % QDEPTH;
+            q->pending--;
+        }
     }
     pthread_mutex_unlock(&q->m);
-    if (!got) return; /* the run ended while suspended: the slot keeps where it stood */
+    if (!got) { /* the run ended while suspended: the slot keeps where it stood */
+        ev_cut(s, i);
+        return;
+    }
     if (live(s->group)) s->hdr->blocked_since_ns = 0;
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     /* Wake-up latency of the hop: from the resume (or from this wait, if the resume came first) to running. */
@@ -1138,14 +1199,20 @@ static void run_event(struct slot *s, struct program_state *ps, int i) {
         case EV_RUN:
         case EV_RUNTIME:
             t0 = now_ns(CLOCK_MONOTONIC);
-            burn_until_end(g, e->arg, e->type == EV_RUNTIME);
-            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            if (burn_until_end(g, e->arg, e->type == EV_RUNTIME))
+                ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            else
+                ev_cut(s, i);
             break;
         case EV_SLEEP: {
             t0 = now_ns(CLOCK_MONOTONIC);
             int64_t until = t0 + e->arg;
             sleep_until(until < run_end(g) ? until : run_end(g));
-            ev_record(s, i, now_ns(CLOCK_MONOTONIC) - t0);
+            int64_t t1 = now_ns(CLOCK_MONOTONIC);
+            if (t1 >= until) /* a sleep the end of the run (or a stop) cut short is no sleep of its length */
+                ev_record(s, i, t1 - t0);
+            else
+                ev_cut(s, i);
             break;
         }
         case EV_TIMER: ev_timer(s, ps, i, e); break;
@@ -1297,6 +1364,19 @@ static void program_release(struct program_state *ps) {
     free(ps);
 }
 
+/* A thread that begins after another (start: in_order, as rt-app creates its threads in file order): wait until that one
+ * began its work, or ended, or the run did.  Its thread wakes this one as it begins (see run_slot). */
+static void wait_begun(struct slot *s) {
+    struct slot *first = &s->group->slots[s->after];
+    if (!atomic_load((_Atomic int *)&first->started) && first->index != 0) return; /* never created: nothing to wait for */
+    _Atomic int32_t *word = (_Atomic int32_t *)&first->hdr->state;
+    int32_t st;
+    while (((st = atomic_load(word)) == ST_READY || st == ST_CREATED || st == ST_STARTING) && live(s->group)) {
+        struct timespec slice = to_ts(SLICE_NS);
+        syscall(SYS_futex, word, FUTEX_WAIT, st, &slice, NULL, 0);
+    }
+}
+
 /* Wait for the gate, run the work, record totals.  Called with the GIL released. */
 static void run_slot(struct slot *s) {
     struct group *g = s->group;
@@ -1307,9 +1387,11 @@ static void run_slot(struct slot *s) {
     }
     if (!s->deferred) h->gate_ns = now_ns(CLOCK_MONOTONIC);
     if (s->work.kind != WORK_PERIODIC) sleep_until(run_start(g));
+    if (s->after >= 0) wait_begun(s);
     h->work_start_ns = now_ns(CLOCK_MONOTONIC);
     read_ru(h->start_ru);
     atomic_store((_Atomic int32_t *)&h->state, ST_RUNNING);
+    if (atomic_load(&s->follower)) syscall(SYS_futex, &h->state, FUTEX_WAKE, INT32_MAX, NULL, NULL, 0);
     switch (s->work.kind) {
         case WORK_PERIODIC: run_periodic(s); break;
         case WORK_SPIN: run_spin(s); break;
@@ -1496,6 +1578,7 @@ static int Group_init(GroupObject *self, PyObject *args, PyObject *kwds) {
         char *at = g->base + FILE_HEADER + (size_t)i * g->stride;
         s->group = g;
         s->index = (int)i;
+        s->after = -1;
         s->hdr = (struct slot_header *)at;
         s->hist = with_hist ? (uint64_t *)(at + SLOT_HEADER) : NULL;
         s->ring = at + SLOT_HEADER + (with_hist ? HIST_SETS * HIST_BUCKETS * sizeof(uint64_t) : 0);
@@ -1641,22 +1724,24 @@ static struct slot *get_slot(GroupObject *self, unsigned int index) {
 }
 
 PyDoc_STRVAR(spawn_doc,
-"spawn(index, name, work, policy, priority, nice, cpus, explicit[, extra[, deferred]])\n\n"
+"spawn(index, name, work, policy, priority, nice, cpus, explicit[, extra[, deferred[, after]]])\n\n"
 "Create a thread from the calling thread (so it inherits the caller's settings\n"
 "unless explicit is true), name it, let it apply its own settings, and park it\n"
 "at the start gate.  work is (kind, period_ns, burn_ns, burn_wall, alloc_bytes,\n"
 "offset_ns[, wait_spin, bound_ns, ring_mode, program]); extra is (dl_runtime,\n"
 "dl_deadline, dl_period, util_min, util_max).  Returns when the thread is created;\n"
 "see wait_ready().  deferred: only prepare the slot; a spawn event of another\n"
-"thread's program creates the thread mid-run (rt-app's fork).");
+"thread's program creates the thread mid-run (rt-app's fork).  after: a slot\n"
+"created before this one whose thread must have begun its work (after the start)\n"
+"before this one begins; -1 (default): none, it begins at the common start.");
 
 static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
     unsigned int index;
     const char *name;
     PyObject *work, *policy, *priority, *nice, *cpus, *extra = Py_None;
-    int explicit_defaults, deferred = 0;
-    if (!PyArg_ParseTuple(args, "IsOOOOOp|Op", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults, &extra,
-                          &deferred))
+    int explicit_defaults, deferred = 0, after = -1;
+    if (!PyArg_ParseTuple(args, "IsOOOOOp|Opi", &index, &name, &work, &policy, &priority, &nice, &cpus, &explicit_defaults, &extra,
+                          &deferred, &after))
         return NULL;
     struct slot *s = get_slot(self, index);
     if (!s) return NULL;
@@ -1664,6 +1749,13 @@ static PyObject *Group_spawn(GroupObject *self, PyObject *args) {
         PyErr_Format(PyExc_ValueError, "slot %u already has a thread", index);
         return NULL;
     }
+    if (after >= (int)index || after < -1 || (after >= 0 && (deferred || self->g.slots[after].deferred))) {
+        PyErr_Format(PyExc_ValueError, "slot %u cannot begin after slot %d: only after a slot before it, neither spawned mid-run", index,
+                     after);
+        return NULL;
+    }
+    s->after = after;
+    if (after >= 0) atomic_store(&self->g.slots[after].follower, 1);
     if (parse_work(&self->g, s, work) || parse_settings(policy, priority, nice, cpus, extra, &s->own)) return NULL;
     snprintf(s->name, sizeof(s->name), "%s", name);
     s->explicit_defaults = explicit_defaults;
@@ -1859,7 +1951,8 @@ PyDoc_STRVAR(init_resources_doc,
 "init_resources(buffer, specs)\n\n"
 "Initialise the shared resources segment: specs is a sequence of (kind, protocol, parties, period_ns),\n"
 "one per RES_BYTES record.  Mutexes, conditions and their internal locks are process-shared;\n"
-"protocol 1 makes a mutex priority-inheriting.  Conditions wait on CLOCK_MONOTONIC.");
+"protocol 1 makes a mutex priority-inheriting, QUEUE_DROP a queue drop the resumes no thread waits for (rt-app's);\n"
+"conditions wait on CLOCK_MONOTONIC.");
 
 static PyObject *probe_init_resources(PyObject *mod, PyObject *args) {
     PyObject *buffer, *specs;
@@ -2510,6 +2603,8 @@ PyMODINIT_FUNC PyInit__probe(void) {
     PyModule_AddIntConstant(m, "RES_BARRIER", RES_BARRIER);
     PyModule_AddIntConstant(m, "RES_QUEUE", RES_QUEUE);
     PyModule_AddIntConstant(m, "RES_TIMER", RES_TIMER);
+    PyModule_AddIntConstant(m, "QUEUE_KEEP", QUEUE_KEEP);
+    PyModule_AddIntConstant(m, "QUEUE_DROP", QUEUE_DROP);
     PyModule_AddIntConstant(m, "OVR_SKIP", OVR_SKIP);
     PyModule_AddIntConstant(m, "OVR_REBASE", OVR_REBASE);
     PyModule_AddIntConstant(m, "OVR_CATCHUP", OVR_CATCHUP);

@@ -53,6 +53,8 @@ RES_COND: int
 RES_BARRIER: int
 RES_QUEUE: int
 RES_TIMER: int
+QUEUE_KEEP: int
+QUEUE_DROP: int
 OVR_SKIP: int
 OVR_REBASE: int
 OVR_CATCHUP: int
@@ -93,6 +95,7 @@ class Group:
         explicit_defaults: bool,
         extra: Optional[Extra] = None,
         deferred: bool = False,
+        after: int = -1,
     ) -> None: ...
     def adopt(self, index: int, name: str, work: WorkTuple) -> None: ...
     def wait_ready(self, timeout: float) -> bool: ...

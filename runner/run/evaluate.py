@@ -196,6 +196,31 @@ def _missed_words(queue: str, dropped: int, left: int) -> str:
     return "; ".join(parts)
 
 
+def queue_words(planned: PlannedThread, raw: RawCell) -> str:
+    """`: 12 resumes of queue frames were still waiting at the end ...`: where a stage released by resumes missed them, named
+    (its missed releases are its sole queues' drops and backlog); "" for any other thread."""
+    if not isinstance(planned.work, PhasesWork) or not is_released(planned.work):
+        return ""
+    consumers = queue_consumers(raw)
+    parts = [
+        _missed_words(r.name, r.dropped, 0 if raw.interrupted else left_behind(r, raw))
+        for r in raw.resources
+        if r.name in planned.work.suspends_on() and len(consumers.get(r.name, ())) == 1
+    ]
+    text = "; ".join(p for p in parts if p)
+    return f": {text}" if text else ""
+
+
+def lost_words(queue: ResourceState) -> str:
+    """What a queue that drops resumes (pending: drop, rt-app's resume) lost, in words: never a miss, always said."""
+    n = queue.lost
+    return (
+        f"queue {queue.name}: {n:,} resume{'s' if n != 1 else ''} came while no thread was suspended on it and "
+        f"{'were' if n != 1 else 'was'} lost, as rt-app loses a resume nobody waits for (pending: drop); "
+        "no thread's missed releases count them"
+    )
+
+
 def pool_verdicts(raw: RawCell, consumers: dict[str, list[PlannedThread]], expectations: list[Expectation]) -> list[Verdict]:
     """A failed verdict for each queue several stages take from that dropped resumes or left some behind: the pool could not keep up.
 
@@ -290,7 +315,8 @@ def keeps_up(
                     limit="<= 0",
                     measured=fig.missed_releases or fig.overruns,
                     passed=False,
-                    note=f"could not keep up: {behind(fig)}{throttled(planned.settings, fig)}; implicit (every release served) unless "
+                    note=f"could not keep up: {behind(fig)}{throttled(planned.settings, fig)}{queue_words(planned, raw)}; "
+                    "implicit (every release served) unless "
                     "the scenario bounds missed_releases or overruns for this thread itself",
                 )
             )
@@ -474,6 +500,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 events=events,
                 phases=phases,
                 spawned=p.spawned,
+                began_ns=t.slot.work_start_ns - raw.timeline.start_ns if t.slot.work_start_ns and raw.timeline.start_ns else None,
             )
         )
         measured.append((p, fig))
@@ -535,6 +562,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if b.kind == "hog"
         else Background(
             kind=BackgroundKind.COMMAND,
+            name=b.name,  # the scenario's name: for it (else the program's)
             argv=list(b.argv),
             pid=b.pid,
             log=b.log or None,
@@ -553,6 +581,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             for r in raw.resources
             if r.dropped
         ]
+        + [lost_words(r) for r in raw.resources if r.lost]
         + [
             f"{r.kind} {r.name}: {r.owner_died:,} time{'s' if r.owner_died != 1 else ''} a thread found its mutex held by a thread"
             " that had died holding it (its process was killed or crashed), and took it over; what that holder was doing"

@@ -82,6 +82,8 @@ def _per_second(count: int, ns: int) -> Optional[float]:
 
 
 def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
+    """A program's thread's figures, from its counters over the window (to its last reading, for one that ended);
+    `complete` False: its program was cut short (killed, crashed) or the cell interrupted."""
     c = t.counters
     if c is None:
         return ThreadFigures(
@@ -101,7 +103,7 @@ def _figures(t: RawProgramThread, complete: bool) -> ThreadFigures:
         voluntary=Voluntary(total=c.voluntary, per_second=_per_second(c.voluntary, t.measured_ns)),
         faults=Faults(minor=c.minor_faults, major=c.major_faults),
         cpus_seen=t.cpus_seen,
-        complete=complete and t.gone_ns is None,
+        complete=complete,  # a thread gone before the end ended on its own: a thread exits only by itself, or with its process
         cpu_time_ns=c.cpu_time_ns,
         migrations=c.migrations,
     )
@@ -328,6 +330,7 @@ def outcome(
         threads_folded=_folded(spec, raw.folded, since),
     )
     ordinal = _ordinals(raw.threads)
+    killed = raw.exit_signal is not None and not raw.stopped  # a signal the runner did not send (a crash, the OOM killer): cut short
     threads = []
     for t in raw.threads:
         rule = spec.threads[t.rule] if t.rule is not None else None
@@ -355,7 +358,7 @@ def outcome(
                     requested=wanted,
                     applied=t.applied,
                     degraded=thread_degraded,
-                    figures=_figures(t, not interrupted),
+                    figures=_figures(t, not interrupted and not killed),
                     program=True,
                     rule=rule.match if rule else None,
                     rule_after_ns=(t.rule_ns - t.named_ns) if t.rule_ns is not None else None,

@@ -58,7 +58,9 @@ def _event_result(
         spread_ns=spread(st.histogram, st.mean, st.m2, st.count),
         contended=st.contended,
         holders=[Holder(thread=names.get(gid, f"thread #{gid}"), contentions=n, wait_ns=w) for gid, n, w in st.holders],
-        dropped=st.dropped,
+        dropped=st.dropped if kind is EventKind.SPAWN else 0,
+        lost=st.dropped if kind is EventKind.RESUME else 0,  # the native core counts both as its event's drops
+        cut=st.cut,
     )
 
 

@@ -122,6 +122,7 @@ class ResourceState:
     dropped: int = 0  # queue: resumes lost because its consumers were QDEPTH behind
     queued: int = 0  # queue: resumes still waiting to be taken at the end
     owner_died: int = 0  # times a thread took its mutex over from a holder that had died holding it
+    lost: int = 0  # queue with pending: drop: resumes that came while no thread was suspended on it (rt-app loses them too)
 
 
 @dataclass(frozen=True)

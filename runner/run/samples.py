@@ -40,14 +40,14 @@ STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed", 5: "st
 _WORKING = (1, 2, 5)  # ready, running, and a spawned thread being created
 EV_HDR = 192
 PHASE_BYTES = 384
-_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q")
+_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q Q")
 _PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
 assert (
     SAMPLE.size == _probe.SAMPLE_SIZE == 112
     and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
     and _SLOT.size == _GATE_NS_AT == _probe.SLOT_GATE_AT
     and FILE_HEADER == _probe.FILE_HEADER
-    and _EVENT.size == 152
+    and _EVENT.size == 160
     and _PHASE.size == 360
 )
 
@@ -145,7 +145,8 @@ class EventStats:
     contended: int = 0  # lock: acquisitions that had to wait
     holders: tuple[tuple[int, int, int], ...] = ()  # lock: (gid of the holder, contentions, wait ns) on contention
     other_holders: int = 0
-    dropped: int = 0  # spawn: spawns that found every instance taken, or that the kernel refused
+    dropped: int = 0  # spawn: spawns that found every instance taken, or that the kernel refused; resume: lost (pending: drop)
+    cut: int = 0  # under way when the run ended (or the runner stopped it): not in count or figures
     histogram: Optional[Histogram] = None
 
 
@@ -372,7 +373,7 @@ def _hist(
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
     f = _EVENT.unpack_from(buf, at)
     count, total, low, high, mean, m2, contended = f[:7]
-    gids, counts, waits, other, dropped = f[7:11], f[11:15], f[15:19], f[19], f[20]
+    gids, counts, waits, other, dropped, cut = f[7:11], f[11:15], f[15:19], f[19], f[20], f[21]
     histogram = None
     if count:
         histogram = hg.of_buckets(_probe.buckets(buf, at + EV_HDR), low, high)
@@ -385,6 +386,7 @@ def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
         holders=tuple((g, c, w) for g, c, w in zip(gids, counts, waits) if g >= 0 and c),
         other_holders=other,
         dropped=dropped,
+        cut=cut,
         histogram=histogram,
     )
 

@@ -52,15 +52,18 @@ from runner.scenario.model import (
     EventKind,
     HogKind,
     Overrun,
+    Pending,
     PeriodicWork,
     PhasesWork,
     Protocol,
+    Resource,
     ResourceKind,
     Samples,
     SamplesMode,
     Scenario,
     SleepWork,
     SpinWork,
+    Start,
     Until,
     Wait,
     Work,
@@ -219,12 +222,16 @@ _OVERRUN = {Overrun.SKIP: _probe.OVR_SKIP, Overrun.REBASE: _probe.OVR_REBASE, Ov
 
 
 def resource_specs(scenario: Scenario) -> list[tuple[int, int, int, int]]:
-    """The native core's (kind, protocol, parties, period_ns) of each declared resource, in declaration order."""
+    """The native core's (kind, protocol, parties, period_ns) of each declared resource, in declaration order; a queue's
+    protocol says what becomes of a resume no thread waits for."""
     parties = programs.barrier_parties(scenario.processes)
-    return [
-        (_RESOURCE_KINDS[r.kind], 1 if r.protocol is Protocol.INHERIT else 0, parties.get(name, 0), r.period or 0)
-        for name, r in scenario.resources.items()
-    ]
+    return [(_RESOURCE_KINDS[r.kind], _protocol(r), parties.get(name, 0), r.period or 0) for name, r in scenario.resources.items()]
+
+
+def _protocol(r: Resource) -> int:
+    if r.kind is ResourceKind.QUEUE:
+        return _probe.QUEUE_DROP if r.pending is Pending.DROP else _probe.QUEUE_KEEP
+    return 1 if r.protocol is Protocol.INHERIT else 0
 
 
 def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Optional[dict[str, tuple[int, int]]] = None) -> _probe.Program:
@@ -452,6 +459,9 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
         program = program_tuple(w, gids[id(by_index[index])], scenario, templates) if isinstance(w, PhasesWork) else None
         return work_tuple(w, bound, scenario.samples, program)
 
+    members = [(spec, member) for spec in proc.threads for member in spec.members()]
+    after = start_after([spec.spawned for spec, _ in members]) if proc.start is Start.IN_ORDER else {}
+
     return {
         "comm": proc.name,
         "capacity": layout.capacity,
@@ -473,15 +483,28 @@ def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samp
                 "sched": sched_json(member.sched),
                 "cpus": list(member.cpus) if member.cpus else None,
                 "work": work(member.work, index),
+                "after": after.get(index, -1),
             }
-            for index, (spec, member) in enumerate(
-                ((spec, member) for spec in proc.threads for member in spec.members()), start=1
-            )  # pin: each, priospread and distance give each thread its own settings
+            for index, (spec, member) in enumerate(members, start=1)  # pin: each, priospread and distance give each its own settings
         ],
         "events": layout.events,
         "phases": layout.phases,
         "locks": layout.locks,
     }
+
+
+def start_after(spawned: list[bool]) -> dict[int, int]:
+    """`start: in_order`: the slot each thread begins after (slot numbers from 1, the main thread's 0 aside), by its slot:
+    the thread listed before it that starts with the cell; spawned threads begin when a spawn creates them."""
+    out: dict[int, int] = {}
+    last = -1
+    for index, mid_run in enumerate(spawned, start=1):
+        if mid_run:
+            continue
+        if last >= 0:
+            out[index] = last
+        last = index
+    return out
 
 
 def lock_slots(work: Work) -> tuple[str, ...]:
@@ -1191,8 +1214,11 @@ class _CellRun:
         for i, (name, res) in enumerate(self.scenario.resources.items()):
             f = struct.unpack_from("<iiiiq6q3Q", self.resources, i * _probe.RES_BYTES)
             queued = f[7] if res.kind is ResourceKind.QUEUE else 0  # `pending`: resumes not taken yet
+            dropped, lost = (0, f[8]) if res.pending is Pending.DROP else (f[8], 0)  # what `dropped` counts depends on the queue
             out.append(
-                ResourceState(name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=f[8], queued=queued, owner_died=f[13])
+                ResourceState(
+                    name, res.kind.value, acquisitions=f[11], contended=f[12], dropped=dropped, queued=queued, owner_died=f[13], lost=lost
+                )
             )
         return tuple(out)
 

@@ -116,6 +116,7 @@ def run(spec: dict[str, Any]) -> int:
             thread.get("explicit", False),
             extra,
             thread.get("spawned", False),
+            thread.get("after", -1),
         )
     if main["apply"] == "after_threads":
         main_errs = _probe.apply(*_sched_args(main))

@@ -40,7 +40,7 @@ from runner.scenario.model import (
 from runner.scenario.plan import PROGRAM_THREAD, PlannedThread, Settings, plan_process, thread_kind
 from runner.scenario.typed import Invalid, parse
 from runner.scenario.validate import problems_from, written_path
-from runner.scenario.yamlsource import Document, Mark, load_file, load_text
+from runner.scenario.yamlsource import Document, Mark, load_file
 
 
 @dataclass(frozen=True)
@@ -154,15 +154,15 @@ def _rtapp_document(path: str, notes: list[str], for_run: bool = True) -> Docume
     """A `.json` file is an rt-app workload: convert it as `runner import-rtapp` would, and load the result.
 
     What did not map exactly is added to `notes`.  Problems the scenario checks find are located
-    in the converted YAML (which `runner import-rtapp FILE` prints); the file name says so.  A runner
-    results file is said to be one, in words for the command that read it (`for_run` False: validate).
+    in the JSON file, at the task, phase or event they came from (`rtapp.Conversion.document`).  A
+    runner results file is said to be one, in words for the command that read it (`for_run` False: validate).
     """
     from runner.scenario import rtapp  # only for rt-app files: YAML scenarios do not pay for importing it
 
     text = rtapp.read(path)
     conversion = rtapp.convert(text, path, "run" if for_run else "validate")
     notes.extend(conversion.notes)
-    return load_text(conversion.yaml(), f"{path} (as `runner import-rtapp` converts it)")
+    return conversion.document(path)
 
 
 def parse_scenario(doc: Document, machine: lim.MachineLimits | None = None, for_run: bool = True) -> LoadedScenario:

@@ -143,6 +143,11 @@ CpuSet = Annotated[tuple[int, ...], Written(_cpus, units.format_cpus, _CPUS_SCHE
 class Strict(Model):
     """Base of every scenario model: unknown keys are errors, objects are immutable."""
 
+    @classmethod
+    def _peer_word(cls, key: str) -> Optional[tuple[Optional[str], str]]:
+        """What `key`, unknown here, means in this model when it is a word of rt-app's or cyclictest's (`PEER_WORDS`)."""
+        return PEER_WORDS.get(cls.__name__, {}).get(key)
+
 
 class Policy(str, enum.Enum):
     """Linux scheduling policies, by the kernel's numbers (see sched(7))."""
@@ -510,6 +515,13 @@ class Protocol(str, enum.Enum):
     INHERIT = "inherit"
 
 
+class Pending(str, enum.Enum):
+    """What a queue does with a resume that comes while no thread is suspended on it."""
+
+    KEEP = "keep"  # counted: the next suspend takes it (32 at most); each resume wakes one thread
+    DROP = "drop"  # rt-app's resume: it wakes every thread suspended at that moment, and is lost (counted) when none is
+
+
 _EVENT_TAKES = {
     EventKind.RUN: "duration",
     EventKind.RUNTIME: "duration",
@@ -551,6 +563,79 @@ _EVENT_EXAMPLES = {
 }
 
 
+_SCHED_WORDS = "sched: fifo:80 (cyclictest -p80), sched: {policy: fifo, priority: 80}, or sched: {policy: other, nice: -5}"
+_DEADLINE_WORDS = "SCHED_DEADLINE's parameters are part of sched: sched: {policy: deadline, runtime: 2ms, deadline: 8ms, period: 10ms}"
+_RUN_FILE = "`runner FILE.json` runs an rt-app file as it is (`runner import-rtapp FILE.json` shows it as a scenario)"
+
+PEER_WORDS: dict[str, dict[str, tuple[Optional[str], str]]] = {
+    # Where a key is unknown (by model, or an event's word, or a key of its timer or wait mapping): the words of
+    # rt-app and cyclictest a user brings along, each with the field it stands for here (None: none of that model)
+    # and what to write.  Looked up before any "did you mean", which guessed `distance` for rt-app's `instance`.
+    "Scenario": {
+        "tasks": (None, f"rt-app's tasks are the threads of a process here: processes: [{{name: app, threads: [...]}}]; {_RUN_FILE}"),
+        "global": (None, f"rt-app's global settings are the scenario's own keys here (duration: 10s, resources: ...); {_RUN_FILE}"),
+    },
+    "ThreadSpec": {
+        "instance": ("count", "rt-app's instance is count here (count: 4 makes name-0 .. name-3)"),
+        "loop": (None, "a thread's loop belongs to its program: work: {kind: phases, loop: 3, events: [...]} (rt-app's task loop)"),
+        "phases": (
+            None,
+            "phases belong to the thread's program: work: {kind: phases, phases: [{events: [...]}, ...]} (rt-app's task phases)",
+        ),
+        "events": (None, "events belong to the thread's program: work: {kind: phases, events: [...]}"),
+        "delay": (None, "a thread's delay belongs to its program: work: {kind: phases, delay: 2ms, events: [...]} (rt-app's task delay)"),
+        "policy": ("sched", f"the policy is part of sched: {_SCHED_WORDS}"),
+        "priority": ("sched", f"the priority is part of sched: {_SCHED_WORDS}"),
+        "dl-runtime": ("sched", _DEADLINE_WORDS),
+        "dl-period": ("sched", _DEADLINE_WORDS),
+        "dl-deadline": ("sched", _DEADLINE_WORDS),
+        "interval": (None, "cyclictest's interval is the period of periodic work: work: {kind: periodic, period: 1ms} (-i1000)"),
+        "affinity": ("cpus", "cyclictest's affinity is cpus here: cpus: [1], or pin: each for one thread per CPU (-a)"),
+        **{
+            kind.value: (
+                None,
+                f"{kind.value} is an event of the thread's program, not a key of the thread as in an rt-app task: "
+                f"work: {{kind: phases, events: [...]}}",
+            )
+            for kind in EventKind
+        },
+    },
+    "Phase": {
+        "policy": ("sched", f"the policy is part of sched: {_SCHED_WORDS}"),
+        "priority": ("sched", f"the priority is part of sched: {_SCHED_WORDS}"),
+    },
+    "PeriodicWork": {
+        "interval": ("period", "cyclictest's interval is period here (-i1000: period: 1ms)"),
+        "loops": (None, "how long it runs is the scenario's duration (cyclictest -l counts loops; duration: 10s)"),
+    },
+    "event": {  # an event's word
+        "fork": (None, "rt-app's fork is spawn here: {spawn: job} creates the next thread of job, declared spawned: true"),
+        "sync": (None, "rt-app's sync is a signal and a wait here: {signal: c}, then {wait: {cond: c, mutex: m}}"),
+    },
+    "timer": {  # a key of {timer: {...}}
+        "mode": ("overrun", "rt-app's timer mode is overrun here: relative is overrun: rebase, absolute is overrun: catchup"),
+        "ref": (
+            None,
+            "a timer's name is written as the event's value, {timer: tick}, with resources: {tick: {kind: timer, period: 10ms}}; "
+            "{timer: {period: 10ms}} is the thread's own (rt-app's unique)",
+        ),
+    },
+    "wait": {  # a key of {wait: {...}}
+        "ref": ("cond", "rt-app's ref is cond here: {wait: {cond: c, mutex: m}}"),
+    },
+}
+
+
+def _unknown(key: object, vocabulary: str, allowed: list[str]) -> str:
+    """`unknown key 'mode'; ...`: what a key unknown in `vocabulary` (a PEER_WORDS entry) means here, or the closest allowed."""
+    peer = PEER_WORDS.get(vocabulary, {}).get(str(key))
+    hint = f"; {peer[1]}" if peer else did_you_mean(str(key), allowed) or f"; expected one of: {', '.join(allowed)}"
+    return f"unknown key {str(key)!r}{hint}"
+
+
+_MAPPING_KEYS = {"timer": ["period", "overrun"], "wait": ["cond", "mutex"]}  # what an event's mapping value holds
+
+
 def _event_shorthand(value: Any) -> Any:
     """`{run: 200us}`, `yield`, `{timer: {period: 1ms}}` as the typed form `{event: run, duration: 200us}`."""
     if isinstance(value, str):
@@ -568,7 +653,8 @@ def _event_shorthand(value: Any) -> Any:
         kind = EventKind(word)
     except ValueError:
         names = [k.value for k in EventKind]
-        hint = did_you_mean(word, names)
+        peer = PEER_WORDS["event"].get(word)
+        hint = f"; {peer[1]}" if peer else did_you_mean(word, names)
         raise ValueError(f"unknown event {word!r}{hint or '; events: ' + ', '.join(names)}") from None
     takes = kind.takes
     if takes == "nothing":
@@ -577,6 +663,10 @@ def _event_shorthand(value: Any) -> Any:
         return {"event": word}
     if arg is None:
         raise ValueError(f"{word} needs a value, e.g. {_EVENT_EXAMPLES[takes]}")
+    if takes in _MAPPING_KEYS and isinstance(arg, dict):  # its keys said at their place, in this mapping's own words
+        for key in arg:
+            if key not in _MAPPING_KEYS[takes]:
+                raise KeyProblem((word, key), _unknown(key, takes, _MAPPING_KEYS[takes]))
     if takes == "wait":
         if not isinstance(arg, dict):
             raise ValueError(f"wait needs its condition and mutex, e.g. {_EVENT_EXAMPLES['wait']}")
@@ -828,6 +918,11 @@ class Resource(Strict):
     protocol: Protocol = Field(default=Protocol.NONE, description="mutex: none, or inherit (priority inheritance)")
     period: Optional[Duration] = Field(default=None, description="timer: the period of its release grid")
     overrun: Overrun = Field(default=Overrun.SKIP, description="timer: skip, rebase or catchup on a late release")
+    pending: Pending = Field(
+        default=Pending.KEEP,
+        description="queue: keep (a resume no thread waits for is kept for the next suspend, 32 at most; each wakes one "
+        "thread) or drop (rt-app's resume: it wakes every thread suspended at that moment, and is lost, counted, when none is)",
+    )
 
     def _after(self, written: Any, context: Context) -> None:
         if self.kind is ResourceKind.TIMER:
@@ -843,6 +938,14 @@ class Resource(Strict):
             raise KeyProblem("period", f"period is for timers, not a {self.kind.value}")
         if self.protocol is not Protocol.NONE and self.kind is not ResourceKind.MUTEX:
             raise KeyProblem("protocol", f"protocol is for mutexes, not a {self.kind.value}")
+        if self.pending is not Pending.KEEP and self.kind is not ResourceKind.QUEUE:
+            raise KeyProblem("pending", f"pending is for queues, not a {self.kind.value}")
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
+        """Leave pending out while it is keep, so a cell's spec (and the hash stored baselines hold) reads as before it existed."""
+        if self.pending is Pending.KEEP:
+            data.pop("pending", None)
+        return data
 
 
 def _work_shorthand(value: Any, context: Context) -> Any:
@@ -1117,6 +1220,13 @@ class Memory(Strict):
             )
 
 
+class Start(str, enum.Enum):
+    """When a process's threads begin their work."""
+
+    TOGETHER = "together"  # all at the common start
+    IN_ORDER = "in_order"  # in the order listed, each once the one before it has begun (as rt-app creates its threads)
+
+
 class ProcessSpec(Strict):
     """A process of the scenario: its name (the COMMAND ps shows), memory, main thread and threads."""
 
@@ -1129,11 +1239,23 @@ class ProcessSpec(Strict):
     memory: Memory = Field(default_factory=Memory)
     main: MainThread = Field(default_factory=MainThread)
     threads: list[ThreadSpec] = Field(default_factory=list, description="threads the main thread creates, in order")
+    start: Start = Field(
+        default=Start.TOGETHER,
+        description="together: every thread begins its work at the common start; in_order: the threads (not the main "
+        "thread, nor spawned ones) begin in the order listed, each once the one before it has begun, as rt-app creates its "
+        "threads one after the other (delays count from the common start still)",
+    )
 
     @property
     def main_name(self) -> str:
         """The main thread's name is the process name: the kernel keeps one comm for both."""
         return self.name
+
+    def _dumped(self, data: dict[str, Any]) -> Any:
+        """Leave start out while it is together, so a cell's spec (and the hash stored baselines hold) reads as before."""
+        if self.start is Start.TOGETHER:
+            data.pop("start", None)
+        return data
 
 
 # ----------------------------------------------------------------------- programs

@@ -29,9 +29,13 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   `"CPUn"` only says where rt-app calibrates its loop; `io_device` only matters to `iorun`, which
   is noted where it is used; unknown keys (`frag`, `spacing`) are ignored by rt-app too.
 * The tasks become the threads of one process named after the file (15 bytes, a valid comm,
-  never a thread's name: the main thread carries it).
+  never a thread's name: the main thread carries it), with `start: in_order`: rt-app creates
+  its threads one after the other in file order, and here each thread begins once the one
+  listed before it has begun (example4's two threads, which resume each other, lost both
+  resumes to the race of a common start now and then, and deadlocked).
   `instance: N` -> `count: N` (`instance: 0`: left out unless a fork names it); names are cut to
-  15 bytes (room kept for `-N` suffixes), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
+  15 bytes (room kept for `-N` suffixes; a name the cut would make another's keeps what sets it
+  apart, `OMXCallbackDis1`), made unique, and noted.  `policy`/`priority` -> `sched` (priority is the nice value for
   SCHED_OTHER/BATCH, the RT priority for FIFO/RR, default 10 as rt-app);
   `dl-runtime`/`dl-period`/`dl-deadline` -> `{policy: deadline, runtime, deadline, period}`
   (period defaults to runtime, deadline to period); `util_min`/`util_max` go into the sched
@@ -48,8 +52,10 @@ Mapping (rt-app numbers are microseconds; durations are written back with units)
   a named `kind: timer` resource shared by every thread naming it.  Mode `relative` (rt-app's
   default: the next release is a period after a late one) -> `overrun: rebase`, `absolute` ->
   `overrun: catchup`.  `suspend: X` blocks on, and `resume: X` wakes, the queue `X` (rt-app
-  names the thread; an empty suspend is the thread's own); where a wait, sync, signal or lock
-  also names `X`, they take that condition and mutex instead, as rt-app's do (see `_Wake`).  `iorun` -> `iorun` (to /dev/null,
+  names the thread; an empty suspend is the thread's own) with `pending: drop`: as rt-app's
+  resume (a broadcast of the condition X), it wakes every thread suspended at that moment and
+  is lost when none is; the cell counts and says what was lost.  Where a wait, sync, signal or
+  lock also names `X`, they take that condition and mutex instead, as rt-app's do (see `_Wake`).  `iorun` -> `iorun` (to /dev/null,
   rt-app's default `io_device`; another device is noted).  `fork: task` -> `spawn: task`, where
   the task has `instance: 0` (rt-app starts no thread for it otherwise): it becomes a thread with
   `spawned: true`, `inherit: false` (rt-app's forked threads set their own policy) and `count: 16`
@@ -68,7 +74,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Optional, Union
 
@@ -77,7 +83,7 @@ import yaml
 from runner import units
 from runner.errors import Problem, ScenarioError, special_file
 from runner.scenario.model import COMM_MAX, control_character
-from runner.scenario.yamlsource import byte_position, dotted, printable
+from runner.scenario.yamlsource import Document, Mark, Path, byte_position, dotted, load_text, printable
 
 MAX_BYTES = 1 << 20  # rt-app files are a few KiB; a megabyte is not a workload
 DEFAULT_DURATION_S = 10
@@ -368,6 +374,14 @@ class _At:
         return dotted(self.names)
 
 
+class _Located(dict[str, Any]):
+    """A mapping of the scenario (a thread, its work, a phase, an event, a resource) and where in the rt-app file it came from."""
+
+    def __init__(self, items: dict[str, Any], at: _At):
+        super().__init__(items)
+        self.at = at
+
+
 @dataclass(frozen=True)
 class _Ref:
     """A named resource an event uses; its final name is decided once every use is known."""
@@ -402,10 +416,10 @@ class _Wake:
     rt-app's suspend and resume of X take the condition and the mutex X (lock, wait or
     broadcast, unlock): a resume with no thread suspended at that moment is lost.  Where a
     wait, sync, signal or lock also names X, that sharing is what the workload relies on, so
-    they take them here too.  Otherwise they take the queue X, whose resumes are counted: the
-    threads here start together at the common start, where rt-app starts them one after the
-    other, and a pair that resume each other would lose their first wake-ups to that race
-    (rt-app's example4 deadlocked at once).
+    they take them here too.  Otherwise they take the queue X with `pending: drop`, which
+    behaves as that condition does (a resume wakes every thread suspended then, and is lost
+    when none is) and measures what a queue does: the wake-up latency of each resume, and the
+    activations of a thread that suspends without a timer.
     """
 
     kind: str  # suspend or resume
@@ -420,6 +434,7 @@ class _Use:
     """How the scenario uses one resource name as one kind."""
 
     first: str  # where it is first used, for notes
+    first_at: _At = field(default_factory=_At)  # and in the file, for problems
     ops: set[str] = field(default_factory=set)
     mentions: dict[int, int] = field(default_factory=dict)  # task index -> events naming it
     periods: list[int] = field(default_factory=list)  # timer periods, in microseconds
@@ -446,6 +461,15 @@ class Conversion:
     scenario: dict[str, Any]
     notes: list[str]
     source: str = ""
+    origins: dict[Path, _At] = field(default_factory=dict)  # where each thread, work, phase, event and resource came from
+    locate: Optional[Callable[[_At], tuple[int, int]]] = None  # the line and column of a place in the file
+
+    def document(self, file: str) -> Document:
+        """The scenario loaded from its YAML, its problems located in the rt-app file `file` (a direct run of the JSON)."""
+        doc = load_text(self.yaml(), f"{file} (as `runner import-rtapp` converts it)")
+        if self.locate is None:
+            return doc
+        return _JsonDocument(file, doc.data, origins=self.origins, locate=self.locate)
 
     def yaml(self) -> str:
         """The scenario as readable YAML, with the notes as a comment header."""
@@ -456,6 +480,34 @@ class Conversion:
             head.extend(f"#   - {printable(note)}" for note in self.notes)
         body = yaml.dump(_flowing(self.scenario), Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120, allow_unicode=True)
         return "\n".join(head) + "\n" + body
+
+
+@dataclass
+class _JsonDocument(Document):
+    """A converted scenario whose problems are located in the rt-app file it came from.
+
+    A problem the scenario's checks find (a mutex held from one phase into the next) is said at
+    the line of the task, phase or event it came from, by the file's key path, with the path of
+    the scenario it converts to: that is the line to edit, not one of a text the user never saw."""
+
+    origins: dict[Path, _At] = field(default_factory=dict)
+    locate: Callable[[_At], tuple[int, int]] = lambda at: (1, 1)
+
+    def _origin(self, path: Path) -> _At:
+        path = tuple(path)
+        while path and path not in self.origins:
+            path = path[:-1]
+        return self.origins.get(path, _At())
+
+    def mark(self, path: Path, *, key: bool = False) -> Mark:
+        return Mark(*self.locate(self._origin(path)))
+
+    def problem(self, path: Path, message: str, *, key: bool = False, severity: str = "error") -> Problem:
+        at = self._origin(path)
+        line, col = self.locate(at)
+        scenario = dotted(tuple(path))
+        text = f"{message} (the converted scenario's {scenario})" if scenario else message
+        return Problem(self.file, line, col, str(at), printable(text), severity)
 
 
 class _Flow(dict[str, Any]):
@@ -509,6 +561,16 @@ def _what(value: Any) -> str:
     if isinstance(value, str):
         return f"the string {json.dumps(value)}"
     return f"the number {value!r}"
+
+
+def _clean_name(key: str) -> str:
+    """A task's name made a valid thread name: no control characters, spaces or '/'."""
+    return "".join("_" if (control_character(c) or c.isspace() or c == "/") else c for c in key) or "task"
+
+
+def _shared(a: str, b: str) -> int:
+    """How many characters `a` and `b` start with alike."""
+    return next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
 
 
 def _stem(name: str) -> str:
@@ -596,11 +658,18 @@ class _Converter:
         self.forks: list[tuple[str, dict[str, Any], list[Any], _At]] = []  # task key, its spawn event, the event's list, where
         self.io_device: Optional[tuple[str, _At]] = None
         self.started_keys: set[str] = set()
+        self.duration_at = _At()  # where global.duration is (or the file's start), for problems of the scenario's duration
+        self.tasks_at = _At()
+        self.task_keys: list[str] = []  # every task's name, for cutting one without making it another's
 
     # -- reporting
 
+    def locate(self, at: _At) -> tuple[int, int]:
+        """The line and column in the file of the key or item `at` leads to."""
+        return self.relaxed.position(_locate(self.relaxed.json, at.steps))
+
     def problem(self, at: _At, message: str) -> None:
-        line, col = self.relaxed.position(_locate(self.relaxed.json, at.steps))
+        line, col = self.locate(at)
         self.problems.append(Problem(self.file, line, col, str(at), printable(message)))
 
     def note(self, at: _At | str, message: str) -> None:
@@ -677,6 +746,8 @@ class _Converter:
             )
         else:
             tasks, tasks_at = tasks_entry
+            self.tasks_at = tasks_at
+            self.task_keys = tasks.names()
             for index, (key, value) in enumerate(tasks):
                 thread = self.task(index, key, value, tasks_at.key(index, key))
                 if thread is not None:
@@ -690,6 +761,8 @@ class _Converter:
             raise ScenarioError(self.problems)
 
         process: dict[str, Any] = {"name": self.process_name()}
+        if sum(1 for t in threads if not t.get("spawned")) > 1:
+            process["start"] = "in_order"  # as rt-app creates its threads
         if lock_pages:
             process["memory"] = {"lock": True}
             if not self.realtime:
@@ -712,12 +785,15 @@ class _Converter:
         if resources:
             scenario["resources"] = resources
         scenario["processes"] = [process]
-        return Conversion(self.resolve(scenario), list(self.notes), self.file)
+        origins: dict[Path, _At] = {("duration",): self.duration_at, ("processes", 0): self.tasks_at}
+        plain = _unlocated(self.resolve(scenario), (), origins)
+        return Conversion(plain, list(self.notes), self.file, origins, self.locate)
 
     def global_settings(self, glob: Pairs, at: _At) -> int:
         """Read the global keys that change the scenario; return the duration in seconds."""
         duration = DEFAULT_DURATION_S
         entry = self.last(glob, "duration", at)
+        self.duration_at = entry[1] if entry else at
         given = self.integer(entry[0], entry[1], "a whole number of seconds (-1: until the threads end)", -MAX_INT) if entry else -1
         if given is not None and given > 0:
             duration = given
@@ -793,7 +869,7 @@ class _Converter:
         phases: list[dict[str, Any]]
         if phases_entry is None:
             events = self.events(obj, at, index, at)
-            phases = [{"events": events}] if events else []
+            phases = [_Located({"events": events}, at)] if events else []
             work_loop = max(loop, 0) if loop_entry is not None else 0  # rt-app loops a task of bare events forever
         else:
             value, phases_at = phases_entry
@@ -806,7 +882,7 @@ class _Converter:
                 self.note(loop_entry[1] if loop_entry else at, "loop 0: rt-app runs none of the phases; the thread only sleeps here")
                 phases = []
         name = self.thread_name(key, count, at)
-        thread: dict[str, Any] = {"name": name}
+        thread: dict[str, Any] = _Located({"name": name}, at)
         self.instances[index] = count
         if count > 1:
             thread["count"] = count
@@ -819,7 +895,7 @@ class _Converter:
                 self.note(at, "has no event left to run; the thread only sleeps here")
             thread["work"] = {"kind": "sleep"}
             return thread
-        work: dict[str, Any] = {"kind": "phases"}
+        work: dict[str, Any] = _Located({"kind": "phases"}, at)
         if delay:
             work["delay"] = _us(delay)
         work["loop"] = work_loop
@@ -889,7 +965,7 @@ class _Converter:
                 loop = value if value is not None else 1
             sched = self.read_sched(body, here, current)
             events = self.events(body, here, task, here)
-            phase: dict[str, Any] = {}
+            phase: dict[str, Any] = _Located({}, here)
             base = "".join("_" if control_character(c) else c for c in key).strip() or f"p{i}"
             name, n = base, 2
             while name in names:
@@ -954,7 +1030,7 @@ class _Converter:
                 if isinstance(ev, _Fork):
                     self.forks.append((ev.target, ev.spawn, out, ev.at))
                     ev = ev.spawn
-                out.append(ev)
+                out.append(_Located(ev, here) if type(ev) is dict else ev)
         return out
 
     def event(self, kind: str, key: str, value: Any, at: _At, task: int, phase_at: _At) -> list[Any]:
@@ -994,7 +1070,7 @@ class _Converter:
             target = self.string(value, at, "the name of the task to start")
             if target is None:
                 return []
-            spawn: dict[str, Any] = {"spawn": target}
+            spawn: dict[str, Any] = _Located({"spawn": target}, at)
             return [_Fork(self, target, spawn, at)]
         if kind == "yield":
             return ["yield"]
@@ -1066,7 +1142,7 @@ class _Converter:
         if not self.last(value, "ref", at):
             self.note(at, 'a timer without "ref": rt-app shares one timer named "unknown" among all such events')
         if ref.startswith("unique"):
-            use = self.unique.setdefault((task, ref), _Use(str(at)))
+            use = self.unique.setdefault((task, ref), _Use(str(at), at))
             use.absolute = use.absolute or absolute
             use.mentions[task] = use.mentions.get(task, 0) + 1
             use.periods.append(period)
@@ -1087,7 +1163,7 @@ class _Converter:
             )
 
     def use(self, kind: str, name: str, at: _At, task: int, op: str) -> _Ref:
-        use = self.uses.setdefault(name, {}).setdefault(kind, _Use(str(at)))
+        use = self.uses.setdefault(name, {}).setdefault(kind, _Use(str(at), at))
         use.ops.add(op)
         use.mentions[task] = use.mentions.get(task, 0) + 1
         return _Ref(kind, name)
@@ -1226,10 +1302,19 @@ class _Converter:
         return re.sub(r"[^A-Za-z0-9_.+-]", "_", _stem(self.file)) or "rtapp"
 
     def thread_name(self, key: str, count: int, at: _At) -> str:
-        """A valid, unique thread name for task `key` (room kept for the `-N` that count adds)."""
-        clean = "".join("_" if (control_character(c) or c.isspace() or c == "/") else c for c in key) or "task"
+        """A valid, unique thread name for task `key` (room kept for the `-N` that count adds).
+
+        A name cut to its room keeps its head, as the kernel cuts a comm; where that would make it
+        another task's (`OMXCallbackDisp1` and `OMXCallbackDisp2` both `OMXCallbackDisp`), it
+        keeps what sets it apart from the closest of them too, cutting its head a little shorter for
+        it (`OMXCallbackDis1`, `OMXCallbackDis2`); a name still taken gets a number (`_2`)."""
+        clean = _clean_name(key)
         room = COMM_MAX - (len(f"-{count - 1}") if count > 1 else 0)
         name = _cut(clean, room)
+        rivals = [c for c in map(_clean_name, self.task_keys) if c != clean and _cut(c, room) == name] if name != clean else []
+        tail = clean[max((_shared(clean, r) for r in rivals), default=len(clean)) :]  # what sets it apart from the closest
+        if tail and len(tail.encode()) <= room // 2:
+            name = _cut(clean, room - len(tail.encode())) + tail
         n = 2
         while self._taken(name, count):
             suffix = f"_{n}"
@@ -1292,7 +1377,7 @@ class _Converter:
                 taken.add(final)
                 self.final[(kind, name)] = final
                 finals.append(final)
-                out[final] = self.resource(kind, final, kinds[kind])
+                out[final] = _Located(self.resource(kind, final, kinds[kind]), kinds[kind].first_at)
             if finals[0] != name and not several:  # several kinds: the note below names each
                 why = "letters, digits, _ . - only" if base != name else f"{base} is taken"
                 self.note("", f'resource "{printable(name)}" is named {finals[0]} here ({why})')
@@ -1300,12 +1385,6 @@ class _Converter:
                 kinds_used = list(kinds)
                 uses = ", a ".join(kinds_used[:-1]) + " and a " + kinds_used[-1]
                 self.note("", f'"{printable(name)}" is used as a {uses} (rt-app keeps them apart); here they are {", ".join(finals)}')
-        if any("queue" in kinds for kinds in self.uses.values()):
-            self.note(
-                "",
-                "suspend/resume became queues: a resume is counted, waking one suspended thread or the next to suspend; "
-                "rt-app's resume wakes every thread suspended at that moment and is lost when none is",
-            )
         return out
 
     def resource(self, kind: str, final: str, use: _Use) -> dict[str, Any]:
@@ -1334,6 +1413,8 @@ class _Converter:
             self.note(use.first, f"nothing resumes {final}: a suspend on it blocks until the run ends, as in rt-app")
         if kind == "queue" and "suspend" not in use.ops:
             self.note(use.first, f"no thread suspends on {final}: its resumes wake nobody")
+        if kind == "queue":
+            return {"kind": "queue", "pending": "drop"}  # rt-app's resume: lost when no thread is suspended
         if kind == "barrier":
             twice = [t for t, n in use.mentions.items() if n > 1]
             if twice:
@@ -1351,18 +1432,32 @@ class _Converter:
             use = self.unique[(value.task, value.ref)]
             return {"period": _us(value.period_us), "overrun": "catchup" if use.absolute else "rebase"}
         if isinstance(value, dict):
-            return {k: self.resolve(v) for k, v in value.items()}
+            resolved = {k: self.resolve(v) for k, v in value.items()}
+            return _Located(resolved, value.at) if isinstance(value, _Located) else resolved
         if isinstance(value, list):
             return [e for v in value for e in (self.wake_events(v) if isinstance(v, _Wake) else [self.resolve(v)])]
         return value
 
     def wake_events(self, wake: _Wake) -> list[dict[str, Any]]:
         if not wake.shared:
-            return [{wake.kind: self.final[("queue", wake.name)]}]
+            return [_Located({wake.kind: self.final[("queue", wake.name)]}, wake.at)]
         mutex, cond = self.final[("mutex", wake.name)], self.final[("cond", wake.name)]
         if wake.kind == "suspend":
-            return [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
-        return [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
+            events: list[dict[str, Any]] = [{"lock": mutex}, {"wait": {"cond": cond, "mutex": mutex}}, {"unlock": mutex}]
+        else:
+            events = [{"lock": mutex}, {"broadcast": cond}, {"unlock": mutex}]
+        return [_Located(e, wake.at) for e in events]
+
+
+def _unlocated(value: Any, path: Path, origins: dict[Path, _At]) -> Any:
+    """`value` as plain data, with where each located mapping came from added to `origins` by its path in the scenario."""
+    if isinstance(value, dict):
+        if isinstance(value, _Located):
+            origins[path] = value.at
+        return {k: _unlocated(v, path + (k,), origins) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_unlocated(v, path + (i,), origins) for i, v in enumerate(value)]
+    return value
 
 
 def _comments(text: str) -> Iterator[str]:

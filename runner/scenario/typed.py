@@ -261,6 +261,12 @@ class Model:
         """The mapping form of a value written in a shorthand (`fifo:80`); raise ValueError or KeyProblem."""
         return value
 
+    @classmethod
+    def _peer_word(cls, key: str) -> Optional[tuple[Optional[str], str]]:
+        """What an unknown key that another tool's vocabulary uses means here (rt-app's `instance`: `count`): the field
+        it stands for (None: none of this model) and the words that say so; None when it is no such word."""
+        return None
+
     def _after(self, written: Any, context: Context) -> None:
         """Rules across fields, once every field is valid (`written`: the data as given); raise ValueError or KeyProblem.
 
@@ -655,10 +661,14 @@ def _model_checker(model: type[Model]) -> _Checker:
         unknown = [k for k in value if k not in names]
         missing = [p.name for p in plans if p.required and p.name not in value]
         for key in unknown:
-            meant = closest(str(key), names)
+            peer = model._peer_word(str(key))  # a word of rt-app's or cyclictest's: what it is here, before any typo
+            if peer is not None:
+                meant, hint = peer[0], f"; {peer[1]}"
+            else:
+                meant = closest(str(key), names)
+                hint = f"; did you mean {meant!r}?" if meant is not None else f"; expected one of: {', '.join(names)}"
             if meant is not None and meant in missing:
                 missing.remove(meant)  # `polcy:` for `policy:` is one mistake: the unknown key's "did you mean" says both
-            hint = f"; did you mean {meant!r}?" if meant is not None else f"; expected one of: {', '.join(names)}"
             run.add(path + (key,), f"unknown key {key!r}{hint}", key=True)
         for name in missing:
             run.add(path + (name,), f"missing required key {name!r}")
