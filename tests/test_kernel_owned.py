@@ -89,3 +89,102 @@ def test_the_cgroup_of_a_dead_runner_of_this_namespace_is_still_emptied_and_remo
         if os.path.isdir(folder):
             memcg.kill_all(folder)
             memcg.remove(folder)
+
+
+_PROGRAM_EXITS_EARLY = """\
+import os, subprocess, sys, time
+from runner.run import kernel
+from runner.run.external import ProgramRun
+from runner.scenario.model import ProgramSpec
+
+class NoGuard:
+    def watch(self, pgid): pass
+    def forget(self, pgid): pass
+    def watch_cgroup(self, path): pass
+    def forget_cgroup(self, path): pass
+
+run = ProgramRun(ProgramSpec.parse({"name": "quick", "command": ["true"]}), sys.argv[1], kernel.current_settings(), kernel.online_cpus())
+run.launch(NoGuard())
+run.release()
+until = time.monotonic() + 10
+while not run.poll() and time.monotonic() < until:  # what the monitor does while the cell runs
+    time.sleep(0.005)
+with open("/proc/sys/kernel/ns_last_pid", "w") as f:  # the next process gets the program's number, if it is free
+    f.write(str(run.pid - 1))
+newcomer = subprocess.Popen(["sleep", "60"], start_new_session=True)  # a group leader: a shell's job, a daemon
+run.stop(NoGuard())
+getattr(run, "reap", lambda: None)()  # reaped by now before it had one
+time.sleep(0.1)
+print(run.pid, newcomer.pid, newcomer.poll())
+newcomer.kill()
+"""
+
+
+def test_the_group_of_a_program_that_exited_early_is_never_a_strangers_it_was_given_to(tmp_path):
+    """Reaped at its exit, a program left its PID free while the cell ran on, and the SIGKILL of its group at the
+    cell's end went to the process group that had been given that number since."""
+    program, newcomer, code = _in_new_pid_namespace(_PROGRAM_EXITS_EARLY, str(tmp_path)).split()
+    assert code == "None", f"the process given the program's PID {program} ({newcomer}) was killed at the program's stop"
+
+
+_RUN_WITH_ONE_ENDING_EARLY = """\
+import os, signal, subprocess, sys, time
+folder = sys.argv[1]
+scenario = os.path.join(folder, "s.yaml")
+with open(scenario, "w") as f:
+    f.write(
+        "name: reuse\\nduration: 3s\\nprocesses:\\n"
+        + "".join(f"  - name: {n}\\n    main:\\n      sched: other\\n      work: {{kind: periodic, period: 100ms, burn: 1ms}}\\n"
+                  for n in ("victim", "keeper"))
+        + f"background:\\n  commands:\\n    - argv: [sh, -c, 'echo $$ > {folder}/command.pid']\\n"
+    )
+runner = subprocess.Popen([sys.executable, "-m", "runner", scenario, "--out", os.path.join(folder, "out"), "--quiet",
+                           "--no-report", "--no-trace", "--settle", "0"], cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          text=True)
+
+def freed(pid):
+    until = time.monotonic() + 1.0
+    while os.path.exists(f"/proc/{pid}") and time.monotonic() < until:
+        time.sleep(0.005)
+    return not os.path.exists(f"/proc/{pid}")
+
+def newcomer(pid):  # a group leader given `pid`: the next number this namespace hands out
+    with open("/proc/sys/kernel/ns_last_pid", "w") as f:
+        f.write(str(pid - 1))
+    return subprocess.Popen(["sleep", "60"], start_new_session=True)
+
+def named(comm):
+    for entry in os.listdir("/proc"):
+        try:
+            if entry.isdigit() and open(f"/proc/{entry}/comm").read().strip() == comm:
+                return int(entry)
+        except OSError:
+            pass
+    raise SystemExit(f"no {comm}")
+
+until = time.monotonic() + 20
+while not os.path.exists(f"{folder}/command.pid") and time.monotonic() < until:
+    time.sleep(0.01)
+given = {}
+command = int(open(f"{folder}/command.pid").read())  # the background command, which ends at once
+if freed(command):
+    given["command"] = newcomer(command)
+worker = named("victim")  # a worker killed mid-cell; the keeper keeps the cell going
+os.kill(worker, signal.SIGKILL)
+if freed(worker):
+    given["worker"] = newcomer(worker)
+runner.communicate(timeout=60)
+for what, process in given.items():
+    print(what, process.pid, process.poll())
+    process.kill()
+print("runner", runner.returncode)
+"""
+
+
+def test_the_group_of_a_worker_or_command_that_ended_early_is_never_a_strangers_it_was_given_to(tmp_path):
+    """A background command that ended at once (reaped by the run's next look) and a worker killed mid-cell (reaped by
+    the zygote) left their PIDs free; the SIGKILL of their groups at the cell's end went to whoever had them since."""
+    lines = [line.split() for line in _in_new_pid_namespace(_RUN_WITH_ONE_ENDING_EARLY, str(tmp_path)).splitlines()]
+    assert lines[-1] == ["runner", "4"], lines  # the cell is an error: a worker was killed, a command ended before it
+    killed = [what for what, _, code in lines[:-1] if code != "None"]
+    assert killed == [], f"the process given the PID of the {killed} was killed at the cell's end: {lines}"
