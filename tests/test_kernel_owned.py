@@ -188,3 +188,27 @@ def test_the_group_of_a_worker_or_command_that_ended_early_is_never_a_strangers_
     assert lines[-1] == ["runner", "4"], lines  # the cell is an error: a worker was killed, a command ended before it
     killed = [what for what, _, code in lines[:-1] if code != "None"]
     assert killed == [], f"the process given the PID of the {killed} was killed at the cell's end: {lines}"
+
+
+_GUARD_AFTER_REUSE = """\
+import io, os, subprocess, time
+from runner.run import guard
+leader = subprocess.Popen(["sleep", "60"], start_new_session=True)
+left = guard.follow(io.StringIO(f"+{leader.pid}\\n"))  # told, as the runner tells it of each group it starts
+time.sleep(0.05)  # start times count clock ticks (10 ms); a PID comes round again after pid_max others, never this fast
+leader.kill()
+leader.wait()  # reaped (by the zygote, say) before the runner could say -PID, and then the runner died
+with open("/proc/sys/kernel/ns_last_pid", "w") as f:
+    f.write(str(leader.pid - 1))
+newcomer = subprocess.Popen(["sleep", "60"], start_new_session=True)
+guard.clean(left)
+time.sleep(0.1)
+print(leader.pid, newcomer.pid, newcomer.poll())
+newcomer.kill()
+"""
+
+
+def test_the_guard_leaves_a_group_alone_whose_number_another_process_was_given():
+    leader, newcomer, code = _in_new_pid_namespace(_GUARD_AFTER_REUSE).split()
+    assert leader == newcomer, "the namespace handed the number out again"
+    assert code == "None", "the guard killed the group of the process given its dead leader's PID"
