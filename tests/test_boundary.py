@@ -376,6 +376,12 @@ def test_guard_keeps_the_groups_not_forgotten():
     assert guard.serve(lines) == {200, 300}
 
 
+def test_guard_never_keeps_group_0_or_1():
+    """killpg(0) is the guard's own group, killpg(1) init's: no process the runner starts leads either."""
+    lines = io.StringIO("+0\n+1\n+00\n+\u0661\u0662\n+12\n")
+    assert guard.serve(lines) == {12}
+
+
 def test_guard_follows_cgroups_beside_process_groups():
     lines = io.StringIO("+100\ncg+/cg/runner-1-prog\ncg+/cg/runner-1-command0\ncg-/cg/runner-1-prog\ncg+\ntrace+/t/instances/runner-1-0\n")
     left = guard.follow(lines)

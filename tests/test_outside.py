@@ -241,6 +241,8 @@ def test_a_program_stopped_at_its_gate_is_not_said_to_have_been_stopped_with_sig
     run.stop(Guard())  # the cell stopped before releasing it
     raw = run.raw(None, T0)
     assert run.stopped == "" and raw.stopped == "" and raw.exit_code is None and raw.exit_signal is None and raw.released_ns is None
+    assert os.waitid(os.P_PID, run.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None, "ended, its PID still held"
+    run.reap()
     with pytest.raises(ChildProcessError):
         os.waitpid(run.pid, os.WNOHANG)  # reaped
 

@@ -21,6 +21,7 @@ one.  Threads still alive are always kept and measured.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import select
@@ -288,7 +289,8 @@ class ProgramRun:
         self.start_errors = ApplyErrors()
         self.released_ns: Optional[int] = None
         self.exited_ns: Optional[int] = None
-        self.status: Optional[int] = None  # the wait status once reaped
+        self.status: Optional[int] = None  # the wait status once it exited
+        self._reaped = False  # its PID given back to the kernel (`reap`): no signal to its group may follow
         self.stopped = ""
         self.stdout = f"{spec.name}.stdout"
         self.stderr = f"{spec.name}.stderr"
@@ -402,17 +404,37 @@ class ProgramRun:
         self._gate = self._report = -1
 
     def poll(self) -> bool:
-        """Reap it if it has exited; True once it has."""
+        """Whether it has exited (its wait status then in `status`); it is not reaped: `reap` does that.
+
+        Unreaped, its zombie keeps its PID, and so its process group's number, from every other
+        process until the runner is done signalling that group (`stop`, the watchdog, the guard):
+        reaped at its exit, a program that ended early left its number free for the rest of the
+        cell, and the SIGKILL of its group at the cell's end went to whichever process had been
+        given that number and led a group (a shell's job, a daemon), as root any on the machine.
+        """
         if self.status is not None or not self.pid:
             return True
         if self.attached:
             if self.exited_ns is None and self._attached_exited():
                 self.exited_ns = time.monotonic_ns()
             return self.exited_ns is not None
-        pid, status = os.waitpid(self.pid, os.WNOHANG)
-        if pid:
-            self.status, self.exited_ns = status, time.monotonic_ns()
+        self._exited(os.WNOHANG)
         return self.status is not None
+
+    def _exited(self, flags: int = 0) -> None:
+        """Note its exit (waiting for it without os.WNOHANG), leaving it unreaped."""
+        info = os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOWAIT | flags)
+        if info is not None:
+            self.status, self.exited_ns = wait_status(info), time.monotonic_ns()
+
+    def reap(self) -> None:
+        """Reap it, once the runner signals its group no more: its PID is free for others from now on."""
+        if self.pid and not self.attached and not self._reaped:
+            with contextlib.suppress(ChildProcessError):  # reaped already: nothing of it is left to give back
+                if self.status is None:
+                    self._exited()
+                os.waitpid(self.pid, 0)
+            self._reaped = True
 
     def family(self) -> list[int]:
         """The program's process and those it started (children, a daemon, `ros2 run`'s node), as its cgroup holds them now.
@@ -439,7 +461,10 @@ class ProgramRun:
             self.halted_ns = self._stopped_seen
 
     def stop(self, guard: Watcher) -> None:
-        """SIGTERM its process group, SIGKILL after the grace period; reap it; whatever it left in its group (and cgroup) goes too.
+        """SIGTERM its process group, SIGKILL after the grace period; whatever it left in its group (and cgroup) goes too.
+
+        It is left for `reap`: until then its zombie holds its PID, so every signal to its group
+        reaches its own (`poll` says why).
 
         One never released (the cell stopped while it waited at its gate) never ran: its gate is
         closed and what is left of it is killed, and `stopped` stays empty, as nothing of the
@@ -454,8 +479,7 @@ class ProgramRun:
             self.abandon()
             if not self.poll():
                 _killpg(self.pid, signal.SIGKILL)
-                _, self.status = os.waitpid(self.pid, 0)
-                self.exited_ns = time.monotonic_ns()
+                self._exited()
         elif not self.poll():
             _killpg(self.pid, signal.SIGTERM)
             self.stopped = "SIGTERM"
@@ -465,8 +489,7 @@ class ProgramRun:
             if not self.poll():
                 _killpg(self.pid, signal.SIGKILL)
                 self.stopped = "SIGKILL"
-                _, self.status = os.waitpid(self.pid, 0)
-                self.exited_ns = time.monotonic_ns()
+                self._exited()
         _killpg(self.pid, signal.SIGKILL)
         guard.forget(self.pid)
         self._close_cgroup(guard)
@@ -637,6 +660,13 @@ def _read_exactly(fd: int, size: int) -> bytes:
             break
         data += chunk
     return data
+
+
+def wait_status(info: os.waitid_result) -> int:
+    """The wait status (as os.waitpid gives it) that a waitid result of an exited child says."""
+    if info.si_code == os.CLD_EXITED:
+        return (info.si_status & 0xFF) << 8
+    return info.si_status | (0x80 if info.si_code == os.CLD_DUMPED else 0)  # killed by that signal (and dumped core)
 
 
 def _killpg(pgid: int, sig: int) -> None:

@@ -4,10 +4,19 @@ Workers die with the runner through PR_SET_PDEATHSIG, but that reaches only dire
 children: a background command's own children, or anything a command started in
 its process group, would outlive a SIGKILLed runner.  Every process the runner
 starts leads a process group of its own; the runner tells the guard about each
-group (`+PGID`) and about each it has reaped (`-PGID`) over the guard's stdin.
-When stdin reaches end of file (the runner exited, normally or by SIGKILL, since
-the kernel closes its end of the pipe either way), the guard SIGKILLs every group
-still on its list and exits.
+group (`+PGID`) and about each it is done with (`-PGID`, before it reaps it) over the
+guard's stdin.  When stdin reaches end of file (the runner exited, normally or by
+SIGKILL, since the kernel closes its end of the pipe either way), the guard SIGKILLs
+every group still on its list and exits.
+
+A group's number is its leader's PID, and a PID is given to another process once its
+own is reaped (in seconds, where pid_max is 32768): a worker the zygote reaped mid-cell,
+or anything reaped just before the runner died, is still on the list.  So the guard notes
+each leader's start time as it hears of it (`/proc/PID/stat`), and at the end kills a
+group only while no other process has its number: the leader itself (same start time),
+or no process at all (the number then belongs to the group's last members, since the
+kernel gives no process a number a group still uses, or to no one).  Group 0 and 1 are
+never killed (the guard's own group; init's).
 
 A tracefs instance the runner traces in (runner/run/tracing.py) is registered the
 same way (`trace+PATH`, `trace-PATH`): one still registered at end of file has its
@@ -54,6 +63,22 @@ class Watched:
     groups: set[int] = field(default_factory=set)
     instances: set[str] = field(default_factory=set)
     cgroups: set[str] = field(default_factory=set)
+    started: dict[int, Optional[int]] = field(default_factory=dict)  # each group's leader's start time when told (None: gone)
+
+
+def start_time(pid: int) -> Optional[int]:
+    """When the process (or thread) `pid` started, in clock ticks since boot; None when no task has that PID."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as handle:
+            return int(handle.read().rsplit(b")", 1)[1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def ours(pgid: int, started: Optional[int]) -> bool:
+    """Whether group `pgid` is still the one whose leader started at `started`: no other process holds its number."""
+    now = start_time(pgid)
+    return now is None or now == started
 
 
 def follow(commands: IO[str]) -> Watched:
@@ -71,12 +96,14 @@ def follow(commands: IO[str]) -> Watched:
                 left.cgroups.add(line[3:])
             else:
                 left.cgroups.discard(line[3:])
-        elif len(line) > 1 and line[1:].isdecimal():
+        elif len(line) > 1 and line[1:].isascii() and line[1:].isdecimal() and int(line[1:]) > 1:
             pgid = int(line[1:])
             if line[0] == "+":
                 left.groups.add(pgid)
+                left.started[pgid] = start_time(pgid)
             elif line[0] == "-":
                 left.groups.discard(pgid)
+                left.started.pop(pgid, None)
     return left
 
 
@@ -184,6 +211,8 @@ def clean(left: Watched) -> None:
     # still hold (EBUSY) is removed after the kill, which waits for nothing.
     busy = [path for path in sorted(left.instances) if not remove_instance(path)]
     for pgid in sorted(left.groups):
+        if not ours(pgid, left.started.get(pgid)):
+            continue  # its number is another process's now: the group it stood for has no member left
         try:
             os.killpg(pgid, signal.SIGKILL)
         except OSError:

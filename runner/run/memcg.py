@@ -9,8 +9,14 @@ limit is read back from the cgroup's file after it is written, never echoed.
 cgroup v2 (`memory.max`, `memory.peak`, `memory.events`) is used where the runner's cgroup
 has the memory controller and can hand it to a child; a v1 memory hierarchy
 (`memory.limit_in_bytes`, `memory.max_usage_in_bytes`, `memory.oom_control`) otherwise.
-Folders are named `runner-<pid>-<program>`; those of runners that died without removing
-theirs are removed by the next `create` (a cgroup without tasks is removed by rmdir).  A
+Folders are named `runner-<pid>-ns<inode>-<program>`, the runner's PID and its PID namespace;
+those of runners that died without removing theirs are emptied (SIGKILL) and removed by the next
+`create` (a cgroup without tasks is removed by rmdir).  A PID says whether its runner lives only
+in the namespace it was given in: runners in containers, or started with `unshare --pid`, share
+the cgroup folder of the shell or service that started them, and one that saw no process with
+another's PID killed that live runner's programs.  So only folders of the sweeper's own PID
+namespace whose PID is not a live process are swept; a folder of another namespace (or of an
+older runner, whose name says none) is left to the runners of its namespace and its guard.  A
 folder is made 0755 whatever the umask (FOLDER_MODE): one that others may write could be
 given a cgroup of theirs inside it, and a cgroup with a child is never removed.
 """
@@ -25,7 +31,7 @@ import time
 from dataclasses import dataclass
 from typing import Optional
 
-_STALE = re.compile(r"runner-(\d+)-")
+_STALE = re.compile(r"runner-(\d+)-ns(\d+)-")
 REMOVE_WAIT_S = 0.5  # a killed group's last tasks leave it within this
 FOLDER_MODE = 0o755  # the runner's alone to write (its files, cgroup.procs among them, are the kernel's 0644)
 
@@ -160,11 +166,24 @@ def _holds(h: Hierarchy) -> str:
     return "" if os.access(h.folder, os.W_OK) else f"{h.folder} is not writable by this user"
 
 
-def _remove_stale(h: Hierarchy) -> None:
-    """Remove the cgroups of runners that died without removing theirs, killing what they still hold (and their guard missed)."""
+def pid_namespace() -> int:
+    """The inode of this process's PID namespace (the same number in every namespace that looks at it); 0 if unknown."""
+    try:
+        return os.stat("/proc/self/ns/pid").st_ino
+    except OSError:
+        return 0
+
+
+def _remove_stale(h: Hierarchy, owner: Optional[int] = None) -> None:
+    """Remove the cgroups of runners of this PID namespace that died without removing theirs, killing what they still
+    hold (and their guard missed); the module's docstring says why no other.  `owner`: only the cgroups named for
+    that PID (tests, which must not sweep those of other runners on the machine)."""
+    ours = pid_namespace()
     for name in os.listdir(h.folder):
         match = _STALE.match(name)
-        if match and not os.path.exists(f"/proc/{match.group(1)}"):
+        if match is None or not ours or int(match[2]) != ours or (owner is not None and int(match[1]) != owner):
+            continue
+        if not os.path.exists(f"/proc/{match[1]}"):
             kill_all(os.path.join(h.folder, name))
             remove(os.path.join(h.folder, name))
 
@@ -178,9 +197,11 @@ class MemoryCgroup:
 
     @classmethod
     def create(cls, h: Hierarchy, name: str, limit: Optional[int]) -> MemoryCgroup:
-        """A new cgroup `runner-<pid>-<name>` with `limit` bytes (None: no limit, it only holds); OSError when the kernel refuses."""
+        """A new cgroup `runner-<pid>-ns<inode>-<name>` with `limit` bytes (None: no limit, it only holds); OSError when
+        the kernel refuses."""
         _remove_stale(h)
-        folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}")
+        own = f"runner-{os.getpid()}-ns{pid_namespace()}"
+        folder = os.path.join(h.folder, f"{own}-{name}")
         for n in itertools.count(2):  # an earlier cell's group still leaving, or another of the same name: a name of its own
             try:
                 os.mkdir(folder, FOLDER_MODE)  # never more than 0755, whatever the umask (it can only take bits away)
@@ -188,7 +209,7 @@ class MemoryCgroup:
             except FileExistsError:
                 if n > 100:
                     raise
-                folder = os.path.join(h.folder, f"runner-{os.getpid()}-{name}-{n}")
+                folder = os.path.join(h.folder, f"{own}-{name}-{n}")
         group = cls(h, folder)
         try:
             os.chmod(folder, FOLDER_MODE)  # and exactly 0755 under a umask that took more

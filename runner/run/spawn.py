@@ -33,7 +33,7 @@ from runner.results.pstable import ThreadRow
 from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import child_env, python_module, signal_name
-from runner.run.external import Monitor, ProgramRun, sched_json
+from runner.run.external import Monitor, ProgramRun, sched_json, wait_status
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.output import FINISH_WAIT_S, CappedOutput
@@ -402,7 +402,7 @@ class Worker:
 
         A stop that came in that moment once missed the worker, and the cell waited out the 2 s grace.
         """
-        if self.popen is not None and self.popen.poll() is None:
+        if self.popen is not None and exit_code(self.popen) is None:
             _kill_group_or_process(self.popen.pid, sig)
 
     def exit_reason(self) -> Optional[str]:
@@ -634,7 +634,7 @@ def _await_gates(workers: list[Worker], until_ns: int) -> None:
 def _gates_passed(w: Worker) -> bool:
     """Whether every thread of `w` that starts with the cell passed its gate, or `w` is gone."""
     assert w.buffer is not None
-    if w.popen is not None and w.popen.poll() is not None:
+    if w.popen is not None and exit_code(w.popen) is not None:
         return True
     at_start = {t.index for t in w.planned if not t.spawned}
     return all(passed for i, passed in enumerate(w.buffer.gate_passed()) if i in at_start)
@@ -1058,7 +1058,7 @@ class _CellRun:
 
     def _running(self, t_end: int) -> bool:
         """Whether the cell goes on: a worker runs, or a program runs before the end (every `until: exit` one, before its exit)."""
-        if any(w.popen.poll() is None for w in self.workers):  # type: ignore[union-attr]
+        if any(exit_code(w.popen) is None for w in self.workers):  # type: ignore[arg-type]
             return True
         running = [p for p in self.programs if not p.poll()]
         if not running or time.monotonic_ns() >= t_end:
@@ -1094,12 +1094,12 @@ class _CellRun:
         at = f"{max(0, now - t0) / 1e9:.1f}s into the cell"
         for h in self.hogs:
             assert h.popen is not None
-            code = h.popen.poll()
+            code = exit_code(h.popen)
             if code is not None and h.label not in self.incidents:
                 how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
                 self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
         for n, c in enumerate(self.commands):
-            code = c.poll()
+            code = exit_code(c)
             label = f"command {_argv(c)[0]}[{n}]"
             if code is not None and label not in self.incidents:
                 how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
@@ -1114,7 +1114,12 @@ class _CellRun:
                 )
 
     def stop(self) -> None:
-        """Stop the programs and the background load and reap every process (SIGKILL after the grace period); disarm the watchdog."""
+        """Stop the programs and the background load and reap every process (SIGKILL after the grace period); disarm the watchdog.
+
+        Each process is reaped last, once nothing of the runner signals its group any more (the
+        watchdog disarmed, the guard told): until then its zombie keeps its PID, the number of its
+        group, from every other process (`exit_code`).
+        """
         if self.monitor is not None:
             self.monitor.stop()
         if self.tracer is not None:
@@ -1127,15 +1132,14 @@ class _CellRun:
             w.hang_up()
         self._end_load()
         stop_by = time.monotonic() + STOP_GRACE_S
-        for proc in [w.popen for w in self.workers + self.hogs if w.popen] + self.commands:
-            try:
-                proc.wait(timeout=max(0.05, stop_by - time.monotonic()))
-            except subprocess.TimeoutExpired:
+        processes = [w.popen for w in self.workers + self.hogs if w.popen] + self.commands
+        for proc in processes:
+            if not _exited_within(proc, max(0.05, stop_by - time.monotonic())):
                 _kill_group_or_process(proc.pid)
-                proc.wait()
-            with suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
-            self.guard.forget(proc.pid)
+                _exited_within(proc, None)
+            if isinstance(proc, subprocess.Popen) and proc.returncode is None:  # unreaped: the group is still its own
+                with suppress(ProcessLookupError, PermissionError):
+                    os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
         for group in self.command_groups:  # and what a command started outside its group
             group.kill_all()
             group.remove()
@@ -1145,6 +1149,11 @@ class _CellRun:
         self.command_counts += [output.finish(finish_by) for output in self.command_outputs]
         self.command_outputs = []
         self.watchdog.disarm()
+        for proc in processes:
+            self.guard.forget(proc.pid)
+            proc.wait()  # a child of the runner's reaped now; the zygote reaped its own
+        for p in self.programs:
+            p.reap()
 
     def raw(self) -> RawCell:
         """Everything the processes left behind, read back: slots, settings, the table, what went wrong."""
@@ -1272,6 +1281,40 @@ def _ready_report(w: Worker) -> Optional[ReadyReport]:
         return ReadyReport.parse(w.ready, w.nslots)
     except ValueError:
         return None
+
+
+def exit_code(proc: subprocess.Popen[Any] | ZygoteChild) -> Optional[int]:
+    """Its exit code once it has exited (negative: the signal that ended it), None while it runs.
+
+    A child of the runner's own (subprocess.Popen) is left unreaped: its zombie keeps its PID, and
+    so the number of the process group it leads, from every other process until `Cell.stop` has
+    signalled that group for the last time and reaps it (Popen.poll reaped it at once, and the
+    SIGKILL of its group at the cell's end then went to whichever process had been given the
+    number).  A worker the zygote forked is the zygote's to reap, which kills its group first.
+    """
+    if not isinstance(proc, subprocess.Popen) or proc.returncode is not None:  # a zygote's worker, or reaped
+        return proc.poll()
+    try:
+        info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+    except ChildProcessError:  # reaped by someone else after all: Popen knows its code
+        return proc.poll()
+    return None if info is None else os.waitstatus_to_exitcode(wait_status(info))
+
+
+def _exited_within(proc: subprocess.Popen[Any] | ZygoteChild, timeout: Optional[float]) -> bool:
+    """Wait until `proc` has exited (left unreaped, as `exit_code` leaves it) or `timeout` seconds (None: no limit) passed."""
+    if not isinstance(proc, subprocess.Popen):
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+    until = None if timeout is None else time.monotonic() + timeout
+    while exit_code(proc) is None:
+        if until is not None and time.monotonic() >= until:
+            return False
+        time.sleep(0.002)
+    return True
 
 
 def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:

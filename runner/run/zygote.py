@@ -9,7 +9,9 @@ pipes on 0, 1 and 2, the descriptors it was given at 3, 4, ..., `/` as its folde
 default signals) and runs `worker.main()`.
 
 The zygote is the workers' parent, so it reaps them and reports each exit status to
-the runner; `ZygoteChild` offers what the runner uses of a `subprocess.Popen`
+the runner, having killed what was left in the worker's process group first: that number is
+a worker's only while its zombie holds it, so the runner never signals the group of a worker
+the zygote reported (runner/run/spawn.py `exit_code`); `ZygoteChild` offers what the runner uses of a `subprocess.Popen`
 (pid, stdin, stdout, poll, wait, returncode).  A worker dies with the zygote
 (PR_SET_PDEATHSIG, checked against the zygote's pid), and the zygote with the runner
 (the same, plus the guard, which kills every process group it was told of).  The
@@ -232,6 +234,10 @@ def serve(sock: socket.socket) -> int:
                 pid = children.pop(fd)
                 poller.unregister(fd)
                 os.close(fd)
+                try:  # its group, while its zombie still holds the number: once reaped, the number may be anyone's
+                    os.killpg(pid, signal.SIGKILL)
+                except OSError:
+                    pass
                 _, status = os.waitpid(pid, 0)
                 sock.send(json.dumps({"exit": pid, "status": status}).encode())
 
