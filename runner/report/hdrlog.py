@@ -17,7 +17,7 @@ line of the file without looking at tags counts each value twice.
 No conversion loses anything: the native core's buckets are laid out as HdrHistogram's
 with 2 significant digits and a lowest discernible value of 1 (runner/histogram.py), so a
 bucket's counts go to the same bucket in the log, in nanoseconds.  Only the native core's
-last bucket (from 2^40 ns, about 18 minutes, up) is wider than HdrHistogram's: its values
+last bucket (from 2^40 - 2^32 ns, about 18 minutes, up) is wider than HdrHistogram's: its values
 are logged at the largest value the cell saw, so none is shown smaller than it was.
 
 The V2 encoding, as HdrHistogram's encoding specification and `encodeIntoCompressedByteBuffer`
