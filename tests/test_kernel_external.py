@@ -216,7 +216,8 @@ def test_watch_measures_a_running_program_and_its_table_is_what_ps_shows(tmp_pat
 @needs_tracing
 def test_watch_traces_the_scheduler_as_a_run_does_and_says_so_when_told_not_to(tmp_path, program):
     """`runner watch` never traced: its report had no wake-up latency, no preemptions, and said nothing about it."""
-    proc = subprocess.Popen([program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
+    # on CPU 0: this VM's kernel traces no switch out of idle on CPU 1, where most of a 1 ms loop's wake-ups go unmeasured
+    proc = subprocess.Popen(["taskset", "-c", "0", program, "--burn-us", "200"], stdout=subprocess.DEVNULL, start_new_session=True)
     try:
         wait_for_threads(NAME, 5)
         done = _watch(tmp_path, NAME, "1s", "traced")

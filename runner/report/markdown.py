@@ -431,7 +431,13 @@ def trace_line(cell: CellResult) -> str | None:
         )
     lost = f"{info.lost:,} lost" if info.lost else "none lost"
     cost = f"{info.reader_cpu_ns / 1e6:.1f} ms of CPU for the reader"
-    return f"Scheduler trace: {info.events:,} events ({lost}), {cost}."
+    unseen = (
+        f" {info.unseen_switch_ins:,} wake-ups unmeasured: the kernel traced no switch onto the CPU they ran on"
+        " (some kernels trace none out of an idle CPU); the wake-ups traced are fewer, never wrong."
+        if info.unseen_switch_ins
+        else ""
+    )
+    return f"Scheduler trace: {info.events:,} events ({lost}), {cost}.{unseen}"
 
 
 def _ended(p: ProgramResult) -> str:
