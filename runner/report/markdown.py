@@ -1208,9 +1208,12 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         + ", and by more than sampling explains. Each figure is shown with its 95% interval [low, high] (a quantile's "
         "from the order statistics of its histogram, a count's exact binomial or Poisson one, a mean's standard error); "
         "the change is tested exactly against both runs' samples, and the p-values are adjusted by Holm's method over "
-        "every figure tested, so that a whole comparison calls a false regression at most 5% of the time. A change "
-        "past its threshold that sampling explains is within noise; a figure with too few samples for an interval is "
-        "not judged, and says what it needs."
+        "every figure tested, so that a whole comparison would call a false regression at most 5% of the time if each "
+        "callback were an independent sample of one unchanged host. Neither quite holds: one hiccup delays several "
+        "callbacks, and a host varies from night to night (of 19 identical nights on a 2-CPU VM, 6 were called "
+        "regressions against the night before). For a nightly verdict, judge against a history (`--history`), which "
+        "learns each figure's variation between nights. A change past its threshold that sampling explains is within "
+        "noise; a figure with too few samples for an interval is not judged, and says what it needs."
     ] + list(cmp.notes)
 
     def figure_rows(items: Iterable[FigureChange]) -> list[list[str]]:
