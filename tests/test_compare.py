@@ -347,7 +347,7 @@ def test_comparison_section_matches_golden_file():
     text = render_comparison(cmp.compare(base, new), "base/results.json", "new/results.json")
     golden("comparison.md", text)
     # it once promised "a false regression at most 5% of the time", which 6 of 19 identical nights disproved
-    assert "if each callback were an independent sample of one unchanged host" in text and "(`--history`)" in text
+    assert "if each callback were an independent sample of one unchanged host" in text and "judge against a history (--history)" in text
 
 
 def test_runs_with_no_cell_in_common_are_refused_naming_both_files(tmp_path):

@@ -1211,7 +1211,7 @@ def build_comparison(cmp: Comparison, base_name: str, new_name: str) -> Comparis
         "every figure tested, so that a whole comparison would call a false regression at most 5% of the time if each "
         "callback were an independent sample of one unchanged host. Neither quite holds: one hiccup delays several "
         "callbacks, and a host varies from night to night (of 19 identical nights on a 2-CPU VM, 6 were called "
-        "regressions against the night before). For a nightly verdict, judge against a history (`--history`), which "
+        "regressions against the night before). For a nightly verdict, judge against a history (--history), which "
         "learns each figure's variation between nights. A change past its threshold that sampling explains is within "
         "noise; a figure with too few samples for an interval is not judged, and says what it needs."
     ] + list(cmp.notes)
