@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -520,3 +521,22 @@ def test_an_expectation_a_programs_thread_cannot_meet_is_refused_and_a_traced_on
     assert done.code == 1 and not verdict["passed"] and verdict["measured"] is None
     assert verdict["note"] == "not measured (the scheduler trace did not run: not asked for (--no-trace))"
     assert "FAIL talker/ctl_loop #1: wakeup.p99 <= 10ms: not measured (the scheduler trace" in done.out
+
+
+@pytest.mark.skipif(
+    shutil.which("cyclictest") is None, reason="scenarios/own_program.yaml runs cyclictest, which is not installed (rt-tests)"
+)
+def test_the_shipped_own_program_scenario_gives_cyclictest_fifo_80_on_cpu_0_and_passes(tmp_path):
+    """README's "Measure your own program": cyclictest started by the runner as FIFO 80 on CPU 0, every thread it
+    creates holding both (read back from the kernel), its threads measured from outside, its expectation met."""
+    out = tmp_path / "out"
+    scenario = os.path.join(REPO, "scenarios", "own_program.yaml")
+    done = finish(start_runner(scenario, "--out", str(out), "--settle", "0", "--duration", "1s", cwd=str(tmp_path)), str(out))
+    assert done.results is not None, done.err
+    assert done.code == 0, done.out + done.err
+    (cell,) = done.results["cells"]
+    threads = [t for t in cell["threads"] if t["program"]]
+    assert len(threads) >= 2, threads  # its main thread and its measuring thread
+    assert all(t["applied"]["policy"] == "fifo" and t["applied"]["priority"] == 80 and t["applied"]["cpus"] == "0" for t in threads)
+    assert cell["expectations"] and all(v["passed"] for v in cell["expectations"]), cell["expectations"]
+    assert not find_pids("cyclictest"), "cyclictest outlived its cell"

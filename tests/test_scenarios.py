@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO, SCENARIOS, run_cli
 
 from runner.scenario.loader import load_scenario
-from runner.scenario.model import PhasesWork, Policy
+from runner.scenario.model import PhasesWork, Policy, ProgramSpec
 from runner.scenario.plan import Settings, plan_scenario
 from runner.scenario.schema import scenario_schema
 from runner.scenario.yamlsource import load_file
@@ -43,6 +43,9 @@ TOOLS = {"cyclictest_smp": "cyclictest"}
 # scenarios of programs (kind: phases) after rt-app's workloads: locks, deadline, chains, phases; each is run
 # for real by tests/test_kernel_programs.py, which holds it to the effect its description states
 PROGRAMS = {"priority_inversion", "deadline", "pipeline", "phases", "spawn"}
+# scenarios that run a program of the user's (command:), measured from outside, and the program each runs: README's
+# "Measure your own program"; tests/test_kernel_external.py runs it for real (skipped, saying so, without the program)
+COMMANDS = {"own_program": "cyclictest"}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
@@ -58,6 +61,16 @@ def test_shipped_scenario_validates_and_lists(path):
         for cell in loaded.cells:
             assert cell.scenario.duration <= 2_000_000_000, "a short run: it is run for real by the kernel tests"
             assert any(hasattr(t.work, "period") for t in plan_scenario(cell.scenario, Settings()))
+        return
+    if loaded.name in COMMANDS:
+        assert loaded.description.startswith(COMMANDS[loaded.name] + " "), "says which command it runs"
+        for cell in loaded.cells:
+            sc = cell.scenario
+            commands = [p for p in sc.processes if isinstance(p, ProgramSpec)]
+            assert [p.command[0] for p in commands] == [COMMANDS[loaded.name]], "runs the program it names, and only it"
+            assert sc.duration <= 2_000_000_000, "a short run: it is run for real by the kernel tests"
+            assert all(p.cpus is None or max(p.cpus) < 2 for p in commands), "must run on a 2-CPU machine"
+            assert sc.background.hogs and sc.expect, "contention, and an expectation to judge the program by"
         return
     if loaded.name in PROGRAMS:
         for cell in loaded.cells:
