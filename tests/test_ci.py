@@ -528,7 +528,13 @@ def test_readme_installs_into_a_virtual_environment_and_says_how_to_grant_rights
     first = text.split("```sh\n", 1)[1].split("```", 1)[0].splitlines()
     assert len(first) == 2 and all(line.startswith("python3 -m venv .venv && . .venv/bin/activate && pip install ") for line in first)
     assert "sudo .venv/bin/runner" in text and "pipx install ." in text
-    permissions = text.split("### Permissions", 1)[1].split("\n## ", 1)[0]
+    # the README's "Permissions" (which the runner's messages name) is short and leads to the whole of it
+    short = text.split("\n## Permissions\n", 1)[1].split("\n## ", 1)[0]
+    assert "(docs/permissions.md#permissions)" in short and "exit 3" in short
+    assert "setcap" not in text.replace(short, "")  # only where it leads to its warning
+    with open(os.path.join(REPO, "docs", "permissions.md"), encoding="utf-8") as handle:
+        text = handle.read()
+    permissions = text.split("\n## Permissions\n", 1)[1].split("\n# ", 1)[0]
     for words in ("limits.d", "LimitRTPRIO=", "LimitMEMLOCK=", "CPUSchedulingPolicy=", "AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK",
                   "--cap-add SYS_NICE --ulimit rtprio=99 --ulimit memlock=-1", "cpu.rt_runtime_us", "cgroup v2"):  # fmt: skip
         assert words in permissions, words

@@ -682,9 +682,10 @@ def test_a_thread_or_a_cell_of_the_baseline_not_in_this_run_is_never_a_check_mar
     assert "1 cell of the baseline not in this run" in headline and "✅" not in headline, headline
 
 
-def test_a_cell_failed_in_both_runs_fails_the_merge_not_the_comparison_as_the_readme_says(tmp_path):
-    """README's "Exit codes" said run, merge, compare and report --baseline decide alike, yet a cell whose expectation
-    failed in both runs made merge exit 1 and compare exit 0: compare judges regressions, not the run's own expectations."""
+def test_a_cell_failed_in_both_runs_fails_the_merge_not_the_comparison_as_the_docs_say(tmp_path):
+    """The docs' "Exit codes" (README's, now docs/commands.md's) said run, merge, compare and report --baseline decide
+    alike, yet a cell whose expectation failed in both runs made merge exit 1 and compare exit 0: compare judges
+    regressions, not the run's own expectations."""
     from conftest import REPO
 
     runs = []
@@ -695,6 +696,6 @@ def test_a_cell_failed_in_both_runs_fails_the_merge_not_the_comparison_as_the_re
     assert run_cli("merge", runs[1], "--out", str(tmp_path / "m"), "--no-plots", "--baseline", runs[0]).code == 1
     assert run_cli("compare", *runs).code == 0
     assert run_cli("report", runs[1], "--baseline", runs[0], "--no-plots").code == 0
-    with open(os.path.join(REPO, "README.md"), encoding="utf-8") as handle:
-        words = " ".join(handle.read().split("### Exit codes")[1].split("|")[0].split())
+    with open(os.path.join(REPO, "docs", "commands.md"), encoding="utf-8") as handle:
+        words = " ".join(handle.read().split("## Exit codes")[1].split("|")[0].split())
     assert "a cell that failed in both runs exits 0 there while the run or merge that produced it exited 1" in words, words

@@ -1,6 +1,6 @@
-"""README's examples are checked against the tool, so the documentation cannot drift from it unseen.
+"""The documentation's examples are checked against the tool, so it cannot drift from the tool unseen.
 
-Every fenced ```yaml block of README.md that is a whole scenario (a top-level `processes:` key,
+Every fenced ```yaml block of README.md and docs/*.md that is a whole scenario (a top-level `processes:` key,
 the one key a scenario needs: `name` defaults to the file name) is validated as `runner validate`
 validates it.  Fragments (a few top-level keys shown on their own) have no `processes:` and are
 skipped; a block whose first line is `# fragment` is skipped too, and one whose first line is
@@ -11,6 +11,7 @@ skipped; a block whose first line is `# fragment` is skipped too, and one whose 
 from __future__ import annotations
 
 import argparse
+import glob
 import os
 import re
 from dataclasses import dataclass
@@ -23,16 +24,19 @@ from runner.errors import ScenarioError
 from runner.scenario.loader import load_scenario
 
 README = os.path.join(REPO, "README.md")
+# where the examples are: the README and the documentation it links to, each named as from the repository's root
+DOCS = [README, *sorted(glob.glob(os.path.join(REPO, "docs", "*.md")))]
 _FENCE = re.compile(r"^(?P<indent>[ \t]*)```yaml[ \t]*\n(?P<body>.*?)^(?P=indent)```", re.M | re.S)
 _VALIDATE_SAMPLE = re.compile(r"^```text\n\$ runner validate (?P<args>[^\n]*)\n(?P<output>.*?)^```", re.M | re.S)
 
 
 @dataclass(frozen=True)
 class Block:
-    """A fenced yaml block of a markdown text: its text, dedented, and the line its first line is on."""
+    """A fenced yaml block of a markdown text: its text, dedented, the line its first line is on, and its file."""
 
     line: int
     text: str
+    file: str = "README.md"
 
     @property
     def marker(self) -> str:
@@ -46,52 +50,62 @@ class Block:
         return re.search(r"^processes:", self.text, re.M) is not None
 
 
-def yaml_blocks(text: str) -> list[Block]:
-    """Every fenced ```yaml block of `text`, with the 1-based line of its first line of YAML."""
+def yaml_blocks(text: str, file: str = "README.md") -> list[Block]:
+    """Every fenced ```yaml block of `text` (the markdown file `file`), with the 1-based line of its first line of YAML."""
     blocks = []
     for match in _FENCE.finditer(text):
         indent = match.group("indent")
         body = "".join(line[len(indent) :] if line.startswith(indent) else line for line in match.group("body").splitlines(True))
-        blocks.append(Block(text.count("\n", 0, match.start("body")) + 1, body))
+        blocks.append(Block(text.count("\n", 0, match.start("body")) + 1, body, file))
     return blocks
 
 
-def scenario_blocks(text: str) -> list[Block]:
+def scenario_blocks(text: str, file: str = "README.md") -> list[Block]:
     """The blocks of `text` that are whole scenarios and not marked as fragments."""
-    return [b for b in yaml_blocks(text) if b.is_scenario and b.marker != "fragment"]
+    return [b for b in yaml_blocks(text, file) if b.is_scenario and b.marker != "fragment"]
 
 
 def problems_of(block: Block, folder: Path) -> list[str]:
-    """What `runner validate` reports for `block` (the same loader, with for_run False), at README's lines."""
-    path = folder / f"readme-line-{block.line}.yaml"
+    """What `runner validate` reports for `block` (the same loader, with for_run False), at its markdown file's lines."""
+    path = folder / f"doc-line-{block.line}.yaml"
     path.write_text(block.text, encoding="utf-8")
     try:
         load_scenario(str(path), for_run=False)
     except ScenarioError as exc:
-        return [f"README.md:{block.line + p.line - 1}:{p.col}: {p.path}: {p.message}" for p in exc.problems if p.severity == "error"]
+        return [f"{block.file}:{block.line + p.line - 1}:{p.col}: {p.path}: {p.message}" for p in exc.problems if p.severity == "error"]
     return []
 
 
-def _readme() -> str:
-    with open(README, encoding="utf-8") as handle:
+def _read(path: str) -> str:
+    with open(path, encoding="utf-8") as handle:
         return handle.read()
 
 
-BLOCKS = scenario_blocks(_readme())
+def _readme() -> str:
+    return _read(README)
 
 
-def test_readme_has_its_scenario_examples():
-    """The format, matrix, programs and command: examples are all found; an empty list would check nothing."""
-    assert len(BLOCKS) >= 4, [b.line for b in BLOCKS]
+def _name(path: str) -> str:
+    return os.path.relpath(path, REPO)
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=lambda b: f"README.md:{b.line}")
-def test_each_scenario_example_of_the_readme_is_valid_as_written(block, tmp_path):
+BLOCKS = [block for path in DOCS for block in scenario_blocks(_read(path), _name(path))]
+
+
+def test_the_docs_have_their_scenario_examples():
+    """The format, matrix, programs and command: examples are all found; an empty list would check nothing.
+    The README keeps one (measure your own program), docs/scenarios.md the format's."""
+    assert len(BLOCKS) >= 5, [(b.file, b.line) for b in BLOCKS]
+    assert {"README.md", "docs/scenarios.md"} <= {b.file for b in BLOCKS}
+
+
+@pytest.mark.parametrize("block", BLOCKS, ids=lambda b: f"{b.file}:{b.line}")
+def test_each_scenario_example_of_the_docs_is_valid_as_written(block, tmp_path):
     problems = problems_of(block, tmp_path)
     if block.marker == "invalid":
-        assert problems, f"the block at README.md:{block.line} is marked invalid, but runner validate accepts it"
+        assert problems, f"the block at {block.file}:{block.line} is marked invalid, but runner validate accepts it"
     else:
-        assert not problems, f"the scenario at README.md:{block.line} is invalid:\n" + "\n".join(problems)
+        assert not problems, f"the scenario at {block.file}:{block.line} is invalid:\n" + "\n".join(problems)
 
 
 def test_blocks_are_found_at_their_line_and_fragments_are_told_apart():
@@ -108,15 +122,15 @@ def test_a_problem_is_reported_at_its_readme_line(tmp_path):
     assert problem.startswith("README.md:7:") and "priority 100 is out of range" in problem, problem
 
 
-VALIDATE_SAMPLES = [(m.group("args"), m.group("output")) for m in _VALIDATE_SAMPLE.finditer(_readme())]
+VALIDATE_SAMPLES = [(m.group("args"), m.group("output")) for path in DOCS for m in _VALIDATE_SAMPLE.finditer(_read(path))]
 
 
-def test_readme_shows_a_validate_sample():
-    assert VALIDATE_SAMPLES, "README's sample of runner validate's output was not found"
+def test_the_docs_show_a_validate_sample():
+    assert VALIDATE_SAMPLES, "the docs' sample of runner validate's output was not found"
 
 
 @pytest.mark.parametrize("args, shown", VALIDATE_SAMPLES, ids=[a for a, _ in VALIDATE_SAMPLES])
-def test_readmes_validate_sample_is_what_the_tool_prints(args, shown, monkeypatch):
+def test_the_docs_validate_sample_is_what_the_tool_prints(args, shown, monkeypatch):
     """The sample is run from the repository's root, as its relative paths are written."""
     monkeypatch.chdir(REPO)
     done = run_cli("validate", *args.split())
@@ -168,3 +182,14 @@ def test_the_synopsis_of_commands_is_what_help_says():
         known = {o for a in actions for o in a.option_strings}
         wrong += [f"runner {command}: the synopsis has {o}, which --help does not" for o in sorted(written - known)]
     assert not wrong, "\n".join(wrong)
+
+
+def test_the_readmes_own_program_is_the_shipped_scenario():
+    """README's "Measure your own program" shows scenarios/own_program.yaml as shipped (its description left out), so a user
+    who copies it gets the file the tests run."""
+    import yaml
+
+    (block,) = [b for b in BLOCKS if b.file == "README.md" and "command:" in b.text]
+    shipped = yaml.safe_load(_read(os.path.join(REPO, "scenarios", "own_program.yaml")))
+    del shipped["description"]
+    assert yaml.safe_load(block.text) == shipped
