@@ -277,7 +277,7 @@ def _print_warnings(warnings: Sequence[object]) -> None:
 
 
 def _annotate(problems: Sequence[object]) -> None:
-    """In GitHub Actions, problems in a file are also annotations at their line (README, "CI systems")."""
+    """In GitHub Actions, problems in a file are also annotations at their line (docs/nightly.md, "CI systems")."""
     env = dict(os.environ)
     if env.get("GITHUB_ACTIONS", "") != "true":
         return  # not in GitHub Actions: nothing to import

@@ -161,8 +161,8 @@ def output_hint(error_number: int | None) -> str:
         errno.ENOTDIR: "; a file stands where a folder is expected",
         errno.EEXIST: "; a file of that name is in the way",
         errno.EISDIR: "; a folder stands where a file is expected",
-        errno.ELOOP: ": remove the link, or choose another path (README, 'Files the runner writes')",
-        errno.EMLINK: ": remove it, or choose another path (README, 'Files the runner writes')",
+        errno.ELOOP: ": remove the link, or choose another path (docs/permissions.md, 'Files the runner writes')",
+        errno.EMLINK: ": remove it, or choose another path (docs/permissions.md, 'Files the runner writes')",
     }.get(error_number or 0, "")
 
 

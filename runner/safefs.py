@@ -15,7 +15,7 @@ of it, least of all when it runs as root.  So every write of the runner goes thr
   runner makes with mkdir, or finds, must be a folder, never a link.
 - `copy_file(source, target)`: `write_atomic` of a file's content, streamed.
 - `write_named(path, data)`: a file the user named on the command line (`-o FILE`, `--junit
-  FILE`), by the rule README states under "Files the runner writes": a link there is refused as
+  FILE`), by the rule docs/permissions.md states under "Files the runner writes": a link there is refused as
   anywhere else, except the paths of the runner's own descriptors (`/dev/stdout`, `/dev/fd/N`),
   which are written into; so is a device or FIFO named as it is (`/dev/null`, a named pipe).
 

@@ -185,7 +185,7 @@ def _dma_latency(text: Optional[str]) -> int:
 
 
 def exit_code(statuses: list[Status], regressions: int = 0) -> ExitCode:
-    """The one place an outcome becomes an exit code (README, 'Exit codes'): a run's or a merge's cells,
+    """The one place an outcome becomes an exit code (docs/commands.md, 'Exit codes'): a run's or a merge's cells,
     and the regressions of any comparison (`compare` passes `Comparison.statuses()`: the new run's cells
     that could not run, and the run itself when it is incomplete).
 

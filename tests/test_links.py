@@ -2,7 +2,7 @@
 
 A results folder may be a downloaded artifact: every link planted in it (a report.md, a plots
 folder, a dangling results.json or lock) is refused with exit 2, and what it names is untouched,
-the run, `report`, `merge` and every option's file alike (README, "Files the runner writes").
+the run, `report`, `merge` and every option's file alike (docs/permissions.md, "Files the runner writes").
 Links above the folder a user names are theirs, and followed.
 """
 

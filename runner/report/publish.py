@@ -123,7 +123,7 @@ def comparison_statuses(cmp: Comparison, new_path: str) -> list[Status]:
     """What decides a comparison's exit code beside its regressions (`Comparison.statuses`), an incomplete run said on stderr.
 
     `runner compare` and `runner report --baseline` both take it, so they decide alike on the same files
-    (README, "Exit codes"): a run that never finished is never green, whichever command compares it.
+    (docs/commands.md, "Exit codes"): a run that never finished is never green, whichever command compares it.
     """
     if cmp.incomplete:  # never green: what it lacks was never compared
         note(f"runner: {new_path}: {cmp.incomplete}; only the cells it holds were compared")

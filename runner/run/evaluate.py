@@ -374,7 +374,7 @@ def _overhead(raw: RawCell) -> Overhead:
 
 
 def judged_threads(exp: Expectation, named: list[tuple[PlannedThread, ThreadFigures]]) -> list[tuple[PlannedThread, ThreadFigures]]:
-    """The threads `exp` names that it judges (README, "Expectations and validation").
+    """The threads `exp` names that it judges (docs/scenarios.md, "Expectations and validation").
 
     The runner's own threads are known from the file: of those it names, the ones that cannot
     have the figure are left out when another can (a ROS process names its helper threads after
