@@ -1,4 +1,7 @@
-"""Build the native core (runner.run._probe) and trace reader (runner.run._trace); everything else is in pyproject.toml."""
+"""Build the native core (runner.run._probe: bindings, interp.c without Python, records.c) and trace reader (runner.run._trace).
+
+Everything else is in pyproject.toml.
+"""
 
 from setuptools import Extension, setup
 
@@ -8,9 +11,10 @@ setup(
     ext_modules=[
         Extension(
             "runner.run._probe",
-            sources=["runner/run/_probe.c"],
-            depends=["runner/run/histogram.h"],
-            extra_compile_args=FLAGS,
+            sources=["runner/run/_probe.c", "runner/run/interp.c", "runner/run/records.c"],
+            depends=["runner/run/histogram.h", "runner/run/interp.h", "runner/run/records.h"],
+            # interp.c's functions stay inside the module; a Py* call in interp.c (no Python.h) fails the build, not just warns
+            extra_compile_args=[*FLAGS, "-fvisibility=hidden", "-Werror=implicit-function-declaration"],
             libraries=["pthread"],
         ),
         Extension(

@@ -1,6 +1,6 @@
 """Log-linear histograms of durations, as the native core keeps them: bounded memory for runs of any length.
 
-The native core (run/_probe.c) counts every latency, slack and callback time into
+The native core (run/interp.c) counts every latency, slack and callback time into
 fixed buckets laid out as HdrHistogram does: values below 256 ns are their own
 bucket, and every power of two above is split into 128 buckets, so a bucket is
 never wider than 1/128 (0.78%) of the values in it.  Values from 2^40 ns (about

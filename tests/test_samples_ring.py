@@ -35,7 +35,7 @@ class _Writer:
             t = 1000 * seq  # scheduled; woken 7 ns later, done 50 ns later; 1 us period
             SAMPLE.pack_into(self.map, at, t, t + 7, t + 50, 40, seq, 0, 1, 0, 0, 0, 1, 0, 0, 0, 0, 0, 1000, t + 1000)
             self.written += 1
-        struct.pack_into("<Q", self.map, self.layout.slot(self.index) + samples._COUNT_AT, self.written)
+        struct.pack_into("<Q", self.map, self.layout.slot(self.index) + samples.HEADER.fields["count"].offset, self.written)
 
 
 @pytest.fixture
@@ -97,8 +97,8 @@ def test_the_buffer_can_be_unmapped_after_a_drain(ring: tuple[samples.Buffer, _W
 
 
 def test_the_slot_states_are_the_native_cores_own() -> None:
-    """STATES names the numbers of _probe.c's `enum slot_state`, every one of them: a state added there is named here."""
-    source = open(os.path.join(os.path.dirname(samples.__file__), "_probe.c")).read()
+    """STATES names the numbers of records.h's `enum slot_state`, every one of them: a state added there is named here."""
+    source = open(os.path.join(os.path.dirname(samples.__file__), "records.h")).read()
     enum = re.search(r"enum slot_state \{([^}]*)\}", source)
     assert enum is not None
     native = {int(n): name.removeprefix("ST_").lower() for name, n in re.findall(r"(ST_\w+) = (\d+)", enum.group(1))}
@@ -122,5 +122,5 @@ def test_a_buffer_works_while_a_thread_is_at_the_gate_in_its_work_or_being_spawn
     reader, writer = ring
     number = {name: n for n, name in samples.STATES.items()}
     for index, state in enumerate(states):
-        struct.pack_into("<i", writer.map, writer.layout.slot(index) + samples._STATE_AT, number[state])
+        struct.pack_into("<i", writer.map, writer.layout.slot(index) + samples.HEADER.fields["state"].offset, number[state])
     assert reader.working() is working

@@ -1,6 +1,6 @@
 /*
  * The log-linear histogram layout of runner/histogram.py, once for the C code
- * (_probe.c and _trace.c both include it): values below 2 * HIST_SUB are their own
+ * (interp.c and _trace.c both include it): values below 2 * HIST_SUB are their own
  * bucket; above, each power of two is split into HIST_SUB buckets.  Values from
  * 2^HIST_TOP_BITS ns (about 18 minutes) up share the last bucket; the exact maximum
  * is kept beside it.  Negative values count as 0.

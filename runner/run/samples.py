@@ -1,6 +1,6 @@
 """The shared sample buffer written by the native core, read from Python.
 
-Layout (see _probe.c, version 7): a 128-byte file header (with the start gate), then per thread a 512-byte
+Layout (see records.h, version 7): a 128-byte file header (with the start gate), then per thread a 512-byte
 header of totals and running figures, four log-linear histograms (latency, slack,
 negative slack, callback wall time; see runner/histogram.py), a ring of 112-byte
 samples (each followed by a 16-byte wait per lock slot, in a worker whose programs lock
@@ -9,16 +9,17 @@ histogram; one more for the chain latency) and of each phase.  The runner create
 write-protects, gone with the runner), the worker maps it and its threads write
 into it; the runner drains the ring to disk while the cell runs and reads the
 figures after, even when the worker was killed.  Nothing here grows with the run.
+Every record is read by field name from the native core's own table (runner/run/records.py).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 import json
 import mmap
 import os
-import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -26,30 +27,19 @@ from typing import NamedTuple, Optional
 
 from runner import histogram as hg
 from runner.histogram import Histogram
-from runner.run import _probe
+from runner.run import _probe, records
+from runner.run.records import EVENT_STATS, PHASE_STATS
+from runner.run.records import SLOT_HEADER as HEADER
 
-FILE_HEADER = 128
-_GATE_NS_AT = 464  # struct slot_header's gate_ns: when the thread passed the start gate
-SLOT_HEADER = 512
-HIST_SETS = 4
-SAMPLE = struct.Struct("<qqqqqiiiihhiqqqqqq")
-LOCK_WAIT = struct.Struct("<qiHH")  # wait ns, holder gid (-1: never contended), times taken, times contended
-_SLOT = struct.Struct("<iiQiiii4q4qQQqq16Q" + "QQQqqddqqddqqQQQQQqqq" + "QQ" + "iiqq")
-_STATE_AT, _COUNT_AT, _LOOPS_AT, _WORK_START_AT = 4, 8, 96, 112
-STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed", 5: "starting"}  # _probe.c's enum slot_state
+FILE_HEADER = _probe.FILE_HEADER
+SLOT_HEADER = HEADER.size
+HIST_SETS = _probe.HIST_SETS
+SAMPLE = records.SAMPLE.struct
+LOCK_WAIT = records.LOCK_WAIT.struct  # wait ns, holder gid (-1: never contended), times taken, times contended
+STATES = {0: "created", 1: "ready", 2: "running", 3: "done", 4: "failed", 5: "starting"}  # records.h's enum slot_state
 _WORKING = (1, 2, 5)  # ready, running, and a spawned thread being created
-EV_HDR = 192
-PHASE_BYTES = 384
-_EVENT = struct.Struct("<Qqqqdd Q 4i 4Q 4q Q Q Q")
-_PHASE = struct.Struct("<Qq4q16Q iiii iiii qqq 16Q")
-assert (
-    SAMPLE.size == _probe.SAMPLE_SIZE == 112
-    and LOCK_WAIT.size == _probe.LOCK_WAIT_SIZE
-    and _SLOT.size == _GATE_NS_AT == _probe.SLOT_GATE_AT
-    and FILE_HEADER == _probe.FILE_HEADER
-    and _EVENT.size == 160
-    and _PHASE.size == 360
-)
+EV_HDR = EVENT_STATS.size
+PHASE_BYTES = PHASE_STATS.size
 
 
 @dataclass(frozen=True)
@@ -101,6 +91,10 @@ class Sample(NamedTuple):
     def slack(self) -> Optional[int]:
         """From the end of the callback to its next release; negative when it overran; None without one (released by a resume)."""
         return self.next_ns - self.end_ns if self.next_ns > 0 else None
+
+
+records.require_order(records.LOCK_WAIT, [f.name for f in dataclasses.fields(LockWait)])
+records.require_order(records.SAMPLE, [n for n in Sample._fields if n != "locks"])  # the ring's samples are made in one step
 
 
 @dataclass(frozen=True)
@@ -371,105 +365,83 @@ def _hist(
 
 
 def _event(buf: bytes | mmap.mmap, at: int) -> EventStats:
-    f = _EVENT.unpack_from(buf, at)
-    count, total, low, high, mean, m2, contended = f[:7]
-    gids, counts, waits, other, dropped, cut = f[7:11], f[11:15], f[15:19], f[19], f[20], f[21]
+    f = EVENT_STATS.unpack(buf, at)
     histogram = None
-    if count:
-        histogram = hg.of_buckets(_probe.buckets(buf, at + EV_HDR), low, high)
+    if f["count"]:
+        histogram = hg.of_buckets(_probe.buckets(buf, at + EV_HDR), f["min"], f["max"])
     return EventStats(
-        count=count,
-        total=total,
-        mean=mean,
-        m2=m2,
-        contended=contended,
-        holders=tuple((g, c, w) for g, c, w in zip(gids, counts, waits) if g >= 0 and c),
-        other_holders=other,
-        dropped=dropped,
-        cut=cut,
+        count=f["count"],
+        total=f["sum"],
+        mean=f["mean"],
+        m2=f["m2"],
+        contended=f["contended"],
+        holders=tuple((g, c, w) for g, c, w in zip(f["holder"], f["holder_count"], f["holder_wait"]) if g >= 0 and c),
+        other_holders=f["other_holders"],
+        dropped=f["dropped"],
+        cut=f["cut"],
         histogram=histogram,
     )
 
 
 def _phase(buf: bytes | mmap.mmap, at: int) -> PhaseStats:
-    f = _PHASE.unpack_from(buf, at)
+    f = PHASE_STATS.unpack(buf, at)
     return PhaseStats(
-        passes=f[0],
-        time_ns=f[1],
-        ru=tuple(f[2:6]),
-        cpus_seen=_bits(tuple(f[6:22])),
-        entered=f[22],
-        policy=f[23],
-        priority=f[24],
-        nice=f[25],
-        errors=tuple(f[26:29]),
-        read_back=bool(f[29]),
-        deadline=tuple(f[30:33]),
-        affinity=_bits(tuple(f[33:49])),
+        passes=f["passes"],
+        time_ns=f["time_ns"],
+        ru=f["ru"],
+        cpus_seen=_bits(f["cpus_seen"]),
+        entered=f["entered"],
+        policy=f["policy"],
+        priority=f["priority"],
+        nice=f["nice"],
+        errors=(f["err_sched"], f["err_nice"], f["err_cpus"]),
+        read_back=bool(f["read_back"]),
+        deadline=(f["dl_runtime"], f["dl_deadline"], f["dl_period"]),
+        affinity=_bits(f["affinity"]),
     )
+
+
+# The running figures the slot header keeps under CallbackStats' own names (the histograms are read apart).
+_STATS_IN_HEADER = tuple(f.name for f in dataclasses.fields(CallbackStats) if f.name in HEADER.fields)
 
 
 def parse_slot(buf: bytes | mmap.mmap, index: int, layout: Layout) -> SlotData:
     """Decode one thread's slot from the buffer: header, running figures and histograms."""
     at = layout.slot(index)
-    f = _SLOT.unpack_from(buf, at)
-    releases, overruns, above, lat_min, lat_max, lat_mean, lat_m2 = f[35:42]
-    slack_min, slack_max, slack_mean, slack_m2, wall_min, wall_max = f[42:48]
-    nivcsw_sum, nivcsw_max, with_nivcsw, minflt_sum, minflt_max, minflt_first, first_wake, last_end = f[48:56]
-    nvcsw_sum, majflt_sum = f[56:58]
-    loops = f[15]
+    f = HEADER.unpack(buf, at)
+    lat_min, lat_max, wall_min, wall_max = f["lat_min"], f["lat_max"], f["wall_min"], f["wall_max"]
+    slack_min, slack_max = f["slack_min"], f["slack_max"]
     latency = slack = wall = None
-    if layout.histograms and loops:
-        done = STATES.get(f[1]) == "done"  # a thread cut short may have counted a value before its minimum or maximum
+    if layout.histograms and f["loops"]:
+        done = STATES.get(f["state"]) == "done"  # a thread cut short may have counted a value before its minimum or maximum
         latency = hg.of_buckets(_hist(buf, at, 0, span=(lat_min, lat_max) if done else None), lat_min, lat_max)
         late = (max(1, -slack_max), -slack_min) if done else None  # the negations of the slack below 0
         early = (max(0, slack_min), slack_max) if done else None
         slack = hg.of_buckets(_hist(buf, at, 2, negated=True, span=late) + _hist(buf, at, 1, span=early), slack_min, slack_max)
         wall = hg.of_buckets(_hist(buf, at, 3, span=(wall_min, wall_max) if done else None), wall_min, wall_max)
-    stats = CallbackStats(
-        releases=releases,
-        overruns=overruns,
-        above_bound=above,
-        lat_mean=lat_mean,
-        lat_m2=lat_m2,
-        slack_mean=slack_mean,
-        slack_m2=slack_m2,
-        nivcsw_sum=nivcsw_sum,
-        nivcsw_max=nivcsw_max,
-        with_nivcsw=with_nivcsw,
-        minflt_sum=minflt_sum,
-        minflt_max=minflt_max,
-        minflt_first=minflt_first,
-        first_wake_ns=first_wake,
-        last_end_ns=last_end,
-        nvcsw_sum=nvcsw_sum,
-        majflt_sum=majflt_sum,
-        latency=latency,
-        slack=slack,
-        wall=wall,
-    )
+    stats = CallbackStats(**{name: f[name] for name in _STATS_IN_HEADER}, latency=latency, slack=slack, wall=wall)
     return SlotData(
-        tid=f[0],
-        state=STATES.get(f[1], "unknown"),
-        count=f[2],
-        err_sched=f[3],
-        err_nice=f[4],
-        err_cpus=f[5],
-        err_other=f[6],
-        start_ru=tuple(f[7:11]),
-        end_ru=tuple(f[11:15]),
-        loops=loops,
-        missed=f[16],
-        work_start_ns=f[17],
-        work_end_ns=f[18],
-        cpus_seen=_bits(tuple(f[19:35])),
+        tid=f["tid"],
+        state=STATES.get(f["state"], "unknown"),
+        count=f["count"],
+        err_sched=f["err_sched"],
+        err_nice=f["err_nice"],
+        err_cpus=f["err_cpus"],
+        err_other=f["err_other"],
+        start_ru=f["start_ru"],
+        end_ru=f["end_ru"],
+        loops=f["loops"],
+        missed=f["missed"],
+        work_start_ns=f["work_start_ns"],
+        work_end_ns=f["work_end_ns"],
+        cpus_seen=_bits(f["cpus_seen"]),
         stats=stats,
         events=tuple(_event(buf, layout.event(index, e)) for e in range(layout.events)),
         phases=tuple(_phase(buf, layout.phase(index, k)) for k in range(layout.phases)),
-        cur_phase=f[58],
-        cur_event=f[59],
-        blocked_since_ns=f[60],
-        timer_due_ns=f[61],
+        cur_phase=f["cur_phase"],
+        cur_event=f["cur_event"],
+        blocked_since_ns=f["blocked_since_ns"],
+        timer_due_ns=f["timer_due_ns"],
     )
 
 
@@ -494,22 +466,22 @@ class Buffer:
 
     def work_started(self) -> list[int]:
         """When each thread began its work (CLOCK_MONOTONIC ns; 0: not yet)."""
-        return [struct.unpack_from("<q", self.map, self.layout.slot(i) + _WORK_START_AT)[0] for i in range(self.layout.nthreads)]
+        return [HEADER.get(self.map, self.layout.slot(i), "work_start_ns") for i in range(self.layout.nthreads)]
 
     def gate_passed(self) -> list[int]:
         """When each thread passed the start gate (CLOCK_MONOTONIC ns; 0: not yet, or spawned mid-run)."""
-        return [struct.unpack_from("<q", self.map, self.layout.slot(i) + _GATE_NS_AT)[0] for i in range(self.layout.nthreads)]
+        return [HEADER.get(self.map, self.layout.slot(i), "gate_ns") for i in range(self.layout.nthreads)]
 
     def loops(self) -> list[int]:
         """Callbacks (or spin slices) so far, per slot."""
-        return [struct.unpack_from("<Q", self.map, self.layout.slot(i) + _LOOPS_AT)[0] for i in range(self.layout.nthreads)]
+        return [HEADER.get(self.map, self.layout.slot(i), "loops") for i in range(self.layout.nthreads)]
 
     def working(self) -> bool:
         """Whether a thread is at the gate, in its work or being spawned: one never spawned, finished or failed is not."""
-        return any(struct.unpack_from("<i", self.map, self.layout.slot(i) + _STATE_AT)[0] in _WORKING for i in range(self.layout.nthreads))
+        return any(HEADER.get(self.map, self.layout.slot(i), "state") in _WORKING for i in range(self.layout.nthreads))
 
     def written(self, index: int) -> int:
-        return int(struct.unpack_from("<Q", self.map, self.layout.slot(index) + _COUNT_AT)[0])
+        return int(HEADER.get(self.map, self.layout.slot(index), "count"))
 
     def sample(self, index: int, n: int) -> Sample:
         """Sample number n of a slot's ring (the caller makes sure it has not been overwritten yet)."""
