@@ -192,25 +192,8 @@ DRAIN_CHUNK = 4096  # samples drained and written at a time: the runner's memory
 _RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
 
 
-_EVENT_TYPES = {
-    EventKind.RUN: _probe.EV_RUN,
-    EventKind.RUNTIME: _probe.EV_RUNTIME,
-    EventKind.SLEEP: _probe.EV_SLEEP,
-    EventKind.TIMER: _probe.EV_TIMER,
-    EventKind.LOCK: _probe.EV_LOCK,
-    EventKind.UNLOCK: _probe.EV_UNLOCK,
-    EventKind.WAIT: _probe.EV_WAIT,
-    EventKind.SIGNAL: _probe.EV_SIGNAL,
-    EventKind.BROADCAST: _probe.EV_BROADCAST,
-    EventKind.BARRIER: _probe.EV_BARRIER,
-    EventKind.SUSPEND: _probe.EV_SUSPEND,
-    EventKind.RESUME: _probe.EV_RESUME,
-    EventKind.YIELD: _probe.EV_YIELD,
-    EventKind.MEM: _probe.EV_MEM,
-    EventKind.ALLOC: _probe.EV_ALLOC,
-    EventKind.SPAWN: _probe.EV_SPAWN,
-    EventKind.IORUN: _probe.EV_IORUN,
-}
+# The native core's code of each event kind, by name (records.h's EVENT_KINDS): a kind without one fails at import.
+_EVENT_TYPES = {kind: _probe.EVENT_KINDS[kind.name] for kind in EventKind}
 _RESOURCE_KINDS = {
     ResourceKind.MUTEX: _probe.RES_MUTEX,
     ResourceKind.COND: _probe.RES_COND,
