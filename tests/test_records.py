@@ -152,6 +152,8 @@ def test_a_table_that_does_not_describe_a_record_is_refused(fields: tuple[tuple[
 def test_a_gap_the_compiler_left_is_skipped_not_read() -> None:
     record = Record("r", 16, (("a", 0, 4, "i"), ("b", 8, 8, "q")))
     assert record.unpack(struct.pack("<i4xq", 7, -9)) == {"a": 7, "b": -9}
+    assert Record("one", 8, (("a", 0, 8, "2i"),)).unpack(struct.pack("<ii", 3, 4)) == {"a": (3, 4)}
+    assert Record("one", 8, (("a", 0, 8, "q"),)).unpack(struct.pack("<q", 5)) == {"a": 5}
 
 
 def test_every_event_kind_has_its_own_native_code_below_ev_count() -> None:

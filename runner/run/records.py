@@ -12,8 +12,9 @@ wrong name fails at once (KeyError) instead of reading its neighbour.
 from __future__ import annotations
 
 import mmap
+import operator
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Union
@@ -61,11 +62,12 @@ class Record:
         self.fields: Mapping[str, Field] = MappingProxyType(by_name)
         self.names = tuple(by_name)
         self.struct = struct.Struct("".join(parts))  # its fields, without the reserved tail
+        getter = operator.itemgetter(*(f.index for f in by_name.values()))  # each field's value(s), in one C call
+        self._values: Callable[[tuple[Any, ...]], tuple[Any, ...]] = getter if len(by_name) > 1 else lambda values: (getter(values),)
 
     def unpack(self, buf: Buffer, at: int = 0) -> dict[str, Any]:
         """The record at `at` of `buf`, its values by field name (an array field's as a tuple)."""
-        values = self.struct.unpack_from(buf, at)
-        return {name: values[f.index] for name, f in self.fields.items()}
+        return dict(zip(self.names, self._values(self.struct.unpack_from(buf, at))))
 
     def get(self, buf: Buffer, at: int, name: str) -> Any:
         """One field of the record at `at`, read in place (an array's as a tuple)."""
