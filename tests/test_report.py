@@ -1026,9 +1026,9 @@ def _traced(wakeups: int):
 def test_a_trace_figure_says_how_many_wake_ups_it_stands_on_in_results_report_and_terminal():
     """A DEADLINE thread's "p50/p99/max 15.0 us" came from 1 of its 20 wake-ups, and nothing said so."""
     from runner.figures import figure
+    from runner.report.cellview import render_cell
     from runner.run.measure import check
     from runner.scenario.model import Expectation
-    from runner.terminal import render_cell
 
     doc, cell, t = _traced(1)
     assert t.figures.wakeup_ns is not None and t.figures.wakeup_ns.count == 1
