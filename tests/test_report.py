@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from markdown_it import MarkdownIt
 from reportdata import DATA, MATRIX, matrix, memory, renamed
 
+from runner.report import fmt
 from runner.report import markdown as report
 from runner.report.publish import append_step_summary, write_report
 
@@ -291,7 +292,7 @@ def test_step_summary_is_appended_without_plot_links(tmp_path):
     ],
 )
 def test_durations_are_stored_in_ns_and_shown_in_the_unit_that_reads_best(value, text):
-    assert report.fmt_ns(value) == text
+    assert fmt.fmt_ns(value) == text
 
 
 def test_fixture_data_is_where_the_tests_expect_it():
