@@ -400,11 +400,11 @@ def _cmd_watch(argv: list[str]) -> int:
     ns = _watch_parser().parse_args(argv)
     from runner import outdir
     from runner.printable import for_terminal
+    from runner.report.cellview import render_cell
     from runner.report.publish import write_report
     from runner.run.kernel import pid_width
     from runner.scenario.model import MAX_RUN, MIN_RUN
     from runner.session import StopSignals, exit_code, parse_duration
-    from runner.terminal import render_cell
     from runner.watch import default_folder, parse_rule, resolve_targets, watch
 
     duration = parse_duration(ns.duration, "--duration", MIN_RUN, MAX_RUN)

@@ -25,6 +25,7 @@ from typing import Any, Optional
 from runner import outdir, units
 from runner.collector import collector_paused
 from runner.errors import ExitCode, OutputError, Problem, RunnerError, ScenarioError, UsageError, from_os_error, shorten
+from runner.report.cellview import render_cell
 from runner.report.compare import Threshold, check_common, check_comparable, thresholds_for
 from runner.results.document import CellResult, MachineInfo, Plan, RunDocument, ScenarioInfo, Status, worst
 from runner.results.files import cell_dir, results_file, slug
@@ -43,7 +44,7 @@ from runner.scenario.loader import LoadedScenario, ResolvedCell, expect_hash, sp
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, SamplesMode
 from runner.scenario.plan import Settings
 from runner.scenario.program import never_released
-from runner.terminal import Progress, note, render_cell, say, warn
+from runner.terminal import Progress, note, say, warn
 
 DEFAULT_SETTLE_NS = 500_000_000
 

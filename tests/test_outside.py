@@ -292,11 +292,11 @@ def test_an_expectation_judges_every_thread_it_names_and_one_without_the_figure_
     """Issue 40: `latency.max` on a program's thread once dropped out of the verdicts (no case in JUnit, exit 0); a bare
     name that also names a program's thread judges that thread too, and a traced figure without the trace says why."""
     from runner.figures import figure
+    from runner.report.cellview import render_cell
     from runner.report.junit import junit_xml
     from runner.run.rawcell import RawThread
     from runner.run.samples import Sample, slot_of
     from runner.scenario.plan import plan_scenario
-    from runner.terminal import render_cell
 
     path = tmp_path / "mixed.yaml"
     path.write_text(

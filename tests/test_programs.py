@@ -567,9 +567,9 @@ def test_the_report_says_the_policy_a_programs_callbacks_ran_at_as_its_phases_re
     """Issue 40: a thread whose one phase ran at FIFO 99 read `at OTHER` (its settings as it started, not the phase's)."""
     from reportdata import main_thread, matrix
 
+    from runner.report.cellview import render_cell
     from runner.report.markdown import thread_finding
     from runner.results.document import EventResult, PhaseResult
-    from runner.terminal import render_cell
 
     cell = matrix().cells[0]
     base = main_thread(cell).model_copy(update={"applied": Settings()})

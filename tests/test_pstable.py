@@ -97,8 +97,8 @@ def test_the_terminals_cell_summary_shows_no_name_raw():
     """Thread names, cell ids, reasons, verdicts, warnings: from the kernel, the scenario or a results file."""
     from reportdata import main_thread, matrix
 
+    from runner.report.cellview import render_cell
     from runner.results.document import Verdict
-    from runner.terminal import render_cell
 
     name = "w\x1b]0;pwned\x07\nFAIL x"
     cell = matrix().cells[0]

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from markdown_it import MarkdownIt
 from reportdata import DATA, MATRIX, matrix, memory, renamed
 
+from runner.report import fmt
 from runner.report import markdown as report
 from runner.report.publish import append_step_summary, write_report
 
@@ -291,7 +292,7 @@ def test_step_summary_is_appended_without_plot_links(tmp_path):
     ],
 )
 def test_durations_are_stored_in_ns_and_shown_in_the_unit_that_reads_best(value, text):
-    assert report.fmt_ns(value) == text
+    assert fmt.fmt_ns(value) == text
 
 
 def test_fixture_data_is_where_the_tests_expect_it():
@@ -1026,9 +1027,9 @@ def _traced(wakeups: int):
 def test_a_trace_figure_says_how_many_wake_ups_it_stands_on_in_results_report_and_terminal():
     """A DEADLINE thread's "p50/p99/max 15.0 us" came from 1 of its 20 wake-ups, and nothing said so."""
     from runner.figures import figure
+    from runner.report.cellview import render_cell
     from runner.run.measure import check
     from runner.scenario.model import Expectation
-    from runner.terminal import render_cell
 
     doc, cell, t = _traced(1)
     assert t.figures.wakeup_ns is not None and t.figures.wakeup_ns.count == 1

@@ -8,10 +8,10 @@ from reportdata import many_threads
 from test_report import tables
 
 from runner.report import selection
+from runner.report.cellview import render_cell
 from runner.report.publish import write_report
 from runner.results.document import Verdict, ps_rows
 from runner.results.pstable import ThreadRow
-from runner.terminal import render_cell
 
 
 def big_cell(tmp_path: Path, threads: int = 100):

@@ -10,7 +10,7 @@ from __future__ import annotations
 from runner.history.judge import FAILED, FigureVerdict, NightVerdict, Verdict, change_point_detection
 from runner.history.store import shown
 from runner.report.fmt import LEFT, RIGHT, Markdown, md_text
-from runner.report.markdown import Table
+from runner.report.tables import Table
 
 ICON = {
     Verdict.REGRESSION: "❌ regression",

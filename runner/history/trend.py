@@ -19,7 +19,7 @@ from runner import figures as fg
 from runner.history.environment import changes
 from runner.history.store import ChangePoint, Night, Point, Store
 from runner.report.fmt import LEFT, RIGHT, md_code, md_text
-from runner.report.markdown import Table
+from runner.report.tables import Table
 from runner.results.files import slug
 from runner.safefs import make_folders, write_atomic
 

@@ -10,11 +10,15 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 from wcwidth import wcswidth
 
 from runner import units
 from runner.figures import Figure, Number, Unit, scale
+
+if TYPE_CHECKING:
+    import jinja2
 
 
 def fmt_ns(value: Number | None) -> str:
@@ -237,3 +241,29 @@ def _width(text: str) -> int:
 def _pad(text: str, have: int, width: int, align: str) -> str:
     gap = " " * (width - have)
     return gap + text if align == RIGHT else text + gap
+
+
+_ENV: jinja2.Environment | None = None
+
+
+def environment() -> jinja2.Environment:
+    """The template environment (templates ship inside the package).
+
+    Every `{{ value }}` that is not Markdown is text and goes through `md_text`, as an HTML
+    template escapes what is not marked safe: a name from the scenario cannot become a heading,
+    a table row, a link or HTML in the report.
+    """
+    import jinja2  # only the report and the comparison view render templates; the terminal's tables do not
+
+    global _ENV
+    if _ENV is None:
+        _ENV = jinja2.Environment(
+            loader=jinja2.PackageLoader("runner.report", "templates"),
+            autoescape=False,
+            trim_blocks=True,
+            lstrip_blocks=True,
+            keep_trailing_newline=True,
+            undefined=jinja2.StrictUndefined,
+            finalize=md_text,
+        )
+    return _ENV

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Optional
 
 from runner.figures import scale
 from runner.report.compare import CellChange, Comparison, FigureChange, Verdict
+from runner.report.compareview import change_text, interval_ends, interval_text
+from runner.report.findings import thread_labels
 from runner.report.fmt import fmt_figure
-from runner.report.markdown import change_text, interval_ends, interval_text, thread_labels
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.document import Verdict as ExpectationVerdict
 from runner.scenario.matrix import format_value
