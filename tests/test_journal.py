@@ -102,6 +102,18 @@ def test_finishing_writes_every_cell_and_removes_the_journal(tmp_path, monkeypat
     assert [c["id"] for c in json.loads((tmp_path / "results.json").read_text())["cells"]] == ["c0", "c1"]
 
 
+def test_keys_a_newer_runner_adds_to_a_journal_line_are_tolerated_and_dropped(tmp_path, monkeypatch):
+    monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
+    _doc_with(ResultsStore(str(tmp_path / "results.json")), 1)
+    line = json.loads(_cell(1).model_dump_json())
+    line["energy_uj"] = 7
+    line["overhead_ns"]["gc_ns"] = 3
+    with open(tmp_path / JOURNAL, "a") as handle:
+        handle.write(json.dumps(line) + "\n")
+    cells = load(str(tmp_path)).cells
+    assert [c.id for c in cells] == ["c0", "c1"] and cells[1] == _cell(1)
+
+
 def test_a_last_line_cut_short_is_the_cell_in_flight_and_left_out(tmp_path, monkeypatch):
     monkeypatch.setattr(journal, "REWRITE_BELOW", 0)
     _doc_with(ResultsStore(str(tmp_path / "results.json")), 3)

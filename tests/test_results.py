@@ -283,7 +283,7 @@ def built_cell() -> CellResult:
         spec={"name": "s"},
         reason="",
         started_at="2026-01-01T00:00:00+00:00",
-        duration_s=1.25,
+        duration_ns=1_250_000_000,
         thread_table=[row],
         threads=[thread],
         expectations=[verdict],
@@ -346,6 +346,15 @@ def test_records_built_by_keyword_are_stored_and_read_back_equal(tmp_path):
 def test_a_misspelt_keyword_is_an_error_not_a_lost_field(make):
     with pytest.raises(TypeError, match="has no field"):
         make()
+
+
+def test_a_misspelt_attribute_is_an_error_not_a_new_one():
+    cell = CellResult(id="c", spec_hash="h", status=Status.PASSED)
+    with pytest.raises(ValueError, match="duration"):
+        cell.duration = 5
+    with pytest.raises(ValueError, match="enabled_"):
+        cell.overhead_ns.enabled_ = True
+    assert '"duration":' not in cell.model_dump_json()
 
 
 def test_an_unknown_figure_is_refused_with_a_suggestion():

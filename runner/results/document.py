@@ -39,11 +39,9 @@ reads the result as a /2 document.  A file of a newer schema is refused, saying 
 from __future__ import annotations
 
 import enum
-import functools
 import os
-import types
 import typing
-from typing import Annotated, Any, Final, Literal, Optional, Union
+from typing import TYPE_CHECKING, Annotated, Any, Final, Literal, Optional, Union
 
 from pydantic import (
     AfterValidator,
@@ -71,6 +69,9 @@ from runner.results.threadfigures import Spread, ThreadFigures
 from runner.safefs import write_atomic
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing's from Python 3.11
 
 SCHEMA: Final = "runner.results/2"
 LEGACY_SCHEMA = "runner.results/1"
@@ -111,63 +112,56 @@ def thread_key(process: str, instance: int, index: int, name: str) -> str:
 # ---------------------------------------------------------------- the records
 
 
+FILE: Final = "runner.results file"
+"""The validation context of a file being read (`model_validate_json(..., context=FILE)`): its unknown keys are dropped."""
+
+
+def _open_schema(schema: dict[str, Any], cls: type) -> None:
+    """A record's JSON Schema without the `additionalProperties` its `extra="allow"` writes: the schema says nothing of them."""
+    schema.pop("additionalProperties", None)
+
+
 class _Record(BaseModel):
     """A stored record: fields typed; an unknown keyword is an error in Python, an unknown key in a file is dropped.
 
     A file may hold keys this runner does not know (a newer runner added them, or they are
     derived, like a thread's `key`): reading ignores them.  Code that builds a record with a
-    misspelt keyword gets a TypeError instead of a silently missing field.
+    misspelt keyword, at any depth (a nested record given as a dict too), gets a TypeError
+    instead of a silently missing field; assigning to one is a ValueError, as pydantic says it.
+
+    All with pydantic's public means: a record keeps the keys it does not know (`extra="allow"`)
+    and `model_post_init`, which pydantic calls with the validation context once it has validated
+    a record, refuses them unless the record comes from data (`model_validate`, `model_validate_json`:
+    their context is FILE unless told), where it drops them.  A record has no `__init__` of its own, so pydantic-core
+    validates a file without calling one (a custom `__init__` is called for every nested record,
+    with the raw data: the first version checked keywords there and set pydantic's private
+    `__pydantic_base_init__` marker on it to stop that).
     """
 
-    model_config = ConfigDict(extra="ignore", validate_assignment=True, populate_by_name=True)
+    model_config = ConfigDict(extra="allow", validate_assignment=True, populate_by_name=True, json_schema_extra=_open_schema)
 
-    def __init__(self, **data: Any) -> None:
-        keywords = self._keywords()
-        if not keywords.issuperset(data):
-            unknown = sorted(set(data) - keywords)
-            raise TypeError(
-                f"{type(self).__name__} has no field {', '.join(map(repr, unknown))}; fields: {', '.join(type(self).model_fields)}"
-            )
-        nested = _nested_records(type(self))
-        for name in nested.keys() & data.keys():  # records given as dicts are built as records, so their keys are checked too
-            many, record = nested[name]
-            value = data[name]
-            if many and isinstance(value, list):
-                data[name] = [record(**v) if isinstance(v, dict) else v for v in value]
-            elif not many and isinstance(value, dict):
-                data[name] = record(**value)
-        super().__init__(**data)
-
-    # Validation (of a file, or of nested dicts) must not run the check above: pydantic calls a model's own
-    # __init__ while validating unless it is marked as the base one, as pydantic marks BaseModel.__init__.
-    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]
+    def model_post_init(self, context: Any, /) -> None:
+        extra = self.model_extra
+        if extra:
+            if context is not FILE:
+                unknown = ", ".join(map(repr, extra))
+                raise TypeError(f"{type(self).__name__} has no field {unknown}; fields: {', '.join(type(self).model_fields)}")
+            extra.clear()
 
     @classmethod
-    def _keywords(cls) -> frozenset[str]:
-        return _keywords_of(cls)
+    def model_validate(cls, obj: Any, *, context: Any = FILE, **options: Any) -> Self:
+        """Data (a dump, a file's) read as a file is: its unknown keys (a dump's derived `key`) are dropped."""
+        return super().model_validate(obj, context=context, **options)
 
+    @classmethod
+    def model_validate_json(cls, json_data: str | bytes | bytearray, *, context: Any = FILE, **options: Any) -> Self:
+        """A file's text: its unknown keys are dropped."""
+        return super().model_validate_json(json_data, context=context, **options)
 
-@functools.cache
-def _keywords_of(cls: type[_Record]) -> frozenset[str]:
-    return frozenset(alias for name, f in cls.model_fields.items() for alias in (name, f.alias) if alias)
-
-
-@functools.cache
-def _nested_records(cls: type[_Record]) -> dict[str, tuple[bool, type[_Record]]]:
-    """The fields of `cls` that hold records, worked out once per class (a cell of 1,024 threads builds 3,000 records)."""
-    return {name: found for name, f in cls.model_fields.items() if (found := _record_type(f.annotation))}
-
-
-def _record_type(annotation: Any) -> tuple[bool, type[_Record]] | None:
-    """(is a list, the record class) when a field holds records (`X`, `X | None`, `list[X]`); None otherwise."""
-    if isinstance(annotation, type) and issubclass(annotation, _Record):
-        return False, annotation
-    args = typing.get_args(annotation)
-    if typing.get_origin(annotation) is list and args and isinstance(args[0], type) and issubclass(args[0], _Record):
-        return True, args[0]
-    if typing.get_origin(annotation) in (Union, types.UnionType):
-        return next((found for arg in args if (found := _record_type(arg))), None)
-    return None
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name not in type(self).model_fields and not name.startswith("_"):  # extra="allow" would keep it
+            raise ValueError(f'"{type(self).__name__}" object has no field "{name}"')
+        super().__setattr__(name, value)
 
 
 def _figure_name(value: Any) -> Any:
@@ -809,14 +803,6 @@ class CellResult(_Record):
     background: list[Background] = Field(default_factory=list)
     overhead_ns: Overhead = Field(default_factory=Overhead)
     samples_file: Optional[str] = Field(None, description="relative to the results file's folder")
-
-    def __init__(self, **data: Any) -> None:
-        """`duration_s=` (seconds) is accepted here and stored as `duration_ns`; files hold only ns."""
-        if "duration_s" in data:
-            data["duration_ns"] = round(data.pop("duration_s") * 1e9)
-        super().__init__(**data)
-
-    __init__.__pydantic_base_init__ = True  # type: ignore[attr-defined]  # see _Record.__init__
 
     @property
     def duration_s(self) -> float:
