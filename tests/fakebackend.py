@@ -22,7 +22,7 @@ from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThrea
 from runner.run.samples import Sample, slot_of
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import PeriodicWork, Policy, Scenario
-from runner.scenario.plan import Settings, is_periodic, plan_scenario
+from runner.scenario.plan import Settings, plan_scenario
 
 START = Settings(Policy.OTHER, 0, 0, None)
 
@@ -150,7 +150,7 @@ class FakeBackend:
                 options.samples.write(thread_key(p.process, p.instance, p.index, p.name), tid, samples)
             applied = Settings(Policy.OTHER, 0, p.settings.nice, p.settings.cpus) if act.degrade else p.settings
             threads.append(RawThread(p, 4242, slot, applied, ApplyErrors(sched=1 if act.degrade else 0), True, len(samples)))
-            assert is_periodic(p.work) or not samples
+            assert p.periodic or not samples
         timeline = Timeline(0, t0, t_end, t_end + 1_000_000, t_end + 2_000_000)
         return RawCell(
             "2026-11-22T00:00:00+00:00",

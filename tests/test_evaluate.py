@@ -267,3 +267,13 @@ def test_a_stage_that_missed_resumes_left_in_its_queue_is_failed_by_a_verdict_th
         "could not keep up: missed 16 of 99 releases: 16 resumes of queue frames were still waiting at the end beyond one burst "
         "of its resumes; implicit"
     ), verdict.note
+
+
+def test_a_run_takes_no_text_from_the_list_renderer():
+    """Results say a thread's work in the scenario stage's words (worktext.py), not through `runner FILE --list`'s renderer."""
+    import subprocess
+    import sys
+
+    code = "import sys, runner.session, runner.run.evaluate; print('runner.scenario.listing' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
+    assert done.stdout.split() == ["False"]

@@ -15,7 +15,8 @@ from conftest import SCENARIOS, run_cli
 from runner.errors import ScenarioError
 from runner.scenario import limits as lim
 from runner.scenario.listing import render_cell
-from runner.scenario.loader import LoadedScenario, match_threads, parse_scenario, spec_json
+from runner.scenario.loader import LoadedScenario, parse_scenario, spec_json
+from runner.scenario.matching import match_threads
 from runner.scenario.model import Policy, ProcessSpec, ThreadSpec
 from runner.scenario.plan import Settings, plan_scenario
 from runner.scenario.yamlsource import load_file, load_text

@@ -21,7 +21,7 @@ from runner.run.rawcell import ApplyErrors, RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData, rows
 from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, start_after, work_tuple
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched, Start
-from runner.scenario.plan import Settings, is_periodic, is_released, plan_scenario
+from runner.scenario.plan import CallbackKind, Settings, callback_kind, plan_scenario
 from runner.scenario.typed import Invalid
 
 
@@ -154,7 +154,7 @@ def test_each_mutex_a_thread_locks_has_a_lock_slot_in_the_order_it_is_first_lock
 
 def test_a_program_with_a_timer_has_callbacks_at_its_period():
     threads = plan_scenario(scenario(), Settings())
-    assert [(t.name, t.period, is_periodic(t.work)) for t in threads] == [
+    assert [(t.name, t.period, t.periodic) for t in threads] == [
         ("app", None, False),
         ("a", 5_000_000, True),
         ("b", 5_000_000, True),
@@ -210,7 +210,8 @@ def test_a_stage_without_a_timer_that_suspends_is_released_by_resumes():
         ("both", 5_000_000, False, True),  # a timer releases its activations; the suspend is a step of one
         ("idle", None, False, False),
     ]
-    assert [is_released(t.work) for t in threads] == [t.released for t in threads]
+    kinds = [CallbackKind.NONE, CallbackKind.PERIODIC, CallbackKind.RESUMED, CallbackKind.PERIODIC, CallbackKind.NONE]
+    assert [t.callbacks for t in threads] == [callback_kind(t.work) for t in threads] == kinds
 
 
 def stats(values: list[int], holders=()) -> EventStats:

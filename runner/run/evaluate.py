@@ -35,10 +35,11 @@ from runner.run import outside, programs, traced
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ResourceState, Timeline
 from runner.run.samples import SlotData
-from runner.scenario.listing import describe_work
-from runner.scenario.loader import ResolvedCell, expectations_for, match_threads, spec_json
+from runner.scenario.loader import ResolvedCell, spec_json
+from runner.scenario.matching import expectations_for, match_threads
 from runner.scenario.model import EventKind, Expectation, PeriodicWork, PhasesWork, Policy, Scenario, metric_figure
-from runner.scenario.plan import PROGRAM_ORIGIN, PlannedThread, Settings, has_callbacks, is_periodic, is_released, thread_kind
+from runner.scenario.plan import PROGRAM_ORIGIN, PlannedThread, Settings, thread_kind
+from runner.scenario.worktext import describe_work
 
 QUEUE_DEPTH = 32  # resumes a queue holds (the native core's QDEPTH)
 INTERRUPTED_REASON = "interrupted (Ctrl-C or SIGTERM); figures cover what ran until then"
@@ -103,7 +104,7 @@ def verdict_label(t: PlannedThread, processes: int) -> str:
 def _figures(raw: RawThread, timeline: Timeline, interrupted: bool, bound: Optional[int]) -> ThreadFigures:
     work = raw.planned.work
     due = releases_due(work, timeline, interrupted) if isinstance(work, PeriodicWork) else 0
-    return thread_figures(raw.slot, is_periodic(work), due, bound, released=is_released(work))
+    return thread_figures(raw.slot, raw.planned.periodic, due, bound, released=raw.planned.released)
 
 
 def _histograms(slot: SlotData) -> Optional[ThreadHistograms]:
@@ -166,7 +167,7 @@ def queue_consumers(raw: RawCell) -> dict[str, list[PlannedThread]]:
     """The stages released by resumes that take from each queue (instances apart), by queue name."""
     out: dict[str, list[PlannedThread]] = {}
     for t in raw.threads:
-        if isinstance(t.planned.work, PhasesWork) and is_released(t.planned.work) and (t.slot.tid or not t.planned.spawned):
+        if t.planned.released and isinstance(t.planned.work, PhasesWork) and (t.slot.tid or not t.planned.spawned):
             for q in t.planned.work.suspends_on():
                 out.setdefault(q, []).append(t.planned)
     return out
@@ -199,7 +200,7 @@ def _missed_words(queue: str, dropped: int, left: int) -> str:
 def queue_words(planned: PlannedThread, raw: RawCell) -> str:
     """`: 12 resumes of queue frames were still waiting at the end ...`: where a stage released by resumes missed them, named
     (its missed releases are its sole queues' drops and backlog); "" for any other thread."""
-    if not isinstance(planned.work, PhasesWork) or not is_released(planned.work):
+    if not planned.released or not isinstance(planned.work, PhasesWork):
         return ""
     consumers = queue_consumers(raw)
     parts = [
@@ -275,8 +276,8 @@ def no_release_due(raw: RawCell) -> set[int]:
         work = t.planned.work
         if not isinstance(work, PhasesWork):
             continue
-        late_timer = is_periodic(work) and end is not None and t.slot.timer_due_ns >= end
-        never_resumed = is_released(work) and not any(resumes.get(q, 0) for q in work.suspends_on())
+        late_timer = t.planned.periodic and end is not None and t.slot.timer_due_ns >= end
+        never_resumed = t.planned.released and not any(resumes.get(q, 0) for q in work.suspends_on())
         if late_timer or never_resumed:
             out.add(id(t.planned))
     return out
@@ -304,7 +305,7 @@ def keeps_up(
     out = []
     for planned, fig in measured:
         label = verdict_label(planned, raw.processes)
-        if (is_periodic(planned.work) or is_released(planned.work)) and (fig.missed_releases or fig.overruns):
+        if planned.has_callbacks and (fig.missed_releases or fig.overruns):
             if id(planned) in own:
                 continue
             metric = KEEPS_UP_METRICS[0] if fig.missed_releases else KEEPS_UP_METRICS[1]
@@ -320,7 +321,7 @@ def keeps_up(
                     "the scenario bounds missed_releases or overruns for this thread itself",
                 )
             )
-        elif has_callbacks(planned.work) and not fig.callbacks and id(planned) not in own_ran | idle and not raw.interrupted:
+        elif planned.has_callbacks and not fig.callbacks and id(planned) not in own_ran | idle and not raw.interrupted:
             out.append(
                 Verdict(
                     thread=label,
@@ -474,7 +475,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         if isinstance(p.work, PhasesWork):
             events, phases, extra = programs.program_results(p.work, t.slot, p.settings, names, raw.online_cpus)
             fig = fig.model_copy(update=extra)
-            if is_released(p.work):  # its releases are the resumes it took, and those it missed: dropped, or left waiting at the end
+            if p.released:  # its releases are the resumes it took, and those it missed: dropped, or left waiting at the end
                 queues = [sole[q] for q in p.work.suspends_on() if q in sole]
                 missed = sum(r.dropped + (0 if raw.interrupted else left_behind(r, raw)) for r in queues)
                 fig = fig.model_copy(update={"missed_releases": missed, "releases": fig.callbacks + missed})
@@ -488,8 +489,8 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
                 pid=t.pid,
                 tid=t.slot.tid,
                 work=describe_work(p.work),
-                periodic=is_periodic(p.work),
-                released=is_released(p.work),
+                periodic=p.periodic,
+                released=p.released,
                 requested=p.settings,
                 applied=t.applied,
                 degraded=degraded,
@@ -526,7 +527,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         program_warnings += out.warnings
     result.threads, result.trace = traced.apply(result.threads, raw.trace, raw.trace_tasks, raw.timeline.start_ns)
     measured = [(planned, t.figures) for (planned, _), t in zip(measured, result.threads)]
-    for i in expectations_for(scenario, cell):
+    for i in expectations_for(scenario, cell.matrix):
         exp = scenario.expect[i]
         mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
@@ -553,7 +554,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if mark is not None:  # where the expectation is written: CI annotations point there
                 verdict.line, verdict.col = mark.line, mark.col
             result.expectations.append(verdict)
-    own = [scenario.expect[i] for i in expectations_for(scenario, cell)]
+    own = [scenario.expect[i] for i in expectations_for(scenario, cell.matrix)]
     implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own)
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)

@@ -10,23 +10,20 @@ import shlex
 from typing import Any, Optional
 
 from runner import units
-from runner.scenario.loader import LoadedScenario, ResolvedCell, expectations_for
+from runner.scenario.loader import LoadedScenario, ResolvedCell
+from runner.scenario.matching import expectations_for
 from runner.scenario.model import (
-    BurnClock,
     HogKind,
     PeriodicWork,
-    PhasesWork,
     Pin,
     ProcessSpec,
     ProgramSpec,
     Scenario,
-    SleepWork,
-    SpinWork,
     ThreadSpec,
     Until,
-    Work,
 )
 from runner.scenario.plan import Settings, plan_process, program_settings, rule_settings
+from runner.scenario.worktext import describe_work
 
 
 def _plain(rows: list[list[Any]], headers: Optional[list[str]] = None) -> str:
@@ -34,37 +31,6 @@ def _plain(rows: list[list[Any]], headers: Optional[list[str]] = None) -> str:
     from tabulate import tabulate
 
     return tabulate(rows, headers=headers or (), tablefmt="plain")
-
-
-def describe_work(work: Work) -> str:
-    """`periodic 100ms, burn 40ms cpu` / `spin` / `sleep`."""
-    if isinstance(work, PeriodicWork):
-        text = f"periodic {units.format_duration(work.period)}"
-        if work.burn:
-            clock = "cpu" if work.burn_clock is BurnClock.THREAD_CPU else "wall"
-            text += f", burn {units.format_duration(work.burn)} {clock}"
-        if work.alloc:
-            text += f", alloc {units.format_size(work.alloc)}"
-        if work.offset:
-            text += f", offset {units.format_duration(work.offset)}"
-        return text
-    if isinstance(work, SpinWork):
-        return "spin"
-    if isinstance(work, PhasesWork):
-        names = work.phase_names()
-        parts = []
-        for name, phase in zip(names, work.phases):
-            events = ", ".join(e.label() for e in phase.events)
-            loop = f" x{phase.loop}" if phase.loop > 1 else ""
-            parts.append(f"{name}{loop}: {events}" if len(work.phases) > 1 else events)
-        text = "phases " + "; ".join(parts)
-        if work.loop:
-            text += f" (x{work.loop})"
-        if work.delay:
-            text += f", delay {units.format_duration(work.delay)}"
-        return text
-    assert isinstance(work, SleepWork)
-    return "sleep"
 
 
 def describe_memory(proc: ProcessSpec) -> str:
@@ -168,7 +134,7 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...], du
         table = _plain(rows, ["#", "THREAD", "POLICY", "NICE", "CPUS", "SETTINGS", "WORK"])
         lines.extend("    " + row for row in table.splitlines())
         lines.extend(f"    {describe_spread(spec)}" for spec in proc.threads if spec.varies)
-    for i in expectations_for(sc, cell):
+    for i in expectations_for(sc, cell.matrix):
         exp = sc.expect[i]
         lines.append(f"  expect {exp.thread}: {exp.metric.value} {exp.describe_limit()}")
     return "\n".join(lines)

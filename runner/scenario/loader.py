@@ -26,6 +26,7 @@ from runner.figures import ThreadKind, figures_of, has, measured_how
 from runner.scenario import limits as lim
 from runner.scenario import matrix as mx
 from runner.scenario import program
+from runner.scenario.matching import expectations_for, match_threads
 from runner.scenario.model import (
     CPUS_CONTEXT,
     AnyProcess,
@@ -111,7 +112,7 @@ def source_hash(data: Any) -> str:
 
 def expect_hash(cells: list[ResolvedCell]) -> str:
     """A short content hash of the expectations that judge each cell, to refuse resuming a run under changed ones."""
-    judged = [(c.id, [c.scenario.expect[i].dump() for i in expectations_for(c.scenario, c)]) for c in cells]
+    judged = [(c.id, [c.scenario.expect[i].dump() for i in expectations_for(c.scenario, c.matrix)]) for c in cells]
     return _digest(json.dumps(judged, sort_keys=True))
 
 
@@ -395,19 +396,3 @@ def measure_problem(exp: Expectation, targets: list[PlannedThread], kind: Thread
     elif has(kind, fig):
         return ""
     return f"{exp.metric.value} {measured_how(fig)}, but {exp.thread!r} is {kind.words}, which has {figures_of(kind)}"
-
-
-def expectations_for(scenario: Scenario, cell: ResolvedCell | mx.Cell) -> list[int]:
-    """Indexes of the scenario's expectations that apply to `cell`."""
-    values = cell.values if isinstance(cell, mx.Cell) else cell.matrix
-    probe = mx.Cell("x", values)
-    return [i for i, exp in enumerate(scenario.expect) if not exp.cells or mx.select([probe], exp.cells)]
-
-
-def match_threads(planned: list[PlannedThread], target: str) -> list[PlannedThread]:
-    """Threads an expectation's `thread` names: `name` or `process/name`; numbered threads match their base name.
-
-    Which of them an expectation judges: `measure_problem` (validation) and `evaluate.judged_threads` (a run).
-    """
-    proc, sep, name = target.rpartition("/")
-    return [t for t in planned if (not sep or t.process == proc) and name in (t.name, t.spec_name)]

@@ -10,9 +10,10 @@ returns the settings each thread is expected to hold.  The runner records this a
 
 from __future__ import annotations
 
+import enum
 import fnmatch
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 from runner import units
@@ -84,9 +85,39 @@ EXPLICIT_DEFAULTS = Settings()
 PROGRAM_ORIGIN = "program"  # a PlannedThread's origin when it is a program's thread, found running (not created by the runner)
 
 
+class CallbackKind(enum.Enum):
+    """What releases a thread's callbacks (activations), if anything: worked out once, when the thread is planned."""
+
+    NONE = "none"  # no callbacks: spin, sleep, a program without a timer or a suspend
+    PERIODIC = "periodic"  # released on a period: periodic work, or a program with a timer
+    RESUMED = "resumed"  # released by resumes on a queue: a program that suspends and has no timer (a chain's later stage)
+
+
+def callback_kind(work: Work) -> CallbackKind:
+    """What releases the callbacks of a thread doing `work`.
+
+    A program with a timer is periodic even if it also suspends.  A program released by
+    resumes (a pipeline's later stage) has an activation from each resume to its next
+    suspend, measured as a callback: latency from the resume, wall time, switches, faults and
+    waits, but no slack or missed releases, since no period says when the next one is due.
+    """
+    if isinstance(work, PeriodicWork):
+        return CallbackKind.PERIODIC
+    if not isinstance(work, PhasesWork):
+        return CallbackKind.NONE
+    kinds = {e.event for _, e in work.events()}
+    if EventKind.TIMER in kinds:
+        return CallbackKind.PERIODIC
+    return CallbackKind.RESUMED if EventKind.SUSPEND in kinds else CallbackKind.NONE
+
+
 @dataclass(frozen=True)
 class PlannedThread:
-    """One thread to create: its name, its work, and the settings it should end up with."""
+    """One thread to create: its name, its work, and the settings it should end up with.
+
+    `callbacks` is worked out from `work` once, here: every stage after the plan reads it
+    (`periodic`, `released`, `has_callbacks`) instead of asking the work again.
+    """
 
     process: str
     instance: int
@@ -98,6 +129,10 @@ class PlannedThread:
     origin: str  # how it gets them: "main", "inherited", "own", "explicit", "explicit+own"
     periods: tuple[int, ...] = ()  # the periods its callbacks are released at (periodic work's, its program's timers'), shortest first
     spawned: bool = False  # created mid-run by a spawn event of another thread, not at the start
+    callbacks: CallbackKind = field(init=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "callbacks", callback_kind(self.work))  # frozen: set once, as it is made
 
     @property
     def period(self) -> Optional[int]:
@@ -105,14 +140,19 @@ class PlannedThread:
         return self.periods[0] if self.periods else None
 
     @property
+    def periodic(self) -> bool:
+        """Its callbacks are released on a period: periodic work, or a program with a timer."""
+        return self.callbacks is CallbackKind.PERIODIC
+
+    @property
     def released(self) -> bool:
         """Its callbacks are released by resumes on a queue (a chain's later stage), not by a period."""
-        return is_released(self.work)
+        return self.callbacks is CallbackKind.RESUMED
 
     @property
     def has_callbacks(self) -> bool:
         """It runs callbacks (activations): released by a period or by resumes."""
-        return self.period is not None or self.released
+        return self.callbacks is not CallbackKind.NONE
 
 
 def work_periods(work: Work, resources: Optional[dict[str, Resource]] = None) -> tuple[int, ...]:
@@ -216,28 +256,6 @@ def plan_scenario(scenario: Scenario, start: Settings) -> list[PlannedThread]:
     return out
 
 
-def is_periodic(work: Work) -> bool:
-    """Whether the thread runs callbacks released on a period: periodic work, or a program with a timer."""
-    if isinstance(work, PhasesWork):
-        return any(e.event is EventKind.TIMER for _, e in work.events())
-    return isinstance(work, PeriodicWork)
-
-
-def is_released(work: Work) -> bool:
-    """Whether a program's callbacks are released by resumes: it suspends on a queue and has no timer.
-
-    Such a thread (a pipeline's later stage) has an activation from each resume to its next
-    suspend, measured as a callback: latency from the resume, wall time, switches, faults and
-    waits, but no slack or missed releases, since no period says when the next one is due.
-    """
-    return isinstance(work, PhasesWork) and not is_periodic(work) and any(e.event is EventKind.SUSPEND for _, e in work.events())
-
-
-def has_callbacks(work: Work) -> bool:
-    """Whether the thread runs callbacks at all: periodic, or released by resumes."""
-    return is_periodic(work) or is_released(work)
-
-
 PROGRAM_THREAD = ThreadKind("a thread of a command: program (measured from /proc)", proc=True)
 
 
@@ -245,12 +263,11 @@ def thread_kind(t: PlannedThread) -> ThreadKind:
     """What kind of thread `t` is, for the figures it can have (figures.has)."""
     if t.origin == PROGRAM_ORIGIN:
         return PROGRAM_THREAD
-    work = t.work
-    phases = isinstance(work, PhasesWork)
-    if is_periodic(work):
+    phases = isinstance(t.work, PhasesWork)
+    if t.periodic:
         return ThreadKind("a kind: phases thread with a timer" if phases else "a periodic thread", True, True, phases)
-    if is_released(work):
+    if t.released:
         return ThreadKind("a kind: phases thread released by resumes (no period)", True, False, True)
     if phases:
         return ThreadKind("a kind: phases thread without a timer or a suspend (no callbacks)", events=True)
-    return ThreadKind(f"a thread without callbacks (kind: {work.kind})")
+    return ThreadKind(f"a thread without callbacks (kind: {t.work.kind})")
