@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from runner import __version__
+from runner import options as opt
 from runner.collector import collector_paused
 from runner.errors import MAX_MESSAGE, ExitCode, RunnerError, ScenarioError, UsageError, bounded, did_you_mean, from_os_error
 from runner.terminal import note, put, say, stdout_lost, warn
@@ -45,39 +46,18 @@ exit codes: 0 ok, 1 an expectation failed or a regression against the baseline, 
 """
 
 
-def _threshold_help() -> str:
-    """--threshold's help, its defaults as the figure registry declares them (built only with a parser that has it)."""
-    from runner.report.compare import DEFAULT_THRESHOLDS
-
-    defaults = ", ".join(f"{t.figure} {t.describe()}" for t in DEFAULT_THRESHOLDS)
-    return (
-        "regression threshold FIGURE=LIMIT, e.g. latency.p99=+20%,+10us or involuntary.per_callback_mean=+0.5 "
-        f"or latency.p99=off (repeatable; defaults: {defaults})"
-    ).replace("%", "%%")
-
-
-_LAVA_HELP = "report each cell as a LAVA test set: lava-test-set and lava-test-case when on PATH, their lines otherwise"
-_HISTORY_HELP = (
-    "judge each figure against its own past nights on this host in the history FILE (SQLite, made when absent) or "
-    "postgresql://URL, then add this night to it; a regression makes the exit code 1"
-)
-_JUNIT_HELP = "also write the outcome as JUnit XML to FILE (one test suite per cell; for GitLab, Jenkins, colcon, GitHub reporters)"
-
-
 def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner run", description="Run a scenario file: spawn its processes and threads, measure, report.")
     p.add_argument("scenario", metavar="SCENARIO.yaml", help="scenario YAML file (or an rt-app workload, FILE.json)")
     p.add_argument("--list", action="store_true", help="print the expanded cells with each thread's resolved settings; run nothing")
     p.add_argument("--duration", metavar="D", help="override the scenario's duration, e.g. 2s (100ms to 24h)")
-    p.add_argument("--cell", action="append", default=[], metavar="GLOB", help="run only cells whose id matches (repeatable)")
-    p.add_argument("--out", metavar="DIR", help="results folder (default reports/<scenario>/<UTC timestamp>)")
+    opt.CELLS.add(p, help="run only cells whose id matches (repeatable)")
+    opt.OUT.add(p, help="results folder (default reports/<scenario>/<UTC timestamp>)")
     p.add_argument("--follow", action="store_true", help="print a line per callback, as the ros2-realtime-examples do")
     p.add_argument(
         "--allow-degraded", action="store_true", help="run even without the rights to apply every setting; mark affected threads degraded"
     )
-    p.add_argument(
-        "--allow-priority-99", action="store_true", help="allow scenario threads at RT priority 99 (above the runner's watchdog)"
-    )
+    opt.ALLOW_PRIORITY_99.add(p, help="allow scenario threads at RT priority 99 (above the runner's watchdog)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     m = p.add_argument_group("matrix runs")
     m.add_argument("--repeat", metavar="N", help="run every cell N times; the report gives the spread")
@@ -95,19 +75,17 @@ def _run_parser() -> argparse.ArgumentParser:
         help="hold /dev/cpu_dma_latency at US microseconds while cells run, as cyclictest does (default 0: no deep CPU idle states)",
     )
     d.add_argument("--no-dma-latency", action="store_true", help="leave /dev/cpu_dma_latency alone")
-    machine.add_argument(
-        "--no-trace",
-        action="store_true",
-        help="do not trace the scheduler (no wake-up latency per wake-up, no preemption attribution; /proc figures stay)",
+    opt.NO_TRACE.add(
+        machine, help="do not trace the scheduler (no wake-up latency per wake-up, no preemption attribution; /proc figures stay)"
     )
     r = p.add_argument_group("report")
-    r.add_argument("--baseline", metavar="RESULTS", help="compare with an earlier run; a regression makes the exit code 1")
-    r.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
-    r.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
+    opt.BASELINE.add(r, help="compare with an earlier run; a regression makes the exit code 1")
+    opt.HISTORY.add(r)
+    opt.THRESHOLD.add(r)
     r.add_argument("--no-report", action="store_true", help="write results.json only")
-    r.add_argument("--no-plots", action="store_true", help="no SVG plots beside the report")
-    r.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
-    r.add_argument("--lava", action="store_true", help="after the run, " + _LAVA_HELP)
+    opt.NO_PLOTS.add(r, help="no SVG plots beside the report")
+    opt.JUNIT.add(r)
+    opt.LAVA.add(r, help="after the run, " + opt.LAVA_HELP)
     return p
 
 
@@ -382,7 +360,7 @@ def _watch_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("targets", nargs="+", metavar="PID|NAME", help="a PID, or a process name (every live process whose COMMAND it is)")
     p.add_argument("--duration", default="10s", help="how long to watch (default 10s); Ctrl-C stops early and keeps what was measured")
-    p.add_argument("--out", metavar="DIR", help="results folder (default reports/watch/<UTC time>)")
+    opt.OUT.add(p, help="results folder (default reports/watch/<UTC time>)")
     p.add_argument(
         "--rule",
         action="append",
@@ -390,9 +368,9 @@ def _watch_parser() -> argparse.ArgumentParser:
         metavar="PATTERN=SCHED@CPUS",
         help="a thread rule to apply to matching threads: PATTERN=SCHED@CPUS (the threads keep it after the watch)",
     )
-    p.add_argument("--allow-priority-99", action="store_true", help="let a rule ask for RT priority 99 (refused otherwise)")
-    p.add_argument("--no-plots", action="store_true", help="write the report without plots")
-    p.add_argument("--no-trace", action="store_true", help="do not trace the scheduler (tracefs), as runner SCENARIO --no-trace")
+    opt.ALLOW_PRIORITY_99.add(p, help="let a rule ask for RT priority 99 (refused otherwise)")
+    opt.NO_PLOTS.add(p, help="write the report without plots")
+    opt.NO_TRACE.add(p, help="do not trace the scheduler (tracefs), as runner SCENARIO --no-trace")
     return p
 
 
@@ -457,10 +435,10 @@ def _report_parser() -> argparse.ArgumentParser:
         prog="runner report", description="Re-render the markdown report of a run from its results, without re-running."
     )
     p.add_argument("results", metavar="RESULTS", help="results.json or the folder holding it")
-    p.add_argument("-o", "--output", metavar="FILE", help="report file (default: report.md beside the results); - for stdout")
-    p.add_argument("--baseline", metavar="RESULTS", help="add a comparison with an earlier run")
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
-    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    opt.OUTPUT.add(p, help="report file (default: report.md beside the results); - for stdout")
+    opt.BASELINE.add(p, help="add a comparison with an earlier run")
+    opt.THRESHOLD.add(p)
+    opt.NO_PLOTS.add(p)
     x = p.add_argument_group("cyclictest formats (instead of the report, unless -o is given too)")
     x.add_argument("--histogram", metavar="FILE", help="latency histogram as `cyclictest -h` prints it (OSADL plots read it); - for stdout")
     x.add_argument("--histogram-max", metavar="US", help="--histogram's size in microseconds (cyclictest -h US; default 1000)")
@@ -472,7 +450,7 @@ def _report_parser() -> argparse.ArgumentParser:
     )
     x.add_argument("--cell", metavar="ID", help="the cell to export (with --histogram, --json or --hdr), when the run has several")
     labs = p.add_argument_group("lab formats: LAVA, KernelCI's KCIDB (instead of the report, unless -o is given too)")
-    labs.add_argument("--lava", action="store_true", help=_LAVA_HELP + "; exits as the run did")
+    opt.LAVA.add(labs, help=opt.LAVA_HELP + "; exits as the run did")
     labs.add_argument("--kcidb", metavar="FILE", help="the run as KCIDB v5.3 JSON for you to submit to KernelCI; - for stdout")
     labs.add_argument("--kcidb-origin", metavar="NAME", help="--kcidb's origin (lowercase letters, digits, _; default runner)")
     labs.add_argument(
@@ -625,9 +603,9 @@ def _compare_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner compare", description="Compare a run with a baseline, cell by cell; exit 1 on a regression.")
     p.add_argument("base", metavar="BASE", help="the baseline: results.json or its folder")
     p.add_argument("new", metavar="NEW", help="the run to check: results.json or its folder")
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
-    p.add_argument("-o", "--output", metavar="FILE", help="also write the markdown comparison to FILE")
-    p.add_argument("--junit", metavar="FILE", help="also write the comparison as JUnit XML to FILE (a regression is a failed test case)")
+    opt.THRESHOLD.add(p)
+    opt.OUTPUT.add(p, help="also write the markdown comparison to FILE")
+    opt.JUNIT.add(p, help="also write the comparison as JUnit XML to FILE (a regression is a failed test case)")
     return p
 
 
@@ -660,12 +638,12 @@ def _cmd_compare(argv: list[str]) -> int:
 def _merge_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="runner merge", description="Combine shard results of one scenario into one results file and report.")
     p.add_argument("inputs", nargs="+", metavar="DIR", help="results folders (or results.json files) of the shards")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for the merged results.json and report.md")
-    p.add_argument("--baseline", metavar="RESULTS", help="compare the merged run with an earlier run; a regression makes the exit code 1")
-    p.add_argument("--history", metavar="FILE|URL", help=_HISTORY_HELP)
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
-    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
-    p.add_argument("--junit", metavar="FILE", help=_JUNIT_HELP)
+    opt.OUT.add(p, help="folder for the merged results.json and report.md", required=True)
+    opt.BASELINE.add(p, help="compare the merged run with an earlier run; a regression makes the exit code 1")
+    opt.HISTORY.add(p)
+    opt.THRESHOLD.add(p)
+    opt.NO_PLOTS.add(p)
+    opt.JUNIT.add(p)
     return p
 
 
@@ -714,8 +692,8 @@ def _history_parser() -> argparse.ArgumentParser:
         "missed releases and involuntary switches night by night, changes of level and of environment marked.",
     )
     p.add_argument("history", metavar="FILE|URL", help="the history: an SQLite file, or postgresql://...")
-    p.add_argument("--out", metavar="DIR", help="folder for history.md and its plots (default: FILE's name with -report)")
-    p.add_argument("--cell", action="append", default=[], metavar="GLOB", help="only cells whose id matches (repeatable)")
+    opt.OUT.add(p, help="folder for history.md and its plots (default: FILE's name with -report)")
+    opt.CELLS.add(p)
     p.add_argument("--thread", action="append", default=[], metavar="GLOB", help="only threads whose key matches (repeatable)")
     p.add_argument("--since", metavar="DATE", default="", help="only nights from DATE on (2026-11-01, or an ISO time)")
     p.add_argument(
@@ -726,9 +704,9 @@ def _history_parser() -> argparse.ArgumentParser:
         metavar="RESULTS",
         help="first add these results (files or folders), oldest first, each judged against the nights before it",
     )
-    p.add_argument("--threshold", action="append", default=[], metavar="FIGURE=LIMIT", help=_threshold_help())
-    p.add_argument("--junit", metavar="FILE", help="with --import: the last night's verdicts against the history as JUnit XML")
-    p.add_argument("--no-plots", action="store_true", help="no SVG plots")
+    opt.THRESHOLD.add(p)
+    opt.JUNIT.add(p, help="with --import: the last night's verdicts against the history as JUnit XML")
+    opt.NO_PLOTS.add(p)
     return p
 
 
@@ -769,7 +747,7 @@ def _import_rtapp_parser() -> argparse.ArgumentParser:
         "on stderr and written as comments at the top of the scenario.",
     )
     p.add_argument("file", metavar="FILE.json", help="rt-app workload file")
-    p.add_argument("-o", "--output", metavar="FILE.yaml", help="write the scenario to FILE.yaml (default: stdout)")
+    opt.OUTPUT.add(p, help="write the scenario to FILE.yaml (default: stdout)", metavar="FILE.yaml")
     return p
 
 

@@ -554,3 +554,24 @@ def test_problems_in_a_scenario_are_annotated_at_their_line(tmp_path, monkeypatc
         assert line.startswith("::error file=bad.yaml,line=4,col=") and "sched" in line, line
     monkeypatch.delenv("GITHUB_ACTIONS")
     assert annotation_lines(run_cli("validate", str(bad)).out) == []
+
+
+def test_the_pre_commit_hooks_are_ci_s_linters_from_the_lint_extra():
+    """.pre-commit-config.yaml runs ruff check, ruff format and mypy from the environment (language: system),
+    so a commit is checked by the versions the lint extra pins, as .ci/run checks it."""
+    import re
+
+    import yaml
+    from conftest import pyproject
+
+    with open(os.path.join(REPO, ".pre-commit-config.yaml"), encoding="utf-8") as handle:
+        config = yaml.safe_load(handle)
+    hooks = {h["id"]: h for repo in config["repos"] for h in repo["hooks"]}
+    assert [r["repo"] for r in config["repos"]] == ["local"]
+    assert set(hooks) == {"ruff", "ruff-format", "mypy"}
+    assert hooks["ruff"]["entry"].split()[:2] == ["ruff", "check"] and hooks["ruff-format"]["entry"].split()[:2] == ["ruff", "format"]
+    assert all(h["language"] == "system" for h in hooks.values())
+    assert hooks["mypy"]["pass_filenames"] is False  # the package as [tool.mypy] configures it, not the files staged
+    lint = pyproject()["project"]["optional-dependencies"]["lint"]
+    pinned = {m.group(1) for d in lint if (m := re.match(r"([\w-]+)==", d))}
+    assert {"ruff", "mypy"} <= pinned

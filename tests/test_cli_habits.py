@@ -261,3 +261,29 @@ def test_a_scenario_after_a_bare_shuffle_is_said_to_be_no_seed():
     assert f"{fifo80!r} is no seed (an integer); give the scenario before --shuffle, or write --shuffle=SEED" in err.getvalue()
     assert run_cli(fifo80, "--shuffle", "7", "--list").code == 0
     assert run_cli(fifo80, "--shuffle", "--list").code == 0
+
+
+def test_an_option_several_commands_take_is_the_same_option_in_each():
+    """runner/options.py declares them once: flags, action, default and metavar agree wherever they are taken."""
+    from runner import options
+
+    shared = {name: o for name, o in vars(options).items() if isinstance(o, options.Option)}
+    own_metavar = {("import-rtapp", "--output")}  # FILE.yaml: what the file is, said in its metavar
+    other_option = {("report", "--cell")}  # the one cell to export (an ID), not a filter of cells (GLOBs)
+    for name, option in shared.items():
+        declared = option.add(argparse.ArgumentParser(add_help=False))
+        takers = []
+        for command, make in _PARSERS.items():
+            for action in make()._actions:
+                if option.flags[-1] in action.option_strings and (command, option.flags[-1]) not in other_option:  # `ps -o` is --columns
+                    takers.append(command)
+                    assert (type(action), action.option_strings, action.dest, action.default, action.nargs, action.const) == (
+                        type(declared),
+                        declared.option_strings,
+                        declared.dest,
+                        declared.default,
+                        declared.nargs,
+                        declared.const,
+                    ), (name, command)
+                    assert action.metavar == declared.metavar or (command, declared.option_strings[-1]) in own_metavar, (name, command)
+        assert len(takers) >= 2, f"{name} is taken by {takers} only: an option of one command is declared in its parser"
