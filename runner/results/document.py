@@ -34,6 +34,38 @@ dropped; in Python, an unknown keyword is an error, so a misspelt field cannot v
 `runner.results/1` files (latencies in float microseconds, seconds elsewhere) still load:
 `read.load` checks them against their own shape (`legacy._V1File`), converts them (`upgrade_v1`) and
 reads the result as a /2 document.  A file of a newer schema is refused, saying so.
+
+The rule: human input through runner/scenario/typed.py (every problem at once, with
+did-you-mean and values written in units, within the validate budget), machine records
+through a compiled engine: these records are pydantic's, validated and written by
+pydantic-core (Rust) without a Python call per value (but one `model_post_init` per record).
+
+Why pydantic and not msgspec (issue 39, measured on a 2-CPU VM under the shared lock, best of
+3 to 7).  A prototype of the heaviest records in msgspec (ThreadResult with ThreadFigures, its
+spreads and stored settings; PsRow; Verdict; a cell's shell) against these, on a results.json
+of 1,000 cells (17 MB, 10,000 threads: bench/render.py's `big_matrix`):
+
+| | pydantic | msgspec |
+|---|---|---|
+| decode 10,000 threads (strict, settings into plan.Settings) | 600 ms | 71 ms (8.5x) |
+| decode the file (msgspec: threads, ps rows, verdicts; the rest skipped) | 1,100 ms | 104 ms |
+| encode 10,000 threads | 102 ms | 13 ms (8x) |
+| build 10,000 ThreadResult from Python values | 110 ms | 26 ms (no check at all) |
+| read 4 attributes of 10,000 threads | 7 ms | 1.4 ms |
+| import: pydantic and these records / msgspec and the prototype | ~143 ms | ~16 ms |
+
+`read.load` of that file takes 2.0 s, of which pydantic's validation is 0.97 s (the rest is
+read.py's own checks of the text), so a port would load it about 1.8x faster, not 8x; saving
+it takes 0.2 s; bench/render.py's reports spend their time in formatting, templates and plots,
+not in attribute reads; and only commands that read or write results import pydantic
+(`runner validate` does not: tests/test_report.py).  msgspec wins on speed, clearly, but a
+port would lose what these records do for the tool: every problem of a file at once
+(msgspec stops at the first), records checked as the run builds and changes them (a Struct's
+`__init__` and assignments check nothing), computed `key` and `cls` written, StoredSettings'
+union of a run's Settings and a file's dict, and results.schema.json from the same
+declarations; and it is larger than the step that measured it (these 900 lines,
+threadfigures, histogram, legacy's /1 shapes, read's problems, 275 `Field` declarations).
+So pydantic stays, until a bench target (a load, a run's start) misses because of it.
 """
 
 from __future__ import annotations
