@@ -17,7 +17,8 @@ import pytest
 from kernelrun import needs_tracing
 
 from runner.run import kernel, samples, tracing
-from runner.run.spawn import Worker, _gate_late, _read_done, work_tuple
+from runner.run.spawn import Worker, _gate_late, _read_done
+from runner.run.wiring import work_tuple
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.scenario.model import SleepWork
 
