@@ -21,7 +21,8 @@ import pytest
 
 from runner.run import samples, spawn
 from runner.run.samples import Layout
-from runner.run.spawn import Worker, _CellRun, _gate_late, _load_late, _start_load, start_margin
+from runner.run.spawn import _CellRun, _gate_late, _load_late, _start_load, start_margin
+from runner.run.workers import Worker
 
 _WORK_START_AT = 112  # a slot header's work_start_ns, as the native core lays it out (after loops and missed)
 _GATE_AT = 464  # and gate_ns, when the thread passed the start gate

@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 from test_cell_end import _cell_run
 
-from runner.run import kernel, spawn
+from runner.run import kernel, spawn, workers
 from runner.run.child import signal_name
-from runner.run.spawn import _Exits, _kill_group_or_process
+from runner.run.workers import Exits, kill_group_or_process
 
 
 @contextlib.contextmanager
@@ -49,17 +49,17 @@ def test_a_group_the_runner_may_not_signal_falls_back_to_its_leader(monkeypatch:
     def refused(pid: int, sig: int) -> None:
         raise PermissionError(1, "Operation not permitted")
 
-    monkeypatch.setattr(spawn.os, "killpg", refused)
-    monkeypatch.setattr(spawn.os, "kill", lambda pid, sig: sent.append((pid, sig)))
-    _kill_group_or_process(4242, signal.SIGTERM)
+    monkeypatch.setattr(workers.os, "killpg", refused)
+    monkeypatch.setattr(workers.os, "kill", lambda pid, sig: sent.append((pid, sig)))
+    kill_group_or_process(4242, signal.SIGTERM)
     assert sent == [(4242, signal.SIGTERM)]
-    monkeypatch.setattr(spawn.os, "kill", refused)
-    _kill_group_or_process(4242, signal.SIGTERM)  # refused there too: left to the command's cgroup, never raised
+    monkeypatch.setattr(workers.os, "kill", refused)
+    kill_group_or_process(4242, signal.SIGTERM)  # refused there too: left to the command's cgroup, never raised
 
 
 def test_the_end_of_the_load_spares_a_command_reaped_already(monkeypatch: pytest.MonkeyPatch) -> None:
     signalled: list[int] = []
-    monkeypatch.setattr(spawn, "_kill_group_or_process", lambda pid, sig=signal.SIGKILL: signalled.append(pid))
+    monkeypatch.setattr(spawn, "kill_group_or_process", lambda pid, sig=signal.SIGKILL: signalled.append(pid))
     done = subprocess.Popen([sys.executable, "-c", "pass"])
     done.wait()  # its pid may be another process's by now
     with _sleeping(start_new_session=True) as running:
@@ -70,7 +70,7 @@ def test_the_end_of_the_load_spares_a_command_reaped_already(monkeypatch: pytest
 def test_a_dead_zygotes_socket_stops_waking_the_loop() -> None:
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
     with _sleeping() as sleeper:
-        exits = _Exits([sleeper.pid])
+        exits = Exits([sleeper.pid])
         try:
             exits.zygote_fd = ours.fileno()
             exits.poller.register(ours.fileno(), select.POLLIN)

@@ -11,20 +11,15 @@ what the kernel and the native core recorded, and `evaluate` makes results of it
 from __future__ import annotations
 
 import errno
-import json
 import mmap
 import os
-import select
-import selectors
 import shutil
 import signal
 import struct
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Mapping
 from contextlib import AbstractContextManager, suppress
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any, Optional
 
@@ -32,24 +27,38 @@ from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
 from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
-from runner.run.child import child_env, python_module, signal_name
-from runner.run.external import Monitor, ProgramRun, wait_status
+from runner.run.child import signal_name
+from runner.run.external import Monitor, ProgramRun
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.output import FINISH_WAIT_S, CappedOutput
 from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
 from runner.run.programs import settings_of
-from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ReadyReport, ResourceState, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ResourceState, Timeline
 from runner.run.traced import Task
-from runner.run.wiring import hog_specs, lock_slots, process_spec, resource_specs, worker_layout
-from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
-from runner.safefs import make_folders, open_write
+from runner.run.wiring import process_spec, resource_specs, worker_layout
+from runner.run.workers import (
+    READY_TIMEOUT_S,
+    Exits,
+    Worker,
+    drain,
+    exit_code,
+    exited_within,
+    follow_lines,
+    hog_workers,
+    kill_group_or_process,
+    read_done,
+    ready_report,
+    unmap,
+    wait_ready,
+)
+from runner.run.zygote import Zygote
+from runner.safefs import make_folders
 from runner.scenario.limits import WATCHDOG_PRIORITY
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import (
     Pending,
-    PeriodicWork,
     ResourceKind,
     SamplesMode,
     Scenario,
@@ -57,7 +66,6 @@ from runner.scenario.model import (
 )
 from runner.scenario.plan import PlannedThread, Settings, plan_scenario
 
-READY_TIMEOUT_S = 20.0
 # Background commands (stress-ng and the like) run this long before the measured start: how long
 # they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
 # (`_start_load`), they spin within a fraction of a millisecond.
@@ -173,186 +181,6 @@ class KernelBackend:
         self.guard.close()
 
 
-DRAIN_CHUNK = 4096  # samples drained and written at a time: the runner's memory does not follow how far it fell behind
-
-
-@dataclass
-class Worker:
-    """A worker process and what the runner knows of it."""
-
-    label: str
-    spec: dict[str, Any]
-    layout: samples.Layout
-    planned: list[PlannedThread]
-    measured: bool
-    log_path: str
-    popen: Optional[subprocess.Popen[str] | ZygoteChild] = None
-    ready: Optional[dict[str, Any]] = None
-    done: bool = False
-    buffer: Optional[samples.Buffer] = None
-    seen: list[int] = field(default_factory=list)
-    written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
-
-    @property
-    def pid(self) -> int:
-        assert self.popen is not None
-        return self.popen.pid
-
-    @property
-    def nslots(self) -> int:
-        return self.layout.nthreads
-
-    def start(self, guard: Guard, resources_fd: Optional[int] = None, zygote: Optional[Zygote] = None) -> None:
-        """Start the worker (forked by the zygote when there is one that serves) and send it its spec."""
-        fd = samples.create(self.spec["comm"], self.layout)
-        passed = [fd] if resources_fd is None else [fd, resources_fd]
-        try:
-            self.buffer = samples.Buffer(fd, self.layout)  # the mapping outlives the descriptor, and the worker
-            self.written = [0] * self.nslots
-            forked = self._fork(zygote, passed) if zygote is not None else None
-            if forked is not None:
-                self.popen = forked
-                child_fds = list(range(3, 3 + len(passed)))  # where a forked worker finds them
-            else:
-                self.popen = self._popen(passed)
-                child_fds = passed
-        finally:
-            os.close(fd)
-        self.spec["samples_fd"] = child_fds[0]
-        self.spec["resources_fd"] = child_fds[1] if resources_fd is not None else None
-        guard.watch(self.popen.pid)
-        assert self.popen.stdin is not None
-        self.popen.stdin.write(json.dumps(self.spec) + "\n")
-        self.popen.stdin.flush()
-
-    def _popen(self, passed: list[int]) -> subprocess.Popen[str]:
-        """A fresh interpreter running the worker: the way without a zygote."""
-        with os.fdopen(open_write(self.log_path, mode=0o644), "w") as log:  # the worker holds its own copies of the descriptors
-            return subprocess.Popen(
-                python_module("runner.run.worker"),
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=log,
-                text=True,
-                bufsize=1,
-                start_new_session=True,
-                close_fds=True,
-                pass_fds=passed,
-                cwd="/",
-                env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
-            )
-
-    def _fork(self, zygote: Zygote, passed: list[int]) -> Optional[ZygoteChild]:
-        """The worker forked by the zygote; None when the zygote does not serve (the caller starts one itself)."""
-        if zygote.sock is None:
-            return None
-        opened: list[int] = []  # every descriptor made here, closed on any failure
-        try:
-            opened.append(open_write(self.log_path, mode=0o644))  # never through a link
-            opened += [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
-            log, stdin_r, stdin_w, stdout_r, stdout_w = opened
-            pid = zygote.spawn(stdin_r, stdout_w, log, passed)
-        except BaseException as error:
-            for each in opened:
-                os.close(each)
-            if isinstance(error, ZygoteError):
-                return None
-            raise
-        for each in (log, stdin_r, stdout_w):  # the child holds its own copies now
-            os.close(each)
-        return ZygoteChild(zygote, pid, os.fdopen(stdin_w, "w", buffering=1), os.fdopen(stdout_r))
-
-    def hang_up(self) -> None:
-        """Cancel its start gate and close its input: a worker whose cell never started leaves at once, its threads unworked.
-
-        A stop signal would not do: at the gate, the native core only notes it, and the worker
-        waited out the grace period for its SIGKILL.  Its input's end reaches one still reading its spec.
-        """
-        if self.buffer is not None:
-            with suppress(ValueError):  # unmapped already
-                self.buffer.cancel_gate()
-        if self.popen is not None and self.popen.stdin is not None:
-            with suppress(OSError):
-                self.popen.stdin.close()
-
-    def signal(self, sig: int) -> None:
-        """Signal the worker's process group, or the worker alone while it has none yet (forked, not yet setsid()).
-
-        A stop that came in that moment once missed the worker, and the cell waited out the 2 s grace.
-        """
-        if self.popen is not None and exit_code(self.popen) is None:
-            _kill_group_or_process(self.popen.pid, sig)
-
-    def exit_reason(self) -> Optional[str]:
-        """Why the worker ended badly, or None if it exited cleanly."""
-        assert self.popen is not None
-        code = self.popen.returncode
-        if code is None or (code == 0 and self.done):
-            return None
-        if code < 0:
-            return f"{self.label} (pid {self.pid}) was killed by {signal_name(-code)}"
-        tail = _tail(self.log_path)
-        return f"{self.label} (pid {self.pid}) exited with code {code}" + (f": {tail}" if tail else "")
-
-
-def _unmap(maps: list[samples.Buffer | mmap.mmap]) -> None:
-    for m in maps:
-        m.close()
-
-
-def _tail(path: str, lines: int = 3) -> str:
-    try:
-        with open(path, encoding="utf-8", errors="replace") as handle:
-            text = handle.read().strip().splitlines()
-    except OSError:
-        return ""
-    return " | ".join(text[-lines:])
-
-
-def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
-    """Background hogs as workers: one spinning process each, or one process of spinning threads."""
-    specs = hog_specs(scenario, kernel.online_cpus())
-    return [Worker(h.label, h.spec, h.layout, [], False, os.path.join(folder, h.log_name)) for h in specs]
-
-
-def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable[[], bool]) -> Optional[str]:
-    """Read each worker's ready line; return a reason on failure; raise Interrupted when asked to stop."""
-    sel = selectors.DefaultSelector()
-    pending: dict[Any, Worker] = {}
-    for w in workers:
-        assert w.popen is not None and w.popen.stdout is not None
-        sel.register(w.popen.stdout, selectors.EVENT_READ, w)
-        pending[w.popen.stdout] = w
-    try:
-        while pending:
-            if stop_requested():
-                raise Interrupted()
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
-            for key, _ in sel.select(timeout=min(left, 0.5)):
-                w = key.data
-                line = key.fileobj.readline()  # type: ignore[union-attr]
-                sel.unregister(key.fileobj)
-                del pending[key.fileobj]
-                if not line:
-                    try:
-                        w.popen.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        return f"{w.label} (pid {w.pid}) closed its output before getting ready, and did not exit"
-                    return w.exit_reason() or f"{w.label} closed its output before getting ready"
-                try:
-                    msg = json.loads(line)
-                except ValueError:
-                    return f"{w.label} said {line.strip()[:80]!r} where its ready report was expected"
-                if not msg.get("ready"):
-                    return f"{w.label}: {msg.get('failed', 'could not get ready')}"
-                w.ready = msg
-    finally:
-        sel.close()
-    return None
-
-
 LoadGroup = list[tuple[Worker, int]]  # the hog threads (worker, slot) woken on one CPU, or one left unpinned
 
 
@@ -461,63 +289,6 @@ def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -
     return groups
 
 
-def _read_done(w: Worker) -> None:
-    assert w.popen is not None and w.popen.stdout is not None
-    try:
-        for line in w.popen.stdout:
-            message = json.loads(line)
-            if message.get("done"):
-                w.done = True
-    except (ValueError, OSError):
-        pass
-
-
-def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
-    """Print new callbacks in the ros2-realtime-examples' log form (those still in the ring: --follow shows, the files keep)."""
-    assert w.buffer is not None
-    cap = w.layout.capacity
-    for t in w.planned:
-        if not t.has_callbacks or not cap:
-            continue
-        written = w.buffer.written(t.index)
-        w.seen[t.index] = max(w.seen[t.index], written - cap + 1)
-        while w.seen[t.index] < written:
-            s = w.buffer.sample(t.index, w.seen[t.index])
-            w.seen[t.index] += 1
-            stamp = s.wake_ns + epoch_offset_ns
-            when = f"[{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]"
-            emit(f"[{'WARN' if s.nivcsw else 'INFO'}] {when}: Involuntary context switches: '{s.nivcsw}'")
-            if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
-                lvl = "WARN" if s.minflt or s.majflt else "INFO"
-                emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
-
-
-def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool, holders: Mapping[int, str]) -> None:
-    """Hand the samples written since the last call to the session's sink (the samples file), thread by thread.
-
-    With `samples: last N` the ring is the N callbacks to keep: it is read once, at the end.
-    `holders` names the cell's threads by gid, for who held a mutex an activation waited for.
-    """
-    if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
-        return
-    for t in w.planned:
-        if not t.has_callbacks:
-            continue
-        for _ in range(w.layout.capacity // DRAIN_CHUNK + 1):  # a ring at most: a writer ahead of the drain waits for the next tick
-            taken = w.buffer.drain(t.index, stopped=final, most=DRAIN_CHUNK)
-            if taken:
-                options.samples.write(
-                    thread_key(t.process, t.instance, t.index, t.name),
-                    int(w.ready["tids"][t.index]) if w.ready else 0,
-                    taken,
-                    lock_slots(t.work),
-                    holders,
-                )
-                w.written[t.index] += len(taken)
-            if len(taken) < DRAIN_CHUNK:
-                break
-
-
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend) -> RawCell:
     """Run one cell's processes and return what they left behind, interrupted or not.
 
@@ -568,7 +339,7 @@ class _CellRun:
             spec = process_spec(threads, self.scenario, layout, gids, every)
             self.workers.append(Worker(f"process {proc}[{inst}]", spec, layout, threads, True, os.path.join(folder, f"{proc}.{inst}.log")))
         self.resources: Optional[mmap.mmap] = None
-        self.hogs = _hog_workers(self.scenario, folder)
+        self.hogs = hog_workers(self.scenario, folder)
         self.programs = [ProgramRun(spec, folder, start, kernel.online_cpus()) for spec in self.scenario.programs]
         self.monitor: Optional[Monitor] = None
         self.tracer: Optional[tracing.Tracer] = None
@@ -603,7 +374,7 @@ class _CellRun:
             if res_fd is not None:
                 os.close(res_fd)
         self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
-        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
+        self.reason = wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
         if self.reason:
             return
         every = kernel.online_cpus()
@@ -723,7 +494,7 @@ class _CellRun:
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
         self.monitor.window_start = t0
         self.monitor.start()
-        exits = _Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
+        exits = Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
         try:
             while self._running(t_end):
                 exits.wait(self._next_wait(t_end))
@@ -738,8 +509,8 @@ class _CellRun:
         self._stop_trace()
         for w in workers:
             if options.follow:
-                _follow_lines(w, epoch_offset, options.follow)
-            _read_done(w)
+                follow_lines(w, epoch_offset, options.follow)
+            read_done(w)
 
     def _next_wait(self, t_end: int) -> float:
         """Seconds the supervising loop sleeps at most: a tick, and while the end is awaited, up to the end, then briefly.
@@ -779,7 +550,7 @@ class _CellRun:
             h.signal(signal.SIGTERM)
         for c in self.commands:
             if c.returncode is None:  # one reaped already: its pid may be another process's by now
-                _kill_group_or_process(c.pid, signal.SIGTERM)
+                kill_group_or_process(c.pid, signal.SIGTERM)
 
     def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
         """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
@@ -792,8 +563,8 @@ class _CellRun:
         self._watch_for_incidents(t0, t_end)
         for w in workers:
             if options.follow:
-                _follow_lines(w, epoch_offset, options.follow)
-            _drain(w, options, self.last_only, final=False, holders=self.keys)
+                follow_lines(w, epoch_offset, options.follow)
+            drain(w, options, self.last_only, final=False, holders=self.keys)
         if options.progress:
             done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
             left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
@@ -831,12 +602,12 @@ class _CellRun:
             w.buffer = None
         self.resources = None
         if wait:
-            _unmap(maps)
+            unmap(maps)
         elif maps:
             try:
-                threading.Thread(target=_unmap, args=(maps,), name="unmap").start()
+                threading.Thread(target=unmap, args=(maps,), name="unmap").start()
             except RuntimeError:  # no thread to be had: unmapped here, later than it could have been
-                _unmap(maps)
+                unmap(maps)
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -886,9 +657,9 @@ class _CellRun:
         stop_by = time.monotonic() + STOP_GRACE_S
         processes = [w.popen for w in self.workers + self.hogs if w.popen] + self.commands
         for proc in processes:
-            if not _exited_within(proc, max(0.05, stop_by - time.monotonic())):
-                _kill_group_or_process(proc.pid)
-                _exited_within(proc, None)
+            if not exited_within(proc, max(0.05, stop_by - time.monotonic())):
+                kill_group_or_process(proc.pid)
+                exited_within(proc, None)
             if isinstance(proc, subprocess.Popen) and proc.returncode is None:  # unreaped: the group is still its own
                 with suppress(ProcessLookupError, PermissionError):
                     os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
@@ -918,9 +689,9 @@ class _CellRun:
         for w in self.workers:
             if w.buffer is None:
                 continue
-            _drain(w, self.options, self.last_only, final=True, holders=self.keys)
+            drain(w, self.options, self.last_only, final=True, holders=self.keys)
             slots = w.buffer.slots()
-            report = _ready_report(w)
+            report = ready_report(w)
             for t, slot in zip(w.planned, slots):
                 errors = report.errors(t.index) if report else ApplyErrors()
                 applied = self.applied.get(id(t))
@@ -984,107 +755,6 @@ class _CellRun:
         return tuple(out)
 
 
-class _Exits:
-    """The cell's processes as pidfds: the supervising loop wakes the moment one exits, not at its next tick.
-
-    A worker the zygote forked is reaped by the zygote, which then says so on its socket:
-    the loop wakes on that message too, since the worker's exit is known only then.
-    Without pidfds (before Linux 5.3) it waits out the tick, as a sleep would.
-    """
-
-    def __init__(self, pids: list[int], zygote: Optional[Zygote] = None) -> None:
-        self.poller = select.poll()
-        self.fds: list[int] = []
-        self.zygote_fd = -1
-        for pid in pids:
-            try:
-                fd = os.pidfd_open(pid)
-            except OSError:  # gone already (its exit is seen by the caller's poll), or no pidfds
-                continue
-            self.fds.append(fd)
-            self.poller.register(fd, select.POLLIN)
-        if zygote is not None and zygote.sock is not None and self.fds:
-            self.zygote_fd = zygote.sock.fileno()
-            self.poller.register(self.zygote_fd, select.POLLIN)
-
-    def wait(self, timeout_s: float) -> None:
-        """Until a process exits or `timeout_s` passes; an exited one no longer wakes it."""
-        if not self.fds:
-            time.sleep(timeout_s)
-            return
-        for fd, events in self.poller.poll(timeout_s * 1000):
-            if fd != self.zygote_fd:  # the zygote's messages are taken by the caller's poll of its workers
-                self.poller.unregister(fd)
-            elif events & (select.POLLHUP | select.POLLERR | select.POLLNVAL):  # the zygote is gone: it would wake every poll
-                self.poller.unregister(fd)
-                self.zygote_fd = -1
-
-    def close(self) -> None:
-        for fd in self.fds:
-            os.close(fd)
-        self.fds = []
-
-
-def _ready_report(w: Worker) -> Optional[ReadyReport]:
-    """The worker's ready report, typed; None when it never got ready (or sent something else)."""
-    if w.ready is None:
-        return None
-    try:
-        return ReadyReport.parse(w.ready, w.nslots)
-    except ValueError:
-        return None
-
-
-def exit_code(proc: subprocess.Popen[Any] | ZygoteChild) -> Optional[int]:
-    """Its exit code once it has exited (negative: the signal that ended it), None while it runs.
-
-    A child of the runner's own (subprocess.Popen) is left unreaped: its zombie keeps its PID, and
-    so the number of the process group it leads, from every other process until `Cell.stop` has
-    signalled that group for the last time and reaps it (Popen.poll reaped it at once, and the
-    SIGKILL of its group at the cell's end then went to whichever process had been given the
-    number).  A worker the zygote forked is the zygote's to reap, which kills its group first.
-    """
-    if not isinstance(proc, subprocess.Popen) or proc.returncode is not None:  # a zygote's worker, or reaped
-        return proc.poll()
-    try:
-        info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
-    except ChildProcessError:  # reaped by someone else after all: Popen knows its code
-        return proc.poll()
-    return None if info is None else os.waitstatus_to_exitcode(wait_status(info))
-
-
-def _exited_within(proc: subprocess.Popen[Any] | ZygoteChild, timeout: Optional[float]) -> bool:
-    """Wait until `proc` has exited (left unreaped, as `exit_code` leaves it) or `timeout` seconds (None: no limit) passed."""
-    if not isinstance(proc, subprocess.Popen):
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            return False
-        return True
-    until = None if timeout is None else time.monotonic() + timeout
-    while exit_code(proc) is None:
-        if until is not None and time.monotonic() >= until:
-            return False
-        time.sleep(0.002)
-    return True
-
-
-def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:
-    """Signal the process group `pid` leads, or the process alone while it leads none yet (forked, before its setsid()).
-
-    A group the runner may signal none of (a command run through sudo) falls back to its leader, and
-    what the kernel refuses there too is left to the cgroup the command was started in.
-    """
-    try:
-        os.killpg(pid, sig)
-        return
-    except (ProcessLookupError, PermissionError):
-        pass
-    with suppress(ProcessLookupError, PermissionError):
-        os.kill(pid, sig)
-
-
-# The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.
 _HELD_SHIM = ("/bin/sh", "-c", 'echo 0 2>/dev/null >"$0/cgroup.procs"; exec "$@"')
 
 
