@@ -17,7 +17,7 @@ import pytest
 from kernelrun import needs_tracing
 
 from runner.run import kernel, samples, tracing
-from runner.run.spawn import _gate_late
+from runner.run.gate import gate_late
 from runner.run.wiring import work_tuple
 from runner.run.workers import Worker, read_done
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
@@ -98,7 +98,7 @@ def test_a_forked_worker_starts_as_a_fresh_one_would(tmp_path, zygote):
         assert w.buffer is not None and w.buffer.open_gate(start, start + 40_000_000)
         assert w.popen.wait(timeout=10) == 0
         read_done(w)
-        assert w.done and _gate_late(w.buffer, start) < 0, "released before the common start: no lateness to report"
+        assert w.done and gate_late(w.buffer, start) < 0, "released before the common start: no lateness to report"
         assert w.exit_reason() is None
     finally:
         w.signal(signal.SIGKILL)

@@ -29,6 +29,7 @@ from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import signal_name
 from runner.run.external import Monitor, ProgramRun
+from runner.run.gate import LOAD_LEAD_S, LoadGroup, await_gates, gate_late, load_late, start_load, start_margin
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
 from runner.run.output import FINISH_WAIT_S, CappedOutput
@@ -57,48 +58,16 @@ from runner.run.zygote import Zygote
 from runner.safefs import make_folders
 from runner.scenario.limits import WATCHDOG_PRIORITY
 from runner.scenario.loader import ResolvedCell
-from runner.scenario.model import (
-    Pending,
-    ResourceKind,
-    SamplesMode,
-    Scenario,
-    Until,
-)
+from runner.scenario.model import Pending, ResourceKind, SamplesMode, Scenario, Until
 from runner.scenario.plan import PlannedThread, Settings, plan_scenario
 
 # Background commands (stress-ng and the like) run this long before the measured start: how long
 # they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
-# (`_start_load`), they spin within a fraction of a millisecond.
+# (`gate.start_load`), they spin within a fraction of a millisecond.
 COMMAND_HEAD_START_S = 0.1
 # A background command's output (command-N.log) is kept up to this, the rest counted and dropped: a load generator
 # that logs at full speed for an hour would otherwise fill the disk the results go to (programs: output_limit).
 COMMAND_OUTPUT_LIMIT = 64 * 1024 * 1024
-
-
-GATE_POLL_S = 0.0001
-LOAD_LEAD_S = 0.001  # the load starts this long before the common start at the latest
-
-
-def start_margin(processes: int, threads: int) -> float:
-    """Seconds from opening the workers' start gates to the common start: time for every thread to pass its gate, then
-    for the hogs' load to begin.
-
-    `processes` counts the workers, `threads` their slots.  Each thread waits at the gate in its
-    shared buffer itself, at its own policy, and one futex wake per worker releases them all:
-    measured on the 2-CPU VM (policy_matrix cells of 0.5 s, one worker of ten threads and two
-    hogs), every thread passed its gate within 0.1 ms of its opening, and the hogs, woken one per
-    CPU once they had, began their load 0.1 to 0.4 ms after; 1,024 threads in 16 processes passed
-    theirs within 10 ms.  A SCHED_OTHER thread woken onto a CPU that runs something else waits
-    for that task's slice or the tick (4 ms here; this kernel does not preempt): beside a busy
-    loop of another program, a hog began its load after the start in 14 of 120 cells with 4 ms,
-    6 of 160 with 5 ms and 7 of 200 with 6 ms (the old 10 ms: none of 60); none of 120 on a quiet
-    VM with 5 ms.  So 5 ms, 0.3 ms a process and 12 µs a thread.  (Before the gate was in shared memory, a
-    Python thread of each worker read a `go` line and released the others: up to 8 ms behind the
-    hogs on this VM, and the margin was 10 ms, 0.5 ms a process and 12 µs a thread.)  A worker
-    whose last thread passed its gate after the start is said in the cell's warnings, as is a hog
-    whose load began after it (their slots say when).
-    """
-    return min(0.060, 0.005 + 0.0003 * processes + 0.000012 * threads)
 
 
 STOP_GRACE_S = 2.0
@@ -179,114 +148,6 @@ class KernelBackend:
         self.traces.close()
         self.watchdog.close()
         self.guard.close()
-
-
-LoadGroup = list[tuple[Worker, int]]  # the hog threads (worker, slot) woken on one CPU, or one left unpinned
-
-
-def _group_began(group: LoadGroup) -> list[tuple[int, Worker]]:
-    """When each thread of a load group began its work, with its hog, for those that did."""
-    return [(t, h) for h, index in group if h.buffer is not None and (t := h.buffer.work_started()[index])]
-
-
-def _load_late(groups: list[LoadGroup], t0: Optional[int]) -> list[tuple[str, int]]:
-    """The CPUs whose load began after the common start `t0`: (the hog that began first there, how late), from their slots.
-
-    A CPU is loaded once one of the hogs woken on it runs: more hogs than CPUs share them, and
-    one waiting for its turn beside a hog that spins is no CPU without load.  A group none of
-    whose threads ever began is a dead hog, said elsewhere."""
-    out = []
-    for group in groups:
-        began = _group_began(group)
-        if began and t0:
-            first, hog = min(began, key=lambda each: each[0])
-            if first > t0:
-                out.append((hog.label, first - t0))
-    return out
-
-
-def _gate_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
-    """How long after the common start `t0` a worker's last thread passed the start gate (ns; 0 or less: in time or never started)."""
-    passed = [t for t in buffer.gate_passed() if t]
-    return max(passed) - t0 if passed and t0 else 0
-
-
-def _await_gates(workers: list[Worker], until_ns: int) -> None:
-    """Return once every thread of the workers that starts with the cell passed its start gate, or at `until_ns`.
-
-    The load starts after: a thread at SCHED_OTHER woken at its gate while the hogs spin waits
-    for a CPU like any other (4 ms and more on the 2-CPU VM), and would start late for it.  A
-    thread spawned mid-run (`spawned: true`) is at no gate, and a worker that exited passes none:
-    neither is waited for (waiting gave the hogs 1 ms to begin instead of the margin's 5)."""
-    pending = [w for w in workers if w.buffer is not None]
-    while pending and time.monotonic_ns() < until_ns:
-        pending = [w for w in pending if not _gates_passed(w)]
-        if pending:
-            time.sleep(GATE_POLL_S)
-
-
-def _gates_passed(w: Worker) -> bool:
-    """Whether every thread of `w` that starts with the cell passed its gate, or `w` is gone."""
-    assert w.buffer is not None
-    if w.popen is not None and exit_code(w.popen) is not None:
-        return True
-    at_start = {t.index for t in w.planned if not t.spawned}
-    return all(passed for i, passed in enumerate(w.buffer.gate_passed()) if i in at_start)
-
-
-def _await_load(groups: list[LoadGroup], until_ns: int) -> None:
-    """Return once a hog began its load on every CPU the hogs were woken on, or at `until_ns`; asleep meanwhile, so that
-    a hog woken on the runner's own CPU has it (the runner going on with its own work held one back by 2 ms)."""
-    pending = groups
-    while pending and time.monotonic_ns() < until_ns:
-        pending = [g for g in pending if not _group_began(g)]
-        if pending:
-            time.sleep(GATE_POLL_S)
-
-
-def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -> list[LoadGroup]:
-    """Open the hogs' gates, each spinning thread woken on the CPU it may use that has the fewest so far, then given its
-    own CPUs back once a hog runs on each: the load is spread at once.  Returns the threads by the CPU they were woken on.
-
-    Woken together, two hogs of the 2-CPU VM were put on one CPU and waited for the load balancer,
-    2 to 5 ms and once 41 ms (README, "The start margin follows the threads"); woken one per CPU,
-    they began within 0.4 ms of their gates on a quiet VM.  Where they go after is the
-    scheduler's to say, as before."""
-    by_cpu: dict[int, LoadGroup] = {}
-    alone: list[LoadGroup] = []
-    restore: list[tuple[int, set[int]]] = []
-    threads: list[tuple[Worker, int, int, set[int]]] = []  # (hog, slot, tid, the CPUs it may use)
-    for h in hogs:
-        tids = list((h.ready or {}).get("tids", []))
-        spinning = range(1, len(tids)) if h.spec.get("threads") else range(len(tids))  # a hog of threads has a sleeping main
-        for index in spinning:
-            try:
-                threads.append((h, index, tids[index], os.sched_getaffinity(tids[index])))
-            except OSError:  # gone: left where the scheduler put it
-                alone.append([(h, index)])
-    # The threads with the fewest CPUs choose first: a hog pinned to CPU 0 after one that may go anywhere would
-    # otherwise share CPU 0 with it, and leave CPU 1 without load until the balancer moved one.
-    threads.sort(key=lambda thread: len(thread[3]))
-    try:
-        for h, index, tid, allowed in threads:
-            cpu = min(sorted(allowed), key=lambda c: len(by_cpu.get(c, [])))
-            try:
-                os.sched_setaffinity(tid, {cpu})
-            except (OSError, ValueError):  # gone, or a CPU it may no longer use
-                alone.append([(h, index)])
-                continue
-            restore.append((tid, allowed))
-            by_cpu.setdefault(cpu, []).append((h, index))
-        for h in hogs:
-            assert h.buffer is not None
-            h.buffer.open_gate(start_ns, end_ns)
-        groups = list(by_cpu.values()) + alone
-        _await_load(groups, until_ns)
-    finally:
-        for tid, allowed in restore:
-            with suppress(OSError):
-                os.sched_setaffinity(tid, allowed)
-    return groups
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend) -> RawCell:
@@ -486,9 +347,9 @@ class _CellRun:
             w.buffer.open_gate(t0, t_end)
             w.seen = [0] * w.nslots
         if hogs:
-            _await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
+            await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
             # the cell's end stops the load (_end_load) once no measured thread works
-            self.load_groups = _start_load(hogs, time.monotonic_ns(), deadline, t0)
+            self.load_groups = start_load(hogs, time.monotonic_ns(), deadline, t0)
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
@@ -733,8 +594,8 @@ class _CellRun:
             tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
             self.trace,
             dict(self.trace_tasks),
-            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := _gate_late(w.buffer, self.t0)) > 0),
-            tuple(_load_late(self.load_groups, self.t0)),
+            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := gate_late(w.buffer, self.t0)) > 0),
+            tuple(load_late(self.load_groups, self.t0)),
         )
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
