@@ -10,10 +10,8 @@ what the kernel and the native core recorded, and `evaluate` makes results of it
 
 from __future__ import annotations
 
-import errno
 import mmap
 import os
-import shutil
 import signal
 import struct
 import subprocess
@@ -21,22 +19,23 @@ import threading
 import time
 from contextlib import AbstractContextManager, suppress
 from datetime import datetime, timezone
-from typing import Any, Optional
+from typing import Optional
 
 from runner.results.document import DmaLatency, MachineInfo, thread_key
 from runner.results.pstable import ThreadRow
-from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
+from runner.run import _probe, dmalatency, kernel, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
 from runner.run.child import signal_name
+from runner.run.commands import COMMAND_HEAD_START_S, BackgroundCommands
 from runner.run.external import Monitor, ProgramRun
 from runner.run.gate import LOAD_LEAD_S, LoadGroup, await_gates, gate_late, load_late, start_load, start_margin
 from runner.run.guard import Guard
 from runner.run.machine import machine_info
-from runner.run.output import FINISH_WAIT_S, CappedOutput
+from runner.run.output import FINISH_WAIT_S
 from runner.run.preflight import Permissions
 from runner.run.preflight import check as preflight_check
 from runner.run.programs import settings_of
-from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ResourceState, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ResourceState, Timeline
 from runner.run.traced import Task
 from runner.run.wiring import process_spec, resource_specs, worker_layout
 from runner.run.workers import (
@@ -60,15 +59,6 @@ from runner.scenario.limits import WATCHDOG_PRIORITY
 from runner.scenario.loader import ResolvedCell
 from runner.scenario.model import Pending, ResourceKind, SamplesMode, Scenario, Until
 from runner.scenario.plan import PlannedThread, Settings, plan_scenario
-
-# Background commands (stress-ng and the like) run this long before the measured start: how long
-# they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
-# (`gate.start_load`), they spin within a fraction of a millisecond.
-COMMAND_HEAD_START_S = 0.1
-# A background command's output (command-N.log) is kept up to this, the rest counted and dropped: a load generator
-# that logs at full speed for an hour would otherwise fill the disk the results go to (programs: output_limit).
-COMMAND_OUTPUT_LIMIT = 64 * 1024 * 1024
-
 
 STOP_GRACE_S = 2.0
 
@@ -207,11 +197,8 @@ class _CellRun:
         self.trace: Optional[tracing.TraceData | tracing.TraceUnavailable] = None
         self.trace_tasks: dict[int, Task] = {}
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
-        self.commands: list[subprocess.Popen[bytes]] = []
-        self.command_groups: list[memcg.MemoryCgroup] = []  # the cgroups holding the background commands
+        self.commands = BackgroundCommands(folder, self.guard)
         self.load_groups: list[LoadGroup] = []  # the hogs' spinning threads by the CPU they were woken on
-        self.command_outputs: list[CappedOutput] = []  # each command's output, into its command-N.log
-        self.command_counts: list[OutputCount] = []  # what each wrote, once the cell stopped them
         self.table: list[ThreadRow] = []
         self.applied: dict[int, Optional[Settings]] = {}
         self.reason = ""
@@ -250,26 +237,7 @@ class _CellRun:
                     self.applied[id(t)] = None
         if self.scenario.background.commands or self.programs:
             self.guard.ready()  # what they start only the guard, or its second, stops should the runner die
-        for cmd in self.scenario.background.commands:
-            try:
-                output = CappedOutput(os.path.join(self.folder, f"command-{len(self.commands)}.log"), COMMAND_OUTPUT_LIMIT)
-            except OSError as exc:
-                self.reason = f"background command {cmd.argv[0]!r} could not start: its log: {exc.strerror} ({exc.filename})"
-                break
-            try:
-                argv = self._held(cmd.argv, len(self.commands))
-                command = subprocess.Popen(
-                    argv, stdout=output.write_fd, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
-                )
-            except OSError as exc:
-                output.finish(0)
-                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
-                break
-            finally:
-                output.close_write_end()  # the command holds its own copy: its exit ends the pipe
-            self.commands.append(command)
-            self.command_outputs.append(output)
-            self.guard.watch(command.pid)
+        self.reason = self.commands.start(self.scenario.background.commands)
         for p in self.programs:
             if not self.reason:
                 p.launch(self.guard)
@@ -281,26 +249,6 @@ class _CellRun:
                 self.trace = opened
             else:
                 self.tracer = opened
-
-    def _held(self, argv: list[str], n: int) -> list[str]:
-        """`argv`, started so that it joins a cgroup of its own before its exec, where the machine lets the runner make one.
-
-        Everything the command starts is in that cgroup, a child that left its process group
-        (setsid, a daemon) too, so the cell's end (or the guard, should the runner die) stops
-        it all.  The command's own shell joins, then execs it: nothing runs outside first.
-        """
-        where, _ = memcg.hierarchy(limit=False)
-        if where is None:
-            return list(argv)
-        if shutil.which(argv[0]) is None:  # as Popen would have said, before the shell would say it less clearly
-            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), argv[0])
-        try:
-            group = memcg.MemoryCgroup.create(where, f"command{n}", None)
-        except OSError:
-            return list(argv)  # no cgroup after all: its process group is what holds it, as without cgroups
-        self.command_groups.append(group)
-        self.guard.watch_cgroup(group.folder)
-        return [*_HELD_SHIM, group.folder, *argv]
 
     def _create_resources(self) -> Optional[int]:
         """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
@@ -409,9 +357,7 @@ class _CellRun:
         self.load_ended = True
         for h in self.hogs:
             h.signal(signal.SIGTERM)
-        for c in self.commands:
-            if c.returncode is None:  # one reaped already: its pid may be another process's by now
-                kill_group_or_process(c.pid, signal.SIGTERM)
+        self.commands.end()
 
     def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
         """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
@@ -482,12 +428,8 @@ class _CellRun:
             if code is not None and h.label not in self.incidents:
                 how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
                 self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
-        for n, c in enumerate(self.commands):
-            code = exit_code(c)
-            label = f"command {_argv(c)[0]}[{n}]"
-            if code is not None and label not in self.incidents:
-                how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
-                self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
+        for label, incident in self.commands.incidents(at):
+            self.incidents.setdefault(label, incident)
         for p in self.programs:
             p.watch_state()
         for w in self.workers + self.hogs:
@@ -516,7 +458,7 @@ class _CellRun:
             w.hang_up()
         self._end_load()
         stop_by = time.monotonic() + STOP_GRACE_S
-        processes = [w.popen for w in self.workers + self.hogs if w.popen] + self.commands
+        processes = [w.popen for w in self.workers + self.hogs if w.popen] + [c.popen for c in self.commands]
         for proc in processes:
             if not exited_within(proc, max(0.05, stop_by - time.monotonic())):
                 kill_group_or_process(proc.pid)
@@ -524,14 +466,8 @@ class _CellRun:
             if isinstance(proc, subprocess.Popen) and proc.returncode is None:  # unreaped: the group is still its own
                 with suppress(ProcessLookupError, PermissionError):
                     os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
-        for group in self.command_groups:  # and what a command started outside its group
-            group.kill_all()
-            group.remove()
-            self.guard.forget_cgroup(group.folder)
-        self.command_groups = []
-        finish_by = time.monotonic() + FINISH_WAIT_S  # one wait for all: a process that outlived its command holds a log
-        self.command_counts += [output.finish(finish_by) for output in self.command_outputs]
-        self.command_outputs = []
+        self.commands.remove_groups()  # and what a command started outside its group
+        self.commands.finish_outputs(time.monotonic() + FINISH_WAIT_S)  # one wait for all: what outlived its command holds a log
         self.watchdog.disarm()
         for proc in processes:
             self.guard.forget(proc.pid)
@@ -572,11 +508,7 @@ class _CellRun:
                     )
                 )
         background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
-        counts: list[Optional[OutputCount]] = [*self.command_counts, *([None] * len(self.commands))]
-        background += [
-            BackgroundProcess("command", cmd.name or _argv(c)[0], c.pid, tuple(_argv(c)), f"command-{n}.log", counts[n])
-            for n, (c, cmd) in enumerate(zip(self.commands, self.scenario.background.commands))
-        ]
+        background += [c.background() for c in self.commands]
         timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
         return RawCell(
             self.started_at,
@@ -614,13 +546,3 @@ class _CellRun:
                 )
             )
         return tuple(out)
-
-
-_HELD_SHIM = ("/bin/sh", "-c", 'echo 0 2>/dev/null >"$0/cgroup.procs"; exec "$@"')
-
-
-def _argv(command: subprocess.Popen[bytes]) -> list[str]:
-    """A background command's argv as text, as the scenario wrote it (without the shell that put it in its cgroup)."""
-    args: Any = command.args
-    items = [os.fsdecode(a) for a in (list(args) if isinstance(args, (list, tuple)) else [args])]
-    return items[len(_HELD_SHIM) + 1 :] if tuple(items[: len(_HELD_SHIM)]) == _HELD_SHIM else items
