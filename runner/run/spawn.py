@@ -402,6 +402,32 @@ class _CellRun:
             failures += [r for w in self.workers if (r := w.exit_reason())]
             if self.watchdog.fired:
                 failures.append("the cell overran its deadline and was killed by the watchdog")
+        threads = self._raw_threads()
+        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
+        background += [c.background() for c in self.commands]
+        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
+        return RawCell(
+            self.started_at,
+            tuple(threads),
+            len(self.by_process),
+            timeline,
+            tuple(self.table),
+            tuple(failures),
+            tuple(self.incidents.values()),
+            self.interrupted,
+            tuple(background),
+            kernel.online_cpus(),
+            kernel.rt_limit(),
+            self._resource_states(),
+            tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
+            self.trace,
+            dict(self.trace_tasks),
+            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := gate_late(w.buffer, self.t0)) > 0),
+            tuple(load_late(self.load_groups, self.t0)),
+        )
+
+    def _raw_threads(self) -> list[RawThread]:
+        """Each measured thread's slot, drained one last time, with the settings read back and what the kernel refused."""
         threads: list[RawThread] = []
         for w in self.workers:
             if w.buffer is None:
@@ -427,28 +453,7 @@ class _CellRun:
                         0 if self.last_only else w.buffer.lost[t.index],
                     )
                 )
-        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
-        background += [c.background() for c in self.commands]
-        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
-        return RawCell(
-            self.started_at,
-            tuple(threads),
-            len(self.by_process),
-            timeline,
-            tuple(self.table),
-            tuple(failures),
-            tuple(self.incidents.values()),
-            self.interrupted,
-            tuple(background),
-            kernel.online_cpus(),
-            kernel.rt_limit(),
-            self._resource_states(),
-            tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
-            self.trace,
-            dict(self.trace_tasks),
-            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := gate_late(w.buffer, self.t0)) > 0),
-            tuple(load_late(self.load_groups, self.t0)),
-        )
+        return threads
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
         """Counters of the shared resources: (kind, parties, owner, protocol, period, ..., dropped, ..., acquisitions, contended,
