@@ -396,7 +396,7 @@ def run_scenario(loaded: LoadedScenario, options: RunOptions, backend: Optional[
     """
     with StopSignals() as stop:  # from the first process started to the last one gone: a stop is never a kill
         if backend is None:
-            from runner.run.spawn import KernelBackend
+            from runner.run.kernelbackend import KernelBackend
 
             backend = KernelBackend()
         try:

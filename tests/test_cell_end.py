@@ -19,9 +19,11 @@ from typing import Any
 
 import pytest
 
-from runner.run import samples, spawn
+from runner.run import gate, samples, spawn
+from runner.run.gate import gate_late, load_late, start_load, start_margin
 from runner.run.samples import Layout
-from runner.run.spawn import Worker, _CellRun, _gate_late, _load_late, _start_load, start_margin
+from runner.run.spawn import _CellRun
+from runner.run.workers import Worker
 
 _WORK_START_AT = 112  # a slot header's work_start_ns, as the native core lays it out (after loops and missed)
 _GATE_AT = 464  # and gate_ns, when the thread passed the start gate
@@ -106,19 +108,19 @@ def test_a_cpus_load_is_late_by_the_first_hog_to_begin_there_and_a_hog_that_neve
         hog = Worker("hog busy[0]", {}, buffer.layout, [], False, os.devnull)
         hog.buffer = buffer
         cpu0, cpu1 = [(hog, 0), (hog, 1)], [(hog, 2)]  # a thread in time and one waiting its turn; one alone, late
-        assert _load_late([cpu0, cpu1], T0) == [("hog busy[0]", 900_000)]
-        assert _load_late([cpu0, cpu1], T0 + 1_000_000) == [], "a load that began before the start is in time"
-        assert _load_late([cpu0, cpu1], None) == [], "a cell that never started had no load to be late"
+        assert load_late([cpu0, cpu1], T0) == [("hog busy[0]", 900_000)]
+        assert load_late([cpu0, cpu1], T0 + 1_000_000) == [], "a load that began before the start is in time"
+        assert load_late([cpu0, cpu1], None) == [], "a cell that never started had no load to be late"
         struct.pack_into("<q", writable, buffer.layout.slot(0) + _WORK_START_AT, 0)
-        assert _load_late([cpu0], T0) == [("hog busy[0]", 400_000)], "the first to begin on the CPU loads it"
+        assert load_late([cpu0], T0) == [("hog busy[0]", 400_000)], "the first to begin on the CPU loads it"
         struct.pack_into("<q", writable, buffer.layout.slot(1) + _WORK_START_AT, 0)
-        assert _load_late([cpu0], T0) == [], "no hog there ever began: a dead hog, said elsewhere"
+        assert load_late([cpu0], T0) == [], "no hog there ever began: a dead hog, said elsewhere"
 
 
 def test_a_workers_release_is_late_by_its_last_thread_through_the_gate_and_one_that_never_passed_is_not_counted() -> None:
     with _three_slots("gate-late-test", _GATE_AT, (T0 - 2_000_000, T0 + 700_000, 0)) as (_, buffer):  # in time, late, never
-        assert _gate_late(buffer, T0) == 700_000
-        assert _gate_late(buffer, None) == 0, "a cell that never started released nobody late"
+        assert gate_late(buffer, T0) == 700_000
+        assert gate_late(buffer, None) == 0, "a cell that never started released nobody late"
         assert buffer.work_started() == [0, 0, 0], "the gate is not the work's start"
 
 
@@ -134,16 +136,16 @@ def test_the_start_waits_for_the_gates_of_threads_that_start_with_the_cell_and_o
         worker = Worker("app[0]", {}, buffer.layout, [planned(0, False), planned(1, False), planned(2, True)], True, os.devnull)
         worker.buffer = buffer
         began = time.monotonic()
-        spawn._await_gates([worker], time.monotonic_ns() + 5_000_000_000)
+        gate.await_gates([worker], time.monotonic_ns() + 5_000_000_000)
         assert time.monotonic() - began < 1, "slot 2 is spawned mid-run: nothing to wait for"
         struct.pack_into("<q", writable, buffer.layout.slot(1) + _GATE_AT, 0)
         worker.popen = SimpleNamespace(poll=lambda: 0)  # type: ignore[assignment]  # exited: slot 1 will never pass
         began = time.monotonic()
-        spawn._await_gates([worker], time.monotonic_ns() + 5_000_000_000)
+        gate.await_gates([worker], time.monotonic_ns() + 5_000_000_000)
         assert time.monotonic() - began < 1, "a worker that exited is not waited for"
         worker.popen = SimpleNamespace(poll=lambda: None)  # type: ignore[assignment]  # alive, slot 1 not through
         began = time.monotonic()
-        spawn._await_gates([worker], time.monotonic_ns() + 200_000_000)
+        gate.await_gates([worker], time.monotonic_ns() + 200_000_000)
         assert time.monotonic() - began >= 0.2, "a live thread not through its gate is waited for, until the time given"
 
 
@@ -195,7 +197,7 @@ def test_hogs_are_woken_one_per_cpu_and_given_their_cpus_back() -> None:
     on a CPU of its own instead, and may go anywhere it could before once its load began."""
     cpus = sorted(os.sched_getaffinity(0))
     with _sleeping_hogs({}) as (hogs, pids):
-        groups = _start_load(hogs, 0, 1, 2**62)
+        groups = start_load(hogs, 0, 1, 2**62)
         woken_on = [h.buffer.allowed_at_open for h in hogs]  # type: ignore[union-attr]
         assert woken_on == [{cpus[0]}, {cpus[1]}], "one CPU each, the least taken first"
         assert groups == [[(hogs[0], 0)], [(hogs[1], 0)]], "the threads by the CPU they were woken on"
@@ -207,6 +209,6 @@ def test_a_hog_pinned_to_a_cpu_chooses_before_one_that_may_go_anywhere() -> None
     """Chosen in turn, a hog free to go anywhere took CPU 0, and one pinned there shared it: CPU 1 had no load."""
     cpus = sorted(os.sched_getaffinity(0))
     with _sleeping_hogs({1: {cpus[0]}}) as (hogs, pids):
-        _start_load(hogs, 0, 1, 2**62)
+        start_load(hogs, 0, 1, 2**62)
         assert [h.buffer.allowed_at_open for h in hogs] == [{cpus[1]}, {cpus[0]}]  # type: ignore[union-attr]
         assert [os.sched_getaffinity(pid) for pid in pids] == [set(cpus), {cpus[0]}], "their own CPUs back"

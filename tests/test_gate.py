@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from runner.run import _probe, kernel, samples
-from runner.run.spawn import work_tuple
+from runner.run.wiring import work_tuple
 from runner.scenario.model import PeriodicWork, SleepWork
 
 

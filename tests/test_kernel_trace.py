@@ -148,7 +148,7 @@ def test_a_killed_owner_leaves_no_instance_behind(tmp_path):
 
 
 def test_a_backend_lets_go_of_its_instances_and_zygote_once_the_cells_are_done():
-    from runner.run.spawn import KernelBackend
+    from runner.run.kernelbackend import KernelBackend
 
     backend = KernelBackend()
     try:

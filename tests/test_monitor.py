@@ -8,11 +8,12 @@ from typing import Any
 import pytest
 
 from runner.results.document import Verdict
-from runner.run import external, kernel
+from runner.run import external, kernel, programthreads
 from runner.run.evaluate import degradation, evaluate
-from runner.run.external import HISTORY_FIRST, HISTORY_LAST, MAX_THREADS, Monitor, ProgramRun, SettingsHistory
+from runner.run.external import Monitor, ProgramRun
 from runner.run.kernel import Counters
 from runner.run.outside import outcome
+from runner.run.programthreads import HISTORY_FIRST, HISTORY_LAST, MAX_THREADS, SettingsHistory
 from runner.run.rawcell import FoldedRule, HistoryGap, RawCell, Snapshot, Timeline
 from runner.scenario.loader import load_scenario
 from runner.scenario.model import Policy, ProgramSpec
@@ -109,7 +110,7 @@ def test_a_thread_that_changes_its_priority_at_every_reading_keeps_its_first_and
     for n in range(ticks):
         proc.threads[PID][1] = Settings(Policy.FIFO, 1 + n % 90, 0)
         instants.append(_tick(monitor, run, n))
-    history = run.threads[PID].history
+    history = run.registry.threads[PID].history
     assert len(history) == HISTORY_FIRST + HISTORY_LAST, "the runner's memory does not grow with the changes"
     (main,) = run.raw(T0, instants[-1]).threads
     assert [s.why for s in main.history[:2]] == ["appeared", "changed"]
@@ -129,7 +130,7 @@ def test_a_thread_that_changes_its_priority_at_every_reading_keeps_its_first_and
 def test_threads_that_exit_beyond_the_cap_are_folded_into_counts_and_live_ones_keep_being_measured(monkeypatch):
     """A thread a request: each lives one reading; beyond the cap those that exit are counted together, the live keep records."""
     cap = 4
-    monkeypatch.setattr(external, "MAX_THREADS", cap)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", cap)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     for tid in (600, 601):
@@ -144,7 +145,7 @@ def test_threads_that_exit_beyond_the_cap_are_folded_into_counts_and_live_ones_k
         for tid in (PID, 600, 601):
             proc.threads[tid][2] += 1
         end = _tick(monitor, run, n)
-        most = max(most, len(run.threads))
+        most = max(most, len(run.registry.threads))
     assert most <= cap + 1, "at most the cap, and the one thread that appeared since the last reading"
     raw = run.raw(T0, end)
     kept = [(t.tid, t.index, t.gone_ns is None) for t in raw.threads]
@@ -162,11 +163,11 @@ def test_threads_that_exit_beyond_the_cap_are_folded_into_counts_and_live_ones_k
     assert folded.rules == ()
     proc.add(1001, "reused")  # the kernel gives a folded thread's TID to a new thread: a record of its own
     _tick(monitor, run, requests + 1)
-    assert run.threads[1001].comm == "reused" and run.threads[1001].index == requests + 3
+    assert run.registry.threads[1001].comm == "reused" and run.registry.threads[1001].index == requests + 3
 
 
 def test_nothing_is_folded_below_the_cap_and_a_program_without_churn_says_nothing(monkeypatch):
-    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 4)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     proc.add(600, "a")
@@ -194,7 +195,7 @@ def _requests_one_after_another(proc, count):
 
 
 def test_a_rule_that_did_not_take_keeps_one_thread_beyond_the_cap_and_the_folded_say_how_many_it_missed(monkeypatch):
-    monkeypatch.setattr(external, "MAX_THREADS", 3)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 3)
     proc = FakeProc(monkeypatch, rule_errno=errno.EPERM)
     proc.add(PID, "server")
     raw = _requests_one_after_another(proc, 7)
@@ -206,7 +207,7 @@ def test_a_rule_that_did_not_take_keeps_one_thread_beyond_the_cap_and_the_folded
 @pytest.mark.parametrize(("gives", "missed"), [(None, 0), (Settings(Policy.FIFO, 5), 3)])
 def test_folded_threads_a_rule_was_applied_to_count_those_that_read_back_other_settings(monkeypatch, gives, missed):
     """A rule the kernel took without an error can still leave other settings (a priority clamped): that is not as asked."""
-    monkeypatch.setattr(external, "MAX_THREADS", 2)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 2)
     proc = FakeProc(monkeypatch, rule_gives=gives)
     proc.add(PID, "server")
     raw = _requests_one_after_another(proc, 5)
@@ -229,7 +230,7 @@ def test_an_hour_of_a_thread_per_request_stays_within_the_cap_of_records(monkeyp
         for tid in range(1000 + (n - 1) * batch, 1000 + n * batch):
             proc.add(tid, "request")
         end = _tick(monitor, run, n)
-        most = max(most, len(run.threads))
+        most = max(most, len(run.registry.threads))
     assert most <= MAX_THREADS + batch
     raw = run.raw(T0, end)
     assert raw.folded is not None
@@ -238,7 +239,7 @@ def test_an_hour_of_a_thread_per_request_stays_within_the_cap_of_records(monkeyp
 
 def test_the_main_thread_is_never_folded(monkeypatch):
     """Its record is the program's main thread in the results (the process's settings are checked on it)."""
-    monkeypatch.setattr(external, "MAX_THREADS", 1)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 1)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     proc.add(600, "worker")
@@ -256,7 +257,7 @@ def _judged(tmp_path: Any, monkeypatch: pytest.MonkeyPatch, churn: list[tuple[st
     `churn` is (name, how many) in order: each such thread appears, is read once and exits,
     with MAX_THREADS at 4, so the first few are kept and the rest folded.
     """
-    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 4)
     path = tmp_path / "churn.yaml"
     path.write_text(
         "name: churn\nduration: 1s\nprocesses:\n  - name: server\n    command: [server]\n"
@@ -313,7 +314,7 @@ def test_an_expectation_on_a_name_no_thread_had_still_says_none_ran_beside_folde
 
 
 def test_folded_names_are_bounded_and_a_name_beyond_them_is_said_to_be_possibly_among_the_folded(tmp_path, monkeypatch):
-    monkeypatch.setattr(external, "MAX_FOLDED_NAMES", 3)
+    monkeypatch.setattr(programthreads, "MAX_FOLDED_NAMES", 3)
     verdicts = _judged(tmp_path, monkeypatch, [("request", 4), ("a", 1), ("b", 1), ("c", 1), ("flush", 2), ("d", 1)])
     assert [(v.passed, v.note) for v in verdicts] == [
         (
@@ -325,7 +326,7 @@ def test_folded_names_are_bounded_and_a_name_beyond_them_is_said_to_be_possibly_
 
 def _request_gone(monkeypatch):
     """A program (cap of 4 records, a rule for `worker`) whose `request` thread, TID 700, came at tick 1 and was gone at 2."""
-    monkeypatch.setattr(external, "MAX_THREADS", 4)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 4)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     run, monitor = _monitored([{"match": "worker", "sched": "fifo:10"}])
@@ -341,12 +342,12 @@ def _request_gone(monkeypatch):
 def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_gets_its_rule(monkeypatch, later):
     """Below the cap an exited thread's record is kept; the kernel may give its TID to a new thread, which is a thread of its own."""
     proc, run, monitor = _request_gone(monkeypatch)
-    assert run.threads[700].gone_ns == T0 + 2 * TICK, "below the cap: kept, gone"
+    assert run.registry.threads[700].gone_ns == T0 + 2 * TICK, "below the cap: kept, gone"
     for n in range(3, 2 + later):
         _tick(monitor, run, n)
     proc.add(700, "worker", switches=5)
     end = _tick(monitor, run, 2 + later)
-    worker = run.threads[700]
+    worker = run.registry.threads[700]
     assert (worker.comm, worker.gone_ns, worker.rule, worker.index) == ("worker", None, 0, 2)
     assert proc.threads[700][1] == FIFO10, "its rule was applied"
     raw = run.raw(T0, end)
@@ -358,14 +359,16 @@ def test_a_new_thread_on_the_reused_tid_of_a_kept_exited_record_is_recorded_and_
 def test_a_reused_tid_announced_by_an_event_is_a_new_thread_and_a_late_event_of_the_old_one_is_not(monkeypatch):
     proc, run, monitor = _request_gone(monkeypatch)
     monitor._appeared(run, 700, T0 + TICK - 1)  # the old thread's creation, read late: its record, still
-    assert run.threads[700].comm == "request" and not run.retired
+    assert run.registry.threads[700].comm == "request" and not run.registry.retired
     proc.add(700, "worker")
     monitor._renamed(run, 700, "worker", T0 + 3 * TICK)
-    assert (run.threads[700].comm, run.threads[700].rule) == ("worker", 0) and [t.comm for t in run.retired] == ["request"]
+    assert (run.registry.threads[700].comm, run.registry.threads[700].rule) == ("worker", 0) and [t.comm for t in run.registry.retired] == [
+        "request"
+    ]
 
 
 def test_records_out_of_their_tid_count_toward_the_cap(monkeypatch):
-    monkeypatch.setattr(external, "MAX_THREADS", 3)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 3)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     run, monitor = _monitored()
@@ -382,7 +385,7 @@ def test_records_out_of_their_tid_count_toward_the_cap(monkeypatch):
 
 def test_a_folded_thread_gone_before_its_rule_landed_is_not_counted_as_not_as_asked(monkeypatch):
     """The rule's call found the thread gone (ESRCH) and nothing was read back: a kept one shows no degradation, nor does the count."""
-    monkeypatch.setattr(external, "MAX_THREADS", 2)
+    monkeypatch.setattr(programthreads, "MAX_THREADS", 2)
     proc = FakeProc(monkeypatch)
     proc.add(PID, "server")
     run, monitor = _monitored([{"match": "req*", "sched": "fifo:10"}])

@@ -188,11 +188,11 @@ def test_expectations_name_every_thread_of_the_spec_or_one():
 
 def test_the_worker_is_told_each_threads_own_cpu_priority_and_period():
     from runner.run.samples import Layout
-    from runner.run.spawn import _process_spec
+    from runner.run.wiring import process_spec
 
     sc = scenario(CYCLICTEST).cells[0].scenario
     threads = plan_scenario(sc, Settings())
-    spec = _process_spec(threads, sc, Layout(len(threads), 16), {id(t): n for n, t in enumerate(threads)})
+    spec = process_spec(threads, sc, Layout(len(threads), 16), {id(t): n for n, t in enumerate(threads)}, (0, 1, 2, 3))
     assert [(t["name"], t["cpus"], t["sched"], t["work"][1]) for t in spec["threads"]] == [
         ("cyclic-0", [0], [1, 80, None, None], 1_000_000),
         ("cyclic-1", [1], [1, 79, None, None], 1_500_000),

@@ -19,7 +19,7 @@ from runner.run import _probe, kernel, programs, samples
 from runner.run.evaluate import degradation
 from runner.run.rawcell import ApplyErrors, RawThread
 from runner.run.samples import EventStats, PhaseStats, SlotData, rows
-from runner.run.spawn import _program_sizes, lock_slots, program_tuple, resource_specs, start_after, work_tuple
+from runner.run.wiring import lock_slots, program_sizes, program_tuple, resource_specs, start_after, work_tuple
 from runner.scenario.model import Event, EventKind, PhasesWork, Policy, Scenario, Sched, Start
 from runner.scenario.plan import CallbackKind, Settings, callback_kind, plan_scenario
 from runner.scenario.typed import Invalid
@@ -492,7 +492,7 @@ def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each
         }
     )
     planned = plan_scenario(sc, Settings())
-    events, phases = _program_sizes(planned)
+    events, phases = program_sizes(planned)
     layout = samples.Layout(3, 64, events=events, phases=phases, locks=max(len(lock_slots(t.work)) for t in planned))
     assert layout.locks == 2
     fd = samples.create("slots", layout)
@@ -533,7 +533,7 @@ def test_the_native_core_writes_what_the_reader_reads_with_lock_slots_after_each
 _BURN_STOPPED = """
 import mmap, os, signal, sys, threading, time
 from runner.run import _probe, kernel, samples
-from runner.run.spawn import work_tuple
+from runner.run.wiring import work_tuple
 from runner.scenario.model import PeriodicWork
 
 _probe.install_stop_handler()
@@ -617,7 +617,7 @@ def test_threads_that_start_in_order_each_begin_after_the_one_listed_before_that
 def _native_run(sc: Scenario, run_ms: int, after: dict[int, int] | None = None) -> tuple[list[SlotData], mmap.mmap]:
     """Run a scenario's one process in this process (no rights needed): its slots as the reader takes them, and its resources."""
     planned = plan_scenario(sc, Settings())
-    events, phases = _program_sizes(planned)
+    events, phases = program_sizes(planned)
     layout = samples.Layout(len(planned), 64, events=events, phases=phases, locks=max(len(lock_slots(t.work)) for t in planned))
     fd = samples.create("native", layout)
     res = mmap.mmap(-1, max(1, len(sc.resources)) * _probe.RES_BYTES)

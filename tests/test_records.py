@@ -17,7 +17,7 @@ import pytest
 from runner.run import _probe, records, samples
 from runner.run.records import Record
 from runner.run.samples import Layout
-from runner.run.spawn import _EVENT_TYPES, work_tuple
+from runner.run.wiring import _EVENT_TYPES, work_tuple
 from runner.scenario.model import EventKind, PeriodicWork
 
 

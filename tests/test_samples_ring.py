@@ -77,7 +77,7 @@ def test_samples_the_writer_overwrote_are_counted_lost_not_returned(ring: tuple[
 
 
 def test_a_drain_of_at_most_n_takes_the_oldest_and_leaves_the_rest(ring: tuple[samples.Buffer, _Writer]) -> None:
-    """A runner that fell a ring behind holds a chunk of it at a time (spawn.DRAIN_CHUNK), not 20,000 samples at once."""
+    """A runner that fell a ring behind holds a chunk of it at a time (workers.DRAIN_CHUNK), not 20,000 samples at once."""
     reader, writer = ring
     writer.write(7)
     assert _seqs(reader.drain(1, most=3)) == [0, 1, 2]

@@ -17,7 +17,9 @@ import pytest
 from kernelrun import needs_tracing
 
 from runner.run import kernel, samples, tracing
-from runner.run.spawn import Worker, _gate_late, _read_done, work_tuple
+from runner.run.gate import gate_late
+from runner.run.wiring import work_tuple
+from runner.run.workers import Worker, read_done
 from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
 from runner.scenario.model import SleepWork
 
@@ -95,8 +97,8 @@ def test_a_forked_worker_starts_as_a_fresh_one_would(tmp_path, zygote):
         start = time.monotonic_ns() + 20_000_000
         assert w.buffer is not None and w.buffer.open_gate(start, start + 40_000_000)
         assert w.popen.wait(timeout=10) == 0
-        _read_done(w)
-        assert w.done and _gate_late(w.buffer, start) < 0, "released before the common start: no lateness to report"
+        read_done(w)
+        assert w.done and gate_late(w.buffer, start) < 0, "released before the common start: no lateness to report"
         assert w.exit_reason() is None
     finally:
         w.signal(signal.SIGKILL)
@@ -112,7 +114,7 @@ def test_a_worker_whose_cell_never_starts_leaves_at_once_when_the_runner_hangs_u
         w.hang_up()
         assert w.popen is not None and w.popen.wait(timeout=10) == 0
         assert time.monotonic() - began < 1.0, "not after a grace period"
-        _read_done(w)
+        read_done(w)
         assert not w.done, "no thread worked: nothing done to report"
         assert w.buffer is not None and [s.loops for s in w.buffer.slots()] == [0]
         w.hang_up()  # twice: nothing left to close, nothing raised
@@ -202,8 +204,8 @@ def test_the_trace_follows_the_zygotes_workers_without_writing_their_pids(tmp_pa
 
 def test_a_process_that_leads_no_group_yet_is_still_signalled():
     """A stop in the instant between a worker's fork and its setsid() once missed it: killpg found no such group."""
-    from runner.run.spawn import _kill_group_or_process
+    from runner.run.workers import kill_group_or_process
 
     child = subprocess.Popen(["sleep", "30"])  # in our group: it leads none
-    _kill_group_or_process(child.pid)
+    kill_group_or_process(child.pid)
     assert child.wait(timeout=5) == -signal.SIGKILL

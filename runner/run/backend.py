@@ -3,7 +3,7 @@
 The session (a run's cell loop, resume, repeats, interrupts, exit codes) talks to the
 machine only through a `Backend`: the settings processes inherit, the permission
 preflight, the machine's facts, and running one cell's processes into a `RawCell`.
-`spawn.KernelBackend` is the real one; tests drive the whole run path with a fake
+`kernelbackend.KernelBackend` is the real one; tests drive the whole run path with a fake
 one, in milliseconds and without RT rights.
 """
 

@@ -5,734 +5,59 @@ native threads.  Deadlines are enforced by the native watchdog (an RT thread
 that needs no GIL), so a scenario that starves the runner's Python thread still
 cannot outlive its cell.  The shell decides nothing: it returns a `RawCell` of
 what the kernel and the native core recorded, and `evaluate` makes results of it.
-`KernelBackend` is the real `Backend` (backend.py) the session runs cells with.
+`kernelbackend.KernelBackend`, the real `Backend` (backend.py), runs each cell through `run_cell`.
 """
 
 from __future__ import annotations
 
-import errno
-import json
 import mmap
 import os
-import select
-import selectors
-import shutil
 import signal
 import struct
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Mapping
-from contextlib import AbstractContextManager, suppress
-from dataclasses import dataclass, field
+from contextlib import suppress
 from datetime import datetime, timezone
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Optional
 
-from runner.results.document import DmaLatency, MachineInfo, thread_key
+from runner.results.document import thread_key
 from runner.results.pstable import ThreadRow
-from runner.run import _probe, dmalatency, kernel, memcg, samples, tracing
+from runner.run import _probe, kernel, samples, tracing
 from runner.run.backend import CellOptions, Interrupted
-from runner.run.child import child_env, python_module, signal_name
-from runner.run.external import Monitor, ProgramRun, sched_json, wait_status
-from runner.run.guard import Guard
-from runner.run.machine import machine_info
-from runner.run.output import FINISH_WAIT_S, CappedOutput
-from runner.run.preflight import Permissions
-from runner.run.preflight import check as preflight_check
+from runner.run.child import signal_name
+from runner.run.commands import COMMAND_HEAD_START_S, BackgroundCommands
+from runner.run.external import Monitor, ProgramRun
+from runner.run.gate import LOAD_LEAD_S, LoadGroup, await_gates, gate_late, load_late, start_load, start_margin
+from runner.run.output import FINISH_WAIT_S
 from runner.run.programs import settings_of
-from runner.run.rawcell import ApplyErrors, BackgroundProcess, OutputCount, RawCell, RawThread, ReadyReport, ResourceState, Timeline
+from runner.run.rawcell import ApplyErrors, BackgroundProcess, RawCell, RawThread, ResourceState, Timeline
 from runner.run.traced import Task
-from runner.run.zygote import Zygote, ZygoteChild, ZygoteError
-from runner.safefs import make_folders, open_write
-from runner.scenario import program as programs
-from runner.scenario.limits import WATCHDOG_PRIORITY
-from runner.scenario.loader import ResolvedCell
-from runner.scenario.model import (
-    BurnClock,
-    EventKind,
-    HogKind,
-    Overrun,
-    Pending,
-    PeriodicWork,
-    PhasesWork,
-    Protocol,
-    Resource,
-    ResourceKind,
-    Samples,
-    SamplesMode,
-    Scenario,
-    SleepWork,
-    SpinWork,
-    Start,
-    Until,
-    Wait,
-    Work,
+from runner.run.wiring import process_spec, resource_specs, worker_layout
+from runner.run.workers import (
+    READY_TIMEOUT_S,
+    Exits,
+    Worker,
+    drain,
+    exit_code,
+    exited_within,
+    follow_lines,
+    hog_workers,
+    kill_group_or_process,
+    read_done,
+    ready_report,
+    unmap,
+    wait_ready,
 )
+from runner.safefs import make_folders
+from runner.scenario.loader import ResolvedCell
+from runner.scenario.model import Pending, ResourceKind, SamplesMode, Until
 from runner.scenario.plan import PlannedThread, Settings, plan_scenario
 
-READY_TIMEOUT_S = 20.0
-# Background commands (stress-ng and the like) run this long before the measured start: how long
-# they take to load the machine is theirs to know.  Hogs need no head start: woken one per CPU
-# (`_start_load`), they spin within a fraction of a millisecond.
-COMMAND_HEAD_START_S = 0.1
-# A background command's output (command-N.log) is kept up to this, the rest counted and dropped: a load generator
-# that logs at full speed for an hour would otherwise fill the disk the results go to (programs: output_limit).
-COMMAND_OUTPUT_LIMIT = 64 * 1024 * 1024
-
-
-GATE_POLL_S = 0.0001
-LOAD_LEAD_S = 0.001  # the load starts this long before the common start at the latest
-
-
-def start_margin(processes: int, threads: int) -> float:
-    """Seconds from opening the workers' start gates to the common start: time for every thread to pass its gate, then
-    for the hogs' load to begin.
-
-    `processes` counts the workers, `threads` their slots.  Each thread waits at the gate in its
-    shared buffer itself, at its own policy, and one futex wake per worker releases them all:
-    measured on the 2-CPU VM (policy_matrix cells of 0.5 s, one worker of ten threads and two
-    hogs), every thread passed its gate within 0.1 ms of its opening, and the hogs, woken one per
-    CPU once they had, began their load 0.1 to 0.4 ms after; 1,024 threads in 16 processes passed
-    theirs within 10 ms.  A SCHED_OTHER thread woken onto a CPU that runs something else waits
-    for that task's slice or the tick (4 ms here; this kernel does not preempt): beside a busy
-    loop of another program, a hog began its load after the start in 14 of 120 cells with 4 ms,
-    6 of 160 with 5 ms and 7 of 200 with 6 ms (the old 10 ms: none of 60); none of 120 on a quiet
-    VM with 5 ms.  So 5 ms, 0.3 ms a process and 12 µs a thread.  (Before the gate was in shared memory, a
-    Python thread of each worker read a `go` line and released the others: up to 8 ms behind the
-    hogs on this VM, and the margin was 10 ms, 0.5 ms a process and 12 µs a thread.)  A worker
-    whose last thread passed its gate after the start is said in the cell's warnings, as is a hog
-    whose load began after it (their slots say when).
-    """
-    return min(0.060, 0.005 + 0.0003 * processes + 0.000012 * threads)
-
+if TYPE_CHECKING:
+    from runner.run.kernelbackend import KernelBackend
 
 STOP_GRACE_S = 2.0
-
-
-class KernelBackend:
-    """The real backend: this machine's kernel, permissions and processes, a watchdog and a guard."""
-
-    def __init__(self) -> None:
-        self.watchdog = _probe.Watchdog(WATCHDOG_PRIORITY)  # above every scenario thread: priority 99 needs --allow-priority-99
-        self.guard = Guard()
-        self.traces = tracing.TraceInstances(guard=self.guard)  # set up once, kept to the end of the run
-        self.zygote: Optional[Zygote] = None
-        self._preparing: Optional[threading.Thread] = None
-        self._winding_down: list[threading.Thread] = []
-
-    def prepare(self, trace: bool) -> None:
-        """Start, beside the run's own preparations, what every cell uses: the zygote, the trace's instances."""
-        self.zygote = Zygote.start(self.guard)
-        if trace:
-            seed = [self.zygote.proc.pid] if self.zygote is not None else []
-            self._preparing = threading.Thread(target=self.traces.prepare, args=(seed,), name="runner-trace-setup", daemon=True)
-            self._preparing.start()
-
-    def start_settings(self) -> Settings:
-        return kernel.current_settings()
-
-    def preflight(self, scenarios: list[Scenario], start: Settings, allow_degraded: bool, allow_priority_99: bool) -> Permissions:
-        return preflight_check(scenarios, start, allow_degraded, allow_priority_99)
-
-    def machine(self) -> MachineInfo:
-        return machine_info()
-
-    def hold_dma_latency(self, request_us: Optional[int]) -> AbstractContextManager[DmaLatency]:
-        return dmalatency.hold(request_us)
-
-    def pid_width(self) -> int:
-        return kernel.pid_width()
-
-    def run_cell(self, cell: ResolvedCell, folder: str, start: Settings, options: CellOptions) -> RawCell:
-        if self._preparing is not None:
-            self._preparing.join()
-            self._preparing = None
-        return run_cell(cell, folder, start, options, self)
-
-    def cells_done(self) -> None:
-        """End the zygote and remove the trace's instances beside the run's last writes and report.
-
-        Removing the instances waits for RCU in the kernel (130 ms of a fifo80 run's exit on the
-        development VM, and the zygote's end 15 ms): nothing the results or the report need.
-        `close()` waits for them, before the guard, which watches the instances until then, goes.
-        """
-        if self._winding_down:
-            return
-        for target, name in ((self._end_zygote, "runner-zygote-end"), (self._remove_traces, "runner-trace-remove")):
-            thread = threading.Thread(target=target, name=name, daemon=True)
-            try:
-                thread.start()
-            except RuntimeError:  # no thread to be had: close() does it
-                continue
-            self._winding_down.append(thread)
-
-    def _end_zygote(self) -> None:
-        if self.zygote is not None:
-            self.zygote.close(self.guard)
-
-    def _remove_traces(self) -> None:
-        if self._preparing is not None:  # no cell ran: the instances may still be being made
-            self._preparing.join()
-        self.traces.close()
-
-    def close(self) -> None:
-        for thread in self._winding_down:
-            thread.join()
-        if self._preparing is not None:
-            self._preparing.join()
-        self._end_zygote()  # no-ops when cells_done() did them
-        self.traces.close()
-        self.watchdog.close()
-        self.guard.close()
-
-
-RING_MAX = 1 << 17  # samples per thread's ring at most (8 MiB): 1.3 s of a 10 us period
-RING_SECONDS = 2  # otherwise, the ring holds this long of callbacks: the runner drains it five times a second
-DRAIN_CHUNK = 4096  # samples drained and written at a time: the runner's memory does not follow how far it fell behind
-_RING_MODES = {SamplesMode.ALL: _probe.RING_ALL, SamplesMode.LAST: _probe.RING_ALL, SamplesMode.OUTLIERS: _probe.RING_OUTLIERS}
-
-
-# The native core's code of each event kind, by name (records.h's EVENT_KINDS): a kind without one fails at import.
-_EVENT_TYPES = {kind: _probe.EVENT_KINDS[kind.name] for kind in EventKind}
-_RESOURCE_KINDS = {
-    ResourceKind.MUTEX: _probe.RES_MUTEX,
-    ResourceKind.COND: _probe.RES_COND,
-    ResourceKind.BARRIER: _probe.RES_BARRIER,
-    ResourceKind.QUEUE: _probe.RES_QUEUE,
-    ResourceKind.TIMER: _probe.RES_TIMER,
-}
-_OVERRUN = {Overrun.SKIP: _probe.OVR_SKIP, Overrun.REBASE: _probe.OVR_REBASE, Overrun.CATCHUP: _probe.OVR_CATCHUP}
-
-
-def resource_specs(scenario: Scenario) -> list[tuple[int, int, int, int]]:
-    """The native core's (kind, protocol, parties, period_ns) of each declared resource, in declaration order; a queue's
-    protocol says what becomes of a resume no thread waits for."""
-    parties = programs.barrier_parties(scenario.processes)
-    return [(_RESOURCE_KINDS[r.kind], _protocol(r), parties.get(name, 0), r.period or 0) for name, r in scenario.resources.items()]
-
-
-def _protocol(r: Resource) -> int:
-    if r.kind is ResourceKind.QUEUE:
-        return _probe.QUEUE_DROP if r.pending is Pending.DROP else _probe.QUEUE_KEEP
-    return 1 if r.protocol is Protocol.INHERIT else 0
-
-
-def program_tuple(work: PhasesWork, gid: int, scenario: Scenario, templates: Optional[dict[str, tuple[int, int]]] = None) -> _probe.Program:
-    """A program as the native core takes it: resources by their index in the scenario's declaration.
-
-    `templates` gives, per thread name a spawn event names, the slot of its first instance in the
-    process and how many instances it has (the spawn event's resource and value).
-    """
-    index = {name: i for i, name in enumerate(scenario.resources)}
-    slots = lock_slots(work)
-    events: list[tuple[int, int, int, int, int]] = []
-    phases: list[tuple[int, int, int, Optional[_probe.PhaseSettings]]] = []
-    for phase in work.phases:
-        first = len(events)
-        for e in phase.events:
-            res = res2 = -1
-            mode, arg = _probe.OVR_SKIP, e.duration or e.size or 0
-            if e.event is EventKind.WAIT:
-                res, res2 = index[e.cond or ""], index[e.mutex or ""]
-            elif e.event is EventKind.TIMER:
-                named = scenario.resources.get(e.timer or "")
-                res = index[e.timer] if e.timer is not None else -1
-                arg = named.period or 0 if named is not None else e.period or 0
-                overrun = named.overrun if named is not None else (e.overrun or Overrun.SKIP)
-                mode = _OVERRUN[overrun]
-            elif e.event is EventKind.SPAWN:
-                res, arg = (templates or {})[e.thread or ""]
-            elif e.resource is not None:
-                res = index[e.resource]
-                if e.event is EventKind.LOCK:
-                    res2 = slots.index(e.resource) if e.resource in slots else -1
-            events.append((_EVENT_TYPES[e.event], res, res2, mode, arg))
-        settings = None
-        if phase.sched is not None or phase.cpus is not None:
-            sched = sched_json(phase.sched)
-            policy, priority, nice, extra = sched if sched else (None, None, None, None)
-            settings = (policy, priority, nice, list(phase.cpus) if phase.cpus else None, extra)
-        phases.append((phase.loop, first, len(events) - first, settings))
-    return (gid, work.delay, work.loop, work.buffer_bytes(), tuple(phases), tuple(events))
-
-
-def work_tuple(
-    work: Work, bound_ns: int = 0, samples: Optional[Samples] = None, program: Optional[_probe.Program] = None
-) -> _probe.WorkTuple:
-    """The native core's (kind, period_ns, burn_ns, burn_wall, alloc_bytes, offset_ns, wait_spin, bound_ns, ring_mode[, program])."""
-    ring = _RING_MODES.get(samples.mode, _probe.RING_NONE) if samples else _probe.RING_ALL
-    if isinstance(work, PhasesWork):
-        assert program is not None, "a program's work needs its program tuple"
-        return (_probe.WORK_PROGRAM, 0, 0, False, 0, 0, False, bound_ns, ring, program)
-    if isinstance(work, PeriodicWork):
-        return (
-            _probe.WORK_PERIODIC,
-            work.period,
-            work.burn,
-            work.burn_clock is BurnClock.WALL,
-            work.alloc,
-            work.offset,
-            work.wait is Wait.SPIN,
-            bound_ns,
-            ring,
-        )
-    if isinstance(work, SpinWork):
-        return (_probe.WORK_SPIN, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
-    return (_probe.WORK_SLEEP, 0, 0, False, 0, 0, False, 0, _probe.RING_NONE)
-
-
-@dataclass
-class Worker:
-    """A worker process and what the runner knows of it."""
-
-    label: str
-    spec: dict[str, Any]
-    layout: samples.Layout
-    planned: list[PlannedThread]
-    measured: bool
-    log_path: str
-    popen: Optional[subprocess.Popen[str] | ZygoteChild] = None
-    ready: Optional[dict[str, Any]] = None
-    done: bool = False
-    buffer: Optional[samples.Buffer] = None
-    seen: list[int] = field(default_factory=list)
-    written: list[int] = field(default_factory=list)  # samples handed to the sink, per slot
-
-    @property
-    def pid(self) -> int:
-        assert self.popen is not None
-        return self.popen.pid
-
-    @property
-    def nslots(self) -> int:
-        return self.layout.nthreads
-
-    def start(self, guard: Guard, resources_fd: Optional[int] = None, zygote: Optional[Zygote] = None) -> None:
-        """Start the worker (forked by the zygote when there is one that serves) and send it its spec."""
-        fd = samples.create(self.spec["comm"], self.layout)
-        passed = [fd] if resources_fd is None else [fd, resources_fd]
-        try:
-            self.buffer = samples.Buffer(fd, self.layout)  # the mapping outlives the descriptor, and the worker
-            self.written = [0] * self.nslots
-            forked = self._fork(zygote, passed) if zygote is not None else None
-            if forked is not None:
-                self.popen = forked
-                child_fds = list(range(3, 3 + len(passed)))  # where a forked worker finds them
-            else:
-                self.popen = self._popen(passed)
-                child_fds = passed
-        finally:
-            os.close(fd)
-        self.spec["samples_fd"] = child_fds[0]
-        self.spec["resources_fd"] = child_fds[1] if resources_fd is not None else None
-        guard.watch(self.popen.pid)
-        assert self.popen.stdin is not None
-        self.popen.stdin.write(json.dumps(self.spec) + "\n")
-        self.popen.stdin.flush()
-
-    def _popen(self, passed: list[int]) -> subprocess.Popen[str]:
-        """A fresh interpreter running the worker: the way without a zygote."""
-        with os.fdopen(open_write(self.log_path, mode=0o644), "w") as log:  # the worker holds its own copies of the descriptors
-            return subprocess.Popen(
-                python_module("runner.run.worker"),
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=log,
-                text=True,
-                bufsize=1,
-                start_new_session=True,
-                close_fds=True,
-                pass_fds=passed,
-                cwd="/",
-                env=child_env(RUNNER_PARENT_PID=str(os.getpid())),
-            )
-
-    def _fork(self, zygote: Zygote, passed: list[int]) -> Optional[ZygoteChild]:
-        """The worker forked by the zygote; None when the zygote does not serve (the caller starts one itself)."""
-        if zygote.sock is None:
-            return None
-        opened: list[int] = []  # every descriptor made here, closed on any failure
-        try:
-            opened.append(open_write(self.log_path, mode=0o644))  # never through a link
-            opened += [*os.pipe(), *os.pipe()]  # stdin's read and write ends, stdout's
-            log, stdin_r, stdin_w, stdout_r, stdout_w = opened
-            pid = zygote.spawn(stdin_r, stdout_w, log, passed)
-        except BaseException as error:
-            for each in opened:
-                os.close(each)
-            if isinstance(error, ZygoteError):
-                return None
-            raise
-        for each in (log, stdin_r, stdout_w):  # the child holds its own copies now
-            os.close(each)
-        return ZygoteChild(zygote, pid, os.fdopen(stdin_w, "w", buffering=1), os.fdopen(stdout_r))
-
-    def hang_up(self) -> None:
-        """Cancel its start gate and close its input: a worker whose cell never started leaves at once, its threads unworked.
-
-        A stop signal would not do: at the gate, the native core only notes it, and the worker
-        waited out the grace period for its SIGKILL.  Its input's end reaches one still reading its spec.
-        """
-        if self.buffer is not None:
-            with suppress(ValueError):  # unmapped already
-                self.buffer.cancel_gate()
-        if self.popen is not None and self.popen.stdin is not None:
-            with suppress(OSError):
-                self.popen.stdin.close()
-
-    def signal(self, sig: int) -> None:
-        """Signal the worker's process group, or the worker alone while it has none yet (forked, not yet setsid()).
-
-        A stop that came in that moment once missed the worker, and the cell waited out the 2 s grace.
-        """
-        if self.popen is not None and exit_code(self.popen) is None:
-            _kill_group_or_process(self.popen.pid, sig)
-
-    def exit_reason(self) -> Optional[str]:
-        """Why the worker ended badly, or None if it exited cleanly."""
-        assert self.popen is not None
-        code = self.popen.returncode
-        if code is None or (code == 0 and self.done):
-            return None
-        if code < 0:
-            return f"{self.label} (pid {self.pid}) was killed by {signal_name(-code)}"
-        tail = _tail(self.log_path)
-        return f"{self.label} (pid {self.pid}) exited with code {code}" + (f": {tail}" if tail else "")
-
-
-def _unmap(maps: list[samples.Buffer | mmap.mmap]) -> None:
-    for m in maps:
-        m.close()
-
-
-def _tail(path: str, lines: int = 3) -> str:
-    try:
-        with open(path, encoding="utf-8", errors="replace") as handle:
-            text = handle.read().strip().splitlines()
-    except OSError:
-        return ""
-    return " | ".join(text[-lines:])
-
-
-def _capacity(threads: list[PlannedThread], duration_ns: int, policy: Samples) -> int:
-    """Samples each thread's ring holds: the whole cell when that is small, else enough for the runner to drain in time."""
-    periods = [t.period for t in threads if t.period]
-    if not any(t.has_callbacks for t in threads) or policy.mode is SamplesMode.NONE:
-        return 0
-    if policy.mode is SamplesMode.LAST:
-        return policy.last or 0
-    if not periods:  # only stages released by resumes, at whatever rate their producers set
-        return min(RING_MAX, max(4096, RING_SECONDS * 1000))
-    rate = max(1_000_000_000 // p for p in periods)  # callbacks per second of the fastest thread
-    return min(RING_MAX, max(duration_ns // p + 16 for p in periods), max(4096, RING_SECONDS * rate))
-
-
-def _process_spec(threads: list[PlannedThread], scenario: Scenario, layout: samples.Layout, gids: dict[int, int]) -> dict[str, Any]:
-    """What one worker process is told to create, its buffer sized as `layout`; `gids` numbers every thread of the cell (by id)."""
-    proc = next(p for p in scenario.workers if p.name == threads[0].process)
-    mem = proc.memory
-    bound = scenario.latency_bound or 0
-    by_index = {t.index: t for t in threads}
-    templates: dict[str, tuple[int, int]] = {}
-    for t in threads:
-        if t.spawned and t.spec_name not in templates:
-            templates[t.spec_name] = (t.index, sum(1 for u in threads if u.spec_name == t.spec_name and u.index > 0))
-
-    def work(w: Work, index: int) -> _probe.WorkTuple:
-        program = program_tuple(w, gids[id(by_index[index])], scenario, templates) if isinstance(w, PhasesWork) else None
-        return work_tuple(w, bound, scenario.samples, program)
-
-    members = [(spec, member) for spec in proc.threads for member in spec.members()]
-    after = start_after([spec.spawned for spec, _ in members]) if proc.start is Start.IN_ORDER else {}
-
-    return {
-        "comm": proc.name,
-        "capacity": layout.capacity,
-        "all_cpus": kernel.online_cpus(),
-        "reset_on_fork": proc.reset_on_fork,
-        "memory": {"lock": mem.lock, "prealloc": mem.prealloc, "stack_size": mem.stack_size},
-        "main": {
-            "name": proc.main_name,
-            "apply": proc.main.apply.value,
-            "sched": sched_json(proc.main.sched),
-            "cpus": list(proc.main.cpus) if proc.main.cpus else None,
-            "work": work(proc.main.work, 0),
-        },
-        "threads": [
-            {
-                "name": member.name,
-                "explicit": not spec.inherit,
-                "spawned": spec.spawned,
-                "sched": sched_json(member.sched),
-                "cpus": list(member.cpus) if member.cpus else None,
-                "work": work(member.work, index),
-                "after": after.get(index, -1),
-            }
-            for index, (spec, member) in enumerate(members, start=1)  # pin: each, priospread and distance give each its own settings
-        ],
-        "events": layout.events,
-        "phases": layout.phases,
-        "locks": layout.locks,
-    }
-
-
-def start_after(spawned: list[bool]) -> dict[int, int]:
-    """`start: in_order`: the slot each thread begins after (slot numbers from 1, the main thread's 0 aside), by its slot:
-    the thread listed before it that starts with the cell; spawned threads begin when a spawn creates them."""
-    out: dict[int, int] = {}
-    last = -1
-    for index, mid_run in enumerate(spawned, start=1):
-        if mid_run:
-            continue
-        if last >= 0:
-            out[index] = last
-        last = index
-    return out
-
-
-def lock_slots(work: Work) -> tuple[str, ...]:
-    """The mutexes whose waits each of the thread's activations keeps apart (its first MAX_LOCK_SLOTS), in slot order."""
-    return work.locked_mutexes()[: _probe.MAX_LOCK_SLOTS] if isinstance(work, PhasesWork) else ()
-
-
-def _program_sizes(threads: list[PlannedThread]) -> tuple[int, int]:
-    """Event stats (events plus the chain entry) and phase stats each slot of a worker holds: its longest program's."""
-    works = [t.work for t in threads if isinstance(t.work, PhasesWork)]
-    if not works:
-        return 0, 0
-    spawned = any(t.spawned for t in threads)  # one more phase record: a spawned thread's settings as it started
-    return max(len(w.events()) for w in works) + 1, max(len(w.phases) for w in works) + spawned
-
-
-def _hog_workers(scenario: Scenario, folder: str) -> list[Worker]:
-    """Background hogs as workers: one spinning process each, or one process of spinning threads."""
-    out: list[Worker] = []
-    spin = work_tuple(SpinWork())
-    for h, hog in enumerate(scenario.background.hogs):
-        as_processes = hog.kind is HogKind.PROCESS
-        copies, threads = (hog.count, 0) if as_processes else (1, hog.count)
-        for i in range(copies):
-            spec = {
-                "comm": hog.name,
-                "capacity": 0,
-                "all_cpus": kernel.online_cpus(),
-                "histograms": False,
-                "memory": {},
-                "main": {
-                    "name": hog.name,
-                    "apply": "before_threads",
-                    "sched": sched_json(hog.sched),
-                    "cpus": list(hog.cpus) if hog.cpus else None,
-                    "work": spin if as_processes else work_tuple(SleepWork()),
-                },
-                "threads": [{"name": hog.name, "work": spin} for _ in range(threads)],
-            }
-            layout = samples.Layout(1 + threads, 0, histograms=False)
-            out.append(Worker(f"hog {hog.name}[{i}]", spec, layout, [], False, os.path.join(folder, f"hog{h}-{i}.log")))
-    return out
-
-
-def _wait_ready(workers: list[Worker], deadline: float, stop_requested: Callable[[], bool]) -> Optional[str]:
-    """Read each worker's ready line; return a reason on failure; raise Interrupted when asked to stop."""
-    sel = selectors.DefaultSelector()
-    pending: dict[Any, Worker] = {}
-    for w in workers:
-        assert w.popen is not None and w.popen.stdout is not None
-        sel.register(w.popen.stdout, selectors.EVENT_READ, w)
-        pending[w.popen.stdout] = w
-    try:
-        while pending:
-            if stop_requested():
-                raise Interrupted()
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return f"{', '.join(w.label for w in pending.values())} did not get ready within {READY_TIMEOUT_S:g}s"
-            for key, _ in sel.select(timeout=min(left, 0.5)):
-                w = key.data
-                line = key.fileobj.readline()  # type: ignore[union-attr]
-                sel.unregister(key.fileobj)
-                del pending[key.fileobj]
-                if not line:
-                    try:
-                        w.popen.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        return f"{w.label} (pid {w.pid}) closed its output before getting ready, and did not exit"
-                    return w.exit_reason() or f"{w.label} closed its output before getting ready"
-                try:
-                    msg = json.loads(line)
-                except ValueError:
-                    return f"{w.label} said {line.strip()[:80]!r} where its ready report was expected"
-                if not msg.get("ready"):
-                    return f"{w.label}: {msg.get('failed', 'could not get ready')}"
-                w.ready = msg
-    finally:
-        sel.close()
-    return None
-
-
-LoadGroup = list[tuple[Worker, int]]  # the hog threads (worker, slot) woken on one CPU, or one left unpinned
-
-
-def _group_began(group: LoadGroup) -> list[tuple[int, Worker]]:
-    """When each thread of a load group began its work, with its hog, for those that did."""
-    return [(t, h) for h, index in group if h.buffer is not None and (t := h.buffer.work_started()[index])]
-
-
-def _load_late(groups: list[LoadGroup], t0: Optional[int]) -> list[tuple[str, int]]:
-    """The CPUs whose load began after the common start `t0`: (the hog that began first there, how late), from their slots.
-
-    A CPU is loaded once one of the hogs woken on it runs: more hogs than CPUs share them, and
-    one waiting for its turn beside a hog that spins is no CPU without load.  A group none of
-    whose threads ever began is a dead hog, said elsewhere."""
-    out = []
-    for group in groups:
-        began = _group_began(group)
-        if began and t0:
-            first, hog = min(began, key=lambda each: each[0])
-            if first > t0:
-                out.append((hog.label, first - t0))
-    return out
-
-
-def _gate_late(buffer: samples.Buffer, t0: Optional[int]) -> int:
-    """How long after the common start `t0` a worker's last thread passed the start gate (ns; 0 or less: in time or never started)."""
-    passed = [t for t in buffer.gate_passed() if t]
-    return max(passed) - t0 if passed and t0 else 0
-
-
-def _await_gates(workers: list[Worker], until_ns: int) -> None:
-    """Return once every thread of the workers that starts with the cell passed its start gate, or at `until_ns`.
-
-    The load starts after: a thread at SCHED_OTHER woken at its gate while the hogs spin waits
-    for a CPU like any other (4 ms and more on the 2-CPU VM), and would start late for it.  A
-    thread spawned mid-run (`spawned: true`) is at no gate, and a worker that exited passes none:
-    neither is waited for (waiting gave the hogs 1 ms to begin instead of the margin's 5)."""
-    pending = [w for w in workers if w.buffer is not None]
-    while pending and time.monotonic_ns() < until_ns:
-        pending = [w for w in pending if not _gates_passed(w)]
-        if pending:
-            time.sleep(GATE_POLL_S)
-
-
-def _gates_passed(w: Worker) -> bool:
-    """Whether every thread of `w` that starts with the cell passed its gate, or `w` is gone."""
-    assert w.buffer is not None
-    if w.popen is not None and exit_code(w.popen) is not None:
-        return True
-    at_start = {t.index for t in w.planned if not t.spawned}
-    return all(passed for i, passed in enumerate(w.buffer.gate_passed()) if i in at_start)
-
-
-def _await_load(groups: list[LoadGroup], until_ns: int) -> None:
-    """Return once a hog began its load on every CPU the hogs were woken on, or at `until_ns`; asleep meanwhile, so that
-    a hog woken on the runner's own CPU has it (the runner going on with its own work held one back by 2 ms)."""
-    pending = groups
-    while pending and time.monotonic_ns() < until_ns:
-        pending = [g for g in pending if not _group_began(g)]
-        if pending:
-            time.sleep(GATE_POLL_S)
-
-
-def _start_load(hogs: list[Worker], start_ns: int, end_ns: int, until_ns: int) -> list[LoadGroup]:
-    """Open the hogs' gates, each spinning thread woken on the CPU it may use that has the fewest so far, then given its
-    own CPUs back once a hog runs on each: the load is spread at once.  Returns the threads by the CPU they were woken on.
-
-    Woken together, two hogs of the 2-CPU VM were put on one CPU and waited for the load balancer,
-    2 to 5 ms and once 41 ms (README, "The start margin follows the threads"); woken one per CPU,
-    they began within 0.4 ms of their gates on a quiet VM.  Where they go after is the
-    scheduler's to say, as before."""
-    by_cpu: dict[int, LoadGroup] = {}
-    alone: list[LoadGroup] = []
-    restore: list[tuple[int, set[int]]] = []
-    threads: list[tuple[Worker, int, int, set[int]]] = []  # (hog, slot, tid, the CPUs it may use)
-    for h in hogs:
-        tids = list((h.ready or {}).get("tids", []))
-        spinning = range(1, len(tids)) if h.spec.get("threads") else range(len(tids))  # a hog of threads has a sleeping main
-        for index in spinning:
-            try:
-                threads.append((h, index, tids[index], os.sched_getaffinity(tids[index])))
-            except OSError:  # gone: left where the scheduler put it
-                alone.append([(h, index)])
-    # The threads with the fewest CPUs choose first: a hog pinned to CPU 0 after one that may go anywhere would
-    # otherwise share CPU 0 with it, and leave CPU 1 without load until the balancer moved one.
-    threads.sort(key=lambda thread: len(thread[3]))
-    try:
-        for h, index, tid, allowed in threads:
-            cpu = min(sorted(allowed), key=lambda c: len(by_cpu.get(c, [])))
-            try:
-                os.sched_setaffinity(tid, {cpu})
-            except (OSError, ValueError):  # gone, or a CPU it may no longer use
-                alone.append([(h, index)])
-                continue
-            restore.append((tid, allowed))
-            by_cpu.setdefault(cpu, []).append((h, index))
-        for h in hogs:
-            assert h.buffer is not None
-            h.buffer.open_gate(start_ns, end_ns)
-        groups = list(by_cpu.values()) + alone
-        _await_load(groups, until_ns)
-    finally:
-        for tid, allowed in restore:
-            with suppress(OSError):
-                os.sched_setaffinity(tid, allowed)
-    return groups
-
-
-def _read_done(w: Worker) -> None:
-    assert w.popen is not None and w.popen.stdout is not None
-    try:
-        for line in w.popen.stdout:
-            message = json.loads(line)
-            if message.get("done"):
-                w.done = True
-    except (ValueError, OSError):
-        pass
-
-
-def _follow_lines(w: Worker, epoch_offset_ns: int, emit: Callable[[str], None]) -> None:
-    """Print new callbacks in the ros2-realtime-examples' log form (those still in the ring: --follow shows, the files keep)."""
-    assert w.buffer is not None
-    cap = w.layout.capacity
-    for t in w.planned:
-        if not t.has_callbacks or not cap:
-            continue
-        written = w.buffer.written(t.index)
-        w.seen[t.index] = max(w.seen[t.index], written - cap + 1)
-        while w.seen[t.index] < written:
-            s = w.buffer.sample(t.index, w.seen[t.index])
-            w.seen[t.index] += 1
-            stamp = s.wake_ns + epoch_offset_ns
-            when = f"[{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d}] [{t.name}]"
-            emit(f"[{'WARN' if s.nivcsw else 'INFO'}] {when}: Involuntary context switches: '{s.nivcsw}'")
-            if s.minflt or s.majflt or (isinstance(t.work, PeriodicWork) and t.work.alloc):
-                lvl = "WARN" if s.minflt or s.majflt else "INFO"
-                emit(f"[{lvl}] {when}: New page faults during spin: [minor: {s.minflt}, major: {s.majflt}]")
-
-
-def _drain(w: Worker, options: CellOptions, last_only: bool, final: bool, holders: Mapping[int, str]) -> None:
-    """Hand the samples written since the last call to the session's sink (the samples file), thread by thread.
-
-    With `samples: last N` the ring is the N callbacks to keep: it is read once, at the end.
-    `holders` names the cell's threads by gid, for who held a mutex an activation waited for.
-    """
-    if w.buffer is None or options.samples is None or not w.layout.capacity or (last_only and not final):
-        return
-    for t in w.planned:
-        if not t.has_callbacks:
-            continue
-        for _ in range(w.layout.capacity // DRAIN_CHUNK + 1):  # a ring at most: a writer ahead of the drain waits for the next tick
-            taken = w.buffer.drain(t.index, stopped=final, most=DRAIN_CHUNK)
-            if taken:
-                options.samples.write(
-                    thread_key(t.process, t.instance, t.index, t.name),
-                    int(w.ready["tids"][t.index]) if w.ready else 0,
-                    taken,
-                    lock_slots(t.work),
-                    holders,
-                )
-                w.written[t.index] += len(taken)
-            if len(taken) < DRAIN_CHUNK:
-                break
 
 
 def run_cell(cell: ResolvedCell, folder: str, start: Settings, options: CellOptions, shared: KernelBackend) -> RawCell:
@@ -779,38 +104,21 @@ class _CellRun:
         self.workers: list[Worker] = []
         gids = {id(t): gid for gid, t in enumerate(self.planned)}
         self.keys = {gid: thread_key(t.process, t.instance, t.index, t.name) for gid, t in enumerate(self.planned)}
+        every = kernel.online_cpus()
         for (proc, inst), threads in self.by_process.items():
-            events, phases = _program_sizes(threads)
-            layout = samples.Layout(
-                len(threads),
-                _capacity(threads, options.duration_ns, self.scenario.samples),
-                events=events,
-                phases=phases,
-                locks=max((len(lock_slots(t.work)) for t in threads), default=0),
-            )
-            self.workers.append(
-                Worker(
-                    f"process {proc}[{inst}]",
-                    _process_spec(threads, self.scenario, layout, gids),
-                    layout,
-                    threads,
-                    True,
-                    os.path.join(folder, f"{proc}.{inst}.log"),
-                )
-            )
+            layout = worker_layout(threads, options.duration_ns, self.scenario.samples)
+            spec = process_spec(threads, self.scenario, layout, gids, every)
+            self.workers.append(Worker(f"process {proc}[{inst}]", spec, layout, threads, True, os.path.join(folder, f"{proc}.{inst}.log")))
         self.resources: Optional[mmap.mmap] = None
-        self.hogs = _hog_workers(self.scenario, folder)
+        self.hogs = hog_workers(self.scenario, folder)
         self.programs = [ProgramRun(spec, folder, start, kernel.online_cpus()) for spec in self.scenario.programs]
         self.monitor: Optional[Monitor] = None
         self.tracer: Optional[tracing.Tracer] = None
         self.trace: Optional[tracing.TraceData | tracing.TraceUnavailable] = None
         self.trace_tasks: dict[int, Task] = {}
         self.last_only = self.scenario.samples.mode is SamplesMode.LAST
-        self.commands: list[subprocess.Popen[bytes]] = []
-        self.command_groups: list[memcg.MemoryCgroup] = []  # the cgroups holding the background commands
+        self.commands = BackgroundCommands(folder, self.guard)
         self.load_groups: list[LoadGroup] = []  # the hogs' spinning threads by the CPU they were woken on
-        self.command_outputs: list[CappedOutput] = []  # each command's output, into its command-N.log
-        self.command_counts: list[OutputCount] = []  # what each wrote, once the cell stopped them
         self.table: list[ThreadRow] = []
         self.applied: dict[int, Optional[Settings]] = {}
         self.reason = ""
@@ -834,7 +142,7 @@ class _CellRun:
             if res_fd is not None:
                 os.close(res_fd)
         self.watchdog.arm(time.monotonic_ns() + int((READY_TIMEOUT_S + 5) * 1e9), [w.pid for w in everyone])
-        self.reason = _wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
+        self.reason = wait_ready(everyone, time.monotonic() + READY_TIMEOUT_S, self.options.stop_requested) or ""
         if self.reason:
             return
         every = kernel.online_cpus()
@@ -849,26 +157,7 @@ class _CellRun:
                     self.applied[id(t)] = None
         if self.scenario.background.commands or self.programs:
             self.guard.ready()  # what they start only the guard, or its second, stops should the runner die
-        for cmd in self.scenario.background.commands:
-            try:
-                output = CappedOutput(os.path.join(self.folder, f"command-{len(self.commands)}.log"), COMMAND_OUTPUT_LIMIT)
-            except OSError as exc:
-                self.reason = f"background command {cmd.argv[0]!r} could not start: its log: {exc.strerror} ({exc.filename})"
-                break
-            try:
-                argv = self._held(cmd.argv, len(self.commands))
-                command = subprocess.Popen(
-                    argv, stdout=output.write_fd, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
-                )
-            except OSError as exc:
-                output.finish(0)
-                self.reason = f"background command {cmd.argv[0]!r} could not start: {exc.strerror}"
-                break
-            finally:
-                output.close_write_end()  # the command holds its own copy: its exit ends the pipe
-            self.commands.append(command)
-            self.command_outputs.append(output)
-            self.guard.watch(command.pid)
+        self.reason = self.commands.start(self.scenario.background.commands)
         for p in self.programs:
             if not self.reason:
                 p.launch(self.guard)
@@ -880,26 +169,6 @@ class _CellRun:
                 self.trace = opened
             else:
                 self.tracer = opened
-
-    def _held(self, argv: list[str], n: int) -> list[str]:
-        """`argv`, started so that it joins a cgroup of its own before its exec, where the machine lets the runner make one.
-
-        Everything the command starts is in that cgroup, a child that left its process group
-        (setsid, a daemon) too, so the cell's end (or the guard, should the runner die) stops
-        it all.  The command's own shell joins, then execs it: nothing runs outside first.
-        """
-        where, _ = memcg.hierarchy(limit=False)
-        if where is None:
-            return list(argv)
-        if shutil.which(argv[0]) is None:  # as Popen would have said, before the shell would say it less clearly
-            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), argv[0])
-        try:
-            group = memcg.MemoryCgroup.create(where, f"command{n}", None)
-        except OSError:
-            return list(argv)  # no cgroup after all: its process group is what holds it, as without cgroups
-        self.command_groups.append(group)
-        self.guard.watch_cgroup(group.folder)
-        return [*_HELD_SHIM, group.folder, *argv]
 
     def _create_resources(self) -> Optional[int]:
         """The shared segment of the scenario's mutexes, conditions, barriers and queues: a memfd every worker maps."""
@@ -946,15 +215,15 @@ class _CellRun:
             w.buffer.open_gate(t0, t_end)
             w.seen = [0] * w.nslots
         if hogs:
-            _await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
+            await_gates(workers, t0 - int(LOAD_LEAD_S * 1e9))
             # the cell's end stops the load (_end_load) once no measured thread works
-            self.load_groups = _start_load(hogs, time.monotonic_ns(), deadline, t0)
+            self.load_groups = start_load(hogs, time.monotonic_ns(), deadline, t0)
         epoch_offset = time.time_ns() - time.monotonic_ns()
         snapshot_at = (t0 + options.duration_ns // 2) / 1e9
         total_expected = sum(options.duration_ns // t.period for t in self.planned if t.period)
         self.monitor.window_start = t0
         self.monitor.start()
-        exits = _Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
+        exits = Exits([w.pid for w in workers] + [p.pid for p in self.programs if p.pid], self.zygote)
         try:
             while self._running(t_end):
                 exits.wait(self._next_wait(t_end))
@@ -969,8 +238,8 @@ class _CellRun:
         self._stop_trace()
         for w in workers:
             if options.follow:
-                _follow_lines(w, epoch_offset, options.follow)
-            _read_done(w)
+                follow_lines(w, epoch_offset, options.follow)
+            read_done(w)
 
     def _next_wait(self, t_end: int) -> float:
         """Seconds the supervising loop sleeps at most: a tick, and while the end is awaited, up to the end, then briefly.
@@ -1008,9 +277,7 @@ class _CellRun:
         self.load_ended = True
         for h in self.hogs:
             h.signal(signal.SIGTERM)
-        for c in self.commands:
-            if c.returncode is None:  # one reaped already: its pid may be another process's by now
-                _kill_group_or_process(c.pid, signal.SIGTERM)
+        self.commands.end()
 
     def _tick(self, t0: int, t_end: int, snapshot_at: float, epoch_offset: int, total_expected: int) -> None:
         """One round of supervision: a stop request, the mid-run table, incidents, draining, progress."""
@@ -1023,8 +290,8 @@ class _CellRun:
         self._watch_for_incidents(t0, t_end)
         for w in workers:
             if options.follow:
-                _follow_lines(w, epoch_offset, options.follow)
-            _drain(w, options, self.last_only, final=False, holders=self.keys)
+                follow_lines(w, epoch_offset, options.follow)
+            drain(w, options, self.last_only, final=False, holders=self.keys)
         if options.progress:
             done = sum(sum(w.buffer.loops()) for w in workers if w.buffer)
             left = max(0.0, (t_end - time.monotonic_ns()) / 1e9)
@@ -1062,12 +329,12 @@ class _CellRun:
             w.buffer = None
         self.resources = None
         if wait:
-            _unmap(maps)
+            unmap(maps)
         elif maps:
             try:
-                threading.Thread(target=_unmap, args=(maps,), name="unmap").start()
+                threading.Thread(target=unmap, args=(maps,), name="unmap").start()
             except RuntimeError:  # no thread to be had: unmapped here, later than it could have been
-                _unmap(maps)
+                unmap(maps)
 
     def _watch_for_incidents(self, t0: int, t_end: int) -> None:
         """Note background load that ended early and processes that were stopped (SIGSTOP, a debugger)."""
@@ -1081,12 +348,8 @@ class _CellRun:
             if code is not None and h.label not in self.incidents:
                 how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
                 self.incidents[h.label] = f"background {h.label} (pid {h.pid}) {how} {at}; the load it stood for was missing from then on"
-        for n, c in enumerate(self.commands):
-            code = exit_code(c)
-            label = f"command {_argv(c)[0]}[{n}]"
-            if code is not None and label not in self.incidents:
-                how = f"killed by {signal_name(-code)}" if code < 0 else f"exited with code {code}"
-                self.incidents[label] = f"background {label} (pid {c.pid}) {how} {at}; background load must last the whole cell"
+        for label, incident in self.commands.incidents(at):
+            self.incidents.setdefault(label, incident)
         for p in self.programs:
             p.watch_state()
         for w in self.workers + self.hogs:
@@ -1115,22 +378,16 @@ class _CellRun:
             w.hang_up()
         self._end_load()
         stop_by = time.monotonic() + STOP_GRACE_S
-        processes = [w.popen for w in self.workers + self.hogs if w.popen] + self.commands
+        processes = [w.popen for w in self.workers + self.hogs if w.popen] + [c.popen for c in self.commands]
         for proc in processes:
-            if not _exited_within(proc, max(0.05, stop_by - time.monotonic())):
-                _kill_group_or_process(proc.pid)
-                _exited_within(proc, None)
+            if not exited_within(proc, max(0.05, stop_by - time.monotonic())):
+                kill_group_or_process(proc.pid)
+                exited_within(proc, None)
             if isinstance(proc, subprocess.Popen) and proc.returncode is None:  # unreaped: the group is still its own
                 with suppress(ProcessLookupError, PermissionError):
                     os.killpg(proc.pid, signal.SIGKILL)  # whatever the process left in its group goes with it
-        for group in self.command_groups:  # and what a command started outside its group
-            group.kill_all()
-            group.remove()
-            self.guard.forget_cgroup(group.folder)
-        self.command_groups = []
-        finish_by = time.monotonic() + FINISH_WAIT_S  # one wait for all: a process that outlived its command holds a log
-        self.command_counts += [output.finish(finish_by) for output in self.command_outputs]
-        self.command_outputs = []
+        self.commands.remove_groups()  # and what a command started outside its group
+        self.commands.finish_outputs(time.monotonic() + FINISH_WAIT_S)  # one wait for all: what outlived its command holds a log
         self.watchdog.disarm()
         for proc in processes:
             self.guard.forget(proc.pid)
@@ -1145,13 +402,39 @@ class _CellRun:
             failures += [r for w in self.workers if (r := w.exit_reason())]
             if self.watchdog.fired:
                 failures.append("the cell overran its deadline and was killed by the watchdog")
+        threads = self._raw_threads()
+        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
+        background += [c.background() for c in self.commands]
+        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
+        return RawCell(
+            self.started_at,
+            tuple(threads),
+            len(self.by_process),
+            timeline,
+            tuple(self.table),
+            tuple(failures),
+            tuple(self.incidents.values()),
+            self.interrupted,
+            tuple(background),
+            kernel.online_cpus(),
+            kernel.rt_limit(),
+            self._resource_states(),
+            tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
+            self.trace,
+            dict(self.trace_tasks),
+            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := gate_late(w.buffer, self.t0)) > 0),
+            tuple(load_late(self.load_groups, self.t0)),
+        )
+
+    def _raw_threads(self) -> list[RawThread]:
+        """Each measured thread's slot, drained one last time, with the settings read back and what the kernel refused."""
         threads: list[RawThread] = []
         for w in self.workers:
             if w.buffer is None:
                 continue
-            _drain(w, self.options, self.last_only, final=True, holders=self.keys)
+            drain(w, self.options, self.last_only, final=True, holders=self.keys)
             slots = w.buffer.slots()
-            report = _ready_report(w)
+            report = ready_report(w)
             for t, slot in zip(w.planned, slots):
                 errors = report.errors(t.index) if report else ApplyErrors()
                 applied = self.applied.get(id(t))
@@ -1170,32 +453,7 @@ class _CellRun:
                         0 if self.last_only else w.buffer.lost[t.index],
                     )
                 )
-        background = [BackgroundProcess("hog", h.spec["comm"], h.pid if h.popen else None) for h in self.hogs]
-        counts: list[Optional[OutputCount]] = [*self.command_counts, *([None] * len(self.commands))]
-        background += [
-            BackgroundProcess("command", cmd.name or _argv(c)[0], c.pid, tuple(_argv(c)), f"command-{n}.log", counts[n])
-            for n, (c, cmd) in enumerate(zip(self.commands, self.scenario.background.commands))
-        ]
-        timeline = Timeline(int(self.began * 1e9), self.t0, self.t_end, self.exit_time, time.monotonic_ns())
-        return RawCell(
-            self.started_at,
-            tuple(threads),
-            len(self.by_process),
-            timeline,
-            tuple(self.table),
-            tuple(failures),
-            tuple(self.incidents.values()),
-            self.interrupted,
-            tuple(background),
-            kernel.online_cpus(),
-            kernel.rt_limit(),
-            self._resource_states(),
-            tuple(p.raw(self.t0, self.exit_time or time.monotonic_ns()) for p in self.programs),
-            self.trace,
-            dict(self.trace_tasks),
-            tuple((w.label, late) for w in self.workers if w.buffer is not None and (late := _gate_late(w.buffer, self.t0)) > 0),
-            tuple(_load_late(self.load_groups, self.t0)),
-        )
+        return threads
 
     def _resource_states(self) -> tuple[ResourceState, ...]:
         """Counters of the shared resources: (kind, parties, owner, protocol, period, ..., dropped, ..., acquisitions, contended,
@@ -1213,114 +471,3 @@ class _CellRun:
                 )
             )
         return tuple(out)
-
-
-class _Exits:
-    """The cell's processes as pidfds: the supervising loop wakes the moment one exits, not at its next tick.
-
-    A worker the zygote forked is reaped by the zygote, which then says so on its socket:
-    the loop wakes on that message too, since the worker's exit is known only then.
-    Without pidfds (before Linux 5.3) it waits out the tick, as a sleep would.
-    """
-
-    def __init__(self, pids: list[int], zygote: Optional[Zygote] = None) -> None:
-        self.poller = select.poll()
-        self.fds: list[int] = []
-        self.zygote_fd = -1
-        for pid in pids:
-            try:
-                fd = os.pidfd_open(pid)
-            except OSError:  # gone already (its exit is seen by the caller's poll), or no pidfds
-                continue
-            self.fds.append(fd)
-            self.poller.register(fd, select.POLLIN)
-        if zygote is not None and zygote.sock is not None and self.fds:
-            self.zygote_fd = zygote.sock.fileno()
-            self.poller.register(self.zygote_fd, select.POLLIN)
-
-    def wait(self, timeout_s: float) -> None:
-        """Until a process exits or `timeout_s` passes; an exited one no longer wakes it."""
-        if not self.fds:
-            time.sleep(timeout_s)
-            return
-        for fd, events in self.poller.poll(timeout_s * 1000):
-            if fd != self.zygote_fd:  # the zygote's messages are taken by the caller's poll of its workers
-                self.poller.unregister(fd)
-            elif events & (select.POLLHUP | select.POLLERR | select.POLLNVAL):  # the zygote is gone: it would wake every poll
-                self.poller.unregister(fd)
-                self.zygote_fd = -1
-
-    def close(self) -> None:
-        for fd in self.fds:
-            os.close(fd)
-        self.fds = []
-
-
-def _ready_report(w: Worker) -> Optional[ReadyReport]:
-    """The worker's ready report, typed; None when it never got ready (or sent something else)."""
-    if w.ready is None:
-        return None
-    try:
-        return ReadyReport.parse(w.ready, w.nslots)
-    except ValueError:
-        return None
-
-
-def exit_code(proc: subprocess.Popen[Any] | ZygoteChild) -> Optional[int]:
-    """Its exit code once it has exited (negative: the signal that ended it), None while it runs.
-
-    A child of the runner's own (subprocess.Popen) is left unreaped: its zombie keeps its PID, and
-    so the number of the process group it leads, from every other process until `Cell.stop` has
-    signalled that group for the last time and reaps it (Popen.poll reaped it at once, and the
-    SIGKILL of its group at the cell's end then went to whichever process had been given the
-    number).  A worker the zygote forked is the zygote's to reap, which kills its group first.
-    """
-    if not isinstance(proc, subprocess.Popen) or proc.returncode is not None:  # a zygote's worker, or reaped
-        return proc.poll()
-    try:
-        info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
-    except ChildProcessError:  # reaped by someone else after all: Popen knows its code
-        return proc.poll()
-    return None if info is None else os.waitstatus_to_exitcode(wait_status(info))
-
-
-def _exited_within(proc: subprocess.Popen[Any] | ZygoteChild, timeout: Optional[float]) -> bool:
-    """Wait until `proc` has exited (left unreaped, as `exit_code` leaves it) or `timeout` seconds (None: no limit) passed."""
-    if not isinstance(proc, subprocess.Popen):
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            return False
-        return True
-    until = None if timeout is None else time.monotonic() + timeout
-    while exit_code(proc) is None:
-        if until is not None and time.monotonic() >= until:
-            return False
-        time.sleep(0.002)
-    return True
-
-
-def _kill_group_or_process(pid: int, sig: int = signal.SIGKILL) -> None:
-    """Signal the process group `pid` leads, or the process alone while it leads none yet (forked, before its setsid()).
-
-    A group the runner may signal none of (a command run through sudo) falls back to its leader, and
-    what the kernel refuses there too is left to the cgroup the command was started in.
-    """
-    try:
-        os.killpg(pid, sig)
-        return
-    except (ProcessLookupError, PermissionError):
-        pass
-    with suppress(ProcessLookupError, PermissionError):
-        os.kill(pid, sig)
-
-
-# The shell a background command is started through: it joins the cgroup folder given as $0, then becomes the command.
-_HELD_SHIM = ("/bin/sh", "-c", 'echo 0 2>/dev/null >"$0/cgroup.procs"; exec "$@"')
-
-
-def _argv(command: subprocess.Popen[bytes]) -> list[str]:
-    """A background command's argv as text, as the scenario wrote it (without the shell that put it in its cgroup)."""
-    args: Any = command.args
-    items = [os.fsdecode(a) for a in (list(args) if isinstance(args, (list, tuple)) else [args])]
-    return items[len(_HELD_SHIM) + 1 :] if tuple(items[: len(_HELD_SHIM)]) == _HELD_SHIM else items

@@ -11,7 +11,7 @@ default signals) and runs `worker.main()`.
 The zygote is the workers' parent, so it reaps them and reports each exit status to
 the runner, having killed what was left in the worker's process group first: that number is
 a worker's only while its zombie holds it, so the runner never signals the group of a worker
-the zygote reported (runner/run/spawn.py `exit_code`); `ZygoteChild` offers what the runner uses of a `subprocess.Popen`
+the zygote reported (runner/run/workers.py `exit_code`); `ZygoteChild` offers what the runner uses of a `subprocess.Popen`
 (pid, stdin, stdout, poll, wait, returncode).  A worker dies with the zygote
 (PR_SET_PDEATHSIG, checked against the zygote's pid), and the zygote with the runner
 (the same, plus the guard, which kills every process group it was told of).  The
