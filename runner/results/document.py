@@ -35,37 +35,10 @@ dropped; in Python, an unknown keyword is an error, so a misspelt field cannot v
 `read.load` checks them against their own shape (`legacy._V1File`), converts them (`upgrade_v1`) and
 reads the result as a /2 document.  A file of a newer schema is refused, saying so.
 
-The rule: human input through runner/scenario/typed.py (every problem at once, with
-did-you-mean and values written in units, within the validate budget), machine records
-through a compiled engine: these records are pydantic's, validated and written by
-pydantic-core (Rust) without a Python call per value (but one `model_post_init` per record).
-
-Why pydantic and not msgspec (issue 39, measured on a 2-CPU VM under the shared lock, best of
-3 to 7).  A prototype of the heaviest records in msgspec (ThreadResult with ThreadFigures, its
-spreads and stored settings; PsRow; Verdict; a cell's shell) against these, on a results.json
-of 1,000 cells (17 MB, 10,000 threads: bench/render.py's `big_matrix`):
-
-| | pydantic | msgspec |
-|---|---|---|
-| decode 10,000 threads (strict, settings into plan.Settings) | 600 ms | 71 ms (8.5x) |
-| decode the file (msgspec: threads, ps rows, verdicts; the rest skipped) | 1,100 ms | 104 ms |
-| encode 10,000 threads | 102 ms | 13 ms (8x) |
-| build 10,000 ThreadResult from Python values | 110 ms | 26 ms (no check at all) |
-| read 4 attributes of 10,000 threads | 7 ms | 1.4 ms |
-| import: pydantic and these records / msgspec and the prototype | ~143 ms | ~16 ms |
-
-`read.load` of that file takes 2.0 s, of which pydantic's validation is 0.97 s (the rest is
-read.py's own checks of the text), so a port would load it about 1.8x faster, not 8x; saving
-it takes 0.2 s; bench/render.py's reports spend their time in formatting, templates and plots,
-not in attribute reads; and only commands that read or write results import pydantic
-(`runner validate` does not: tests/test_report.py).  msgspec wins on speed, clearly, but a
-port would lose what these records do for the tool: every problem of a file at once
-(msgspec stops at the first), records checked as the run builds and changes them (a Struct's
-`__init__` and assignments check nothing), computed `key` and `cls` written, StoredSettings'
-union of a run's Settings and a file's dict, and results.schema.json from the same
-declarations; and it is larger than the step that measured it (these 900 lines,
-threadfigures, histogram, legacy's /1 shapes, read's problems, 275 `Field` declarations).
-So pydantic stays, until a bench target (a load, a run's start) misses because of it.
+Human input goes through runner/scenario/typed.py, machine records through a compiled engine:
+these records are pydantic's, validated and written by pydantic-core (one `model_post_init` each).
+Why pydantic and not msgspec, measured (issue 39): docs/results.md, "The results engine".
+Pydantic stays until a bench target (a load, a run's start) misses because of it.
 """
 
 from __future__ import annotations
@@ -96,14 +69,23 @@ from runner import figures as fg
 from runner.errors import Problem, ScenarioError, did_you_mean
 from runner.histogram import Histogram
 from runner.results.files import samples_path_problem
+from runner.results.machinefacts import DMA_LATENCY_NO_LIMIT_US as DMA_LATENCY_NO_LIMIT_US
+from runner.results.machinefacts import DmaLatency as DmaLatency
+from runner.results.machinefacts import Irq as Irq
+from runner.results.machinefacts import IrqThread as IrqThread
+from runner.results.machinefacts import MachineInfo as MachineInfo
+from runner.results.machinefacts import PermissionsInfo as PermissionsInfo
+from runner.results.machinefacts import RtThrottling as RtThrottling
 from runner.results.pstable import CLS, TableRow
+from runner.results.record import FILE as FILE
+from runner.results.record import Record as _Record
 from runner.results.threadfigures import Spread, ThreadFigures
 from runner.safefs import write_atomic
 from runner.scenario.model import MAX_REPEAT, MAX_RUN, MAX_SETTLE, MIN_RUN, Policy
 from runner.scenario.plan import Settings
 
 if TYPE_CHECKING:
-    from typing_extensions import Self  # typing's from Python 3.11
+    pass  # typing's from Python 3.11
 
 SCHEMA: Final = "runner.results/2"
 LEGACY_SCHEMA = "runner.results/1"
@@ -142,58 +124,6 @@ def thread_key(process: str, instance: int, index: int, name: str) -> str:
 
 
 # ---------------------------------------------------------------- the records
-
-
-FILE: Final = "runner.results file"
-"""The validation context of a file being read (`model_validate_json(..., context=FILE)`): its unknown keys are dropped."""
-
-
-def _open_schema(schema: dict[str, Any], cls: type) -> None:
-    """A record's JSON Schema without the `additionalProperties` its `extra="allow"` writes: the schema says nothing of them."""
-    schema.pop("additionalProperties", None)
-
-
-class _Record(BaseModel):
-    """A stored record: fields typed; an unknown keyword is an error in Python, an unknown key in a file is dropped.
-
-    A file may hold keys this runner does not know (a newer runner added them, or they are
-    derived, like a thread's `key`): reading ignores them.  Code that builds a record with a
-    misspelt keyword, at any depth (a nested record given as a dict too), gets a TypeError
-    instead of a silently missing field; assigning to one is a ValueError, as pydantic says it.
-
-    All with pydantic's public means: a record keeps the keys it does not know (`extra="allow"`)
-    and `model_post_init`, which pydantic calls with the validation context once it has validated
-    a record, refuses them unless the record comes from data (`model_validate`, `model_validate_json`:
-    their context is FILE unless told), where it drops them.  A record has no `__init__` of its own, so pydantic-core
-    validates a file without calling one (a custom `__init__` is called for every nested record,
-    with the raw data: the first version checked keywords there and set pydantic's private
-    `__pydantic_base_init__` marker on it to stop that).
-    """
-
-    model_config = ConfigDict(extra="allow", validate_assignment=True, populate_by_name=True, json_schema_extra=_open_schema)
-
-    def model_post_init(self, context: Any, /) -> None:
-        extra = self.model_extra
-        if extra:
-            if context is not FILE:
-                unknown = ", ".join(map(repr, extra))
-                raise TypeError(f"{type(self).__name__} has no field {unknown}; fields: {', '.join(type(self).model_fields)}")
-            extra.clear()
-
-    @classmethod
-    def model_validate(cls, obj: Any, *, context: Any = FILE, **options: Any) -> Self:
-        """Data (a dump, a file's) read as a file is: its unknown keys (a dump's derived `key`) are dropped."""
-        return super().model_validate(obj, context=context, **options)
-
-    @classmethod
-    def model_validate_json(cls, json_data: str | bytes | bytearray, *, context: Any = FILE, **options: Any) -> Self:
-        """A file's text: its unknown keys are dropped."""
-        return super().model_validate_json(json_data, context=context, **options)
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name not in type(self).model_fields and not name.startswith("_"):  # extra="allow" would keep it
-            raise ValueError(f'"{type(self).__name__}" object has no field "{name}"')
-        super().__setattr__(name, value)
 
 
 def _figure_name(value: Any) -> Any:
@@ -671,101 +601,6 @@ class Background(_Record):
     output_dropped: Optional[int] = Field(
         None, description="of them, bytes not kept: beyond the first 64 MiB, or after a write to the log failed"
     )
-
-
-class RtThrottling(_Record):
-    """The kernel's RT throttling (sched_rt_runtime_us / sched_rt_period_us), in ns."""
-
-    runtime_ns: Optional[int] = Field(None, description="RT time allowed per period; null: unlimited or not known")
-    period_ns: Optional[int] = None
-    enabled: bool = False
-
-    @classmethod
-    def from_sysctl(cls, runtime_us: Optional[int], period_us: Optional[int]) -> RtThrottling:
-        """From the two sysctls as the kernel reports them (runtime -1: no throttling)."""
-        enabled = runtime_us is not None and runtime_us >= 0
-        return cls(
-            runtime_ns=runtime_us * 1000 if enabled and runtime_us is not None else None,
-            period_ns=None if period_us is None else period_us * 1000,
-            enabled=enabled,
-        )
-
-
-class Irq(_Record):
-    """One interrupt line as the kernel routes it (/proc/irq/N, /sys/kernel/irq/N)."""
-
-    irq: NonNegativeInt
-    name: Optional[str] = Field(None, description="its handlers, comma-separated, as /proc/interrupts names them; null: not readable")
-    affinity: Optional[str] = Field(None, description="CPUs it may be delivered to (smp_affinity_list), e.g. `0-3`")
-    effective: Optional[str] = Field(None, description="CPUs it is delivered to now (effective_affinity_list); null: not exposed")
-
-
-class IrqThread(_Record):
-    """A kernel thread that runs interrupt work (`irq/N-name`, `ksoftirqd/N`), scheduled as the kernel holds it."""
-
-    pid: int
-    name: str = Field(description="its comm, e.g. `irq/24-ACPI:Ged` (the kernel cuts it at 15 characters)")
-    irq: Optional[int] = Field(None, description="the interrupt it serves; null for ksoftirqd")
-    policy: str = Field(description="`other`, `fifo`, `rr`, `batch`, `idle`, `deadline`, or `policy N` for another")
-    priority: int = Field(description="RT priority (0 unless fifo or rr)")
-    cpus: str = Field(description="CPUs it may run on, e.g. `0-3`")
-
-
-DMA_LATENCY_NO_LIMIT_US = 2_000_000_000  # what /dev/cpu_dma_latency reads when no one asks for less: 2000 s
-
-
-class DmaLatency(_Record):
-    """/dev/cpu_dma_latency (the CPU latency PM QoS) as the run held it: how deep the CPUs could sleep while cells ran."""
-
-    requested_us: Optional[int] = Field(None, description="the latency asked for, in us; null: left alone (--no-dma-latency)")
-    held: bool = Field(False, description="the runner held the device open at `requested_us` for the whole cell loop")
-    reads_us: Optional[int] = Field(
-        None, description="what the device read while held (the lowest any holder asks for), in us; null: not readable"
-    )
-    note: str = Field("", description="why it was not held, in words")
-
-
-class MachineInfo(_Record):
-    """Facts about the machine a run (or a cell) ran on: what a reader needs to trust or compare its numbers.
-
-    The fields from `cmdline` on (rteval's system facts, and the DMA latency hold) were added within
-    runner.results/2: an older file has none of them, and they read as null (not recorded), never as "none".
-    """
-
-    hostname: Optional[str] = None
-    kernel: Optional[str] = None
-    kernel_version: str = ""
-    preempt_rt: bool = False
-    preempt: Optional[str] = None
-    arch: Optional[str] = None
-    cpus_online: Optional[str] = None
-    cpus_allowed: Optional[int] = None
-    isolated_cpus: str = ""
-    rt_throttling: Optional[RtThrottling] = None
-    cpufreq_governors: list[str] = Field(default_factory=list)
-    memory_total_bytes: Optional[int] = None
-    python: Optional[str] = None
-    cpu_model: Optional[str] = Field(None, description="the CPU's model name (/proc/cpuinfo); null: not recorded or not said")
-    cmdline: Optional[str] = Field(None, description="the kernel command line (/proc/cmdline)")
-    clocksource: Optional[str] = Field(None, description="the current clocksource, e.g. `tsc`")
-    nohz_full_cpus: Optional[str] = Field(None, description="CPUs without a scheduler tick; null: the kernel has no nohz_full")
-    smt_siblings: Optional[list[str]] = Field(None, description="hardware threads that share a core, one CPU list per core, e.g. `0,4`")
-    cpufreq_governor_cpus: Optional[dict[str, str]] = Field(None, description="each CPU frequency governor and the CPUs it governs")
-    irqs: Optional[list[Irq]] = None
-    irq_threads: Optional[list[IrqThread]] = None
-    dma_latency: Optional[DmaLatency] = None
-
-
-class PermissionsInfo(_Record):
-    """What the user running it was allowed to do."""
-
-    user: Optional[str] = None
-    uid: Optional[int] = None
-    cap_sys_nice: bool = False
-    cap_ipc_lock: bool = False
-    rlimit_rtprio: Optional[int] = None
-    rlimit_memlock: Optional[int] = Field(None, description="bytes; -1 unlimited")
-    missing: list[str] = Field(default_factory=list, description="rights the cells needed and lacked, in words")
 
 
 class Plan(_Record):
