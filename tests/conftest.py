@@ -25,6 +25,10 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # The tests import the installed package, never the source tree: `python -m pytest` puts the working
 # directory first on sys.path, and a source tree lacks the native core a non-editable install built.
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != REPO]
+# The same for every Python child a test starts (`python -c` and `-m` put the working directory first
+# as well; Python 3.11 and later leave it out under PYTHONSAFEPATH): a test that forgets `cwd=` must
+# not run the source tree's runner, which CI's hermetic install leaves without its native core.
+os.environ["PYTHONSAFEPATH"] = "1"
 SCENARIOS = os.path.join(REPO, "scenarios")
 
 

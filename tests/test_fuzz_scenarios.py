@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import glob
 import os
+import sys
 import tempfile
 import time
 from typing import Any
@@ -196,9 +197,16 @@ def _check(text: str) -> None:
         with open(path, "w", encoding="utf-8", errors="surrogatepass") as handle:
             handle.write(text)
         for argv in (("validate", path), (path, "--list")):
-            start = time.thread_time()  # in-process: the CPU the command took, whatever else the machine runs meanwhile
-            outcome = run_cli(*argv)
-            took = time.thread_time() - start
+            # in-process: the CPU the command took, whatever else the machine runs meanwhile; and without a coverage
+            # tracer (CI measures coverage, which slows Python several times): the runner's own cost is bounded
+            tracer = sys.gettrace()
+            sys.settrace(None)
+            try:
+                start = time.thread_time()
+                outcome = run_cli(*argv)
+                took = time.thread_time() - start
+            finally:
+                sys.settrace(tracer)
             printed = outcome.out + outcome.err
             assert outcome.code in (0, 2), f"runner {' '.join(argv)} exited {outcome.code}:\n{printed[:2000]}"
             assert "Traceback" not in printed and "internal error" not in printed, printed[:2000]
