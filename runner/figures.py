@@ -255,6 +255,18 @@ REGISTRY: tuple[Figure, ...] = (
         trials="releases",
     ),
     Figure(
+        "missed_releases.consecutive_max",
+        "most releases missed in a row (no callback served one between them)",
+        Unit.COUNT,
+        Scope.CALLBACKS,
+        ("missed_consecutive_max",),
+        Threshold(absolute=0),
+        column="in a row",
+        overload=True,
+        needs_period=True,
+        sampling=Sampling.EXACT,
+    ),
+    Figure(
         "overruns",
         "callbacks that ran past their next release",
         Unit.COUNT,

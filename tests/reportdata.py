@@ -41,7 +41,7 @@ def with_figures(doc: RunDocument, cell_id: str, **changes: object) -> RunDocume
         f = f.model_copy(update={"latency_ns": f.latency_ns.model_copy(update={"p99": changes["latency_p99"]})})
     if "invol_mean" in changes:
         f = f.model_copy(update={"involuntary": f.involuntary.model_copy(update={"per_callback_mean": changes["invol_mean"]})})
-    for name in ("callbacks", "overruns"):
+    for name in ("callbacks", "overruns", "missed_consecutive_max"):
         if name in changes:
             f = f.model_copy(update={name: changes[name]})
     cell.threads[i] = t.model_copy(update={"figures": f})

@@ -274,6 +274,21 @@ def test_fewer_callbacks_are_worse_more_are_not():
     assert cmp.compare(base, with_figures(base, cell.id, callbacks=ran + 1), threshold).regressions == 0
 
 
+def test_one_more_release_missed_in_a_row_is_a_regression_by_default():
+    """The default threshold of `missed_releases.consecutive_max` is +0: a control loop that lost two in a row where it lost one."""
+    base = with_figures(matrix(), matrix().cells[0].id, missed_consecutive_max=1)
+    cell = base.cells[0].id
+    rows = {
+        f.verdict
+        for f in cmp.compare(base, with_figures(base, cell, missed_consecutive_max=2)).figures
+        if f.figure.name == "missed_releases.consecutive_max" and f.cell == cell
+    }
+    assert rows == {cmp.Verdict.REGRESSION}
+    same = cmp.compare(base, base)
+    assert {f.verdict for f in same.figures if f.figure.name == "missed_releases.consecutive_max" and f.cell == cell} == {cmp.Verdict.SAME}
+    assert cmp.compare(base, with_figures(base, cell, missed_consecutive_max=0)).regressions == 0
+
+
 @pytest.mark.parametrize("text", ["involuntary.per_callback_mean=-1", "latency.p99=-5%", "missed_releases=+10%,-1"])
 def test_a_negative_threshold_is_refused_not_read_as_every_run_regressing(text):
     with pytest.raises(UsageError, match="not less than 0"):

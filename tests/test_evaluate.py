@@ -277,3 +277,16 @@ def test_a_run_takes_no_text_from_the_list_renderer():
     code = "import sys, runner.session, runner.run.evaluate; print('runner.scenario.listing' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd="/")
     assert done.stdout.split() == ["False"]
+
+
+def test_a_bound_on_releases_missed_in_a_row_validates_in_a_scenario_file_and_the_run_judges_it(tmp_path):
+    with open(os.path.join(SCENARIOS, "fifo80.yaml")) as handle:
+        text = handle.read() + "  - {thread: minimal_schedul, metric: missed_releases.consecutive_max, max: 1}\n"
+    (tmp_path / "s.yaml").write_text(text)
+    scenario = load_scenario(str(tmp_path / "s.yaml")).cells[0].scenario
+    verdicts = {}
+    for callbacks in (10, 3):  # every release served; 3 served, then 7 missed in a row to the end of the cell
+        cell, raw = _raw(callbacks)
+        result = evaluate(cell, scenario, raw, False)
+        verdicts[callbacks] = [(v.measured, v.passed) for v in result.expectations if v.metric == "missed_releases.consecutive_max"]
+    assert verdicts == {10: [(0, True)], 3: [(7, False)]}

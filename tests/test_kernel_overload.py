@@ -276,3 +276,55 @@ def test_a_background_commands_log_keeps_its_first_64_mib_and_counts_the_rest(tm
     assert any(w.startswith("background command chatty wrote 64.1MiB to its log") and "dropped" in w for w in cell["warnings"]), cell[
         "warnings"
     ]
+
+
+def test_releases_missed_in_a_row_count_the_longest_run_not_all_misses(tmp_path):
+    """Control loops survive one lost release, not two in a row: `missed_releases.consecutive_max` from the native core.
+
+    On CPU 0 a FIFO 80 thread runs 35 ms every 200 ms over a FIFO 50 periodic thread of 10 ms: each time the periodic
+    callback is held back 35 ms and skips 3 releases in a row.  A program whose timer callback runs 35 ms every tenth
+    activation skips 3 in a row of its own.  A FIFO 60 periodic thread alone on CPU 1 misses none.
+    """
+    steady = [{"timer": {"period": "10ms"}}, {"run": "1ms"}]
+    scenario = {
+        "name": "in_a_row",
+        "duration": "2s",
+        "processes": [
+            {
+                "name": "row",
+                "main": {"sched": "fifo:50", "cpus": [0], "work": {"kind": "periodic", "period": "10ms", "burn": "1ms"}},
+                "threads": [
+                    {
+                        "name": "row_hog",
+                        "sched": "fifo:80",
+                        "cpus": [0],
+                        "work": {"kind": "phases", "events": [{"timer": {"period": "200ms"}}, {"run": "35ms"}]},
+                    },
+                    {
+                        "name": "row_prog",
+                        "sched": "fifo:40",
+                        "cpus": [1],
+                        "work": {
+                            "kind": "phases",
+                            "phases": [{"loop": 9, "events": steady}, {"events": [{"timer": {"period": "10ms"}}, {"run": "35ms"}]}],
+                        },
+                    },
+                    {"name": "row_steady", "sched": "fifo:60", "cpus": [1], "work": {"kind": "periodic", "period": "10ms", "burn": "1ms"}},
+                ],
+            }
+        ],
+        "expect": [{"thread": name, "metric": "missed_releases.consecutive_max", "max": 1} for name in ("row", "row_prog", "row_steady")],
+    }
+    done, _ = run(tmp_path, scenario)
+    assert done.results is not None, done.err
+    for name in ("row", "row_prog"):
+        f = thread(done.results, name)["figures"]
+        assert f["missed_consecutive_max"] >= 2 and f["missed_releases"] > f["missed_consecutive_max"], (name, f)
+    assert thread(done.results, "row_steady")["figures"]["missed_consecutive_max"] == 0
+    verdicts = {
+        v["thread"].split()[0]: (v["passed"], v["measured"])
+        for v in done.results["cells"][0]["expectations"]
+        if v["metric"] == "missed_releases.consecutive_max"
+    }
+    assert {k: passed for k, (passed, _) in verdicts.items()} == {"row/row": False, "row/row_prog": False, "row/row_steady": True}, verdicts
+    assert done.code == 1

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from runner import figures as fg
 from runner import histogram as hg
 from runner.results.samplesfile import SAMPLE_COLUMNS
 from runner.run.measure import check, thread_figures
 from runner.run.samples import LockWait, Sample, _bits, rows, slot_of
-from runner.scenario.model import Expectation
+from runner.scenario.model import Expectation, Metric
 
 PERIOD = 100_000_000
 
@@ -169,3 +171,39 @@ def test_a_stage_released_by_resumes_has_callbacks_and_latency_but_nothing_measu
     at = [SAMPLE_COLUMNS.index(c) for c in ("slack_ns", "chain_ns", "period_ns")]
     assert [tuple(r[i] for i in at) for r in written] == [(None, 11_999_999, 0), (None, 13_999_999, 0), (None, None, 0)]
     assert thread_figures(slot_of(taken), periodic=False).callbacks == 0, "neither periodic nor released: no callbacks"
+
+
+def test_the_most_releases_missed_in_a_row_is_the_longest_run_no_callback_served():
+    """Control loops survive one lost release, not two in a row: 3 missed in all, at most 2 of them in a row."""
+    samples = [sample(0, 10, 0), sample(3, 10, 0, missed=2), sample(4, 10, 0), sample(6, 10, 0, missed=1)]
+    f = thread_figures(slot(samples), periodic=True, releases_due=7)
+    assert (f.missed_releases, f.missed_consecutive_max) == (3, 2)
+    bound = Expectation.parse({"thread": "t", "metric": "missed_releases.consecutive_max", "max": 1})
+    v = check(bound, "t", f)
+    assert not v.passed and v.measured == 2 and v.limit == "<= 1"
+    kept_up = thread_figures(slot([sample(i, 10, 0) for i in range(4)]), periodic=True, releases_due=4)
+    assert kept_up.missed_consecutive_max == 0 and check(bound, "t", kept_up).passed
+
+
+def test_releases_after_a_stopped_threads_last_callback_are_one_run_of_misses():
+    f = thread_figures(slot([sample(0, 10, 0), sample(2, 10, 0, missed=1)], finished=False), periodic=True, releases_due=10)
+    assert (f.missed_releases, f.missed_consecutive_max) == (8, 7)  # releases 3 to 9, which no callback reached
+
+
+def test_a_thread_without_a_period_has_no_misses_in_a_row_and_an_expectation_on_them_is_not_measured():
+    f = thread_figures(slot([sample(0, 10, 0)]), periodic=False, released=True)
+    assert f.missed_consecutive_max is None
+    v = check(Expectation.parse({"thread": "t", "metric": "missed_releases.consecutive_max", "max": 1}), "t", f)
+    assert not v.passed and "not measured" in v.note
+
+
+def test_the_registry_declares_misses_in_a_row_an_exact_count_of_periodic_threads_compared_at_plus_0():
+    fig = fg.figure("missed_releases.consecutive_max")
+    assert (fig.unit, fig.kind, fig.worse, fig.threshold) == (fg.Unit.COUNT, fg.Sampling.EXACT, fg.Worse.HIGHER, fg.Threshold(absolute=0))
+    assert fg.default_thresholds()[fig.name] == fg.Threshold(absolute=0)
+    periodic, released = fg.ThreadKind("periodic", callbacks=True, period=True), fg.ThreadKind("released", callbacks=True)
+    program, spinner = fg.ThreadKind("a command: program's", proc=True), fg.ThreadKind("spin")
+    assert [fg.has(k, fig) for k in (periodic, released, program, spinner)] == [True, False, False, False]
+    assert Metric("missed_releases.consecutive_max").figure is fig
+    with pytest.raises(ValueError, match="is a count"):
+        Expectation.parse({"thread": "t", "metric": "missed_releases.consecutive_max", "max": "1ms"})

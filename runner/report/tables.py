@@ -353,8 +353,11 @@ def latency_table(rows: Rows, first: str = "Thread") -> Table | None:
     return _numbers(first, [sc.header(words) for words, _ in LATENCY_COLUMNS] + ["Above bound"], out)
 
 
+IN_A_ROW = fg.figure("missed_releases.consecutive_max")  # its column, named by the registry, beside the misses
+
+
 def timing_table(rows: Rows, first: str = "Thread") -> Table | None:
-    """Per periodic thread: releases, misses, overruns and slack (end of a callback to its next release)."""
+    """Per periodic thread: releases, misses (and the most in a row), overruns and slack (end of a callback to its next release)."""
     periodic = [(label, t) for label, t in rows if t.periodic]
     if not periodic:
         return None
@@ -367,12 +370,14 @@ def timing_table(rows: Rows, first: str = "Thread") -> Table | None:
                 label,
                 fmt_int(f.releases),
                 fmt_int(f.missed_releases) + (" ⚠️" if f.missed_releases else ""),
+                fmt_int(figure(t, IN_A_ROW.name)),  # type: ignore[arg-type]  # a count
                 fmt_int(f.overruns) + (" ⚠️" if f.overruns else ""),
                 sc.number(figure(t, "slack.min")),
                 sc.number(figure(t, "slack.p1")),
             ]
         )
-    return _numbers(first, ["Releases", "Missed", "Overruns", sc.header("Slack, worst"), sc.header("Slack p1")], out)
+    headers = ["Releases", "Missed", f"Missed {IN_A_ROW.column}", "Overruns", sc.header("Slack, worst"), sc.header("Slack p1")]
+    return _numbers(first, headers, out)
 
 
 EVENT_HEADERS = ["Thread", "Phase: event", "Measures", "Count", "p50", "p99", "max", "Contended", "Held by"]

@@ -76,6 +76,7 @@ class ThreadFigures(_Figures):
     missed_releases: Count
     releases: Count = 0  # releases due in the cell (callbacks + missed), for periodic threads and stages released by resumes
     overruns: Optional[Count] = None  # callbacks that ended after their next release; None: not recorded (files before it was)
+    missed_consecutive_max: Optional[Count] = None  # the most releases missed in a row, periodic threads; None: not recorded
     involuntary: Involuntary
     voluntary: Voluntary
     latency_ns: Optional[Spread] = None  # wake-up latency: actual wake minus scheduled release

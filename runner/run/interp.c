@@ -227,6 +227,12 @@ static inline void record_latency(struct slot *s, int64_t latency) {
     if (s->hist) s->hist[hist_index(latency)]++;
 }
 
+/* Releases missed in a row (none served between them): counted, and the longest such run kept. */
+static inline void note_missed(struct slot_header *h, uint64_t missed) {
+    h->missed += missed;
+    if (missed > h->missed_consecutive_max) h->missed_consecutive_max = missed;
+}
+
 /* Everything a callback adds to the running figures, after it ended (outside the measured span). */
 static void record_callback(struct slot *s, const struct sample *c, const struct lock_wait *locks) {
     struct slot_header *h = s->hdr;
@@ -333,7 +339,7 @@ static void run_periodic(struct slot *s) {
             if (next < run_end(g)) missed++;
             next += w->period_ns;
         }
-        h->missed += (uint64_t)missed;
+        note_missed(h, (uint64_t)missed);
     }
     /* No release left in the run: wait for its end as a thread waiting for its next release
      * would, rather than run on into the worker's own epilogue (the trace ends this callback's
@@ -567,7 +573,7 @@ static void ev_timer(struct slot *s, struct program_state *ps, int i, const stru
         sleep_until(run_end(g));
         return;
     }
-    s->hdr->missed += (uint64_t)missed;
+    note_missed(s->hdr, (uint64_t)missed);
     wait_until(&s->work, next);
     int64_t wake = now_ns(CLOCK_MONOTONIC);
     t->last = rebased ? rebased : next;
@@ -961,7 +967,7 @@ static void run_program(struct slot *s, struct program_state *ps) {
          * of a 10 ms timer missed 199, not 0).  A timer whose first release was past the end had none due. */
         const struct timer_state *t = &ps->timers[ps->timer_key];
         int64_t until = end < run_end(g) ? end : run_end(g); /* an interrupt ends the count where it came */
-        if (t->period > 0 && t->due > 0 && t->due < until) s->hdr->missed += (uint64_t)((until - 1 - t->due) / t->period + 1);
+        if (t->period > 0 && t->due > 0 && t->due < until) note_missed(s->hdr, (uint64_t)((until - 1 - t->due) / t->period + 1));
     }
     if (ps->timer_key >= 0) s->hdr->timer_due_ns = ps->timers[ps->timer_key].due;
     activation_close(s, ps, end, own_next(ps));

@@ -46,6 +46,8 @@ def thread_figures(
         missed_releases=max(slot.missed, releases_due - callbacks) if periodic else 0,
         releases=max(releases_due, callbacks + slot.missed) if periodic else 0,
         overruns=st.overruns if periodic else 0,
+        # releases after a stopped thread's last callback, which no native count saw, are one run of misses too
+        missed_consecutive_max=max(st.missed_consecutive_max, releases_due - callbacks - slot.missed) if periodic else None,
         involuntary=Involuntary(
             total=totals[0],
             per_callback_mean=_round(st.nivcsw_sum / callbacks) if has else None,

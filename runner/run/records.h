@@ -87,7 +87,8 @@ enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_
     F(int32_t, cur_event)     /* index in the program's event list, -1 between events */                                 \
     F(int64_t, blocked_since_ns) /* when the current blocking event (lock, wait, barrier, suspend) began; 0 if none */   \
     F(int64_t, timer_due_ns)  /* at its end, the first release of the timer it followed that it had not served; 0 */     \
-    F(int64_t, gate_ns)       /* when it passed the start gate (0: not yet, or a thread spawned mid-run) */
+    F(int64_t, gate_ns)       /* when it passed the start gate (0: not yet, or a thread spawned mid-run) */          \
+    F(uint64_t, missed_consecutive_max) /* the most releases missed in a row (no callback served one between them) */
 
 /* One callback (or a program's activation) in the ring. */
 #define SAMPLE_FIELDS(F, A)                                                                                               \
@@ -159,7 +160,7 @@ enum slot_state { ST_CREATED = 0, ST_READY = 1, ST_RUNNING = 2, ST_DONE = 3, ST_
 
 struct slot_header {
     SLOT_HEADER_FIELDS(RECORD_SCALAR, RECORD_ARRAY)
-    uint8_t reserved[SLOT_HEADER - 472];
+    uint8_t reserved[SLOT_HEADER - 480];
 };
 
 struct sample {

@@ -118,6 +118,7 @@ class CallbackStats:
     last_end_ns: int = 0
     nvcsw_sum: int = 0
     majflt_sum: int = 0
+    missed_consecutive_max: int = 0  # the most releases missed in a row (the native core's count: those at the end too)
     latency: Optional[Histogram] = None
     slack: Optional[Histogram] = None
     wall: Optional[Histogram] = None
@@ -225,6 +226,7 @@ def stats_of(samples: list[Sample], bound: int = 0) -> CallbackStats:
         last_end_ns=samples[-1].end_ns,
         nvcsw_sum=sum(s.nvcsw for s in samples),
         majflt_sum=sum(s.majflt for s in samples),
+        missed_consecutive_max=max(s.missed for s in samples),
         latency=hg.from_values(latencies),
         slack=hg.from_values(slacks),
         wall=hg.from_values(s.end_ns - s.wake_ns for s in samples),
