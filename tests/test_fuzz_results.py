@@ -9,7 +9,7 @@ up to two million cell runs) must end in a result or one-line errors, none longe
 mutated in both forms a reader meets: as recorded (runner.results/1, upgraded on load) and
 as this runner writes it (runner.results/2, read strictly).
 
-A short run by default; `RUNNER_FUZZ_EXAMPLES=5000` for the long one CI runs.  Reproducible:
+A short run by default; `RUNNER_FUZZ_EXAMPLES=5000` for a long one (CI runs 1,000).  Reproducible:
 derandomized, no example database.
 """
 
