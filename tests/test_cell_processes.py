@@ -135,12 +135,13 @@ def test_a_background_command_is_one_object_from_its_start_to_what_it_wrote(tmp_
     held = BackgroundCommands(str(tmp_path), guard)  # type: ignore[arg-type]
     specs = [
         CommandSpec.parse({"argv": ["sh", "-c", "echo loaded; exec sleep 30"], "name": "load"}),
-        CommandSpec.parse({"argv": ["no-such-program-of-the-runner"]}),
+        # by path: with a folder on PATH this user may not read, a lookup ends in EACCES, not ENOENT
+        CommandSpec.parse({"argv": ["/nonexistent/no-such-program-of-the-runner"]}),
         CommandSpec.parse({"argv": ["sleep", "30"]}),
     ]
     try:
         reason = held.start(specs)
-        assert reason == "background command 'no-such-program-of-the-runner' could not start: No such file or directory"
+        assert reason == "background command '/nonexistent/no-such-program-of-the-runner' could not start: No such file or directory"
         (command,) = held.started
         assert guard.pids == [command.pid] and guard.cgroups == ([command.group.folder] if command.group else [])
         assert list(held.incidents("now")) == [], "it runs"
