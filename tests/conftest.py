@@ -8,6 +8,7 @@ import json
 import os
 import pathlib
 import shutil
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -29,6 +30,10 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != REPO]
 # as well; Python 3.11 and later leave it out under PYTHONSAFEPATH): a test that forgets `cwd=` must
 # not run the source tree's runner, which CI's hermetic install leaves without its native core.
 os.environ["PYTHONSAFEPATH"] = "1"
+# A shell starts a background job with SIGINT ignored, and the runner rightly keeps a signal its caller
+# ignores ignored: the tests that stop a run with SIGINT start from Python's own handler, wherever pytest runs.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 SCENARIOS = os.path.join(REPO, "scenarios")
 
 
