@@ -18,6 +18,7 @@ from typing import Any, Optional
 
 from runner.results.pstable import ThreadRow
 from runner.run.kernel import Counters
+from runner.run.roscbdata import RosCapture
 from runner.run.samples import SlotData
 from runner.run.traced import Task
 from runner.run.tracing import TraceData, TraceUnavailable
@@ -251,6 +252,7 @@ class RawProgram:
     halted_ns: Optional[int] = None  # when it was first seen stopped (state T: SIGSTOP, a debugger), if it was
     folded: Optional[FoldedThreads] = None  # exited threads counted beyond its cap of thread records; None when none were
     output: tuple[OutputCount, ...] = ()  # what its stdout and stderr took, in that order; () when not captured (runner watch)
+    callbacks: Optional[RosCapture] = None  # its ROS 2 callbacks as the interposer recorded them; None: `callbacks: off` or watched
 
 
 @dataclass(frozen=True)

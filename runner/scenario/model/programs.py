@@ -130,6 +130,11 @@ class ProgramSpec(Strict):
         default_factory=list,
         description="settings for the program's own threads by name, applied as each appears (first match wins)",
     )
+    callbacks: bool = Field(
+        default=True,
+        description="measure every ROS 2 callback of the program from inside it (the runner's libtracetools interposer, preloaded); "
+        "off: the program runs without it",
+    )
     until: Until = Field(
         default=Until.END, description="end: stopped at the end of the cell; exit: the cell ends when it exits (duration is the limit)"
     )
