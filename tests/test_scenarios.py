@@ -192,3 +192,14 @@ def test_every_shipped_cells_spec_hash_is_as_recorded():
             handle.write(json.dumps(ours, indent=1, sort_keys=True) + "\n")
     with open(golden) as handle:
         assert ours == json.load(handle), "a spec hash changed; rerun with UPDATE_GOLDEN=1 if intended"
+
+
+def test_a_programs_callbacks_off_changes_its_spec_hash_and_the_default_does_not(tmp_path):
+    """`callbacks: on` is every program's default and leaves the spec hash as stored before the key existed; `off` is another run."""
+    own = open(os.path.join(SCENARIOS, "own_program.yaml")).read()
+    written = {}
+    for name, extra in (("default", ""), ("on", "    callbacks: on\n"), ("off", "    callbacks: off\n")):
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(own.replace("    cpus: 0 ", extra + "    cpus: 0 ", 1))
+        written[name] = load_scenario(str(path)).cells[0].spec_hash
+    assert written["default"] == written["on"] != written["off"]

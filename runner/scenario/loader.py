@@ -94,8 +94,16 @@ _NOT_SPEC = frozenset({"description", "matrix", "expect"})
 
 
 def spec_json(scenario: Scenario) -> dict[str, Any]:
-    """What defines a resolved cell's run: everything but its description, matrix and expectations."""
-    return scenario.dump(exclude=_NOT_SPEC)
+    """What defines a resolved cell's run: everything but its description, matrix and expectations.
+
+    A program's `callbacks: on` (the default) is left out: the interposer it preloads changes nothing for a
+    program that is not a ROS 2 node, and a baseline stored before programs had the key still compares.
+    """
+    data: dict[str, Any] = scenario.dump(exclude=_NOT_SPEC)
+    for process in data.get("processes") or ():
+        if isinstance(process, dict) and process.get("callbacks") is True:
+            del process["callbacks"]
+    return data
 
 
 def spec_hash(scenario: Scenario) -> str:
