@@ -14,15 +14,21 @@ What is built (gcc, into a temporary folder; tests that need it skip, saying why
     fake_tracetools_count(const char *name)``, where a name is the function's without ``ros_trace_``
     (``"callback_start"``, ``"enabled_rclcpp_callback_register"``, ``"do_rclcpp_callback_register"``; 0 for a name it
     does not have).
+  - ``librclcpp.so``, a stub standing for rcl, the rmw layer and librclcpp together (``stub_sources``): it makes the
+    tracepoint calls those libraries make from their own code (``LIBRARY_TRACEPOINTS``: the inits, the executor's,
+    rcl's and rmw's publish and take), through the header's macro and its own PLT, linked to the fake.
   - ``rosnode``, the stand-in node (tests/programs/rosnode.c; its header comment lists its options and its JSON line),
-    compiled against that header and linked to that fake (``-ltracetools``, no rpath: it runs with the ``env`` below,
-    as a ROS 2 node runs with setup.bash's LD_LIBRARY_PATH), with ``-rdynamic`` as ament links every node that uses
-    tracetools.
+    compiled against that header, calling the tracepoints rclcpp's header templates compile into a node (callbacks,
+    callback_added, register, rclcpp_publish) itself and the others through the stub; linked to both (no rpath: it
+    runs with the ``env`` below, as a ROS 2 node runs with setup.bash's LD_LIBRARY_PATH), with ``-rdynamic`` as ament
+    links every node that uses tracetools.
   - ``rosnode-definer``, the same node built with ``-DEXISTING_DEFINER``: its executable itself exports a
     ``ros_trace_callback_start`` that does not forward (an "existing definer"); its JSON line has ``definer_calls``.
-- ``disabled``: the stand-in built against the Jazzy header with the ``disabled`` config.h (``TRACETOOLS_DISABLED``:
-  every tracepoint compiled out, no fake linked), linked instead to a stub ``librclcpp.so``
-  (tests/programs/rclcpp_stub.c) that it maps at run time, as a node of a ROS 2 built with TRACETOOLS_DISABLED does.
+- ``disabled``, a ROS 2 built with TRACETOOLS_DISABLED: no libtracetools.so at all (tracetools is then an INTERFACE
+  target); the stub librclcpp.so and the stand-in built against the Jazzy header with the ``disabled`` config.h, so no
+  tracepoint is called, while the node still maps librclcpp.so: how the runner tells it from a program without ROS.
+- ``disabled_node``, a node built with TRACETOOLS_DISABLED against a normal (Jazzy) ROS 2: it runs on Jazzy's stub
+  librclcpp.so and fake, so the libraries' tracepoints fire but no callback's.
 
 The API (stable: other tests build on it)::
 
@@ -32,11 +38,11 @@ The API (stable: other tests build on it)::
     def ros(tmp_path_factory: pytest.TempPathFactory) -> RosFake:
         return build(tmp_path_factory)  # built once per session, however many modules ask
 
-    ros.distros["jazzy"].node          # the stand-in's path; .definer, .lib (the fake), .libdir, .include
+    ros.distros["jazzy"].node          # the stand-in's path; .definer, .lib (the fake), .rclcpp, .libdir, .include
     ros.distros["jazzy"].env           # what to add to the environment: {"LD_LIBRARY_PATH": libdir}
-    ros.distros["jazzy"].environ()     # os.environ with that added (pass extra=... for more)
-    ros.distros["jazzy"].run("--count", "5")   # -> NodeRun: .lines (each JSON line, parsed), .main, .returncode
-    ros.disabled                       # a Distro as well: .lib is None, .libdir holds librclcpp.so
+    ros.distros["jazzy"].environ()     # os.environ without LD_PRELOAD, with that added; extra={"LD_PRELOAD": ...}
+    ros.distros["jazzy"].run("--count", "5", extra_env={...})  # -> NodeRun: .lines (each JSON line), .main, .callback(name)
+    ros.disabled, ros.disabled_node    # Distros as well; disabled.lib is None (its libdir has librclcpp.so only)
 
 ``build_into(folder)`` builds the same without pytest (for bench/ scripts); ``declarations(header_text)`` is the parser.
 """
@@ -150,6 +156,53 @@ def fake_source(header: str, origin: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+# The tracepoints that rcl, the rmw layer and librclcpp's own .cpp files call (notes-38 §1.4): the stub librclcpp.so
+# makes these calls; the others are compiled into the node itself from rclcpp's header templates.
+LIBRARY_TRACEPOINTS = (
+    "rcl_init", "rcl_node_init", "rmw_publisher_init", "rcl_publisher_init", "rcl_service_init", "rcl_timer_init",
+    "rclcpp_timer_link_node", "rmw_subscription_init", "rcl_subscription_init", "rclcpp_executor_get_next_ready",
+    "rclcpp_executor_wait_for_work", "rclcpp_executor_execute", "rcl_publish", "rmw_publish", "rmw_take", "rcl_take",
+    "rclcpp_take",
+)  # fmt: skip
+
+
+def stub_sources(header: str, origin: str) -> tuple[str, str]:
+    """The C source and the header of the stub librclcpp.so for a tracetools.h: ``rclcpp_stub_X(params)`` calls the
+    tracepoint X through the header's own macro, for each of ``LIBRARY_TRACEPOINTS``; ``rclcpp_stub_traced()`` says
+    whether it was built with tracing (not with TRACETOOLS_DISABLED)."""
+    by_name = {d.name: d for d in declarations(header)}
+    prototypes = [f"void rclcpp_stub_{name}({by_name[name].signature()})" for name in LIBRARY_TRACEPOINTS]
+    stub_h = "\n".join(
+        [
+            f"/* Generated by tests/rosfake.py from {origin}: the stub librclcpp.so's functions. */",
+            "#include <stdbool.h>",
+            "#include <stddef.h>",
+            "#include <stdint.h>",
+            "int rclcpp_stub_traced(void);",
+            *(f"{prototype};" for prototype in prototypes),
+        ]
+    )
+    stub_c = [
+        f"/* Generated by tests/rosfake.py from {origin}: rcl's, rmw's and librclcpp's own tracepoint calls. */",
+        '#include "tracetools/tracetools.h"',
+        '#include "rclcpp_stub.h"',
+        "#ifdef TRACETOOLS_TRACEPOINT",
+        "#define RT_TP TRACETOOLS_TRACEPOINT",
+        "#else",
+        "#define RT_TP TRACEPOINT",
+        "#endif",
+        "#ifdef TRACETOOLS_DISABLED",
+        "int rclcpp_stub_traced(void) { return 0; }",
+        "#else",
+        "int rclcpp_stub_traced(void) { return 1; }",
+        "#endif",
+    ]
+    for name, prototype in zip(LIBRARY_TRACEPOINTS, prototypes):
+        args = "".join(f", {param}" for _, param in by_name[name].parameters)
+        stub_c.append(f"{prototype} {{ RT_TP({name}{args}); }}")
+    return "\n".join(stub_c) + "\n", stub_h + "\n"
+
+
 @dataclass(frozen=True)
 class NodeRun:
     """One run of the stand-in: its exit status, its output and each JSON line it printed (a forked child prints one)."""
@@ -171,14 +224,15 @@ class NodeRun:
 
 @dataclass(frozen=True)
 class Distro:
-    """What was built for one distro's header (or for ``disabled``), and how to run it."""
+    """What was built for one distro's header (or for a ``disabled`` variant), and how to run it."""
 
     name: str
-    include: tuple[str, ...]  # the -I folders, in order
-    libdir: str  # LD_LIBRARY_PATH for the node: the fake libtracetools.so, or (disabled) the stub librclcpp.so
-    lib: Optional[str]  # the fake libtracetools.so; None for disabled
+    include: tuple[str, ...]  # the -I folders of the tracetools header, in order
+    libdir: str  # LD_LIBRARY_PATH for the node: its librclcpp.so and (unless the whole ROS is disabled) libtracetools.so
+    lib: Optional[str]  # the fake libtracetools.so; None when the whole ROS is disabled (tracetools has no library then)
+    rclcpp: str  # the stub librclcpp.so the node links
     node: str
-    definer: Optional[str]  # the node with its own non-forwarding ros_trace_callback_start; None for disabled
+    definer: Optional[str]  # the node with its own non-forwarding ros_trace_callback_start; None for the disabled ones
     header: str  # the tracetools.h it was built against
 
     @property
@@ -187,8 +241,9 @@ class Distro:
         return {"LD_LIBRARY_PATH": self.libdir}
 
     def environ(self, extra: Optional[Mapping[str, str]] = None, base: Optional[Mapping[str, str]] = None) -> dict[str, str]:
-        """``base`` (os.environ) with the node's library folder first on LD_LIBRARY_PATH, then ``extra``."""
-        env = dict(os.environ if base is None else base)
+        """``base`` (os.environ) without LD_PRELOAD and with the node's library folder first on LD_LIBRARY_PATH, then
+        ``extra`` (which may set LD_PRELOAD)."""
+        env = {key: value for key, value in (os.environ if base is None else base).items() if key != "LD_PRELOAD"}
         env["LD_LIBRARY_PATH"] = os.pathsep.join(p for p in (self.libdir, env.get("LD_LIBRARY_PATH", "")) if p)
         env.update(extra or {})
         return env
@@ -204,60 +259,78 @@ class Distro:
 
 @dataclass(frozen=True)
 class RosFake:
-    """Everything built: the three distros' fakes and stand-ins, and the ``disabled`` build."""
+    """Everything built: the three distros, the whole-ROS ``disabled`` build and the ``disabled_node`` build."""
 
     root: str
     distros: dict[str, Distro]
     disabled: Distro
+    disabled_node: Distro
 
 
-def _gcc(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(["gcc", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def _wait(jobs: list[subprocess.Popen[str]]) -> None:
-    failed = [(job.args, out) for job in jobs for out in [job.communicate()[0]] if job.returncode]
+def _gcc_all(commands: list[tuple[str, ...]]) -> None:
+    """Run gcc once per argument list, all at once, and raise with gcc's words when any fails."""
+    jobs = [subprocess.Popen(["gcc", *CFLAGS, *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for args in commands]
+    failed = [(args, out) for args, job in zip(commands, jobs) for out in [job.communicate()[0]] if job.returncode]
     if failed:
-        raise RuntimeError("gcc failed:\n" + "\n".join(f"{' '.join(map(str, args))}\n{out}" for args, out in failed))
+        raise RuntimeError("gcc failed:\n" + "\n".join(f"gcc {' '.join(args)}\n{out}" for args, out in failed))
+
+
+def _write(path: str, text: str) -> str:
+    with open(path, "w", encoding="utf-8") as handle:
+        handle.write(text)
+    return path
+
+
+def _includes(folders: tuple[str, ...]) -> list[str]:
+    return [arg for folder in folders for arg in ("-I", folder)]
 
 
 def build_into(root: str) -> RosFake:
-    """Generate and compile everything into ``root`` (created), each distro in a folder of its own; gcc runs in parallel."""
+    """Generate and compile everything into ``root`` (created), a folder per variant; gcc runs in parallel, in three
+    waves: the fakes, the stub librclcpp.so files (linked to them), the nodes."""
     node_src = os.path.join(PROGRAMS, "rosnode.c")
-    distros: dict[str, Distro] = {}
-    libs = []
-    for name in DISTROS:
+    jazzy_header = os.path.join(HEADERS, "jazzy", "tracetools", "tracetools.h")
+    disabled_include = (os.path.join(HEADERS, "disabled"), os.path.join(HEADERS, "jazzy"))
+    variants: dict[str, Distro] = {}
+    for name in (*DISTROS, "disabled"):
         folder = os.path.join(root, name)
         os.makedirs(folder, exist_ok=True)
-        header = os.path.join(HEADERS, name, "tracetools", "tracetools.h")
-        with open(header, encoding="utf-8") as handle:
-            source = fake_source(handle.read(), f"tests/programs/tracetools/{name}/tracetools/tracetools.h")
-        fake_c = os.path.join(folder, "fake_tracetools.c")
-        with open(fake_c, "w", encoding="utf-8") as handle:
-            handle.write(source)
-        include = (os.path.join(HEADERS, name),)
-        lib = os.path.join(folder, "libtracetools.so")
-        libs.append(_gcc(*CFLAGS, "-shared", "-fPIC", "-I", include[0], "-o", lib, fake_c))
-        distros[name] = Distro(name, include, folder, lib, os.path.join(folder, "rosnode"), os.path.join(folder, "rosnode-definer"), header)
-    disabled_dir = os.path.join(root, "disabled")
-    os.makedirs(disabled_dir, exist_ok=True)
-    stub = os.path.join(PROGRAMS, "rclcpp_stub.c")
-    libs.append(_gcc(*CFLAGS, "-shared", "-fPIC", "-o", os.path.join(disabled_dir, "librclcpp.so"), stub))
-    _wait(libs)
-    nodes = []
-    for d in distros.values():
-        common = (*CFLAGS, "-pthread", "-rdynamic", "-I", d.include[0], node_src, "-L", d.libdir, "-ltracetools")
-        nodes.append(_gcc("-o", d.node, *common))
-        nodes.append(_gcc("-DEXISTING_DEFINER", "-o", str(d.definer), *common))
-    disabled_include = (os.path.join(HEADERS, "disabled"), os.path.join(HEADERS, "jazzy"))
-    disabled = Distro(
-        "disabled", disabled_include, disabled_dir, None, os.path.join(disabled_dir, "rosnode"), None, distros["jazzy"].header
+        header = jazzy_header if name == "disabled" else os.path.join(HEADERS, name, "tracetools", "tracetools.h")
+        lib = None if name == "disabled" else os.path.join(folder, "libtracetools.so")
+        include = disabled_include if name == "disabled" else (os.path.join(HEADERS, name),)
+        definer = None if name == "disabled" else os.path.join(folder, "rosnode-definer")
+        rclcpp = os.path.join(folder, "librclcpp.so")
+        variants[name] = Distro(name, include, folder, lib, rclcpp, os.path.join(folder, "rosnode"), definer, header)
+    node_dir = os.path.join(root, "disabled-node")
+    os.makedirs(node_dir, exist_ok=True)
+    jazzy = variants["jazzy"]
+    disabled_node = Distro(
+        "disabled-node", disabled_include, jazzy.libdir, jazzy.lib, jazzy.rclcpp, os.path.join(node_dir, "rosnode"), None, jazzy_header
     )
-    includes = [arg for folder in disabled_include for arg in ("-I", folder)]
-    link = ("-L", disabled_dir, "-Wl,--no-as-needed", "-lrclcpp")  # mapped although nothing of it is called
-    nodes.append(_gcc(*CFLAGS, "-Wno-unused", "-pthread", "-rdynamic", *includes, "-o", disabled.node, node_src, *link))
-    _wait(nodes)
-    return RosFake(root, distros, disabled)
+    waves: tuple[list[tuple[str, ...]], ...] = ([], [], [])
+    for d in variants.values():
+        with open(d.header, encoding="utf-8") as handle:
+            text = handle.read()
+        origin = os.path.relpath(d.header, REPO)
+        stub_c, stub_h = stub_sources(text, origin)
+        _write(os.path.join(d.libdir, "rclcpp_stub.h"), stub_h)
+        stub = _write(os.path.join(d.libdir, "rclcpp_stub.c"), stub_c)
+        flags = ("-shared", "-fPIC", *_includes(d.include), "-I", d.libdir)
+        if d.lib is not None:
+            waves[0].append((*flags, "-o", d.lib, _write(os.path.join(d.libdir, "fake_tracetools.c"), fake_source(text, origin))))
+        tracetools = () if d.lib is None else ("-L", d.libdir, "-ltracetools")
+        waves[1].append((*flags, "-o", d.rclcpp, stub, *tracetools))
+        node = ("-pthread", "-rdynamic", *_includes(d.include), "-I", d.libdir, node_src, "-L", d.libdir, "-lrclcpp", *tracetools)
+        if d.lib is None:
+            node = ("-Wno-unused", *node)
+        waves[2].append(("-o", d.node, *node))
+        if d.definer is not None:
+            waves[2].append(("-DEXISTING_DEFINER", "-o", d.definer, *node))
+    node = (*_includes(disabled_include), "-I", jazzy.libdir, node_src, "-L", jazzy.libdir, f"-Wl,-rpath-link,{jazzy.libdir}", "-lrclcpp")
+    waves[2].append(("-Wno-unused", "-pthread", "-rdynamic", "-o", disabled_node.node, *node))
+    for wave in waves:
+        _gcc_all(wave)
+    return RosFake(root, {name: variants[name] for name in DISTROS}, variants["disabled"], disabled_node)
 
 
 _built: dict[str, RosFake] = {}

@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import time
+from typing import Any
 
 import pytest
 from rosfake import DISTROS, HEADERS, SESSION_ENV, Distro, NodeRun, RosFake, build, declarations, exported_names
@@ -40,7 +41,7 @@ def _preprocessed_functions(distro: str) -> set[str]:
     return set(re.findall(r"\b(ros_trace_\w+)\s*\(", done.stdout))
 
 
-def _assert_faithful(line: dict) -> None:
+def _assert_faithful(line: dict[str, Any]) -> None:
     """The fake counted exactly the calls the stand-in made, function by function."""
     assert line["calls"] == line["fake"]
 
@@ -74,7 +75,7 @@ def test_the_fake_defines_every_function_the_header_declares(ros: RosFake, distr
     assert lib.ros_trace_compile_status() is False
 
 
-def _run(node: Distro, *args: str, **kwargs) -> NodeRun:
+def _run(node: Distro, *args: str, **kwargs: Any) -> NodeRun:
     done = node.run(*args, **kwargs)
     assert done.returncode == 0, done.stderr
     return done
@@ -165,6 +166,7 @@ def test_intra_process_subscription(ros: RosFake) -> None:
     assert done.callback("subscription")["count"] == 6 and done.callback("timer1")["thread"] == "exec1"
     calls = done.main["calls"]
     assert calls["rclcpp_intra_publish"] == 6 and "rmw_publish" not in calls and "rmw_take" not in calls
+    assert calls["rclcpp_executor_execute"] == 6  # the timers' only: an intra-process subscription is a waitable
     assert calls["rclcpp_subscription_init"] == calls["rclcpp_subscription_callback_added"] == 2
     _assert_faithful(done.main)
 
@@ -177,9 +179,8 @@ def test_an_existing_definer_takes_the_calls_from_the_fake(ros: RosFake, distro:
     assert "callback_start" not in line["fake"] and line["fake"]["callback_end"] == 4
 
 
-def test_the_disabled_build_calls_nothing_and_maps_librclcpp_only(ros: RosFake) -> None:
-    node = ros.disabled
-    assert node.lib is None and os.path.exists(os.path.join(node.libdir, "librclcpp.so"))
+def _while_running(node: Distro) -> tuple[str, set[str], dict[str, Any]]:
+    """The maps and thread names of a running stand-in, and the line it prints when SIGTERM stops it."""
     proc = subprocess.Popen([node.node, "--count", "100000", "--period", "1ms"], env=node.environ(), stdout=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 5
@@ -187,15 +188,41 @@ def test_the_disabled_build_calls_nothing_and_maps_librclcpp_only(ros: RosFake) 
             time.sleep(0.01)
         with open(f"/proc/{proc.pid}/maps", encoding="utf-8") as handle:
             maps = handle.read()
-        assert "librclcpp.so" in maps and "libtracetools" not in maps
-        assert {"exec0", "exec_sub", "recvUC", "dq.builtins", "tev"} <= _threads(proc.pid)
+        threads = _threads(proc.pid)
         proc.send_signal(signal.SIGTERM)  # stops the executors: the line is printed as at a normal end
         out, _ = proc.communicate(timeout=5)
     finally:
         proc.kill()
     assert proc.returncode == 0
-    line = json.loads(out)
+    return maps, threads, json.loads(out)
+
+
+def test_sigterm_ends_the_node_with_its_line(ros: RosFake) -> None:
+    maps, threads, line = _while_running(ros.distros["jazzy"])
+    assert "/jazzy/libtracetools.so" in maps and "/jazzy/librclcpp.so" in maps
+    assert {"exec0", "exec_sub", "recvUC", "dq.builtins", "tev"} <= threads
+    timer = next(cb for cb in line["callbacks"] if cb["name"] == "timer0")
+    assert 0 < timer["count"] < 100000 and timer["count"] == timer["started"] == timer["ended"]
+    _assert_faithful(line)
+
+
+def test_a_ros_built_with_tracetools_disabled_has_librclcpp_but_no_libtracetools(ros: RosFake) -> None:
+    node = ros.disabled
+    assert node.lib is None and not os.path.exists(os.path.join(node.libdir, "libtracetools.so"))
+    maps, _, line = _while_running(node)
+    assert "librclcpp.so" in maps and "libtracetools" not in maps
     assert line["calls"] == {} and "fake" not in line and line["callbacks"][0]["count"] > 0
+
+
+def test_a_node_built_with_tracetools_disabled_still_calls_the_libraries_tracepoints(ros: RosFake) -> None:
+    """rcl's, rmw's and librclcpp's own tracepoints fire; the callbacks' (rclcpp's header templates) do not."""
+    done = _run(ros.disabled_node, "--count", "3", "--period", "1ms")
+    calls = done.main["calls"]
+    assert calls["rclcpp_executor_execute"] == 6 and calls["rmw_take"] == 3 and calls["rcl_timer_init"] == 1
+    assert not {"callback_start", "callback_end", "rclcpp_timer_callback_added", "rclcpp_publish"} & set(calls)
+    assert not any("callback_register" in name for name in calls)
+    assert done.callback("timer0")["count"] == 3
+    _assert_faithful(done.main)
 
 
 def _threads(pid: int) -> set[str]:
