@@ -12,10 +12,13 @@
  * stub librclcpp.so does (LIB).
  *
  * At exit it prints one JSON line (a forked child prints its own): per callback its count, missed releases, first
- * release (CLOCK_MONOTONIC ns) and period; `calls`, its own tally of every tracepoint function it called; `fake`, the
- * fake library's count of each (absent when no fake is linked).  Options (durations: 10ms, 500us, 2s, 250ns or bare ns):
- *   --period D     the timers' period (default 10ms)        --burn D     CPU time each timer callback burns (default 100us)
- *   --count N      timer callbacks per timer (default 10)    --duration D run the timers for D instead of --count
+ * release (CLOCK_MONOTONIC ns), period and latency (its clock read before callback_start minus the release); `calls`,
+ * its own tally of every tracepoint function it called; `fake`, the fake library's count of each (absent when no fake
+ * is loaded).  Options (durations: 10ms, 500us, 2s, 250ns or bare ns):
+ *   --period D     the timers' period (default 10ms)
+ *   --burn D       the CPU time each timer callback burns (default 100us)
+ *   --count N      timer callbacks per timer (default 10)
+ *   --duration D   run the timers for D instead of --count
  *   --threads N    N timers, each on its own executor thread exec0..exec<N-1> (default 1)
  *   --fork         fork after the set-up; the child runs timer 0's callbacks on its main thread and prints its own line
  *   --exec PROG    at the end, fork and exec PROG (as system() would); its exit status is in the JSON line
@@ -56,14 +59,14 @@
 
 /* The stand-in's own tally of what it called, by the name of the function the macro reaches without its
  * ros_trace_ prefix (the fake counts under the same names). */
-#define TALLIES(X)                                                                                                     \
-    X(rcl_init) X(rcl_node_init) X(rmw_publisher_init) X(rcl_publisher_init) X(rcl_service_init)                        \
-    X(rclcpp_service_callback_added) X(rcl_timer_init) X(rclcpp_timer_callback_added) X(rclcpp_callback_register)       \
-    X(enabled_rclcpp_callback_register) X(do_rclcpp_callback_register) X(rclcpp_timer_link_node)                        \
-    X(rmw_subscription_init) X(rcl_subscription_init) X(rclcpp_subscription_init) X(rclcpp_subscription_callback_added) \
-    X(rclcpp_executor_get_next_ready) X(rclcpp_executor_wait_for_work) X(rclcpp_executor_execute) X(callback_start)     \
-    X(callback_end) X(rclcpp_publish) X(rclcpp_intra_publish) X(rcl_publish) X(rmw_publish) X(rmw_take) X(rcl_take)      \
-    X(rclcpp_take)
+#define TALLIES(X)                                                                                                 \
+    X(rcl_init) X(rcl_node_init) X(rmw_publisher_init) X(rcl_publisher_init) X(rcl_service_init)                    \
+    X(rclcpp_service_callback_added) X(rcl_timer_init) X(rclcpp_timer_callback_added) X(rclcpp_callback_register)   \
+    X(enabled_rclcpp_callback_register) X(do_rclcpp_callback_register) X(rclcpp_timer_link_node)                    \
+    X(rmw_subscription_init) X(rcl_subscription_init) X(rclcpp_subscription_init)                                   \
+    X(rclcpp_subscription_callback_added) X(rclcpp_executor_get_next_ready) X(rclcpp_executor_wait_for_work)        \
+    X(rclcpp_executor_execute) X(callback_start) X(callback_end) X(rclcpp_publish) X(rclcpp_intra_publish)           \
+    X(rcl_publish) X(rmw_publish) X(rmw_take) X(rcl_take) X(rclcpp_take)
 #define ENUM(name) T_##name,
 enum { TALLIES(ENUM) T_COUNT };
 #define NAME(name) #name,
@@ -81,7 +84,8 @@ static int library_traced; /* whether the stub librclcpp.so was built with its t
 #define TALLY(name) atomic_fetch_add_explicit(&tallies[T_##name], 1, memory_order_relaxed)
 #endif
 #define TP(name, ...) (TALLY(name), RT_TP(name, __VA_ARGS__))
-#define LIB_TALLY(name) (library_traced ? (void)atomic_fetch_add_explicit(&tallies[T_##name], 1, memory_order_relaxed) : (void)0)
+#define LIB_TALLY(name) \
+    (library_traced ? (void)atomic_fetch_add_explicit(&tallies[T_##name], 1, memory_order_relaxed) : (void)0)
 #define LIB(name, ...) (LIB_TALLY(name), rclcpp_stub_##name(__VA_ARGS__))
 #define LIB0(name) (LIB_TALLY(name), rclcpp_stub_##name())
 
@@ -115,6 +119,7 @@ typedef struct {
     handle_t callback; /* &GenericTimer::callback_ */
     int64_t period, first_release;
     long long count, missed;
+    int64_t latency_n, latency_min, latency_max, latency_sum; /* callback_start - release, CLOCK_MONOTONIC */
     int started, ended;
 } timer_cb;
 
@@ -125,13 +130,15 @@ static const char *exec_prog;
 static volatile sig_atomic_t stopping;
 static int is_child;
 
-static handle_t context, node, rmw_node, node_b, rmw_node_b, rosout, rmw_rosout, param_srv[2], rmw_param_srv[2];
+static handle_t context, node, rmw_node, node_b, rmw_node_b, rosout, rmw_rosout;
+static handle_t param_srv[2], rmw_param_srv[2], param_srv_callback[2];
 static handle_t publisher, rmw_publisher, subscription, rmw_subscription, sub_object, sub_callback, ipc_object,
     ipc_callback;
 static uint8_t gid[24];
 static timer_cb *timers, stuck, inner, bench_cb;
 static long long sub_count, sub_empty_takes, many_count;
 static int pipe_fds[2] = {-1, -1};
+static atomic_int stuck_started; /* the main thread prints its line only once the stuck callback has started */
 static atomic_int publishers_left;
 
 static int64_t now_ns(clockid_t clock) {
@@ -213,16 +220,24 @@ static void publish(int64_t seq) {
 }
 
 /* One executable's run, as Executor::execute_any_executable does for a timer: execute, then the callback. */
-static void run_timer_callback(timer_cb *t, int64_t seq) {
+static void run_timer_callback(timer_cb *t, int64_t seq, int64_t release) {
     LIB(rclcpp_executor_execute, &t->rcl_timer);
+    if (release >= 0) {
+        int64_t latency = now_ns(CLOCK_MONOTONIC) - release;
+        if (!t->latency_n || latency < t->latency_min) t->latency_min = latency;
+        if (!t->latency_n || latency > t->latency_max) t->latency_max = latency;
+        t->latency_sum += latency;
+        t->latency_n++;
+    }
     TP(callback_start, &t->callback, false);
     t->started++;
     if (t == &stuck) {
+        atomic_store(&stuck_started, 1);
         for (;;) pause();
     }
     burn(burn_ns);
     if (nested && t == &timers[0]) {
-        run_timer_callback(&inner, seq); /* spin_some inside a callback */
+        run_timer_callback(&inner, seq, -1); /* spin_some inside a callback: no release of its own */
     }
     if (t != &inner) publish(seq);
     TP(callback_end, &t->callback);
@@ -240,14 +255,14 @@ static void spin_timer(timer_cb *t) {
         sleep_until(next);
         if (stopping) break;
         LIB0(rclcpp_executor_get_next_ready);
-        int64_t now = now_ns(CLOCK_MONOTONIC);
+        int64_t now = now_ns(CLOCK_MONOTONIC), release = next;
         next += t->period;
         if (next < now) {
             int64_t ahead = 1 + (now - next) / t->period;
             t->missed += ahead;
             next += ahead * t->period;
         }
-        run_timer_callback(t, t->count);
+        run_timer_callback(t, t->count, release);
     }
 }
 
@@ -263,7 +278,7 @@ static void *stuck_thread(void *arg) {
     LIB(rclcpp_executor_wait_for_work, period_ns);
     sleep_until(stuck.first_release);
     LIB0(rclcpp_executor_get_next_ready);
-    run_timer_callback(&stuck, 0); /* never returns */
+    run_timer_callback(&stuck, 0, stuck.first_release); /* never returns */
     return NULL;
 }
 
@@ -339,9 +354,11 @@ static void on_signal(int sig) {
 static void print_timer(FILE *out, const timer_cb *t, int *first) {
     fprintf(out,
             "%s{\"name\":\"%s\",\"kind\":\"timer\",\"node\":\"minimal_publisher\",\"symbol\":\"%s\",\"thread\":\"%s\","
-            "\"count\":%lld,\"missed\":%lld,\"first_release\":%lld,\"period\":%lld,\"started\":%d,\"ended\":%d}",
+            "\"count\":%lld,\"missed\":%lld,\"first_release\":%lld,\"period\":%lld,\"started\":%d,\"ended\":%d,"
+            "\"latency\":{\"n\":%lld,\"min\":%lld,\"max\":%lld,\"mean\":%lld}}",
             *first ? "" : ",", t->label, t->symbol, t->thread, t->count, t->missed, (long long)t->first_release,
-            (long long)t->period, t->started, t->ended);
+            (long long)t->period, t->started, t->ended, (long long)t->latency_n, (long long)t->latency_min,
+            (long long)t->latency_max, (long long)(t->latency_n ? t->latency_sum / t->latency_n : 0));
     *first = 0;
 }
 
@@ -354,7 +371,8 @@ static void print_json(int exec_status, double bench_ns) {
     if (never_end && !is_child) print_timer(out, &stuck, &first);
     if (!no_sub && !is_child && !bench) {
         fprintf(out,
-                "%s{\"name\":\"subscription\",\"kind\":\"subscription\",\"node\":\"minimal_subscriber\",\"topic\":\"/topic\","
+                "%s{\"name\":\"subscription\",\"kind\":\"subscription\",\"node\":\"minimal_subscriber\","
+                "\"topic\":\"/topic\","
                 "\"intra\":%s,\"thread\":\"exec_sub\",\"count\":%lld,\"empty_takes\":%lld}",
                 first ? "" : ",", intra ? "true" : "false", sub_count, sub_empty_takes);
         first = 0;
@@ -456,8 +474,8 @@ int main(int argc, char **argv) {
     static const char *services[] = {"/minimal_publisher/get_parameters", "/minimal_publisher/set_parameters"};
     for (int i = 0; i < 2; i++) {
         LIB(rcl_service_init, &param_srv[i], &node, &rmw_param_srv[i], services[i]);
-        TP(rclcpp_service_callback_added, &param_srv[i], &rmw_param_srv[i]);
-        register_callback(&rmw_param_srv[i], "rclcpp::ParameterService::ParameterService(...)::{lambda(...)#1}");
+        TP(rclcpp_service_callback_added, &param_srv[i], &param_srv_callback[i]);
+        register_callback(&param_srv_callback[i], "rclcpp::ParameterService::ParameterService(...)::{lambda(...)#1}");
     }
 
     if (bench) {
@@ -494,7 +512,7 @@ int main(int argc, char **argv) {
         LIB(rcl_node_init, &node_b, &rmw_node_b, "minimal_subscriber", "/");
         LIB(rmw_subscription_init, &rmw_subscription, gid);
         LIB(rcl_subscription_init, &subscription, &node_b, &rmw_subscription, "/topic", (size_t)10);
-        if (intra) { /* SubscriptionIntraProcess is built first, and named before the rcl subscription is linked to it */
+        if (intra) { /* SubscriptionIntraProcess is built first, and named before the rcl subscription is linked */
             TP(rclcpp_subscription_callback_added, &ipc_object, &ipc_callback);
             register_callback(&ipc_callback, "MinimalSubscriber::topic_callback(std_msgs::msg::String const&) const");
             TP(rclcpp_subscription_init, &subscription, &ipc_object);
@@ -535,6 +553,7 @@ int main(int argc, char **argv) {
     for (int i = 0; i < n_threads; i++) pthread_join(executors[i], NULL);
     if (many) pthread_join(many_runner, NULL);
     if (!no_sub) pthread_join(subscriber, NULL);
+    while (never_end && !atomic_load(&stuck_started) && !stopping) usleep(1000);
     int exec_status = exec_prog ? run_exec() : 0;
     while (do_fork && wait(NULL) > 0) {
     }
