@@ -16,7 +16,7 @@ import time
 from typing import Any
 
 import pytest
-from rosfake import DISTROS, HEADERS, SESSION_ENV, Distro, NodeRun, RosFake, build, declarations, exported_names
+from rosfake import DISTROS, HEADERS, SESSION_ENV, Declaration, Distro, NodeRun, RosFake, build, declarations, exported_names
 
 
 @pytest.fixture(scope="session")
@@ -59,6 +59,21 @@ def test_the_generator_finds_every_declaration_block(distro: str) -> None:
     assert by_name["rclcpp_executor_get_next_ready"].parameters == ()
     rmw_publish = [name for _, name in by_name["rmw_publish"].parameters]
     assert rmw_publish == (["message"] if distro == "humble" else ["rmw_publisher_handle", "message", "timestamp"])
+
+
+def test_the_parser_reads_both_declaration_macros_past_comments_and_refuses_what_it_cannot_split() -> None:
+    header = (
+        "#  define DECLARE_TRACEPOINT(...) \\\n  nothing(__VA_ARGS__)\n"  # a macro's definition is no block
+        "DECLARE_TRACEPOINT(\n  first, /* a comment, with a comma */\n  const void * handle,  // and (one)\n  int64_t  period)\n"
+        "_DECLARE_TRACEPOINT(\n  second)\n"
+    )
+    assert declarations(header) == [
+        Declaration("first", (("const void *", "handle"), ("int64_t", "period"))),
+        Declaration("second", ()),
+    ]
+    assert [d.signature() for d in declarations(header)] == ["const void * handle, int64_t period", "void"]
+    with pytest.raises(ValueError, match="cannot split the parameter"):
+        declarations("DECLARE_TRACEPOINT(\n  third,\n  const void *)\n")
 
 
 @pytest.mark.parametrize("distro", DISTROS)
@@ -137,6 +152,11 @@ def test_fork_runs_callbacks_in_the_child_and_the_parent(ros: RosFake) -> None:
 def test_exec_runs_a_program_and_reports_its_status(ros: RosFake, prog: str, status: int) -> None:
     done = _run(ros.distros["humble"], "--exec", prog, "--count", "2", "--period", "1ms")
     assert done.main["exec"] == {"prog": prog, "status": status} and done.callback("timer0")["count"] == 2
+
+
+def test_exec_of_a_missing_program_is_127_and_its_name_stays_json(ros: RosFake) -> None:
+    done = _run(ros.distros["jazzy"], "--exec", 'no "such" \\ program', "--count", "1", "--period", "1ms", "--no-sub")
+    assert done.main["exec"] == {"prog": 'no "such" \\ program', "status": 127}
 
 
 def test_many_callback_objects(ros: RosFake) -> None:

@@ -351,6 +351,17 @@ static void on_signal(int sig) {
     stopping = 1;
 }
 
+/* A string as a JSON string: the program's name comes from the command line. */
+static void print_string(FILE *out, const char *text) {
+    fputc('"', out);
+    for (const unsigned char *c = (const unsigned char *)text; *c; c++) {
+        if (*c == '"' || *c == '\\') fprintf(out, "\\%c", *c);
+        else if (*c < 0x20) fprintf(out, "\\u%04x", *c);
+        else fputc(*c, out);
+    }
+    fputc('"', out);
+}
+
 static void print_timer(FILE *out, const timer_cb *t, int *first) {
     fprintf(out,
             "%s{\"name\":\"%s\",\"kind\":\"timer\",\"node\":\"minimal_publisher\",\"symbol\":\"%s\",\"thread\":\"%s\","
@@ -400,7 +411,11 @@ static void print_json(int exec_status, double bench_ns) {
 #ifdef EXISTING_DEFINER
     fprintf(out, ",\"definer_calls\":%llu", atomic_load(&definer_calls));
 #endif
-    if (exec_prog) fprintf(out, ",\"exec\":{\"prog\":\"%s\",\"status\":%d}", exec_prog, exec_status);
+    if (exec_prog) {
+        fprintf(out, ",\"exec\":{\"prog\":");
+        print_string(out, exec_prog);
+        fprintf(out, ",\"status\":%d}", exec_status);
+    }
     if (bench) fprintf(out, ",\"bench\":{\"pairs\":%ld,\"ns_per_pair\":%.1f}", bench, bench_ns);
     fprintf(out, "}\n");
     fflush(out);
