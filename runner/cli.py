@@ -491,7 +491,7 @@ def _cmd_report(argv: list[str]) -> int:
         section, cmp = compare_files(ns.baseline, doc, ns.results, thresholds)
         regressions, statuses = cmp.regressions, statuses + comparison_statuses(cmp, ns.results)
     if ns.output == "-":
-        say(render_run(doc, None, section))
+        say(render_run(doc, None, section, compared=cmp, cwd=os.getcwd()))
     else:
         if not ns.output and not (os.path.isdir(ns.results) or os.path.isfile(ns.results)):
             raise UsageError(
@@ -511,6 +511,7 @@ def _cmd_report(argv: list[str]) -> int:
                 name=os.path.basename(target),
                 quiet_input_errors=True,
                 named=bool(ns.output),
+                compared=cmp,
             )
         except OSError as exc:
             raise from_os_error(exc, "cannot write the report", path=target) from None

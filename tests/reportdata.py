@@ -11,6 +11,8 @@ from runner.results.read import load
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 MATRIX = os.path.join(DATA, "policy_matrix")  # 5 cells, 1 s each, one hog per CPU
 MEMORY = os.path.join(DATA, "memory_lock")  # 3 cells: unlocked, locked, locked + preallocated
+TRACED = os.path.join(DATA, "traced")  # tests/data/traced.yaml: FIFO 80 and OTHER on CPU 0 under the trace, 2 expectations failed
+PROGRAM = os.path.join(DATA, "own_program")  # scenarios/own_program.yaml: cyclictest as a program (command:), traced
 
 
 def matrix() -> RunDocument:
@@ -19,6 +21,14 @@ def matrix() -> RunDocument:
 
 def memory() -> RunDocument:
     return load(MEMORY)
+
+
+def traced() -> RunDocument:
+    return load(TRACED)
+
+
+def program() -> RunDocument:
+    return load(PROGRAM)
 
 
 def main_thread(cell: CellResult) -> ThreadResult:

@@ -15,7 +15,7 @@ from conftest import run_cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from markdown_it import MarkdownIt
-from reportdata import DATA, MATRIX, matrix, memory, renamed
+from reportdata import DATA, MATRIX, matrix, memory, program, renamed, traced
 
 from runner.report import fmt
 from runner.report import markdown as report
@@ -27,8 +27,8 @@ GOLDEN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "golden")
 def golden(name: str, text: str) -> None:
     """Compare with tests/golden/NAME; UPDATE_GOLDEN=1 rewrites it (review the diff before committing).
 
-    Tables are compared as parsed cells (text, alignment), not as padded source: the padding
-    depends on how wide the installed wcwidth (if any) thinks an emoji is, the content does not.
+    Tables are compared as parsed cells (text, alignment), not as source: how a table is spaced
+    out (cells are no longer padded to their column's width) does not matter, its content does.
     Everything outside the tables is compared byte for byte.
     """
     path = os.path.join(GOLDEN, name)
@@ -115,6 +115,16 @@ def test_matrix_report_matches_golden_file():
 
 def test_memory_lock_report_matches_golden_file():
     golden("memory_lock.md", report.render_run(memory()))
+
+
+def test_traced_report_matches_golden_file():
+    """A run the scheduler trace followed, with expectations that failed: the headline's `file:line`, the trace's table."""
+    golden("traced.md", report.render_run(traced()))
+
+
+def test_program_report_matches_golden_file():
+    """A `command:` program measured from outside: its command line, its rule, /proc's rates and the trace's."""
+    golden("own_program.md", report.render_run(program()))
 
 
 def test_every_table_parses_as_a_table_with_even_rows():

@@ -30,15 +30,22 @@ REPORTS = sorted(name for name in os.listdir(GOLDEN) if name.endswith(".md"))
 
 MEASURE = """
 <script>
+document.querySelectorAll("details").forEach(d => { d.open = true; });  // what a reader opens is measured too
 const out = [...document.querySelectorAll("table")].map((t, i) => ({
   table: i,
   first: (t.querySelector("th") || {}).textContent || "",
   scroll: t.scrollWidth,
   client: t.clientWidth,
 }));
+const article = document.querySelector("article");
+const wide = [...article.querySelectorAll("p, li, pre, summary, h1, h2, h3")]
+  .filter(e => e.scrollWidth > e.clientWidth || e.getBoundingClientRect().right > article.getBoundingClientRect().right + 0.5)
+  .map(e => e.tagName + ": " + e.textContent.slice(0, 80));
 const pre = document.createElement("pre");
 pre.id = "verdict";
-pre.textContent = JSON.stringify({tables: out, height: document.documentElement.scrollHeight});
+pre.textContent = JSON.stringify({
+  tables: out, wide: wide, article: [article.scrollWidth, article.clientWidth], height: document.documentElement.scrollHeight,
+});
 document.body.appendChild(pre);
 </script>
 """
@@ -62,7 +69,7 @@ def _browser() -> str:
 
 def page(markdown: str) -> str:
     """`markdown` as GitHub renders it: GFM tables (alignment from the `:` markers), GitHub's CSS, a 1012 px column."""
-    body = MarkdownIt("commonmark", {"html": False}).enable(["table", "strikethrough"]).render(markdown)
+    body = MarkdownIt("commonmark", {"html": True}).enable(["table", "strikethrough"]).render(markdown)  # GitHub keeps <details>
     with open(CSS, encoding="utf-8") as handle:
         css = handle.read()
     return (
@@ -90,8 +97,9 @@ def chromium(browser: str, path: str, *args: str) -> str:
     return done.stdout
 
 
-def measure(browser: str, markdown: str, folder: str, name: str) -> list[dict[str, object]]:
-    """Every table of `markdown` as chromium lays it out: its first header, scrollWidth and clientWidth; a screenshot beside."""
+def measure(browser: str, markdown: str, folder: str, name: str) -> dict[str, object]:
+    """`markdown` as chromium lays it out, a collapsed `<details>` opened: every table (its first header, scrollWidth and
+    clientWidth), the text blocks wider than the column (`wide`) and the column's own widths; a screenshot beside."""
     path = os.path.join(folder, f"{name}.html")
     with open(path, "w", encoding="utf-8") as handle:
         handle.write(page(markdown))
@@ -104,8 +112,7 @@ def measure(browser: str, markdown: str, folder: str, name: str) -> list[dict[st
     os.makedirs(os.path.dirname(shot), exist_ok=True)
     chromium(browser, path, f"--screenshot={shot}", f"--window-size={COLUMN_PX + 32},{height}", f"file://{path}")
     assert os.path.getsize(shot) > 0
-    tables: list[dict[str, object]] = verdict["tables"]
-    return tables
+    return dict(verdict)
 
 
 @pytest.mark.parametrize("name", REPORTS)
@@ -113,7 +120,8 @@ def test_no_table_of_a_golden_report_overflows_githubs_column(name, tmp_path):
     browser = _browser()
     with open(os.path.join(GOLDEN, name), encoding="utf-8") as handle:
         markdown = handle.read()
-    tables = measure(browser, markdown, str(tmp_path), name.removesuffix(".md"))
+    seen = measure(browser, markdown, str(tmp_path), name.removesuffix(".md"))
+    tables: list[dict[str, object]] = seen["tables"]  # type: ignore[assignment]
     parsed = MarkdownIt("commonmark").enable("table").parse(markdown)
     assert len(tables) == sum(tok.type == "table_open" for tok in parsed) > 0  # every table was measured
     clipped = [t for t in tables if int(t["scroll"]) > int(t["client"])]  # type: ignore[call-overload]
@@ -122,10 +130,32 @@ def test_no_table_of_a_golden_report_overflows_githubs_column(name, tmp_path):
     )
 
 
+@pytest.mark.parametrize("name", REPORTS)
+def test_nothing_of_a_golden_report_overflows_githubs_column(name, tmp_path):
+    """Nor text: a code span of one long word, a line of a code block, the facts in their collapsed block (opened)."""
+    browser = _browser()
+    with open(os.path.join(GOLDEN, name), encoding="utf-8") as handle:
+        seen = measure(browser, handle.read(), str(tmp_path), name.removesuffix(".md"))
+    scroll, client = seen["article"]  # type: ignore[misc]
+    assert not seen["wide"] and scroll <= client, f"{name}: wider than {COLUMN_PX} px: {seen['wide']} ({scroll} px)"
+
+
+def test_the_measure_sees_text_too_wide_for_the_column_and_opens_a_collapsed_block(tmp_path):
+    """The check can fail: a code block's line of 300 letters is wider than 1012 px, in a collapsed block too, and so is a
+    table of one 300-letter word there.  (A code span or a word in a paragraph wraps: GitHub's CSS breaks long words.)"""
+    browser = _browser()
+    long_line = "```text\n" + "y" * 300 + "\n```\n"
+    for markdown in (long_line, "<details>\n<summary>s</summary>\n\n" + long_line + "\n</details>\n"):
+        assert measure(browser, markdown, str(tmp_path), "probe")["wide"], markdown
+    table = "<details>\n<summary>s</summary>\n\n| a |\n|---|\n| `" + "z" * 300 + "` |\n\n</details>\n"
+    found = measure(browser, table, str(tmp_path), "probe")["tables"]
+    assert [int(t["scroll"]) > int(t["client"]) for t in found] == [True]  # type: ignore[call-overload,index,union-attr]
+
+
 def test_the_measure_sees_a_table_too_wide_for_the_column(tmp_path):
     """The check can fail: fourteen columns of long unbroken words do not fit in 1012 px, four short ones do."""
     browser = _browser()
     wide = "| " + " | ".join(f"Involuntary_per_callback_{i}" for i in range(14)) + " |\n|" + "---:|" * 14 + "\n|" + " 1 |" * 14 + "\n"
     narrow = "| a | b | c | d |\n|---|--:|--:|--:|\n| x | 1 | 2 | 3 |\n"
-    tables = measure(browser, wide + "\n" + narrow, str(tmp_path), "probe")
-    assert [int(t["scroll"]) > int(t["client"]) for t in tables] == [True, False]  # type: ignore[call-overload]
+    tables = measure(browser, wide + "\n" + narrow, str(tmp_path), "probe")["tables"]
+    assert [int(t["scroll"]) > int(t["client"]) for t in tables] == [True, False]  # type: ignore[call-overload,index,union-attr]

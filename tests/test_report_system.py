@@ -85,7 +85,7 @@ def test_report_system_facts_and_warnings_in_the_report():
     """The recorded matrix on a machine with FIFO 50 IRQ threads and isolated CPUs: rows, and a finding per placement."""
     doc = _with_facts(matrix(), _facts(isolated_cpus="2-3"))
     text = report.render_run(doc)
-    facts = dict(tables(text)[0][1:])
+    facts = dict(tables(text)[-1][1:])  # the facts close the report
     assert all(name in facts for name in FACT_NAMES)
     assert facts["CPU frequency governor"] == "performance (CPUs 2-3), powersave (CPUs 0-1)"  # replaces the plain list
     findings = [line for line in text.splitlines() if line.startswith("- ⚠️")]
@@ -113,6 +113,6 @@ def test_report_system_a_warning_in_every_cell_says_so_once():
 
 def test_report_system_a_hostile_cmdline_stays_one_table_cell():
     doc = _with_facts(matrix(), _facts(cmdline="a|b `c` <script> | ## x\\"))
-    facts = tables(report.render_run(doc))[0]
+    facts = tables(report.render_run(doc))[-1]
     assert all(len(row) == 2 for row in facts)
     assert dict(facts[1:])["Kernel command line"].count("a|b") == 1

@@ -8,11 +8,10 @@ Formatting is the only place a figure is scaled: results hold durations as integ
 from __future__ import annotations
 
 import functools
+import posixpath
 import re
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
-
-from wcwidth import wcswidth
 
 from runner import units
 from runner.figures import Figure, Number, Unit, scale
@@ -205,42 +204,20 @@ LEFT, RIGHT = "left", "right"
 
 
 def pipe_table(headers: Sequence[object], rows: Iterable[Sequence[object]], align: Sequence[str]) -> Markdown:
-    """A GitHub-flavoured markdown table with `:---` / `---:` alignment markers, columns padded to their width.
+    """A GitHub-flavoured markdown table with `:---` / `---:` alignment markers, each cell as long as its text.
 
-    Cells that are not Markdown are text, escaped by `md_text`.  Padding counts display
-    columns (an emoji is two), so the source lines up in a terminal too; GitHub ignores it.
-    Written here rather than by tabulate: a 1,000-cell report has 20,000 rows, and this is
-    about four times faster.
+    Cells that are not Markdown are text, escaped by `md_text`.  Cells are not padded to their
+    column's width: one long cell (a command line, a finding) made every line of its table as
+    long, hundreds of characters of spaces in report.md and in a job summary; GitHub ignores the
+    padding, and a reader of the source finds a row by its first cell.  Written here rather than
+    by tabulate: a 1,000-cell report has 20,000 rows, and this is about four times faster.
     """
-    head = [_measured(h) for h in headers]
-    body = [[_measured(c) for c in r] for r in rows]
-    widths = [max(3, width) for _, width in head]
-    for r in body:
-        for i, (_, width) in enumerate(r):
-            if width > widths[i]:
-                widths[i] = width
 
-    def line(cells: Sequence[tuple[str, int]]) -> str:
-        return "| " + " | ".join(_pad(c, have, w, a) for (c, have), w, a in zip(cells, widths, align)) + " |"
+    def line(cells: Iterable[object]) -> str:
+        return "| " + " | ".join(md_text(c, in_table=True) for c in cells) + " |"
 
-    rule = "|" + "|".join(("-" * (w + 1) + ":") if a == RIGHT else (":" + "-" * (w + 1)) for w, a in zip(widths, align)) + "|"
-    return Markdown("\n".join([line(head), rule, *(line(r) for r in body)]))
-
-
-def _measured(cell: object) -> tuple[str, int]:
-    """A table cell as markdown, with its display width (measured once: the widths of a column, then its padding)."""
-    text = md_text(cell, in_table=True)
-    return text, _width(text)
-
-
-def _width(text: str) -> int:
-    width = wcswidth(text)
-    return width if width >= 0 else len(text)
-
-
-def _pad(text: str, have: int, width: int, align: str) -> str:
-    gap = " " * (width - have)
-    return gap + text if align == RIGHT else text + gap
+    rule = "|" + "|".join("---:" if a == RIGHT else ":---" for a in align) + "|"
+    return Markdown("\n".join([line(headers), rule, *(line(r) for r in rows)]))
 
 
 _ENV: jinja2.Environment | None = None
@@ -267,3 +244,33 @@ def environment() -> jinja2.Environment:
             finalize=md_text,
         )
     return _ENV
+
+
+# ---------------------------------------------------------------- paths
+
+
+def relative_path(path: str, cwd: str | None) -> str:
+    """`path` as a report shows it: relative to the working directory `cwd` when it lies inside it, else as given.
+
+    A results file keeps the command line as typed; in CI that is the runner machine's checkout
+    (`/home/runner/work/repo/repo/scenarios/x.yaml`), which says nothing to a reader and differs
+    from host to host.  Pure: `cwd` is given, not read.
+    """
+    if cwd is None or not path.startswith("/"):
+        return path
+    root, full = posixpath.normpath(cwd), posixpath.normpath(path)
+    if full == root:
+        return "."
+    return posixpath.relpath(full, root) if posixpath.commonpath([full, root]) == root else path
+
+
+def relative_command(argv: Sequence[str], cwd: str | None) -> list[str]:
+    """A command line with each absolute path inside `cwd` made relative (`--out=/abs/dir` too)."""
+    out = []
+    for word in argv:
+        option, eq, value = word.partition("=")
+        if eq and option.startswith("-"):
+            out.append(f"{option}={relative_path(value, cwd)}")
+        else:
+            out.append(relative_path(word, cwd))
+    return out

@@ -2,7 +2,11 @@
 
 Pure: a results document in, markdown out (no file access).  The layout lives in
 `templates/report.md.j2`; this module gathers the rows into the model the template
-arranges.  The words live in `findings`, the tables (the facts among them) (GitHub-flavoured markdown from
+arranges.  The report leads with its verdict (`headline`: passed, failed or regressed, and each
+failure with its `file:line`), then the findings, the tables, the cells (each with its verdicts
+first), and closes with the machine's facts in a collapsed block.  What a cell shows about its
+programs beyond every thread's tables is added in one place, `program_sections`.  The words
+live in `findings`, the tables (the facts among them) (GitHub-flavoured markdown from
 `fmt.pipe_table`, not tabulate, which is too slow for a 1,000-cell report) in `tables`, the
 comparison with a baseline in `compareview`; the names callers use are re-exported here
 (`render_run`, `render_comparison`, `build_comparison`, `Table`, `Plot`, ...).
@@ -14,6 +18,7 @@ import re
 import shlex
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from runner.report import system
 from runner.report.compareview import build_comparison, change_text, interval_ends, interval_text, render_comparison
@@ -30,6 +35,7 @@ from runner.report.findings import (
     thread_labels,
 )
 from runner.report.fmt import Markdown, environment, md_code, md_code_block, md_text
+from runner.report.headline import Headline, headline
 from runner.report.selection import REPORT_ROWS, lines_shown, ps_rows_shown, threads_shown
 from runner.report.tables import (
     Table,
@@ -39,7 +45,7 @@ from runner.report.tables import (
     facts,
     faults_table,
     latency_table,
-    outside_table,
+    outside_tables,
     phases_table,
     preemption_lines,
     program_lines,
@@ -54,6 +60,10 @@ from runner.report.tables import (
 )
 from runner.results.document import Background, BackgroundKind, CellResult, RunDocument
 from runner.results.pstable import render_ps
+
+if TYPE_CHECKING:
+    from runner.history.judge import NightVerdict
+    from runner.report.compare import Comparison
 
 __all__ = [  # the face of the report: what callers (publish, the CLI, plots, outcomes, tests) take from here
     "MAX_THREAD_VIEWS",
@@ -90,6 +100,14 @@ class Plot:
     path: str  # relative to the report
 
 
+@dataclass(frozen=True)
+class Block:
+    """A captioned table in a cell's section, about its programs (`program_sections`)."""
+
+    caption: Markdown
+    table: Table
+
+
 @dataclass
 class CellSection:
     cell: CellResult
@@ -103,13 +121,13 @@ class CellSection:
     latency: Table | None
     timing: Table | None
     faults: Table
-    events: Table | None
-    phases: Table | None
+    blocks: list[Block]
     verdicts: Table | None
     degraded: list[str]
     load: Markdown
     programs: list[Markdown] = field(default_factory=list)
-    outside: Table | None = None
+    outside: Table | None = None  # from /proc
+    traced: Table | None = None  # from the scheduler trace
     preemptions: list[str] = field(default_factory=list)
     trace: str | None = None
     warnings: list[str] = field(default_factory=list)
@@ -128,6 +146,7 @@ class ThreadView:
 @dataclass
 class ReportModel:
     title: str
+    headline: Headline
     description: str
     facts: Table
     findings: list[Markdown]
@@ -157,12 +176,41 @@ def _command(c: Background) -> str:
     return f"{md_text(c.name)} ({line})" if c.name and c.argv and c.name != c.argv[0] else line
 
 
+def program_sections(cell: CellResult, labels: dict[str, str]) -> list[Block]:
+    """What a cell's section shows about its programs beyond the tables every thread has, in order: the one place a
+    section about programs is added (a call each), shown after the thread tables and before the page faults."""
+    blocks = []
+    events = events_table(cell, labels)
+    if events is not None:
+        blocks.append(
+            Block(
+                Markdown(
+                    "Events of each program (`kind: phases`): a lock's wait and who held the mutex, a timer's or a resume's "
+                    "wake-up latency, the wall time of the rest"
+                ),
+                _compact(events),
+            )
+        )
+    phases = phases_table(cell, labels)
+    if phases is not None:
+        caption = "Phases of each program, with the settings the thread read back from the kernel as it entered each one"
+        blocks.append(Block(Markdown(caption), _compact(phases)))
+    return blocks
+
+
+def _compact(t: Table) -> Table:
+    """`t` without the columns empty in every row (`Table.compact`), or as it is when only its first would be left."""
+    return t.compact() or t
+
+
 def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width: int) -> CellSection:
     picked = threads_shown(cell, REPORT_ROWS)
     rows = [(labels[t.key], t) for t in picked.threads]
     ps_rows, _ = ps_rows_shown(cell.thread_table, picked)
     warnings, more_warnings = lines_shown(cell.warnings, REPORT_ROWS)
     degraded, more_degraded = lines_shown([f"{labels[t.key]}: {why}" for t in cell.threads for why in t.degraded], REPORT_ROWS)
+    latency, timing, verdicts = latency_table(rows), timing_table(rows), verdict_table(cell)
+    outside, traced = outside_tables(rows)
     return CellSection(
         cell=cell,
         title=section_title(cell, repeated),
@@ -170,20 +218,20 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         icon=ICON[cell.status],
         finding=cell_finding(cell, labels),
         ps=md_code_block(render_ps(ps_rows, pid_width=pid_width), "text") if cell.thread_table else None,
-        threads=threads_table(rows),
-        switches=switches_table(rows),
-        latency=latency_table(rows),
-        timing=timing_table(rows),
-        faults=faults_table(rows),
-        events=events_table(cell, labels),
-        phases=phases_table(cell, labels),
-        verdicts=verdict_table(cell),
+        threads=_compact(threads_table(rows)),
+        switches=_compact(switches_table(rows)),
+        latency=_compact(latency) if latency else None,
+        timing=_compact(timing) if timing else None,
+        faults=_compact(faults_table(rows)),
+        blocks=program_sections(cell, labels),
+        verdicts=verdicts,
         degraded=degraded + ([f"... {more_degraded:,} more: see results.json"] if more_degraded else []),
         warnings=warnings + ([f"... {more_warnings:,} more warnings: see results.json"] if more_warnings else []),
         shown=picked.note(),
         load=_load_line(cell),
         programs=program_lines(cell),
-        outside=outside_table(rows),
+        outside=outside,
+        traced=traced,
         preemptions=preemption_lines(rows),
         trace=trace_line(cell),
     )
@@ -220,8 +268,15 @@ def build(
     comparison: str | None = None,
     pid_width: int = 5,
     plots_note: Markdown | None = None,
+    compared: Comparison | None = None,
+    history: NightVerdict | None = None,
+    cwd: str | None = None,
 ) -> ReportModel:
-    """Everything the template shows, as text and tables; `plots` are the plot files drawn beside the report."""
+    """Everything the template shows, as text and tables; `plots` are the plot files drawn beside the report.
+
+    `comparison` is the comparison's section (markdown); `compared` and `history` the comparison and the judgement
+    against the past nights it words, whose regressions the headline lists; paths are shown relative to `cwd`.
+    """
     cells = matrix_order(doc)
     labels = thread_labels(cells)
     repeated = any(c.repeat for c in cells)
@@ -233,7 +288,8 @@ def build(
         for key in threads_of_interest(firsts):
             entries = by_thread[key]
             if len(entries) > 1:
-                threads.append(ThreadView(labels[key], across_cells(entries[:MAX_SIDE_BY_SIDE]), len(entries)))
+                views = [(caption, _compact(t)) for caption, t in across_cells(entries[:MAX_SIDE_BY_SIDE])]
+                threads.append(ThreadView(labels[key], views, len(entries)))
     sections = [_section(cell, labels, repeated, pid_width) for cell in cells]
     findings = matrix_finding(firsts, labels) if matrix else []
     if not findings:
@@ -259,10 +315,11 @@ def build(
         )
     return ReportModel(
         title=f"{doc.name}: scheduling report",
+        headline=headline(doc, compared, history, cwd),
         description=doc.scenario.description,
-        facts=facts(doc),
+        facts=facts(doc, cwd),
         findings=findings,
-        summary=summary_tables(cells, repeated) if len(cells) > 1 else [],
+        summary=[_compact(t) for t in summary_tables(cells, repeated)] if len(cells) > 1 else [],
         spread=spread_table(cells, labels),
         threads=threads,
         sections=sections,
@@ -284,5 +341,8 @@ def render_run(
     comparison: str | None = None,
     pid_width: int = 5,
     plots_note: Markdown | None = None,
+    compared: Comparison | None = None,
+    history: NightVerdict | None = None,
+    cwd: str | None = None,
 ) -> str:
-    return render(build(doc, plots, comparison, pid_width, plots_note))
+    return render(build(doc, plots, comparison, pid_width, plots_note, compared, history, cwd))

@@ -7,6 +7,7 @@ atomically, so a reader never sees half a report, and never through a link (runn
 from __future__ import annotations
 
 import os
+import re
 from typing import TYPE_CHECKING, Optional
 
 from runner.collector import collector_paused
@@ -55,6 +56,8 @@ def report_files(
     name: str = REPORT_NAME,
     quiet_input_errors: bool = False,
     named: bool = False,
+    compared: Optional[Comparison] = None,
+    history: Optional[NightVerdict] = None,
 ) -> tuple[str, Optional[RunnerError]]:
     """`write_report`, and the error the plots failed with when it is the input's (a samples file that cannot be read)
     or the output's (an OutputError: a plot file that could not be written, a full disk).
@@ -66,6 +69,8 @@ def report_files(
     error is never a warning: every caller raises it once what it writes after the plots is written.
     `named`: the report's file is one the user named (`runner report -o FILE`), written as such
     (safefs.write_named: /dev/null is written into); else it is the results folder's report.md.
+    `compared` and `history`: the comparison and the judgement against past nights that `comparison` words, whose
+    regressions the report's headline lists.  Paths in the report are relative to the working directory.
     """
     from runner.report import plots as drawing  # matplotlib itself only when a plot is drawn
 
@@ -87,7 +92,7 @@ def report_files(
         skipped = drawing.skipped_note()
         warn(skipped)
     with collector_paused():
-        text = report.render_run(doc, links, comparison, pid_width, skipped)
+        text = report.render_run(doc, links, comparison, pid_width, skipped, compared, history, os.getcwd())
     path = os.path.join(folder, name)
     (write_named if named else write_atomic)(path, text)
     return path, failed
@@ -98,7 +103,7 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
     path = env.get("GITHUB_STEP_SUMMARY")
     if not path:
         return None
-    text = "\n".join(line for line in text.splitlines() if not line.startswith("![")) + "\n"  # plots don't travel
+    text = without_empty_headings([line for line in text.splitlines() if not line.startswith("![")])  # plots don't travel
     if len(text.encode()) > STEP_SUMMARY_LIMIT:
         cut = text.encode()[: STEP_SUMMARY_LIMIT - 200].decode(errors="ignore")
         text = cut[: cut.rfind("\n## ")] + "\n\n> Report cut to fit the job summary; the full report is in the artifacts.\n"
@@ -108,6 +113,36 @@ def append_step_summary(text: str, env: dict[str, str]) -> Optional[str]:
         warn(f"cannot append to GITHUB_STEP_SUMMARY {path}: {exc.strerror or exc}")
         return None
     return path
+
+
+def without_empty_headings(lines: list[str]) -> str:
+    """`lines` as text, without the headings that head nothing (the next heading, of the same level or above, or the
+    end, follows it): a job summary's `## Plots` once its images are left out.  Lines in code blocks are no headings."""
+    out: list[str] = []
+    fence = ""
+    pending: list[int] = []  # indexes in `out` of headings with nothing under them yet, outermost first
+    for line in lines:
+        marker = re.match(r" {0,3}(`{3,}|~{3,})", line)
+        if fence:
+            fence = "" if marker and marker.group(1).startswith(fence) and not line.strip().strip(fence[0]) else fence
+        elif marker:
+            fence = marker.group(1)
+        heading = None if fence or marker else re.match(r" {0,3}(#{1,6})(\s|$)", line)
+        if heading:
+            level = len(heading.group(1))
+            while pending and _level(out[pending[-1]]) >= level:  # closed with nothing under it
+                del out[pending.pop() :]
+            pending.append(len(out))
+        elif line.strip():
+            pending = []
+        out.append(line)
+    for at in reversed(pending):
+        del out[at:]
+    return "\n".join(out).rstrip("\n") + "\n"
+
+
+def _level(heading: str) -> int:
+    return len(heading.strip().split(" ", 1)[0])
 
 
 def compare_files(base_path: str, doc: RunDocument, new_path: str, thresholds: list[Threshold]) -> tuple[str, Comparison]:
@@ -206,7 +241,7 @@ def finish(
             section = (section + "\n" if section else "") + render_history(judged, history)
     unwritten: Optional[RunnerError] = None
     if write:
-        path, failed = report_files(doc, folder, section, plots)
+        path, failed = report_files(doc, folder, section, plots, compared=cmp, history=judged)
         unwritten = failed if isinstance(failed, OutputError) else None
         say(f"report: {path}")
         with open(path, encoding="utf-8") as handle:
