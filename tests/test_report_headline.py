@@ -125,3 +125,16 @@ def test_no_report_and_no_job_summary_has_an_empty_heading(tmp_path):
 def test_empty_headings_go_and_nothing_else():
     lines = "# t\n\na\n\n## Plots\n\n## Cell\n\nx\n```\n## not a heading\n```\n\n## Empty\n\n### Empty too\n".splitlines()
     assert without_empty_headings(lines) == "# t\n\na\n\n## Cell\n\nx\n```\n## not a heading\n```\n"
+
+
+def test_an_expectation_failed_in_several_cells_is_one_line_naming_them():
+    doc = matrix()
+    for cell in doc.cells[:3]:
+        cell.expectations[0] = cell.expectations[0].model_copy(update={"passed": False, "line": 30, "col": 5})  # v1 kept no line
+    head = _head(report.render_run(doc))
+    listed = [row for row in head.split("\n## ")[0].splitlines() if row.startswith("- ")]
+    assert listed == [
+        "- ❌ `scenarios/policy_matrix.yaml:30`: minimal_schedul/minimal_schedul (main): involuntary.per_callback_mean <= 0.5: "
+        "in 3 cells (policy=fifo,priority=10, policy=fifo,priority=80, policy=rr,priority=10); in cell policy=fifo,priority=10: "
+        "minimal_schedul/minimal_schedul (main): involuntary switches per callback <= 0.5, measured 0.00"
+    ], listed
