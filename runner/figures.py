@@ -124,6 +124,7 @@ class Scope(str, enum.Enum):
     THREAD = "thread"  # every thread (whole-thread totals from getrusage)
     OUTSIDE = "outside"  # threads measured from outside: programs' threads (/proc), and any thread the scheduler trace followed
     EVENTS = "events"  # only threads whose program has the events the figure is about (locks, waits, chains)
+    ROS = "ros"  # only ROS 2 callbacks measured inside a user's program (`callback:` expectations): per message taken
 
 
 class Worse(str, enum.Enum):
@@ -148,7 +149,13 @@ class Sampling(str, enum.Enum):
 
 
 _LEVELS = {"min": 0.0, "p1": 0.01, "p50": 0.5, "p90": 0.9, "p99": 0.99, "p999": 0.999, "max": 1.0}
-_HISTOGRAMS = {"latency_ns": "latency", "slack_ns": "slack", "callback_wall_ns": "callback_wall", "wakeup_ns": "wakeup"}
+_HISTOGRAMS = {
+    "latency_ns": "latency",
+    "slack_ns": "slack",
+    "callback_wall_ns": "callback_wall",
+    "wakeup_ns": "wakeup",
+    "message_age_ns": "message_age",
+}
 MEAN_MIN_SAMPLES = 30  # below this a mean's normal interval is no interval
 
 
@@ -180,6 +187,7 @@ class Figure:
     trials: Optional[str] = None  # PROPORTION: the figure counting the trials; RATE: the exposure's (None: the cell's seconds)
     events: Optional[str] = None  # RATE given per second: the figure counting its events
     in_trace: bool = False  # the scheduler trace measures it for every thread it follows (traced ones, and migrations)
+    of_callbacks: bool = False  # a figure of another scope that ROS 2 callbacks have too (their chains across processes)
 
     @property
     def is_duration(self) -> bool:
@@ -210,7 +218,7 @@ class Figure:
     @property
     def samples_word(self) -> str:
         """What one sample of the figure is, in words: `callbacks`, `wake-ups`, `events`."""
-        return {"wakeup_ns": "wake-ups"}.get(self.path[0], "callbacks" if self.scope is Scope.CALLBACKS else "events")
+        return {"wakeup_ns": "wake-ups", "message_age_ns": "messages"}.get(self.path[0], "callbacks" if self.scope is Scope.CALLBACKS else "events")
 
     def min_samples(self, confidence: float) -> int:
         """The fewest samples the figure is judged on: what its interval needs to exist (0: any number)."""
@@ -452,8 +460,20 @@ REGISTRY = REGISTRY + tuple(
         Scope.EVENTS,
         (field, q),
         Threshold(relative=0.20, absolute=10_000) if q == "p99" and name in ("lock_wait", "chain") else None,
+        of_callbacks=name == "chain",
     )
     for name, field, words in _EVENT_FIGURES
+    for q in ("p50", "p90", "p99", "max", "mean")
+)
+REGISTRY = REGISTRY + tuple(
+    Figure(
+        f"message_age.{q}",
+        f"message age at the start of the callback that took it (its source timestamp to the start) {_QUANTILE_WORDS[q]}",
+        Unit.NS,
+        Scope.ROS,
+        ("message_age_ns", q),
+        Threshold(relative=0.20, absolute=10_000) if q == "p99" else None,
+    )
     for q in ("p50", "p90", "p99", "max", "mean")
 )
 
@@ -480,10 +500,19 @@ class ThreadKind:
     period: bool = False  # its callbacks are released by a period
     events: bool = False  # runs kind: phases work, whose events have figures
     proc: bool = False  # measured from outside, from /proc: a program's thread (command:, runner watch)
+    ros: bool = False  # a ROS 2 callback measured inside its program: per-callback figures, message ages, chains; no thread totals
+
+
+CALLBACK = ThreadKind("a ROS 2 callback (measured inside its program)", callbacks=True, period=True, ros=True)
+"""What a `callback:` expectation names: a timer callback has every per-callback figure, one that takes messages their ages."""
 
 
 def has(kind: ThreadKind, fig: Figure) -> bool:
     """Whether a thread of `kind` can have `fig` (a traced one, when the scheduler trace runs and follows it)."""
+    if kind.ros:
+        return fig.scope in (Scope.CALLBACKS, Scope.ROS) or fig.of_callbacks
+    if fig.scope is Scope.ROS:
+        return False
     if fig.scope is Scope.CALLBACKS:
         return kind.callbacks and (kind.period or not fig.needs_period)
     if fig.scope is Scope.EVENTS:
@@ -499,6 +528,8 @@ def measured_how(fig: Figure) -> str:
         return "is measured against a period's next release" if fig.needs_period else "is measured per callback"
     if fig.scope is Scope.EVENTS:
         return "is measured on a program's events (kind: phases)"
+    if fig.scope is Scope.ROS:
+        return "is measured per message a ROS 2 callback took (callback: expectations)"
     if fig.scope is Scope.OUTSIDE and not fig.in_trace:
         return "is read from /proc for threads measured from outside (command: programs, runner watch)"
     return "is measured for every thread"

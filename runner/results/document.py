@@ -230,6 +230,9 @@ class ThreadHistograms(_Record):
     wakeup: Optional[Histogram] = Field(
         None, description="scheduler trace: from each sched_waking to the switch onto a CPU, in ns (added within /2: null before)"
     )
+    message_age: Optional[Histogram] = Field(
+        None, description="ROS 2 callbacks: each taken message's age at the start of its callback, in ns (added within /2)"
+    )
 
 
 def _cpus_in(value: Any) -> Any:
@@ -521,6 +524,72 @@ class TraceInfo(_Record):
     notes: list[str] = Field(default_factory=list)
 
 
+class CallbackThread(_Record):
+    """A thread a ROS 2 callback ran on, as the interposer saw it."""
+
+    tid: int
+    comm: str
+    count: NonNegativeInt = Field(description="instances of the callback it ran")
+
+
+class CallbackInstance(_Record):
+    """One instance of a ROS 2 callback (among the slowest): when, where and what it suffered, to join with the trace."""
+
+    at_ns: int = Field(description="its start, from the cell's start gate (the origin of a thread's preempted_runs)")
+    wall_ns: NonNegativeInt = Field(description="from its start to its end")
+    tid: int
+    involuntary: NonNegativeInt = Field(description="involuntary switches of its thread during it (getrusage)")
+    latency_ns: Optional[int] = Field(None, description="from its release to its start (timer callbacks with a release grid)")
+
+
+class CallbackResult(_Record):
+    """A ROS 2 callback of a user's program, measured instance by instance from inside the program (issue 38).
+
+    Its figures are a thread's (`ThreadFigures`) over its instances: for a timer callback the
+    release grid from the timer's period and first release (latency is from a release to the
+    start of the callback that served it; missed releases are those rcl skipped), for a callback
+    that took messages their age at its start; chain figures when messages of a timer callback reached it.
+    """
+
+    program: str
+    pids: list[int] = Field(default_factory=list, description="the processes of the program it ran in")
+    node: str = Field("", description="its node, `namespace/name` (no leading slash); '' when unknown")
+    kind: str = Field(description="timer, subscription, service, or callback (the interposer saw no registration)")
+    symbol: str = Field("", description="as rclcpp gave it (tracetools::get_symbol), lightly prettified; '' when it gave none")
+    name: str = Field(description="`node/symbol`, or `node/kind detail`; numbered (` #2`) when two of a program share one")
+    topic: str = Field("", description="the topic or service it takes from; '' for a timer")
+    period_ns: Optional[int] = Field(None, description="a timer's period")
+    clock: str = Field("", description="a timer's clock: steady, system, ros, or unknown")
+    threads: list[CallbackThread] = Field(default_factory=list)
+    figures: ThreadFigures
+    histograms: Optional[ThreadHistograms] = None
+    notes: list[str] = Field(default_factory=list, description="what limits its figures, in words")
+    slowest: list[CallbackInstance] = Field(default_factory=list, description="its slowest instances, slowest first")
+
+    @property
+    def label(self) -> str:
+        """How verdicts, keys and tables name it: `program: node/symbol`."""
+        return callback_label(self.program, self.name)
+
+
+def callback_label(program: str, name: str) -> str:
+    """A ROS 2 callback's label in verdicts, keys and tables: `program: node/symbol`."""
+    return f"{program}: {name}"
+
+
+class RosCaptureInfo(_Record):
+    """What the interposer's capture of one program said (issue 38), in words and counts."""
+
+    seen: bool = Field(description="some ROS 2 callback of it was seen")
+    processes: NonNegativeInt = Field(0, description="its processes that reached a hook")
+    callbacks: NonNegativeInt = Field(0, description="distinct callbacks seen")
+    instances: NonNegativeInt = Field(0, description="callback instances recorded")
+    lost: NonNegativeInt = Field(0, description="records lost: overwritten in a full ring, or not written")
+    publishes: NonNegativeInt = Field(0, description="messages it published")
+    publishes_unmatched: NonNegativeInt = Field(0, description="of those, messages no callback of the cell took (dropped, or nobody listened)")
+    notes: list[str] = Field(default_factory=list, description="what the capture says, in words: why no callbacks, what was lost")
+
+
 NOT_STARTED = "did not start: the cell stopped before its start"
 """A program's `failure` when it never exec'd because its cell stopped first (followed by ` because ...`, when known)."""
 
@@ -567,6 +636,7 @@ class ProgramResult(_Record):
     threads_folded: Optional[FoldedThreads] = Field(
         None, description="its threads that exited beyond its cap of thread records, counted together; null: every thread is in threads"
     )
+    ros: Optional[RosCaptureInfo] = Field(None, description="its ROS 2 callbacks as the interposer saw them; null: callbacks: off, or none")
 
 
 class Overhead(_Record):
@@ -666,6 +736,7 @@ class CellResult(_Record):
     programs: list[ProgramResult] = Field(default_factory=list, description="the user's programs (command:)")
     trace: Optional[TraceInfo] = Field(None, description="the scheduler trace; null: a run from before tracing existed")
     threads: list[ThreadResult] = Field(default_factory=list)
+    callbacks: list[CallbackResult] = Field(default_factory=list, description="the ROS 2 callbacks of its programs (added within /2)")
     expectations: list[Verdict] = Field(default_factory=list)
     background: list[Background] = Field(default_factory=list)
     overhead_ns: Overhead = Field(default_factory=Overhead)

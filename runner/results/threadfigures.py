@@ -94,6 +94,7 @@ class ThreadFigures(_Figures):
     migrations: Optional[Count] = None  # moves between CPUs (the kernel's se.nr_migrations, or the trace's)
     wakeup_ns: Optional[Spread] = None  # scheduler trace: from each sched_waking to the switch onto a CPU
     preemptions: Optional[Count] = None  # scheduler trace: switched out while runnable
+    message_age_ns: Optional[Spread] = None  # ROS 2 callbacks that took messages: from the message's source timestamp to the start
 
     @model_validator(mode="after")
     def _releases(self) -> ThreadFigures:
