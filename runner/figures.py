@@ -218,7 +218,9 @@ class Figure:
     @property
     def samples_word(self) -> str:
         """What one sample of the figure is, in words: `callbacks`, `wake-ups`, `events`."""
-        return {"wakeup_ns": "wake-ups", "message_age_ns": "messages"}.get(self.path[0], "callbacks" if self.scope is Scope.CALLBACKS else "events")
+        return {"wakeup_ns": "wake-ups", "message_age_ns": "messages"}.get(
+            self.path[0], "callbacks" if self.scope is Scope.CALLBACKS else "events"
+        )
 
     def min_samples(self, confidence: float) -> int:
         """The fewest samples the figure is judged on: what its interval needs to exist (0: any number)."""

@@ -36,9 +36,7 @@ class Node:
     def node(self, handle: int, name: str, ns: str = "/") -> None:
         self.meta(MetaKind.NODE, a=handle, b=handle + 1, s1=name, s2=ns)
 
-    def timer(
-        self, node: int, timer: int, cb: int, period: int, first: int, symbol: str = "", clock: ClockType = ClockType.STEADY
-    ) -> None:
+    def timer(self, node: int, timer: int, cb: int, period: int, first: int, symbol: str = "", clock: ClockType = ClockType.STEADY) -> None:
         """rcl_timer_init, rclcpp_timer_callback_added, rclcpp_callback_register, rclcpp_timer_link_node: rclcpp's order."""
         self.meta(MetaKind.TIMER, a=timer, d=period, e=first, clock=clock)
         self.meta(MetaKind.TIMERCB, a=timer, b=cb)

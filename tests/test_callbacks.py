@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
+from roscbbuild import BASE, MS, REALTIME, Node, capture, shuffled
 
 from runner.run.callbacks import ProgramCapture, cell_callbacks, matching, pretty_symbol
 from runner.run.roscbdata import ClockType, Meta, MetaKind, ProcessFlag, RosCapture, RosThread
-from roscbbuild import BASE, MS, REALTIME, Node, capture, shuffled
 
 END = BASE + 1000 * MS
 LAMBDA = "MinimalPublisher::MinimalPublisher()::{lambda()#1}"
@@ -205,7 +205,7 @@ def _chain(exact: bool, stamp_delay: int = 0) -> tuple[Node, Node, int]:
 
 @pytest.mark.parametrize("exact, delay", [(True, 0), (False, 20_000)])
 def test_a_chain_across_two_processes_runs_from_the_timer_release(exact: bool, delay: int) -> None:
-    talker, listener, release = _chain(exact, delay)
+    talker, listener, _ = _chain(exact, delay)
     results, infos = cell_callbacks(
         [ProgramCapture("talker", capture(talker.process()), END), ProgramCapture("listener", capture(listener.process()), END)], BASE
     )

@@ -586,7 +586,9 @@ class RosCaptureInfo(_Record):
     instances: NonNegativeInt = Field(0, description="callback instances recorded")
     lost: NonNegativeInt = Field(0, description="records lost: overwritten in a full ring, or not written")
     publishes: NonNegativeInt = Field(0, description="messages it published")
-    publishes_unmatched: NonNegativeInt = Field(0, description="of those, messages no callback of the cell took (dropped, or nobody listened)")
+    publishes_unmatched: NonNegativeInt = Field(
+        0, description="of those, messages no callback of the cell took (dropped, or nobody listened)"
+    )
     notes: list[str] = Field(default_factory=list, description="what the capture says, in words: why no callbacks, what was lost")
 
 

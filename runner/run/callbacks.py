@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from typing import Optional
 
+from runner import figures as fg
 from runner import units
 from runner.histogram import from_values
 from runner.results.document import (
@@ -50,12 +51,14 @@ from runner.results.document import (
     CallbackThread,
     RosCaptureInfo,
     ThreadHistograms,
+    Verdict,
     callback_label,
 )
 from runner.results.threadfigures import ThreadFigures
-from runner.run.measure import spread, thread_figures
+from runner.run.measure import check, spread, thread_figures
 from runner.run.roscbdata import CallbackRecord, ClockType, Meta, MetaKind, ProcessFlag, PublishRecord, RosCapture, RosProcess
 from runner.run.samples import Sample, slot_of
+from runner.scenario.model import Expectation
 
 APPROXIMATE_NS = 1_000_000  # Humble: a take's source timestamp is stamped after the publish hook, within this of it
 SLOWEST = 5  # instances kept per callback, slowest first
@@ -640,3 +643,54 @@ def _info(prog: ProgramCapture, results: list[CallbackResult], publishes: list[_
 def matching(results: Sequence[CallbackResult], pattern: str) -> list[CallbackResult]:
     """The callbacks a `callback:` expectation names: its glob (fnmatch) on the name, or on `program: name`."""
     return [r for r in results if fnmatchcase(r.name, pattern) or fnmatchcase(callback_label(r.program, r.name), pattern)]
+
+
+# ------------------------------------------------------------------ expectations
+
+_GRID = frozenset({"latency_ns", "slack_ns", "missed_releases", "releases", "missed_consecutive_max", "overruns"})
+"""Where the figures measured against a timer's release grid live: a callback without one has none of them (not 0)."""
+
+
+def _absent(r: CallbackResult, fig: fg.Figure) -> str:
+    """Why callback `r` has no value of `fig`, in words: what a verdict that could not be judged says."""
+    if fig.path[0] in _GRID:
+        if r.kind != "timer":
+            return f"{fig.name} is measured against a timer's releases; this is a {r.kind} callback"
+        return "its timer has no release grid: " + next((n for n in r.notes if "grid" in n or "unknown" in n), "unknown releases")
+    if fig.scope is fg.Scope.ROS:
+        return "it took no message from the middleware (a timer callback, or intra-process messages only)"
+    if fig.path[0] == "chain_ns":
+        return "no message of a timer callback of the cell reached it"
+    return "no callbacks"
+
+
+def judge(exp: Expectation, results: Sequence[CallbackResult], infos: dict[str, RosCaptureInfo]) -> list[Verdict]:
+    """A `callback:` expectation on every callback its glob names; failed `not measured`, with words, when it names none
+    (which callbacks were seen, or why none were) or when a callback cannot have the figure."""
+    named = matching(results, exp.callback)
+    fig = fg.figure(exp.metric.value)
+    if not named:
+        if results:
+            seen = ", ".join(r.label for r in results[:8]) + (f" and {len(results) - 8} more" if len(results) > 8 else "")
+            why = f"no callback of that name was seen; callbacks: {seen}"
+        else:
+            said = [n for info in infos.values() for n in info.notes]
+            why = "no ROS 2 callback was seen" + (f": {said[0]}" if said else "")
+        return [
+            Verdict(
+                thread=exp.target, metric=fig.name, limit=exp.describe_limit(), measured=None, passed=False, note=f"not measured ({why})"
+            )
+        ]
+    out = []
+    for r in named:
+        grid = r.kind == "timer" and r.figures.releases > 0
+        if fig.path[0] in _GRID and not grid:
+            out.append(
+                Verdict(
+                    thread=r.label, metric=fig.name, limit=exp.describe_limit(), measured=None, passed=False,
+                    note=f"not measured ({_absent(r, fig)})",
+                )
+            )  # fmt: skip
+            continue
+        out.append(check(exp, r.label, r.figures, _absent(r, fig)))
+    return out

@@ -21,6 +21,7 @@ from runner.results.document import (
     EventResult,
     Overhead,
     PhaseResult,
+    RosCaptureInfo,
     Status,
     ThreadHistograms,
     ThreadResult,
@@ -31,7 +32,7 @@ from runner.results.document import (
     worst,
 )
 from runner.results.threadfigures import ThreadFigures
-from runner.run import outside, programs, traced
+from runner.run import callbacks, outside, programs, traced
 from runner.run.measure import check, thread_figures
 from runner.run.rawcell import ApplyErrors, RawCell, RawThread, ResourceState, Timeline
 from runner.run.samples import SlotData
@@ -527,9 +528,16 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         program_warnings += out.warnings
     result.threads, result.trace = traced.apply(result.threads, raw.trace, raw.trace_tasks, raw.timeline.start_ns)
     measured = [(planned, t.figures) for (planned, _), t in zip(measured, result.threads)]
+    ros = _callbacks(raw, result)
     for i in expectations_for(scenario, cell.matrix):
         exp = scenario.expect[i]
         mark = cell.expect_marks[i] if i < len(cell.expect_marks) else None
+        if exp.callback:
+            for verdict in callbacks.judge(exp, result.callbacks, ros):
+                if mark is not None:
+                    verdict.line, verdict.col = mark.line, mark.col
+                result.expectations.append(verdict)
+            continue
         targets = {id(t) for t in match_threads([planned for planned, _ in measured], exp.thread)}
         unchecked = _unchecked(exp, folded, unnamed, cap)
         if (not targets and raw.programs and not raw.interrupted) or unchecked:
@@ -591,6 +599,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if r.owner_died
         ]
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
+        + [
+            f"callback {r.label} could not keep up: {behind(r.figures)}"
+            for r in result.callbacks
+            if r.figures.missed_releases or r.figures.overruns
+        ]
         + program_warnings
         + traced.warnings(result.trace)
         + [
@@ -614,6 +627,28 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
         stalls.insert(0, "threads were stuck at the end of the run (a deadlock, or a release that never came)")
     result.status, result.reason = status(result, raw, allow_degraded, stalls, program_failures)
     return result
+
+
+def _callbacks(raw: RawCell, result: CellResult) -> dict[str, RosCaptureInfo]:
+    """The ROS 2 callbacks of the cell's programs into `result` (and what each capture said into its program's record).
+
+    A program's callbacks count to the end of the measured work (to the interrupt, or to its own exit if earlier): the
+    releases of a timer after it are missed ones.
+    """
+    tl = raw.timeline
+    end = (tl.stopped_ns if raw.interrupted and tl.stopped_ns else tl.end_ns) or tl.ended_ns
+    captures = [
+        callbacks.ProgramCapture(p.spec.name, p.callbacks, min(end, p.exited_ns) if p.exited_ns else end)
+        for p in raw.programs
+        if p.callbacks is not None
+    ]
+    if not captures:
+        return {}
+    result.callbacks, infos = callbacks.cell_callbacks(captures, tl.start_ns or tl.began_ns)
+    for prog in result.programs:
+        if prog.name in infos:
+            prog.ros = infos[prog.name]
+    return infos
 
 
 def status(

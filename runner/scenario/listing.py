@@ -136,7 +136,7 @@ def render_cell(cell: ResolvedCell, start: Settings, online: tuple[int, ...], du
         lines.extend(f"    {describe_spread(spec)}" for spec in proc.threads if spec.varies)
     for i in expectations_for(sc, cell.matrix):
         exp = sc.expect[i]
-        lines.append(f"  expect {exp.thread}: {exp.metric.value} {exp.describe_limit()}")
+        lines.append(f"  expect {exp.target}: {exp.metric.value} {exp.describe_limit()}")
     return "\n".join(lines)
 
 

@@ -342,13 +342,18 @@ def _cross_checks(
         names.setdefault(t.process, []).extend(n for n in {t.name, t.spec_name} if n not in names.get(t.process, []))
     every = sorted({n for group in names.values() for n in group})
     keys = index.keys
+    ros = [p.name for p in processes if isinstance(p, ProgramSpec) and p.callbacks]
     for i, exp in expectations:
         path: tuple[Any, ...] = ("expect", i)
         targets = match_threads(planned, exp.thread)
         process, sep, thread = exp.thread.rpartition("/")
-        if invalid is not None and (not sep or process in invalid) and not (sep and process in programs):
+        if exp.callback:
+            if not ros and invalid is None:
+                out.append(doc.problem(path + ("callback",), _NO_CALLBACKS))
+            unmeasurable = ""
+        elif invalid is not None and (not sep or process in invalid) and not (sep and process in programs):
             continue  # may name threads of a process that did not validate (its problems are reported)
-        if process in programs if sep else not targets and programs:
+        elif process in programs if sep else not targets and programs:
             # a program's threads are known only once it runs (one that never appears fails its expectation then),
             # but which figures a program's thread has is known now
             unmeasurable = measure_problem(exp, [], PROGRAM_THREAD)
@@ -385,6 +390,12 @@ def _cross_checks(
                         doc.problem(path + ("cells", key), f"{key}={mx.format_value(value)} matches no cell; values: {', '.join(values)}")
                     )
     return out
+
+
+_NO_CALLBACKS = (
+    "no program of the scenario has ROS 2 callbacks to judge: a callback: expectation needs a command: program "
+    "with callbacks on (the default)"
+)
 
 
 def measure_problem(exp: Expectation, targets: list[PlannedThread], kind: ThreadKind | None = None) -> str:

@@ -11,6 +11,7 @@ import math
 from typing import Annotated, Any, Optional, Union
 
 from runner import figures, units
+from runner.errors import did_you_mean
 from runner.scenario.model.base import MAX_LATENCY_LIMIT, Strict
 from runner.scenario.typed import Context, Field, Schema, Written, text_schema
 
@@ -73,9 +74,14 @@ MatrixValue = Union[str, int, float, bool]
 
 
 class Expectation(Strict):
-    """A check on one measured figure of the named thread(s), in every cell or in selected cells."""
+    """A check on one measured figure of the named thread(s), or ROS 2 callback(s), in every cell or in selected cells."""
 
-    thread: str = Field(description="thread name, or process/thread")
+    thread: str = Field(default="", description="thread name, or process/thread (exactly one of thread and callback)")
+    callback: str = Field(
+        default="",
+        description="a ROS 2 callback of a command: program, as a glob on its name `node/symbol`, e.g. '*timer_callback*' "
+        "(exactly one of thread and callback)",
+    )
     metric: Metric = Field(description="figure to check, as named in results.json")
     max: Optional[Limit] = Field(default=None, description="upper bound (a duration for latency metrics)")
     min: Optional[Limit] = Field(default=None, description="lower bound (a duration for latency metrics)")
@@ -101,6 +107,19 @@ class Expectation(Strict):
         return value
 
     def _after(self, written: Any, context: Context) -> None:
+        if bool(self.thread) == bool(self.callback):
+            raise ValueError(
+                "an expectation names a thread or a callback: exactly one of thread: (a thread's name) and callback: (a glob on "
+                "a ROS 2 callback's name)"
+            )
+        if self.callback:
+            fig = metric_figure(self.metric)
+            if not figures.has(figures.CALLBACK, fig):
+                held = [f.name for f in figures.REGISTRY if figures.has(figures.CALLBACK, f)]
+                raise ValueError(
+                    f"{fig.name} {figures.measured_how(fig)}, not per ROS 2 callback; "
+                    f"a callback has {figures.figures_of(figures.CALLBACK)}{did_you_mean(fig.name, held)}"
+                )
         if self.max is None and self.min is None:
             raise ValueError("an expectation needs max, min or both")
         for name, bound in (("min", self.min), ("max", self.max)):
@@ -122,6 +141,11 @@ class Expectation(Strict):
     def describe_bound(self, value: float) -> str:
         """A bound as written back: a duration for latency metrics, a number otherwise."""
         return units.format_duration(int(value)) if metric_figure(self.metric).is_duration else f"{value:g}"
+
+    @property
+    def target(self) -> str:
+        """What it names, as verdicts and listings say it: the thread, or `callback GLOB`."""
+        return self.thread or f"callback {self.callback}"
 
     def describe_limit(self) -> str:
         parts = []

@@ -1,0 +1,157 @@
+"""`callback:` expectations, callbacks in a cell's results, the report, JUnit and the schemas (issue 38), from hand-built captures."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import jsonschema
+import pytest
+from roscbbuild import BASE, MS, REALTIME, Node, capture
+from test_outside import OTHER, _program, _thread
+
+from runner.errors import ScenarioError
+from runner.results.document import CellResult, RunDocument, Status, results_schema
+from runner.run.evaluate import evaluate
+from runner.run.rawcell import RawCell, Timeline
+from runner.run.roscbdata import RosCapture
+from runner.scenario.loader import load_scenario
+
+SECOND = 1_000_000_000
+END = BASE + SECOND
+SCENARIO = """\
+name: ros
+duration: 1s
+processes:
+  - name: talker
+    command: [talker]
+expect:
+  - {callback: "*tick*", metric: involuntary.per_callback_max, max: 0}
+  - {callback: "*tick*", metric: missed_releases, max: 0}
+  - {callback: "*on_message*", metric: message_age.p99, max: 1ms}
+  - {callback: "*on_message*", metric: latency.p99, max: 1ms}
+  - {callback: "*timer_callback*", metric: callbacks, min: 1}
+"""
+
+
+def _capture() -> RosCapture:
+    n = Node(pid=500, tid=500)
+    n.node(0x10, "talker")
+    n.timer(0x10, 0x20, 0x30, 100 * MS, BASE + 100 * MS, "Talker::tick()")
+    n.node(0x11, "listener")
+    n.subscription(0x11, 0x40, 0x41, 0x42, 0x43, "/chatter", "Listener::on_message(msg)")
+    n.publisher(0x10, 0x50, 0x51, "/chatter")
+    for k in range(1, 10):
+        release = BASE + k * 100 * MS
+        tick = n.run(0x30, release + 30_000, wall=200_000, nivcsw=1 if k == 3 else 0)
+        src = n.publish(0x51, tick, release + 100_000)
+        n.run(0x43, release + 400_000, tid=501, src_ts=src, age_ns=300_000, take_handle=0x41)
+    return capture(n.process())
+
+
+def _cell(tmp_path: Path, text: str = SCENARIO, cap: RosCapture | None = None) -> CellResult:
+    path = tmp_path / "ros.yaml"
+    path.write_text(text)
+    cell = load_scenario(os.fspath(path)).cells[0]
+    program = _program(cell.scenario.programs[0], (_thread(500, 0, "talker", OTHER),), callbacks=cap or _capture(), exited_ns=END + MS)
+    raw = RawCell("now", (), 0, Timeline(0, BASE, END, END, END), programs=(program,))
+    return evaluate(cell, cell.scenario, raw, allow_degraded=False)
+
+
+def test_callback_expectations_pass_fail_and_are_not_measured_in_words(tmp_path: Path) -> None:
+    result = _cell(tmp_path)
+    got = [(v.thread, v.metric, v.passed, v.measured, v.samples, v.note) for v in result.expectations]
+    assert got == [
+        ("talker: talker/Talker::tick()", "involuntary.per_callback_max", False, 1, None, ""),
+        ("talker: talker/Talker::tick()", "missed_releases", True, 0, None, ""),
+        ("talker: listener/Listener::on_message(msg)", "message_age.p99", True, 300_000, 9, ""),
+        (
+            "talker: listener/Listener::on_message(msg)",
+            "latency.p99",
+            False,
+            None,
+            None,
+            "not measured (latency.p99 is measured against a timer's releases; this is a subscription callback)",
+        ),
+        (
+            "callback *timer_callback*",
+            "callbacks",
+            False,
+            None,
+            None,
+            "not measured (no callback of that name was seen; callbacks: talker: listener/Listener::on_message(msg), "
+            "talker: talker/Talker::tick())",
+        ),
+    ]
+    assert all(v.line for v in result.expectations), "CI annotations point at the expectation"
+    assert result.status is Status.FAILED
+    listener = next(c for c in result.callbacks if c.kind == "subscription")
+    assert listener.figures.chain_ns is not None and listener.figures.chain_ns.max == 500_000
+    assert [(t.tid, t.count) for t in listener.threads] == [(501, 9)]
+    assert result.programs[0].ros is not None and result.programs[0].ros.callbacks == 2
+
+
+def test_a_program_without_callbacks_fails_a_callback_expectation_saying_why(tmp_path: Path) -> None:
+    result = _cell(tmp_path, cap=RosCapture(loaded=False))
+    assert not result.callbacks
+    note = result.expectations[0].note
+    assert note.startswith("not measured (no ROS 2 callback was seen: no ROS 2 callbacks seen: the runner's library was not loaded")
+
+
+def test_a_timer_callback_that_could_not_keep_up_is_a_warning(tmp_path: Path) -> None:
+    n = Node(pid=500, tid=500)
+    n.node(0x10, "talker")
+    n.timer(0x10, 0x20, 0x30, 100 * MS, BASE + 100 * MS, "Talker::tick()")
+    n.run(0x30, BASE + 100 * MS)
+    result = _cell(tmp_path, SCENARIO.split("expect:")[0], capture(n.process()))
+    assert any(w.startswith("callback talker: talker/Talker::tick() could not keep up: missed 8 of 9 releases") for w in result.warnings)
+
+
+@pytest.mark.parametrize(
+    "expect, words",
+    [
+        ("{callback: '*x*', metric: involuntary.total, max: 1}", "involuntary.total is measured for every thread, not per ROS 2 callback"),
+        ("{callback: '*x*', metric: cpu_time, max: 1ms}", "a callback has callbacks, releases, missed_releases"),
+        ("{callback: '*x*', thread: talker, metric: callbacks, min: 1}", "exactly one of thread: (a thread's name) and callback:"),
+        ("{metric: callbacks, min: 1}", "exactly one of thread:"),
+        ("{thread: own/a, metric: message_age.p99, max: 1ms}", "message_age.p99 is measured per message a ROS 2 callback took"),
+    ],
+)
+def test_callback_expectations_are_refused_where_they_can_never_apply(tmp_path: Path, expect: str, words: str) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        "name: bad\nprocesses:\n  - name: talker\n    command: [talker]\n"
+        "  - name: own\n    threads: [{name: a, work: {kind: periodic, period: 10ms}}]\n"
+        f"expect:\n  - {expect}\n"
+    )
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(os.fspath(path))
+    assert words in str(err.value)
+
+
+def test_a_callback_expectation_needs_a_program_with_callbacks(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(
+        "name: bad\nprocesses:\n  - name: talker\n    command: [talker]\n    callbacks: off\n"
+        "expect:\n  - {callback: '*', metric: callbacks, min: 1}\n"
+    )
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(os.fspath(path))
+    assert "bad.yaml:7:" in str(err.value) and "a callback: expectation needs a command: program with callbacks on" in str(err.value)
+
+
+def test_callbacks_are_stored_in_the_results_schema_and_read_back(tmp_path: Path) -> None:
+    from runner.results.read import load
+
+    result = _cell(tmp_path)
+    doc = RunDocument.model_validate({"scenario": {"name": "ros"}, "cells": [result.model_dump()]})
+    path = tmp_path / "results.json"
+    doc.save(os.fspath(path))
+    data = json.loads(path.read_text())
+    jsonschema.validate(data, results_schema())
+    back = load(os.fspath(path)).cells[0]
+    assert back.callbacks == result.callbacks and back.programs[0].ros == result.programs[0].ros
+    stored = json.loads((Path(__file__).parent.parent / "results.schema.json").read_text())
+    assert stored == results_schema(), "runner schema --results > results.schema.json"
+    assert REALTIME
