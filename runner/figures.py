@@ -470,7 +470,7 @@ REGISTRY = REGISTRY + tuple(
 REGISTRY = REGISTRY + tuple(
     Figure(
         f"message_age.{q}",
-        f"message age at the start of the callback that took it (its source timestamp to the start) {_QUANTILE_WORDS[q]}",
+        f"message age (its source timestamp to the start of the callback that took it) {_QUANTILE_WORDS[q]}",
         Unit.NS,
         Scope.ROS,
         ("message_age_ns", q),

@@ -50,11 +50,11 @@ def _capture() -> RosCapture:
     return capture(n.process())
 
 
-def _cell(tmp_path: Path, text: str = SCENARIO, cap: RosCapture | None = None) -> CellResult:
+def _cell(tmp_path: Path, text: str = SCENARIO, cap: RosCapture | None = None, comm: str = "talker") -> CellResult:
     path = tmp_path / "ros.yaml"
     path.write_text(text)
     cell = load_scenario(os.fspath(path)).cells[0]
-    program = _program(cell.scenario.programs[0], (_thread(500, 0, "talker", OTHER),), callbacks=cap or _capture(), exited_ns=END + MS)
+    program = _program(cell.scenario.programs[0], (_thread(500, 0, comm, OTHER),), callbacks=cap or _capture(), exited_ns=END + MS)
     raw = RawCell("now", (), 0, Timeline(0, BASE, END, END, END), programs=(program,))
     return evaluate(cell, cell.scenario, raw, allow_degraded=False)
 
@@ -155,3 +155,39 @@ def test_callbacks_are_stored_in_the_results_schema_and_read_back(tmp_path: Path
     stored = json.loads((Path(__file__).parent.parent / "results.schema.json").read_text())
     assert stored == results_schema(), "runner schema --results > results.schema.json"
     assert REALTIME
+
+
+def _traced(cell: CellResult) -> CellResult:
+    """The cell as if the scheduler trace had followed the talker's main thread: a hog preempted it during its third tick."""
+    from runner.results.document import PreemptedRun, Preemptor
+
+    hog = Preemptor(comm="hog0", tid=900, pid=900, cls="TS", count=1)
+    thread = cell.threads[0]
+    run = PreemptedRun(at_ns=300 * MS + 40_000, wall_ns=150_000, preempted_ns=60_000, preemptions=1, by=hog, by_ns=60_000)
+    traced = thread.model_copy(
+        update={"figures": thread.figures.model_copy(update={"preemptions": 1}), "preempted_by": [hog], "preempted_runs": [run]}
+    )
+    return cell.model_copy(update={"threads": [traced]})
+
+
+def test_the_report_has_a_callbacks_table_per_program_words_and_the_slowest_joined_with_the_trace(tmp_path: Path) -> None:
+    from test_report import golden
+
+    from runner.report.markdown import render_run
+
+    cell = _traced(_cell(tmp_path, comm="tk"))  # a short name: the table of figures from outside is a wide one
+    doc = RunDocument.model_validate({"scenario": {"name": "ros"}, "started_at": "2026-01-01T00:00:00+00:00", "cells": [cell.model_dump()]})
+    text = render_run(doc)
+    assert "| `talker/Talker::tick()`" in text and "timer 100ms" in text and "subscription /chatter" in text
+    assert "at 0.300 s on 500: 200 µs, 30.0 µs after its release, 1 involuntary switch; the trace: at 0.300 s: 60 of 150 µs" in text
+    assert "1 by hog0\\[900\\] (TS) for 60 µs; at 0.100 s on 500: 200 µs, 30.0 µs after its release, 0 involuntary switches; at" in text
+    assert "1 of 9 messages it published on /chatter were taken by no callback" not in text  # every message was taken
+    golden("ros_callbacks.md", text)
+
+
+def test_the_report_says_why_a_program_has_no_callbacks(tmp_path: Path) -> None:
+    from runner.report.markdown import render_run
+
+    cell = _cell(tmp_path, SCENARIO.split("expect:")[0], RosCapture(loaded=True, libraries=("librclcpp.so",)))
+    doc = RunDocument.model_validate({"scenario": {"name": "ros"}, "cells": [cell.model_dump()]})
+    assert "no ROS 2 callbacks seen: it loaded librclcpp but reached no tracing hook" in render_run(doc)

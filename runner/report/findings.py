@@ -127,6 +127,8 @@ def cell_finding(cell: CellResult, labels: dict[str, str]) -> Markdown:
     threads = callback_threads(cell)
     if cell.status is Status.ERROR and not any(t.figures.callbacks for t in threads):
         return Markdown(f"No measurement: {md_text(cell.reason or 'the cell did not run')}.")
+    if not threads and cell.callbacks:
+        return Markdown("No thread of the runner's own runs periodic work; the ROS 2 callbacks of its programs are measured below.")
     if not threads:
         return Markdown("No thread runs periodic work, so there are no per-callback figures; see the switch counts below.")
     return Markdown("; ".join(thread_finding(t, labels[t.key]) for t in threads) + ".")

@@ -51,7 +51,7 @@ def fmt_figure(value: Number | None, unit: Unit) -> str:
     return scale(unit).number(value)
 
 
-_SAMPLE_NOUNS = {"wakeup_ns": "wake-up", "latency_ns": "release", "callback_wall_ns": "callback"}
+_SAMPLE_NOUNS = {"wakeup_ns": "wake-up", "latency_ns": "release", "callback_wall_ns": "callback", "message_age_ns": "message"}
 
 
 def samples_words(figure: Figure, count: int) -> str:

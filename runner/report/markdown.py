@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from runner.report import system
+from runner.report.callbackview import callbacks_block
 from runner.report.compareview import build_comparison, change_text, interval_ends, interval_text, render_comparison
 from runner.report.findings import (
     ICON,
@@ -132,6 +133,7 @@ class CellSection:
     trace: str | None = None
     warnings: list[str] = field(default_factory=list)
     shown: str = ""  # which threads the tables show, when not every one
+    callbacks: Markdown | None = None  # the ROS 2 callbacks of its programs (callbackview.py)
 
 
 @dataclass
@@ -234,6 +236,7 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         traced=traced,
         preemptions=preemption_lines(rows),
         trace=trace_line(cell),
+        callbacks=callbacks_block(cell),
     )
 
 

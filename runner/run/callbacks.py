@@ -577,7 +577,7 @@ def _name(ident: _Identity, cb: int) -> str:
 def _result(cb: _Callback, comms: dict[tuple[int, int], str], start_ns: int) -> CallbackResult:
     figs, hists = _figures(cb)
     per_thread = Counter((i.pid, i.rec.tid) for i in cb.instances)
-    slowest = sorted(cb.instances, key=lambda i: i.rec.end_ns - i.rec.start_ns, reverse=True)[:SLOWEST]
+    slowest = sorted(cb.instances, key=lambda i: (i.rec.end_ns - i.rec.start_ns, i.rec.nivcsw), reverse=True)[:SLOWEST]
     ident = cb.identity
     return CallbackResult(
         program=cb.program,
