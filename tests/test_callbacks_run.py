@@ -191,3 +191,53 @@ def test_the_report_says_why_a_program_has_no_callbacks(tmp_path: Path) -> None:
     cell = _cell(tmp_path, SCENARIO.split("expect:")[0], RosCapture(loaded=True, libraries=("librclcpp.so",)))
     doc = RunDocument.model_validate({"scenario": {"name": "ros"}, "cells": [cell.model_dump()]})
     assert "no ROS 2 callbacks seen: it loaded librclcpp but reached no tracing hook" in render_run(doc)
+
+
+def _doc(cell: CellResult, started: str = "2026-01-01T00:00:00+00:00") -> RunDocument:
+    return RunDocument.model_validate(
+        {"scenario": {"name": "ros"}, "started_at": started, "machine": {"hostname": "vm"}, "cells": [cell.model_dump()]}
+    )
+
+
+def _preempted(tmp_path: Path, every: int) -> CellResult:
+    """The cell with a talker whose tick is preempted in every `every`-th of its 200 callbacks."""
+    n = Node(pid=500, tid=500)
+    n.node(0x10, "talker")
+    n.timer(0x10, 0x20, 0x30, 4 * MS, BASE + 4 * MS, "Talker::tick()")
+    for k in range(1, 201):
+        n.run(0x30, BASE + k * 4 * MS + 30_000, nivcsw=3 if k % every == 0 else 0)
+    return _cell(tmp_path, SCENARIO.split("expect:")[0], capture(n.process()))
+
+
+def test_callbacks_are_compared_like_threads_by_their_key(tmp_path: Path) -> None:
+    from runner.report.compare import compare
+
+    calm, busy = _doc(_preempted(tmp_path, 100)), _doc(_preempted(tmp_path, 2))
+    changes = [f for f in compare(calm, busy).figures if f.thread == "talker: talker/Talker::tick()"]
+    per_callback = next(f for f in changes if f.figure.name == "involuntary.per_callback_mean")
+    assert (per_callback.base, per_callback.new, per_callback.verdict) == (0.03, 1.5, "regression")
+    assert per_callback.new_estimate is not None and per_callback.new_estimate.exposure == 200  # callbacks
+
+
+def test_callback_verdicts_reach_junit_and_annotations(tmp_path: Path) -> None:
+    from runner.report.github import for_run
+    from runner.report.junit import junit_xml
+
+    doc = _doc(_cell(tmp_path))
+    xml = junit_xml(doc).decode()
+    assert "talker: talker/Talker::tick(): involuntary switches in one callback (max) &lt;= 0" in xml
+    assert "callback *timer_callback*: callbacks run &gt;= 1: not measured (no callback of that name was seen" in xml
+    messages = " ".join(a.message for a in for_run(doc, None, "ros.yaml"))
+    assert "talker: talker/Talker::tick()" in messages and "callback *timer_callback*" in messages
+
+
+def test_callbacks_go_into_the_history_with_their_histograms(tmp_path: Path) -> None:
+    from runner.history.night import record
+
+    night = record(_doc(_cell(tmp_path)))
+    (cell,) = night.cells
+    rows = {(r.thread, r.figure): r for r in cell.figures}
+    age = rows[("talker: listener/Listener::on_message(msg)", "message_age.p99")]
+    assert (age.value, age.samples) == (300_000, 9)
+    assert ("talker: talker/Talker::tick()", "involuntary.per_callback_mean") in rows
+    assert ("talker: listener/Listener::on_message(msg)", "message_age") in {(k, kind) for k, kind, _ in cell.histograms}

@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 from runner import figures as fg
 from runner.histogram import Histogram, merge
 from runner.history.environment import facts
-from runner.report.compare import cell_estimate, compared_keys
+from runner.report.compare import cell_estimate, compared_keys, subjects
 from runner.results.document import CellResult, RunDocument, Status
 from runner.results.estimates import Estimate
 
-HISTOGRAM_KINDS = ("latency", "slack", "callback_wall", "wakeup")
+HISTOGRAM_KINDS = ("latency", "slack", "callback_wall", "wakeup", "message_age")
 KEPT = (Status.PASSED, Status.DEGRADED, Status.FAILED)
 
 
@@ -100,7 +100,7 @@ def _cell(cell_id: str, runs: list[CellResult], run_started: str) -> CellRecord:
             est = cell_estimate(runs, key, fig)
             if est is not None:
                 rows.append(FigureRow.of(key, est))
-        threads = [t for c in runs for t in c.threads if t.key == key and t.histograms is not None]
+        threads = [t for c in runs for t in subjects(c) if t.key == key and t.histograms is not None]
         for kind in HISTOGRAM_KINDS:
             merged = merge(getattr(t.histograms, kind) for t in threads)
             if merged is not None:

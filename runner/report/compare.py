@@ -46,7 +46,7 @@ from runner import stats, units
 from runner.errors import Problem, ScenarioError, UsageError, did_you_mean
 from runner.figures import Figure, Number
 from runner.report.fmt import fmt_figure
-from runner.results.document import CellResult, RunDocument, Status
+from runner.results.document import CallbackResult, CellResult, RunDocument, Status, ThreadResult
 from runner.results.files import show_value
 from runner.results.merge import incomplete
 
@@ -465,17 +465,22 @@ def _status(cells: list[CellResult]) -> Status:
     return min((c.status for c in cells), key=order.index)
 
 
+def subjects(cell: CellResult) -> list[ThreadResult | CallbackResult]:
+    """What a cell's comparison (and history) judges, each by its key: threads with callbacks, a program's threads (the
+    figures measured from outside), and the ROS 2 callbacks of its programs (`program: node/symbol`)."""
+    return [t for t in cell.threads if t.has_callbacks or t.program] + list(cell.callbacks)
+
+
 def compared_keys(cells: list[CellResult]) -> list[str]:
-    """The threads of a cell (all its repeats) whose figures are compared: those with callbacks, and a program's
-    threads (the figures measured from outside)."""
-    return list(dict.fromkeys(t.key for c in cells for t in c.threads if t.has_callbacks or t.program))
+    """The keys of the subjects (threads, ROS 2 callbacks) of a cell, all its repeats, whose figures are compared."""
+    return list(dict.fromkeys(s.key for c in cells for s in subjects(c)))
 
 
 def cell_estimate(cells: list[CellResult], key: str, fig: Figure) -> Estimate | None:
     """`fig` of thread `key` over a cell's repeats, with its interval (`estimates.estimate`)."""
     from runner.results.estimates import estimate  # statistics and the exact sums: only when a comparison is made
 
-    pairs = [(t, c.duration_ns) for c in cells for t in c.threads if t.key == key]
+    pairs = [(t, c.duration_ns) for c in cells for t in subjects(c) if t.key == key]
     return estimate(fig, [t for t, _ in pairs], [d for _, d in pairs])
 
 
@@ -491,8 +496,8 @@ def _figures(cell_id: str, old: list[CellResult], now: list[CellResult], thresho
     for key in dict.fromkeys(compared_keys(now) + compared_keys(old)):
         for th in thresholds:
             fig = fg.figure(th.figure)
-            base = _median([fg.value(t.figures, fig) for c in old for t in c.threads if t.key == key])
-            new = _median([fg.value(t.figures, fig) for c in now for t in c.threads if t.key == key])
+            base = _median([fg.value(t.figures, fig) for c in old for t in subjects(c) if t.key == key])
+            new = _median([fg.value(t.figures, fig) for c in now for t in subjects(c) if t.key == key])
             if base is None and new is None:
                 continue
             if base is None:

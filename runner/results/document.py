@@ -568,8 +568,13 @@ class CallbackResult(_Record):
 
     @property
     def label(self) -> str:
-        """How verdicts, keys and tables name it: `program: node/symbol`."""
+        """How verdicts and tables name it: `program: node/symbol`."""
         return callback_label(self.program, self.name)
+
+    @property
+    def key(self) -> str:
+        """Its identity across cells, runs and nights, beside the threads' keys (comparison, history): its label."""
+        return self.label
 
 
 def callback_label(program: str, name: str) -> str:

@@ -28,12 +28,23 @@ import math
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Protocol
 
 from runner import stats, units
 from runner.figures import Figure, Number, Sampling, Unit, Worse, value
 from runner.histogram import Histogram, merge
-from runner.results.document import ThreadResult
+from runner.results.document import ThreadHistograms
+from runner.results.threadfigures import ThreadFigures
+
+
+class Measured(Protocol):
+    """What an estimate reads of a thread or a ROS 2 callback: its figures and its histograms."""
+
+    @property
+    def figures(self) -> ThreadFigures: ...
+
+    @property
+    def histograms(self) -> Optional[ThreadHistograms]: ...
 
 
 @dataclass(frozen=True)
@@ -87,7 +98,7 @@ def _median(values: Sequence[Number]) -> Number:
 
 
 def estimate(
-    fig: Figure, threads: Sequence[ThreadResult], durations_ns: Sequence[int], confidence: float = stats.CONFIDENCE
+    fig: Figure, threads: Sequence[Measured], durations_ns: Sequence[int], confidence: float = stats.CONFIDENCE
 ) -> Optional[Estimate]:
     """`fig` of one thread over its repeats (`durations_ns`: each repeat's cell length), or None when none measured it.
 
@@ -107,7 +118,7 @@ def estimate(
     return Estimate(fig, shown, confidence=confidence)
 
 
-def _histogram(fig: Figure, threads: Sequence[ThreadResult]) -> Optional[Histogram]:
+def _histogram(fig: Figure, threads: Sequence[Measured]) -> Optional[Histogram]:
     """The repeats' histograms of `fig` merged; None unless every repeat stored one."""
     name = fig.histogram
     if name is None:
@@ -118,7 +129,7 @@ def _histogram(fig: Figure, threads: Sequence[ThreadResult]) -> Optional[Histogr
     return merge(found)
 
 
-def _sample_count(fig: Figure, threads: Sequence[ThreadResult], hist: Optional[Histogram]) -> Optional[int]:
+def _sample_count(fig: Figure, threads: Sequence[Measured], hist: Optional[Histogram]) -> Optional[int]:
     """How many samples the distribution holds: its histogram's count, else its spread's (`count`), else a callback figure's
     callbacks; None: not known."""
     if hist is not None:
@@ -131,9 +142,7 @@ def _sample_count(fig: Figure, threads: Sequence[ThreadResult], hist: Optional[H
     return None
 
 
-def _of_distribution(
-    fig: Figure, shown: Number, threads: Sequence[ThreadResult], durations_ns: Sequence[int], confidence: float
-) -> Estimate:
+def _of_distribution(fig: Figure, shown: Number, threads: Sequence[Measured], durations_ns: Sequence[int], confidence: float) -> Estimate:
     hist = _histogram(fig, threads)
     n = _sample_count(fig, threads, hist)
     if n is None:
@@ -164,7 +173,7 @@ def _too_few(fig: Figure, n: int, need: int, duration_ns: int) -> str:
     return text
 
 
-def _mean(fig: Figure, shown: Number, threads: Sequence[ThreadResult], hist: Optional[Histogram], n: int, confidence: float) -> Estimate:
+def _mean(fig: Figure, shown: Number, threads: Sequence[Measured], hist: Optional[Histogram], n: int, confidence: float) -> Estimate:
     """A mean with its standard error: the stored standard deviation (one run), else the pooled histogram's spread."""
     spread = getattr(threads[0].figures, fig.path[0], None) if len(threads) == 1 else None
     sd: Optional[float] = getattr(spread, "stddev", None)
@@ -184,7 +193,7 @@ def histogram_sd(hist: Histogram) -> float:
     return math.sqrt(sum(c * ((lo + hi) / 2 - mean) ** 2 for lo, hi, c in hist.buckets) / n)
 
 
-def _figure_sum(threads: Sequence[ThreadResult], name: str) -> Optional[float]:
+def _figure_sum(threads: Sequence[Measured], name: str) -> Optional[float]:
     from runner.figures import figure
 
     found = [value(t.figures, figure(name)) for t in threads]
@@ -193,7 +202,7 @@ def _figure_sum(threads: Sequence[ThreadResult], name: str) -> Optional[float]:
     return float(sum(v for v in found if v is not None))
 
 
-def _proportion(fig: Figure, shown: Number, threads: Sequence[ThreadResult], confidence: float) -> Estimate:
+def _proportion(fig: Figure, shown: Number, threads: Sequence[Measured], confidence: float) -> Estimate:
     assert fig.trials is not None
     events = _figure_sum(threads, fig.name)
     trials = _figure_sum(threads, fig.trials)
@@ -205,7 +214,7 @@ def _proportion(fig: Figure, shown: Number, threads: Sequence[ThreadResult], con
     return Estimate(fig, shown, n, low * per_run, high * per_run, events=k, exposure=n, confidence=confidence)
 
 
-def _rate(fig: Figure, shown: Number, threads: Sequence[ThreadResult], durations_ns: Sequence[int], confidence: float) -> Estimate:
+def _rate(fig: Figure, shown: Number, threads: Sequence[Measured], durations_ns: Sequence[int], confidence: float) -> Estimate:
     """Events over an exposure: a count over callbacks or seconds, a mean per callback, or a rate per second."""
     events = 0.0
     exposure = 0.0
@@ -224,7 +233,7 @@ def _rate(fig: Figure, shown: Number, threads: Sequence[ThreadResult], durations
     return Estimate(fig, shown, k, low / exposure * scale, high / exposure * scale, events=k, exposure=exposure, confidence=confidence)
 
 
-def _run_rate(fig: Figure, t: ThreadResult, duration_ns: int) -> Optional[tuple[float, float]]:
+def _run_rate(fig: Figure, t: Measured, duration_ns: int) -> Optional[tuple[float, float]]:
     """(events, exposure) of one run of a RATE figure; None when either is not known."""
     from runner.figures import figure
 
