@@ -99,13 +99,28 @@ def test_a_program_without_callbacks_fails_a_callback_expectation_saying_why(tmp
     assert note.startswith("not measured (no ROS 2 callback was seen: no ROS 2 callbacks seen: the runner's library was not loaded")
 
 
-def test_a_timer_callback_that_could_not_keep_up_is_a_warning(tmp_path: Path) -> None:
+def test_a_timer_callback_that_could_not_keep_up_fails_its_cell_unless_the_scenario_bounds_it(tmp_path: Path) -> None:
+    """As a periodic thread of the runner's own: an implicit verdict, replaced by a callback: bound on missed_releases,
+    and then a warning in words."""
     n = Node(pid=500, tid=500)
     n.node(0x10, "talker")
     n.timer(0x10, 0x20, 0x30, 100 * MS, BASE + 100 * MS, "Talker::tick()")
     n.run(0x30, BASE + 100 * MS)
-    result = _cell(tmp_path, SCENARIO.split("expect:")[0], capture(n.process()))
-    assert any(w.startswith("callback talker: talker/Talker::tick() could not keep up: missed 8 of 9 releases") for w in result.warnings)
+    bare = SCENARIO.split("expect:")[0]
+    result = _cell(tmp_path, bare, capture(n.process()))
+    (verdict,) = result.expectations
+    assert (verdict.thread, verdict.metric, verdict.measured, verdict.passed) == (
+        "talker: talker/Talker::tick()",
+        "missed_releases",
+        8,
+        False,
+    )
+    assert verdict.note.startswith("could not keep up: missed 8 of 9 releases")
+    assert result.status is Status.FAILED and not any("could not keep up" in w for w in result.warnings)
+    bounded = _cell(tmp_path, bare + "expect:\n  - {callback: '*tick*', metric: missed_releases, max: 10}\n", capture(n.process()))
+    assert [(v.metric, v.passed) for v in bounded.expectations] == [("missed_releases", True)]
+    assert bounded.status is Status.PASSED
+    assert any(w.startswith("callback talker: talker/Talker::tick() could not keep up: missed 8 of 9 releases") for w in bounded.warnings)
 
 
 @pytest.mark.parametrize(
@@ -241,3 +256,14 @@ def test_callbacks_go_into_the_history_with_their_histograms(tmp_path: Path) -> 
     assert (age.value, age.samples) == (300_000, 9)
     assert ("talker: talker/Talker::tick()", "involuntary.per_callback_mean") in rows
     assert ("talker: listener/Listener::on_message(msg)", "message_age") in {(k, kind) for k, kind, _ in cell.histograms}
+
+
+def test_records_the_capture_lost_are_a_warning_of_the_cell(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from runner.run.roscbdata import RosThread
+
+    cap = _capture()
+    lossy = replace(cap, processes=(replace(cap.processes[0], threads=(RosThread(tid=500, comm="talker", written=99, lost=7),)),))
+    result = _cell(tmp_path, SCENARIO.split("expect:")[0], lossy)
+    assert any(w.startswith("talker: thread talker (500): 7 records were overwritten") for w in result.warnings)

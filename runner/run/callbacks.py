@@ -446,10 +446,13 @@ def _instance_notes(cb: _Callback) -> list[str]:
 
 
 def capture_words(capture: RosCapture) -> list[str]:
-    """Why a program's capture holds no callback, or what it lost, in words (issue 38's cases)."""
+    """Why a program's capture holds no callback, and what it lost, in words (issue 38's cases)."""
+    return _none_words(capture) + loss_words(capture)
+
+
+def _none_words(capture: RosCapture) -> list[str]:
+    """Why a program's capture holds no callback; [] when it holds some (or could not be read: loss_words says so)."""
     out = []
-    if capture.error:
-        out.append(f"the callbacks file could not be read: {capture.error}")
     callbacks = sum(len(p.callbacks) for p in capture.processes)
     metas = [m for p in capture.processes for m in p.metas]
     rclcpp = any("librclcpp" in lib for lib in capture.libraries)
@@ -464,8 +467,10 @@ def capture_words(capture: RosCapture) -> list[str]:
                 "no ROS 2 callbacks seen: it loaded librclcpp but reached no tracing hook (libtracetools absent, or every call "
                 "compiled out with TRACETOOLS_DISABLED)"
             )
-        else:
+        elif capture.loaded:
             out.append("no ROS 2 callbacks seen: it loaded no ROS 2 library (not a ROS 2 program)")
+        else:
+            out.append("no ROS 2 callbacks seen: no process of it reached a tracing hook (not a ROS 2 program, or its hooks never ran)")
     elif capture.processes and not callbacks:
         if metas and not any(m.kind in _HEADER_KINDS for m in metas):
             out.append(
@@ -474,6 +479,12 @@ def capture_words(capture: RosCapture) -> list[str]:
             )
         elif not any(p.flags & {ProcessFlag.SHADOWED} for p in capture.processes):
             out.append("no ROS 2 callbacks seen: its nodes ran no callback in the cell")
+    return out
+
+
+def loss_words(capture: RosCapture) -> list[str]:
+    """What the capture could not see or keep, in words: the figures of the program's callbacks miss it (warnings of the cell)."""
+    out = [f"the callbacks file could not be read: {capture.error}"] if capture.error else []
     for p in capture.processes:
         out += _process_words(p)
     if capture.processes_refused:

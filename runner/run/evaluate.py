@@ -17,6 +17,7 @@ from runner.figures import has, measured_how
 from runner.results.document import (
     Background,
     BackgroundKind,
+    CallbackResult,
     CellResult,
     EventResult,
     Overhead,
@@ -337,6 +338,31 @@ def keeps_up(
     return out
 
 
+def callbacks_keep_up(results: list[CallbackResult], expectations: list[Expectation]) -> list[Verdict]:
+    """A failed verdict for each ROS 2 timer callback that could not keep up with its timer, as for a periodic thread
+    (`keeps_up`): implicit, replaced by a `callback:` expectation of the scenario's own on missed_releases or overruns
+    that names it."""
+    own = {
+        r.key
+        for exp in expectations
+        if exp.callback and exp.metric.value in KEEPS_UP_METRICS
+        for r in callbacks.matching(results, exp.callback)
+    }
+    return [
+        Verdict(
+            thread=r.label,
+            metric=KEEPS_UP_METRICS[0] if r.figures.missed_releases else KEEPS_UP_METRICS[1],
+            limit="<= 0",
+            measured=r.figures.missed_releases or r.figures.overruns,
+            passed=False,
+            note=f"could not keep up: {behind(r.figures)}; implicit (every release of its timer served) unless the scenario "
+            "bounds missed_releases or overruns for this callback itself",
+        )
+        for r in results
+        if (r.figures.missed_releases or r.figures.overruns) and r.key not in own
+    ]
+
+
 def spawn_warnings(threads: list[ThreadResult], never: list[str], processes: int) -> list[str]:
     """Spawns that found no free instance, and spawned threads of which no instance ever ran: the program did not run as written.
 
@@ -564,6 +590,7 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             result.expectations.append(verdict)
     own = [scenario.expect[i] for i in expectations_for(scenario, cell.matrix)]
     implicit = keeps_up(measured, own, raw, frozenset(no_release_due(raw))) + pool_verdicts(raw, consumers, own)
+    implicit += callbacks_keep_up(result.callbacks, own)
     result.expectations += implicit
     result.thread_table = ps_rows(raw.table)
     result.background = [
@@ -599,10 +626,11 @@ def evaluate(cell: ResolvedCell, scenario: Scenario, raw: RawCell, allow_degrade
             if r.owner_died
         ]
         + spawn_warnings(result.threads, [k for k, ran in spawned.items() if not ran], raw.processes)
+        + [f"{p.spec.name}: {words}" for p in raw.programs if p.callbacks is not None for words in callbacks.loss_words(p.callbacks)]
         + [
             f"callback {r.label} could not keep up: {behind(r.figures)}"
             for r in result.callbacks
-            if r.figures.missed_releases or r.figures.overruns
+            if (r.figures.missed_releases or r.figures.overruns) and r.label not in {v.thread for v in implicit}
         ]
         + program_warnings
         + traced.warnings(result.trace)
