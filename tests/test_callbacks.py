@@ -203,7 +203,7 @@ def _chain(exact: bool, stamp_delay: int = 0) -> tuple[Node, Node, int]:
     return talker, listener, release
 
 
-@pytest.mark.parametrize("exact, delay", [(True, 0), (False, 20_000)])
+@pytest.mark.parametrize("exact, delay", [(True, 0), (False, 20_000), (False, -5_000)])
 def test_a_chain_across_two_processes_runs_from_the_timer_release(exact: bool, delay: int) -> None:
     talker, listener, _ = _chain(exact, delay)
     results, infos = cell_callbacks(
@@ -217,6 +217,31 @@ def test_a_chain_across_two_processes_runs_from_the_timer_release(exact: bool, d
     assert infos["talker"].publishes == 2 and infos["talker"].publishes_unmatched == 1
     assert any("1 of 2 messages it published on /chatter were taken by no callback" in n for n in infos["talker"].notes)
     assert any("approximately" in n for n in reached.notes) is (not exact)
+
+
+def test_two_humble_publishes_close_together_are_taken_once_each_by_one_subscription() -> None:
+    """Two timers publish on one topic microseconds apart, each message stamped just before its hook: the nearest
+    publish of each take, but one subscription never takes one publish twice."""
+    talker, listener = Node(pid=100, tid=100), Node(pid=200, tid=201)
+    talker.node(0x10, "talker")
+    talker.timer(0x10, 0x20, 0x30, 10 * MS, BASE + 10 * MS, "a()")
+    talker.timer(0x10, 0x21, 0x31, 10 * MS, BASE + 10 * MS, "b()")
+    talker.publisher(0x10, 0x50, 0x51, "/chatter")
+    listener.node(0x10, "listener")
+    listener.subscription(0x10, 0x40, 0x41, 0x42, 0x43, "/chatter", "on(msg)")
+    release = BASE + 10 * MS
+    a = talker.run(0x30, release + 1_000, wall=20_000, tid=101)
+    b = talker.run(0x31, release + 2_000, wall=20_000, tid=102)
+    src_a = talker.publish(0x51, a, release + 10_000, exact=False, stamp_delay=-3_000)
+    src_b = talker.publish(0x51, b, release + 11_000, exact=False, stamp_delay=-3_000)
+    for src in (src_a, src_b):
+        listener.run(0x43, release + 100_000, wall=10_000, src_ts=src, age_ns=1, take_handle=0x41)
+    results, infos = cell_callbacks(
+        [ProgramCapture("talker", capture(talker.process()), END), ProgramCapture("listener", capture(listener.process()), END)], BASE
+    )
+    assert infos["talker"].publishes_unmatched == 0
+    reached = next(r for r in results if r.kind == "subscription")
+    assert reached.figures.chain_ns is not None and reached.figures.chain_ns.count == 2
 
 
 def test_a_humble_take_too_far_from_any_publish_is_not_linked() -> None:

@@ -25,7 +25,7 @@ threads count it), latency from a release to the *start* of the callback that se
 to the next release; for a callback that took a message the message's age at its start.
 Messages link callbacks across the cell's processes (a take to the publish of the same topic
 and source timestamp: exact where the middleware passes its timestamp to the hook, Jazzy and
-later; the nearest earlier publish within 1 ms on Humble, said to be approximate), so a callback
+later; the nearest publish within 1 ms on Humble, said to be approximate), so a callback
 reached from a timer callback's release has chain figures from that release to its end.
 
 What the capture could not see (no ROS 2 library, a node built with TRACETOOLS_DISABLED, a
@@ -341,6 +341,7 @@ def _link(instances: list[_Instance], publishes: list[_Publish], take_topics: di
         group.sort(key=lambda p: p.rec.src_ts)
     stamps = {topic: [p.rec.src_ts for p in group] for topic, group in near.items()}
     by_instance = {(i.pid, i.rec.tid, i.rec.seq): i for i in instances}
+    taken_by: dict[tuple[int, int], set[int]] = defaultdict(set)  # per subscription (process, rmw handle): the publishes it took
     for inst in sorted(instances, key=lambda i: i.rec.start_ns):
         topic = take_topics.get(id(inst), "")
         src = inst.rec.src_ts
@@ -349,9 +350,11 @@ def _link(instances: list[_Instance], publishes: list[_Publish], take_topics: di
         pub = exact.get((topic, src))
         approximate = False
         if pub is None and topic in near:
-            j = bisect_right(stamps[topic], src) - 1
-            if j >= 0 and src - stamps[topic][j] < APPROXIMATE_NS:
-                pub, approximate = near[topic][j], True
+            taken = taken_by[(inst.pid, inst.rec.take_handle)]
+            pub = _nearest(near[topic], stamps[topic], src, taken)
+            if pub is not None:
+                taken.add(id(pub))
+            approximate = True
         if pub is None:
             continue
         pub.matched = True
@@ -360,6 +363,21 @@ def _link(instances: list[_Instance], publishes: list[_Publish], take_topics: di
             inst.origin_ns = source.chain_from_ns
             inst.chain_from_ns = source.chain_from_ns
             inst.approximate = approximate or source.approximate
+
+
+def _nearest(publishes: list[_Publish], stamps: list[int], src: int, taken: set[int]) -> Optional[_Publish]:
+    """The publish whose hook's clock is nearest a take's source timestamp, within APPROXIMATE_NS either side, of those
+    the same subscription has not taken already (`taken`: their ids); None when none is.
+
+    On Humble the middleware stamps a message itself, a few microseconds after the publish hook
+    (cyclonedds' dds_write, Fast DDS' write), so the stamp is just after the hook's clock; a
+    middleware (or a stand-in) that stamps before calling the hook puts it just before: either way
+    the nearest publish of the topic is the message's, unless two publishes of one topic come
+    closer together than that gap (then one subscription takes each once, nearest first).
+    """
+    lo, hi = bisect_right(stamps, src - APPROXIMATE_NS), bisect_right(stamps, src + APPROXIMATE_NS - 1)
+    near = sorted(range(lo, hi), key=lambda k: (abs(src - stamps[k]), stamps[k]))
+    return next((publishes[k] for k in near if id(publishes[k]) not in taken), None)
 
 
 def _sample(inst: _Instance) -> Sample:
@@ -434,8 +452,8 @@ def _instance_notes(cb: _Callback) -> list[str]:
     approximate = sum(1 for i in cb.instances if i.origin_ns and i.approximate)
     if approximate:
         out.append(
-            f"{approximate:,} of its chain links matched a publish approximately (Humble: the middleware stamps the message after "
-            f"the publish hook; the nearest earlier publish within {units.format_duration(APPROXIMATE_NS)})"
+            f"{approximate:,} of its chain links matched a publish approximately (Humble: the middleware stamps the message "
+            f"itself, apart from the publish hook; the nearest publish within {units.format_duration(APPROXIMATE_NS)})"
         )
     if cb.identity.truncated:
         out.append("a name, topic or symbol of it was cut short or dropped by the interposer (its string arena was full)")
