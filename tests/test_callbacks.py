@@ -136,12 +136,27 @@ def test_a_late_timer_callback_skips_releases_and_they_are_missed() -> None:
     assert cb.slowest[0].tid == 100
 
 
-def test_releases_after_the_last_callback_are_missed_to_the_end() -> None:
+def test_releases_after_the_last_callback_are_not_missed_but_said() -> None:
+    """No tracepoint says when a timer is cancelled (a one-shot timer cancels itself): its releases end with its callbacks."""
     first, period = BASE + 10 * MS, 10 * MS
     n = timer_node(first, period)
     n.run(0x30, first)
     (cb,), _ = one(n.process(), end=first + 10 * period)
-    assert (cb.figures.callbacks, cb.figures.releases, cb.figures.missed_releases) == (1, 10, 9)
+    assert (cb.figures.callbacks, cb.figures.releases, cb.figures.missed_releases) == (1, 1, 0)
+    assert any("the 9 releases after it to the end of the cell had no callback" in x for x in cb.notes)
+
+
+def test_a_forked_child_runs_callbacks_its_parent_registered() -> None:
+    parent = timer_node()
+    parent.run(0x30, BASE + 10 * MS)
+    child = Node(pid=101, tid=101)
+    child.run(0x30, BASE + 20 * MS)
+    forked = replace(child.process(), ppid=100, flags=frozenset({ProcessFlag.FORKED}), first_hook_ns=BASE + 15 * MS)
+    results, _ = one(parent.process(), forked)
+    assert sorted((r.name, tuple(r.pids)) for r in results) == [
+        (f"minimal_publisher/{LAMBDA}", (100,)),
+        (f"minimal_publisher/{LAMBDA} #2", (101,)),  # two callbacks of one name
+    ]
 
 
 def test_an_overrun_is_a_callback_past_its_next_release() -> None:

@@ -123,6 +123,24 @@ def node_name(meta: Optional[Meta]) -> str:
     return f"{ns}/{meta.s1}" if ns else meta.s1
 
 
+def inherited(p: RosProcess, by_pid: dict[int, RosProcess]) -> list[Meta]:
+    """A process's metas with those a forked child inherited: its parents' from before it reached its first hook.
+
+    A child forked after the set-up runs on its parent's objects at the same addresses (a copy of
+    its memory) without their init calls, which its parent made: its own block holds none of them.
+    """
+    out = list(p.metas)
+    seen = {p.pid}
+    child = p
+    while ProcessFlag.FORKED in child.flags and child.ppid in by_pid and child.ppid not in seen:
+        parent = by_pid[child.ppid]
+        before = child.first_hook_ns or min((r.start_ns for r in child.callbacks), default=0)
+        out += [m for m in parent.metas if not before or m.t_ns <= before]
+        seen.add(parent.pid)
+        child = parent
+    return out
+
+
 def _latest(found: Sequence[Optional[Meta]], t_ns: int) -> Optional[Meta]:
     """Of the registrations found for one address (of different kinds), the one valid at `t_ns`."""
     metas = [m for m in found if m is not None]
@@ -302,8 +320,15 @@ def _grid(cb: _Callback, end_ns: int) -> None:
         inst.release_ns = r.release_ns or base + k * period
         inst.period_ns = period
         inst.chain_from_ns = inst.release_ns
-    due = (end_ns - base + period - 1) // period if end_ns > base else 0
-    cb.releases_due = max(due, last + 1)
+    # Releases after the last callback are not counted as missed: no tracepoint says when a timer is cancelled (a
+    # one-shot timer cancels itself in its callback), so the end of a timer's callbacks is the end of its releases.
+    cb.releases_due = last + 1
+    after = (end_ns - base + period - 1) // period - cb.releases_due if end_ns > base else 0
+    if after > 2:
+        cb.notes.append(
+            f"its last callback served its timer's release {last + 1:,}; the {after:,} releases after it to the end of the cell "
+            "had no callback (the timer was cancelled, or its executor stopped serving it): not counted as missed"
+        )
     if off:
         cb.notes.append(
             f"{off:,} callback{'s' if off != 1 else ''} ran twice within one period of the timer's grid (the timer was reset, "
@@ -567,8 +592,9 @@ def cell_callbacks(programs: Sequence[ProgramCapture], start_ns: int) -> tuple[l
     open_words: dict[str, list[str]] = defaultdict(list)
     comms: dict[tuple[int, int], str] = {}
     for prog in programs:
+        by_pid = {p.pid: p for p in prog.capture.processes}
         for p in prog.capture.processes:
-            metas = _Metas(p.metas)
+            metas = _Metas(inherited(p, by_pid))
             comms.update({(p.pid, t.tid): t.comm for t in p.threads})
             for rec in p.callbacks:
                 ident = resolve(metas, rec.cb, rec.start_ns)
