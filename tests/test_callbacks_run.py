@@ -268,3 +268,11 @@ def test_records_the_capture_lost_are_a_warning_of_the_cell(tmp_path: Path) -> N
     lossy = replace(cap, processes=(replace(cap.processes[0], threads=(RosThread(tid=500, comm="talker", written=99, lost=7),)),))
     result = _cell(tmp_path, SCENARIO.split("expect:")[0], lossy)
     assert any(w.startswith("talker: thread talker (500): 7 records were overwritten") for w in result.warnings)
+
+
+def test_the_terminal_shows_a_row_per_callback_with_the_seed_figure(tmp_path: Path) -> None:
+    from runner.report.cellview import render_cell
+
+    text = render_cell(_cell(tmp_path))
+    row = next(line for line in text.splitlines() if line.strip().startswith("talker: talker/Talker::tick()"))
+    assert row.split()[2:5] == ["500", "9", "0.11"]  # its thread, callbacks, involuntary switches per callback

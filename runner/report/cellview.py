@@ -29,6 +29,25 @@ def _cell_value(value: fg.Number | None, fig: fg.Figure) -> str:
     return f"{value:.1f}" if fig.unit is fg.Unit.PER_SECOND else str(value)
 
 
+def _callbacks(cell: CellResult) -> list[str]:
+    """The ROS 2 callbacks of the cell's programs, a row each (the registry's columns a callback has), the most shown."""
+    if not cell.callbacks:
+        return []
+    from tabulate import tabulate
+
+    overloaded = not all(fg.kept_up(c.figures) for c in cell.callbacks)
+    shown = [f for f in fg.REGISTRY if f.column and fg.has(fg.CALLBACK, f) and (overloaded or not f.overload)]
+    headers = ["callback", "threads"] + [f"{f.column} us" if f.is_duration else str(f.column) for f in shown]
+    rows = [
+        [for_terminal(c.label), ",".join(str(t.tid) for t in c.threads)] + [_cell_value(fg.value(c.figures, f), f) for f in shown]
+        for c in cell.callbacks[:TERMINAL_ROWS]
+    ]
+    out = ["", *("  " + line for line in tabulate(rows, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())]
+    if len(cell.callbacks) > TERMINAL_ROWS:
+        out.append(f"  ({len(cell.callbacks) - TERMINAL_ROWS:,} more callbacks: see the report or results.json)")
+    return out
+
+
 def render_cell(cell: CellResult, pid_width: int = 5) -> str:
     """Thread table, per-thread summary (the registry's figures that have a column), verdicts and degradations.
 
@@ -62,6 +81,7 @@ def render_cell(cell: CellResult, pid_width: int = 5) -> str:
         out.extend("  " + line for line in tabulate(rows, headers=headers, tablefmt="simple", disable_numparse=True).splitlines())
     if picked.hidden:
         out.append(f"  ({picked.note()})")
+    out += _callbacks(cell)
     verdicts, more = verdicts_shown(cell.expectations, TERMINAL_ROWS)
     for v in verdicts:
         if v.unmeasured:  # said in place of the value: "measured not measured" reads as nothing
