@@ -17,7 +17,11 @@ The shape of `runner.results/2`, top down:
   `duration_ns`}, `cells`;
 - a cell: `id`, `matrix`, `spec_hash`, `spec` (the resolved cell), `repeat`, `status`,
   `reason`, `started_at`, `duration_ns`, `machine`, `thread_table` (ps rows), `threads`,
-  `expectations`, `background`, `overhead_ns`, `samples_file` (relative to the results folder);
+  `expectations`, `background`, `overhead_ns`, `samples_file` (relative to the results folder),
+  `callbacks` (the ROS 2 callbacks of its `command:` programs, added within /2);
+- a ROS 2 callback: `program`, `pids`, `node`, `kind`, `symbol`, `name` (`node/symbol`), `topic`,
+  `period_ns`, `clock`, `threads`, `figures` (a thread's, over its instances), `histograms`, `notes`,
+  `slowest`; its program's `ros` says what the interposer's capture saw, in counts and words;
 - a thread: `key` (derived), `process`, `instance`, `index`, `name`, `pid`, `tid`, `work`,
   `periodic`, `requested` and `applied` {`policy`, `priority`, `nice`, `cpus`}, `degraded`,
   `figures` (threadfigures.ThreadFigures: every duration an integer in ns, e.g. `latency_ns.p99`);
