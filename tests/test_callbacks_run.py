@@ -276,3 +276,19 @@ def test_the_terminal_shows_a_row_per_callback_with_the_seed_figure(tmp_path: Pa
     text = render_cell(_cell(tmp_path))
     row = next(line for line in text.splitlines() if line.strip().startswith("talker: talker/Talker::tick()"))
     assert row.split()[2:5] == ["500", "9", "0.11"]  # its thread, callbacks, involuntary switches per callback
+
+
+@pytest.mark.parametrize(
+    "expect, valid",
+    [
+        ({"thread": "a", "metric": "callbacks", "min": 1}, True),
+        ({"callback": "*tick*", "metric": "callbacks", "min": 1}, True),
+        ({"thread": "a", "callback": "*tick*", "metric": "callbacks", "min": 1}, False),
+        ({"metric": "callbacks", "min": 1}, False),
+    ],
+)
+def test_the_editors_schema_takes_exactly_one_of_thread_and_callback(expect: dict[str, object], valid: bool) -> None:
+    schema = json.loads((Path(__file__).parent.parent / "runner.schema.json").read_text())
+    data = {"name": "x", "processes": [{"name": "p", "command": ["a"]}], "expect": [expect]}
+    errors = list(jsonschema.Draft202012Validator(schema).iter_errors(data))
+    assert (not errors) is valid

@@ -142,6 +142,13 @@ class Expectation(Strict):
         """A bound as written back: a duration for latency metrics, a number otherwise."""
         return units.format_duration(int(value)) if metric_figure(self.metric).is_duration else f"{value:g}"
 
+    @classmethod
+    def _schema(cls, schema: dict[str, Any]) -> None:
+        """Exactly one of `thread` and `callback`, for editors too."""
+        schema["oneOf"] = [
+            {"properties": {key: True}, "required": [key]} for key in ("thread", "callback")
+        ]  # defined there: ajv's strict mode
+
     @property
     def target(self) -> str:
         """What it names, as verdicts and listings say it: the thread, or `callback GLOB`."""
