@@ -261,7 +261,6 @@ def _detail(identity: _Identity, cb: int) -> str:
 class _Instance:
     pid: int
     rec: CallbackRecord
-    key: tuple[int, int, int]  # the callback it is of: process, handle, its registration's time
     release_ns: int = 0  # the timer release it served (0: none known)
     missed: int = 0
     period_ns: int = 0
@@ -600,7 +599,7 @@ def cell_callbacks(programs: Sequence[ProgramCapture], start_ns: int) -> tuple[l
                 ident = resolve(metas, rec.cb, rec.start_ns)
                 key = (p.pid, rec.cb, ident.registered.t_ns if ident.registered else -1)
                 cb = callbacks.setdefault((prog.name, *key), _Callback(prog.name, ident, rec.cb))
-                inst = _Instance(p.pid, rec, key)
+                inst = _Instance(p.pid, rec)
                 cb.instances.append(inst)
                 if rec.take_handle:
                     sub = metas.at(MetaKind.SUB, "c", rec.take_handle, rec.start_ns)
