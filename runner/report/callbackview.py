@@ -18,9 +18,9 @@ from runner.results.document import CallbackInstance, CallbackResult, CellResult
 
 THREADS_SHOWN = 3
 SLOWEST_SHOWN = 3
-_INTRO = (
-    "ROS 2 callbacks of {program}, measured inside it (latency: from a timer's release to the start of the callback that "
-    "served it; age: from a message's source timestamp to the start of the callback that took it):"
+_TIMING_WORDS = (
+    "latency: from a timer's release to the start of the callback that served it; age: from a message's source timestamp "
+    "to the start of the callback that took it; chain: from the release of the timer callback whose message reached it to its end"
 )
 
 
@@ -98,45 +98,69 @@ def timing_table(callbacks: list[CallbackResult]) -> Table:
     return Table(["Callback", *(sc.header(words) for words, _ in _TIMING)], rows, [LEFT] + [RIGHT] * len(_TIMING))
 
 
-def _joined(i: CallbackInstance, thread: ThreadResult | None) -> str:
-    """An instance with what the trace says of its thread then: the preempted runs it kept that overlap it."""
-    late = f", {units.human_duration(i.latency_ns)} after its release" if i.latency_ns is not None else ""
-    switches = f"{i.involuntary:,} involuntary switch{'es' if i.involuntary != 1 else ''}"
-    line = f"at {i.at_ns / 1e9:.3f} s on {i.tid}: {units.human_duration(i.wall_ns)}{late}, {switches}"
+def _trace_words(i: CallbackInstance, thread: ThreadResult | None) -> str:
+    """What the trace says of an instance's thread meanwhile: the preempted runs it kept that overlap it; "" for nothing."""
     if thread is None or thread.figures.preemptions is None:
-        return line
+        return ""
     runs = [r for r in thread.preempted_runs if r.at_ns < i.at_ns + i.wall_ns and i.at_ns < r.at_ns + r.wall_ns]
     if runs:
-        return line + "; the trace: " + "; ".join(_run(r) for r in runs)
+        return "; ".join(_run(r) for r in runs)
     if thread.preempted_by and i.involuntary:  # the trace kept only the thread's most preempted runs
-        return line + "; its thread, over the cell: preempted " + ", ".join(_preemptor(p) for p in thread.preempted_by)
-    return line
+        return "its thread, over the cell: preempted " + ", ".join(_preemptor(p) for p in thread.preempted_by)
+    return ""
 
 
-def slowest_lines(cell: CellResult, callbacks: list[CallbackResult]) -> list[Markdown]:
-    """`name`: its slowest instances, each with who preempted its thread meanwhile when the trace followed that thread."""
+def slowest_table(cell: CellResult, callbacks: list[CallbackResult]) -> Table | None:
+    """The slowest instances of each callback an involuntary switch ever hit, with who preempted its thread meanwhile
+    (the scheduler trace's preempted runs of that thread overlapping the instance); None when none was hit."""
     by_tid = {t.tid: t for t in cell.threads if t.program}
-    out = []
-    for c in callbacks:
-        if not c.slowest or not c.figures.involuntary.per_callback_max:
-            continue  # never switched out involuntarily: nobody preempted it
-        shown = "; ".join(_joined(i, by_tid.get(i.tid)) for i in c.slowest[:SLOWEST_SHOWN])
-        out.append(Markdown(f"{md_code(c.name)}: slowest {md_text(shown)}"))
-    return out
+    hit = [c for c in callbacks if c.slowest and c.figures.involuntary.per_callback_max]
+    shown = [(c, i) for c in hit for i in c.slowest[:SLOWEST_SHOWN]]
+    if not shown:
+        return None
+    sc = fg.scale(fg.Unit.NS, [v for _, i in shown for v in (i.wall_ns, i.latency_ns)])
+    rows = [
+        [
+            md_code(c.name, in_table=True),
+            f"{i.at_ns / 1e9:.3f}",
+            str(i.tid),
+            sc.number(i.wall_ns),
+            sc.number(i.latency_ns),
+            fmt_int(i.involuntary),
+            md_text(_trace_words(i, by_tid.get(i.tid)) or "–", in_table=True),
+        ]
+        for c, i in shown
+    ]
+    headers = ["Callback", "At (s)", "Thread", sc.header("Duration"), sc.header("After its release"), "Involuntary", "The trace"]
+    return Table(headers, rows, [LEFT, RIGHT, RIGHT, RIGHT, RIGHT, RIGHT, LEFT])
 
 
-def callbacks_block(cell: CellResult) -> Markdown | None:
-    """The callbacks section of a cell: per program whose capture ran, its tables, its words, its slowest callbacks."""
-    parts: list[str] = []
+def notes_table(notes: list[str], callbacks: list[CallbackResult]) -> Table | None:
+    """What the capture said of the program, and of each callback, in words; None when it said nothing."""
+    rows = [["the program", md_text(n, in_table=True)] for n in notes]
+    rows += [[md_code(c.name, in_table=True), md_text(n, in_table=True)] for c in callbacks for n in c.notes]
+    return Table(["Of", "What the capture says"], rows, [LEFT, LEFT]) if rows else None
+
+
+def callback_tables(cell: CellResult) -> list[tuple[Markdown, Table]]:
+    """The captioned tables of a cell's ROS 2 callbacks, per program whose capture ran: what each callback is, its
+    switches and faults, its timing, what the capture said in words, its slowest instances joined with the trace."""
+    out: list[tuple[Markdown, Table]] = []
     for prog in cell.programs:
         if prog.ros is None:
             continue
+        name = md_text(prog.name)
         mine = [c for c in cell.callbacks if c.program == prog.name]
-        parts.append(_INTRO.format(program=md_text(prog.name)))
         if mine:
-            parts += [what_table(mine).render(), switches_table(mine).render(), timing_table(mine).render()]
-        words = [md_text(n) for n in prog.ros.notes] + [Markdown(f"{md_code(c.name)}: {md_text(n)}") for c in mine for n in c.notes]
-        words += slowest_lines(cell, mine)
-        if words:
-            parts.append("\n".join(f"- {w}" for w in words))
-    return Markdown("\n\n".join(parts)) if parts else None
+            out += [
+                (Markdown(f"ROS 2 callbacks of {name}, measured inside it"), what_table(mine)),
+                (Markdown(f"Involuntary switches and page faults per callback of {name} (getrusage around each)"), switches_table(mine)),
+                (Markdown(f"Timing of the callbacks of {name} ({_TIMING_WORDS})"), timing_table(mine)),
+            ]
+        notes = notes_table(prog.ros.notes, mine)
+        if notes is not None:
+            out.append((Markdown(f"What the capture of {name}'s callbacks says"), notes))
+        slowest = slowest_table(cell, mine)
+        if slowest is not None:
+            out.append((Markdown(f"The slowest callbacks of {name}, and who preempted their thread meanwhile (scheduler trace)"), slowest))
+    return out

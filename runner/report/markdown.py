@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from runner.report import system
-from runner.report.callbackview import callbacks_block
+from runner.report.callbackview import callback_tables
 from runner.report.compareview import build_comparison, change_text, interval_ends, interval_text, render_comparison
 from runner.report.findings import (
     ICON,
@@ -133,7 +133,6 @@ class CellSection:
     trace: str | None = None
     warnings: list[str] = field(default_factory=list)
     shown: str = ""  # which threads the tables show, when not every one
-    callbacks: Markdown | None = None  # the ROS 2 callbacks of its programs (callbackview.py)
 
 
 @dataclass
@@ -197,6 +196,7 @@ def program_sections(cell: CellResult, labels: dict[str, str]) -> list[Block]:
     if phases is not None:
         caption = "Phases of each program, with the settings the thread read back from the kernel as it entered each one"
         blocks.append(Block(Markdown(caption), _compact(phases)))
+    blocks += [Block(caption, _compact(table)) for caption, table in callback_tables(cell)]
     return blocks
 
 
@@ -236,7 +236,6 @@ def _section(cell: CellResult, labels: dict[str, str], repeated: bool, pid_width
         traced=traced,
         preemptions=preemption_lines(rows),
         trace=trace_line(cell),
-        callbacks=callbacks_block(cell),
     )
 
 
