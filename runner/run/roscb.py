@@ -1,0 +1,380 @@
+"""The shell side of the libtracetools interposer: a program's capture file, its environment, and decoding the file.
+
+The interposer (runner/run/roscb.c, built by `pip install` as runner/run/_roscb*.so) is
+preloaded into a `command:` program (`callbacks:` on, the default) and writes what the
+program's ROS 2 callbacks did into a file the runner made for that program alone
+(`Capture`): per process a block, per thread a ring of records (layout: runner/run/roscb.h,
+read here by field name from the native core's table, as runner/run/records.py reads the
+sample buffer).  At the cell's end the runner decodes it into `roscbdata.RosCapture` and
+removes it.
+
+Why a file in /dev/shm and not an inherited memfd: `ros2 run` starts the node with
+`subprocess.run(..., close_fds=True)`, so a descriptor would not reach it; a path in the
+environment does, through any number of execs and forks.  The file is new (O_EXCL), never
+reached through a link (O_NOFOLLOW), its owner's alone (0600) and sparse: a thread's ring
+takes memory only as far as it is written.
+
+Bounds (what one program's file can hold, whatever the program does):
+- MAX_PROCS processes that reach a hook (later ones are counted as refused),
+- MAX_THREADS threads that reach a hook (likewise),
+- CAPACITY records per thread's ring: a thread that writes more between two reads loses its
+  oldest records, counted as lost (the runner reads at the cell's end: CAPACITY callbacks,
+  publishes and init calls per thread per cell are kept),
+- a 63.5 KiB string arena per process (names, topics, symbols; a full one is counted).
+So the file is at most MAX_PROCS * 64 KiB + MAX_THREADS * (128 + CAPACITY * 96) bytes
+(50 MiB with the defaults) and the decoded capture at most MAX_THREADS * CAPACITY records.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.machinery
+import mmap
+import os
+import secrets
+import struct
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Optional
+
+from runner.run import _probe
+from runner.run.records import RECORDS
+from runner.run.roscbdata import (
+    CallbackRecord,
+    ClockType,
+    Meta,
+    MetaKind,
+    ProcessFlag,
+    PublishRecord,
+    RosCapture,
+    RosProcess,
+    RosThread,
+)
+
+MAX_PROCS = 32
+MAX_THREADS = 128
+CAPACITY = 4096
+FOLDER = "/dev/shm"
+ENV = "RUNNER_ROSCB"
+
+FILE = RECORDS["roscb_file"]
+PROC = RECORDS["roscb_proc"]
+SLOT = RECORDS["roscb_slot"]
+CALLBACK = RECORDS["roscb_callback"]
+PUBLISH = RECORDS["roscb_publish"]
+META = RECORDS["roscb_meta"]
+RECORD_SIZE = CALLBACK.size
+ARENA = _probe.ROSCB_PROC_BYTES - PROC.size
+assert PUBLISH.size == META.size == RECORD_SIZE == 96, "the interposer's records are one size (roscb.h)"
+assert all(getattr(_probe, f"ROSCB_META_{kind.name}") == kind.value for kind in MetaKind), "roscb.h's meta kinds are roscbdata's"
+
+TYPE = struct.Struct("<H")
+CALLBACK_TYPE, PUBLISH_TYPE = 1, 2
+CB_INTRA, CB_TAKE, CB_UNTERMINATED, CB_RELEASE = 1, 2, 4, 8  # roscb.h ROSCB_CB_*
+PUB_EXACT, PUB_RCL = 1, 2  # ROSCB_PUB_*
+META_TRUNCATED = 1  # ROSCB_META_TRUNCATED
+PROCESS_FLAGS = {  # ROSCB_P_*
+    1: ProcessFlag.TRACETOOLS,
+    2: ProcessFlag.ENABLED_API,
+    4: ProcessFlag.PUBLISH_TIMESTAMP,
+    8: ProcessFlag.SHADOWED,
+    16: ProcessFlag.FORKED,
+}
+# what /proc/PID/maps may show of ROS 2 (by a file name's start), besides the interposer itself
+ROS_LIBRARIES = ("librclcpp.so", "libtracetools.so", "librcl.so", "librmw_implementation.so", "librclpy")
+
+
+def _library() -> str:
+    here = os.path.dirname(os.path.abspath(__file__))
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        path = os.path.join(here, "_roscb" + suffix)
+        if os.path.isfile(path):
+            return path
+    return ""
+
+
+LIBRARY = _library()  # the built interposer; "" when the package was installed without it (then nothing is preloaded)
+
+
+def file_size(max_procs: int, max_threads: int, capacity: int) -> int:
+    """The bytes of a capture file of these bounds (sparse: most are never written)."""
+    return FILE.size + max_procs * _probe.ROSCB_PROC_BYTES + max_threads * (SLOT.size + capacity * RECORD_SIZE)
+
+
+@dataclass
+class Capture:
+    """One program's capture file while its cell runs: made before the program starts, removed at the cell's end.
+
+    The runner keeps the descriptor it made the file with and reads through it, so the file
+    it decodes is the one it made even if its name was replaced meanwhile.
+    """
+
+    path: str
+    fd: int
+    size: int
+    loaded: Optional[bool] = None
+    libraries: set[str] = field(default_factory=set)
+
+    @classmethod
+    def create(
+        cls,
+        name: str,
+        owner: Optional[tuple[int, int]] = None,
+        folder: str = FOLDER,
+        max_procs: int = MAX_PROCS,
+        max_threads: int = MAX_THREADS,
+        capacity: int = CAPACITY,
+    ) -> Capture:
+        """A new file `runner-roscb-<name>-<random>` in `folder`, 0600, chowned to `owner` (uid, gid) for a program run as another user."""
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)[:80]
+        path = os.path.join(folder, f"runner-roscb-{safe}-{secrets.token_hex(8)}")
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+        size = file_size(max_procs, max_threads, capacity)
+        try:
+            if owner is not None:
+                os.fchown(fd, *owner)
+            os.ftruncate(fd, size)
+            header = {
+                "magic": _probe.ROSCB_MAGIC,
+                "version": _probe.ROSCB_VERSION,
+                "header_size": FILE.size,
+                "max_procs": max_procs,
+                "max_threads": max_threads,
+                "capacity": capacity,
+                "record_size": RECORD_SIZE,
+                "proc_size": _probe.ROSCB_PROC_BYTES,
+                "slot_size": SLOT.size + capacity * RECORD_SIZE,
+            }
+            os.pwrite(fd, FILE.pack(header), 0)
+        except BaseException:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            raise
+        return cls(path, fd, size)
+
+    def environment(self, env: Mapping[str, str]) -> dict[str, str]:
+        """`env` with the interposer preloaded after the user's own LD_PRELOAD, and the file's name for it."""
+        return environment(env, self.path)
+
+    def look(self, pids: Iterable[int]) -> None:
+        """Note from /proc/PID/maps whether the interposer is mapped into these processes and which ROS 2 libraries are."""
+        for pid in pids:
+            found = mapped(pid)
+            if found is None:
+                continue
+            ours = bool(LIBRARY) and LIBRARY in found
+            self.loaded = bool(self.loaded) or ours
+            self.libraries.update(os.path.basename(p) for p in found if is_ros_library(p) or p == LIBRARY)
+
+    def read(self) -> RosCapture:
+        """What the file holds now, decoded (a file of another layout: `error` says so)."""
+        try:
+            with mmap.mmap(self.fd, 0, mmap.MAP_SHARED, mmap.PROT_READ) as buf:
+                capture = decode(buf)
+        except (OSError, ValueError) as error:
+            capture = RosCapture(error=f"the capture file could not be read: {error}")
+        return RosCapture(
+            self.path,
+            capture.processes,
+            capture.processes_refused,
+            capture.threads_refused,
+            capture.error,
+            self.loaded,
+            tuple(sorted(self.libraries)),
+        )
+
+    def close(self) -> None:
+        """Remove the file (whatever happened to the program) and close the descriptor; a second call does nothing."""
+        if self.fd >= 0:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+            os.close(self.fd)
+            self.fd = -1
+
+
+def environment(env: Mapping[str, str], path: str) -> dict[str, str]:
+    """`env` with LIBRARY appended to its LD_PRELOAD (the user's own entries first: theirs are found first) and RUNNER_ROSCB=path."""
+    out = dict(env)
+    if not LIBRARY:
+        return out
+    preload = [p for p in out.get("LD_PRELOAD", "").replace(" ", ":").split(":") if p and p != LIBRARY]
+    out["LD_PRELOAD"] = ":".join([*preload, LIBRARY])
+    out[ENV] = path
+    return out
+
+
+def is_ros_library(path: str) -> bool:
+    name = os.path.basename(path)
+    return any(name.startswith(lib) for lib in ROS_LIBRARIES)
+
+
+def mapped(pid: int) -> Optional[set[str]]:
+    """The files mapped into a process (its /proc/PID/maps), or None when it is gone or unreadable."""
+    try:
+        with open(f"/proc/{pid}/maps", "rb") as handle:
+            lines = handle.read().splitlines()
+    except OSError:
+        return None
+    out = set()
+    for line in lines:
+        parts = line.split(None, 5)
+        if len(parts) == 6 and parts[5].startswith(b"/"):
+            out.add(os.fsdecode(parts[5].removesuffix(b" (deleted)")))
+    return out
+
+
+def _text(raw: bytes) -> str:
+    return raw.split(b"\0", 1)[0].decode(errors="replace")
+
+
+def decode(buf: bytes | mmap.mmap) -> RosCapture:
+    """The records of a capture file, checked against this runner's layout; torn and overwritten records left out."""
+    if len(buf) < FILE.size:
+        return RosCapture(error=f"the capture file has {len(buf)} bytes, fewer than its {FILE.size}-byte header")
+    head = FILE.unpack(buf)
+    expected = {
+        "magic": _probe.ROSCB_MAGIC,
+        "version": _probe.ROSCB_VERSION,
+        "header_size": FILE.size,
+        "record_size": RECORD_SIZE,
+        "proc_size": _probe.ROSCB_PROC_BYTES,
+    }
+    wrong = [f"{name} {head[name]:#x} (this runner's: {value:#x})" for name, value in expected.items() if head[name] != value]
+    if head["capacity"] <= 0 or head["slot_size"] != SLOT.size + head["capacity"] * RECORD_SIZE:
+        wrong.append(f"slot_size {head['slot_size']} for capacity {head['capacity']}")
+    if not wrong and file_size(head["max_procs"], head["max_threads"], head["capacity"]) > len(buf):
+        wrong.append(f"{len(buf)} bytes, fewer than its header's sizes need")
+    if wrong:
+        return RosCapture(error="the capture file has another layout than this runner's interposer: " + ", ".join(wrong))
+    procs: dict[int, dict] = {}
+    for index in range(min(head["next_proc"], head["max_procs"])):
+        at = FILE.size + index * _probe.ROSCB_PROC_BYTES
+        p = PROC.unpack(buf, at)
+        if p["state"] == 1:
+            procs[index] = {"head": p, "arena": at + PROC.size, "threads": [], "metas": [], "callbacks": [], "publishes": []}
+    slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
+    for index in range(min(head["next_thread"], head["max_threads"])):
+        at = slots_at + index * head["slot_size"]
+        s = SLOT.unpack(buf, at)
+        owner = procs.get(s["proc"])
+        if s["state"] == 0 or owner is None or owner["head"]["pid"] != s["pid"]:
+            continue
+        _read_slot(buf, at, s, head["capacity"], owner)
+    processes = tuple(_process(info, buf) for info in procs.values())
+    return RosCapture(processes=processes, processes_refused=head["procs_refused"], threads_refused=head["threads_refused"])
+
+
+def _read_slot(buf: bytes | mmap.mmap, at: int, s: dict, capacity: int, owner: dict) -> None:
+    """One thread's ring: the records still there, re-checked against its count after the copy (a record overwritten
+    while it was copied is dropped, not read torn)."""
+    written = s["count"]
+    ring_at = at + SLOT.size
+    ring = bytes(buf[ring_at : ring_at + capacity * RECORD_SIZE])
+    after = SLOT.get(buf, at, "count")
+    first = max(0, written - capacity, after - capacity)
+    tid = s["tid"]
+    arena = owner["arena"]
+    for n in range(first, written):
+        offset = (n % capacity) * RECORD_SIZE
+        (kind,) = TYPE.unpack_from(ring, offset)
+        if kind == CALLBACK_TYPE:
+            owner["callbacks"].append(_callback(tid, CALLBACK.unpack(ring, offset)))
+        elif kind == PUBLISH_TYPE:
+            owner["publishes"].append(_publish(tid, PUBLISH.unpack(ring, offset)))
+        elif kind in MetaKind._value2member_map_:
+            owner["metas"].append(_meta(tid, META.unpack(ring, offset), buf, arena))
+    open_depth = s["open_depth"]
+    owner["threads"].append(
+        RosThread(
+            tid,
+            _text(bytes(s["comm"])),
+            written,
+            first,
+            s["lost_other"],
+            s["open_cb"] if open_depth else 0,
+            s["open_since_ns"] if open_depth else 0,
+            s["state"] == 2,
+        )
+    )
+
+
+def _callback(tid: int, r: dict) -> CallbackRecord:
+    flags = r["flags"]
+    return CallbackRecord(
+        tid=tid,
+        cb=r["cb"],
+        seq=r["seq"],
+        start_ns=r["start_ns"],
+        end_ns=r["end_ns"],
+        cpu_start=r["cpu_start"],
+        cpu_end=r["cpu_end"],
+        nivcsw=r["nivcsw"],
+        nvcsw=r["nvcsw"],
+        minflt=r["minflt"],
+        majflt=r["majflt"],
+        cpu_ns=r["cpu_us"] * 1000,
+        release_ns=r["release_ns"] if flags & CB_RELEASE else 0,
+        wake_ns=r["wake_ns"],
+        src_ts=r["src_ts"] if flags & CB_TAKE else 0,
+        age_ns=r["age_ns"] if flags & CB_TAKE else 0,
+        take_handle=r["take_handle"] if flags & CB_TAKE else 0,
+        intra=bool(flags & CB_INTRA),
+        depth=r["depth"],
+        unterminated=bool(flags & CB_UNTERMINATED),
+    )
+
+
+def _publish(tid: int, r: dict) -> PublishRecord:
+    return PublishRecord(
+        tid=tid,
+        handle=r["handle"],
+        handle_is_rcl=bool(r["flags"] & PUB_RCL),
+        t_ns=r["t_ns"],
+        src_ts=r["src_ts"],
+        exact=bool(r["flags"] & PUB_EXACT),
+        enclosing_cb=r["enclosing_cb"],
+        enclosing_seq=r["enclosing_seq"],
+    )
+
+
+def _string(buf: bytes | mmap.mmap, arena: int, offset: int, length: int) -> str:
+    if length == 0 or offset + length > ARENA:
+        return ""
+    return bytes(buf[arena + offset : arena + offset + length]).decode(errors="replace")
+
+
+def _meta(tid: int, r: dict, buf: bytes | mmap.mmap, arena: int) -> Meta:
+    clock = r["clock"]
+    return Meta(
+        kind=MetaKind(r["type"]),
+        tid=tid,
+        t_ns=r["t_ns"],
+        a=r["a"],
+        b=r["b"],
+        c=r["c"],
+        d=r["d"],
+        e=r["e"],
+        clock=ClockType(clock) if clock in ClockType._value2member_map_ else ClockType.UNKNOWN,
+        s1=_string(buf, arena, r["s1_off"], r["s1_len"]),
+        s2=_string(buf, arena, r["s2_off"], r["s2_len"]),
+        truncated=bool(r["flags"] & META_TRUNCATED),
+    )
+
+
+def _process(info: dict, buf: bytes | mmap.mmap) -> RosProcess:
+    p = info["head"]
+    flags = frozenset(flag for bit, flag in PROCESS_FLAGS.items() if p["flags"] & bit)
+    return RosProcess(
+        pid=p["pid"],
+        ppid=p["ppid"],
+        exe=_text(bytes(p["exe"])),
+        flags=flags,
+        shadowed_by=_text(bytes(p["shadowed_by"])),
+        first_hook_ns=p["first_hook_ns"],
+        strings_dropped=p["strings_dropped"],
+        threads=tuple(info["threads"]),
+        metas=tuple(info["metas"]),
+        callbacks=tuple(info["callbacks"]),
+        publishes=tuple(info["publishes"]),
+    )
