@@ -327,3 +327,75 @@ def test_the_tables_describe_the_records_python_reads():
         name.removeprefix("ROSCB_META_"): getattr(_probe, name) for name in dir(_probe) if name.startswith("ROSCB_META_")
     }
     assert sys.byteorder == "little"
+
+
+class _Guard:
+    def watch(self, pgid: int) -> None: ...
+    def forget(self, pgid: int) -> None: ...
+    def watch_cgroup(self, path: str) -> None: ...
+    def forget_cgroup(self, path: str) -> None: ...
+
+
+def _program_run(monkeypatch, tmp_path, command: list[str], **extra: object):
+    from runner.run import external, kernel, memcg
+    from runner.scenario.model import ProgramSpec
+
+    monkeypatch.setattr(memcg, "hierarchy", lambda limit=True: (None, "no cgroup in this test"))
+    spec = ProgramSpec.parse({"name": "node", "command": command, "until": "exit", **extra})
+    return external.ProgramRun(spec, str(tmp_path), kernel.current_settings(), kernel.online_cpus())
+
+
+def _files() -> set[str]:
+    return {name for name in os.listdir(roscb.FOLDER) if name.startswith("runner-roscb-node-")}
+
+
+def test_a_command_program_runs_preloaded_and_its_raw_record_holds_the_decoded_capture(bins, monkeypatch, tmp_path):
+    before = _files()
+    run = _program_run(monkeypatch, tmp_path, [bins["jazzy"], "basic", "5"])
+    run.launch(_Guard())
+    assert run.capture is not None and os.path.exists(run.capture.path)
+    path = run.capture.path
+    run.release()
+    for _ in range(500):
+        run.look_callbacks(every_ns=0)
+        if run.poll():
+            break
+        time.sleep(0.01)
+    run.stop(_Guard())
+    run.reap()
+    raw = run.raw(None, time.monotonic_ns())
+    assert raw.exit_code == 0 and raw.callbacks is not None and raw.callbacks.path == path
+    (p,) = raw.callbacks.processes
+    assert p.pid == run.pid and len(p.callbacks) == 10 and len(p.publishes) == 5
+    assert not os.path.exists(path) and _files() == before  # removed at the end
+
+
+def test_callbacks_off_runs_the_program_as_it_is(monkeypatch, tmp_path):
+    run = _program_run(monkeypatch, tmp_path, ["sh", "-c", 'echo "[$LD_PRELOAD][$RUNNER_ROSCB]"'], callbacks=False)
+    run.launch(_Guard())
+    assert run.capture is None
+    run.release()
+    while not run.poll():
+        time.sleep(0.01)
+    run.stop(_Guard())
+    run.reap()
+    assert run.raw(None, time.monotonic_ns()).callbacks is None
+    assert (tmp_path / "node.stdout").read_text() == f"[{os.environ.get('LD_PRELOAD', '')}][]\n"
+
+
+def test_the_capture_file_is_removed_when_the_launch_fails(monkeypatch, tmp_path):
+    from runner.run import external
+
+    before = _files()
+
+    def refused(*args: object) -> None:
+        assert len(_files()) == len(before) + 1  # made before the fork
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(external._probe, "spawn_program", refused)
+    run = _program_run(monkeypatch, tmp_path, ["true"])
+    with pytest.raises(KeyboardInterrupt):
+        run.launch(_Guard())
+    run.stop(_Guard())
+    callbacks = run.raw(None, time.monotonic_ns()).callbacks
+    assert _files() == before and callbacks is not None and callbacks.error.startswith("the program never started")

@@ -22,7 +22,8 @@ Bounds (what one program's file can hold, whatever the program does):
   publishes and init calls per thread per cell are kept),
 - a 63.5 KiB string arena per process (names, topics, symbols; a full one is counted).
 So the file is at most MAX_PROCS * 64 KiB + MAX_THREADS * (128 + CAPACITY * 96) bytes
-(50 MiB with the defaults) and the decoded capture at most MAX_THREADS * CAPACITY records.
+(98 MiB with the defaults, of which a thread uses 1.5 MiB at most, as far as it writes) and the
+decoded capture at most MAX_THREADS * CAPACITY records (a million).
 """
 
 from __future__ import annotations
@@ -52,8 +53,8 @@ from runner.run.roscbdata import (
 )
 
 MAX_PROCS = 32
-MAX_THREADS = 128
-CAPACITY = 4096
+MAX_THREADS = 64
+CAPACITY = 16384  # 16 s of a 1 kHz timer callback per thread, read at the cell's end
 FOLDER = "/dev/shm"
 ENV = "RUNNER_ROSCB"
 
