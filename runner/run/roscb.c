@@ -254,9 +254,8 @@ static void thread_claim(struct tstate *t) {
     unsigned generation = atomic_load(&g_generation);
     t->generation = generation;
     t->slot = NULL;
-    t->depth = 0;
+    t->depth = 0; /* a forked child's frames are its parent's callbacks; the take and wake-up before this hook are its own */
     t->too_deep = 0;
-    t->waiting = t->take_valid = false;
     if (t->refused) return;
     uint32_t index = atomic_fetch_add((_Atomic uint32_t *)&g_file->next_thread, 1);
     if (index >= g_file->max_threads) {
