@@ -144,3 +144,18 @@ def test_a_ros_built_with_tracetools_disabled_calls_no_hook_and_its_maps_say_so(
     assert read.processes == () and read.loaded is True
     assert "librclcpp.so" in read.libraries and not any(lib.startswith("libtracetools") for lib in read.libraries)
     assert os.path.basename(roscb.LIBRARY) in read.libraries
+
+
+def test_thousands_of_callbacks_one_that_never_ends_and_one_inside_another(ros):
+    done, capture = _run(ros.distros["jazzy"], "--count", "5", "--period", "2ms", "--many", "5000", "--never-end", "--nested")
+    assert done.returncode == 0, done.stderr
+    p = _process(capture)
+    threads = {t.comm: t for t in p.threads}
+    many = [c for c in p.callbacks if c.tid == threads["exec_many"].tid]
+    assert len(many) == done.callback("many")["count"] == 5000 and threads["exec_many"].lost == 0
+    # the string arena is bounded: the symbols it had no room for are counted, their records flagged
+    assert p.strings_dropped > 0 and any(m.truncated and m.s1 == "" for m in p.metas if m.kind is MetaKind.SYM)
+    stuck = threads["exec_stuck"]
+    assert stuck.open_cb != 0 and stuck.open_since_ns > 0 and not any(c.tid == stuck.tid for c in p.callbacks)
+    inner = [c for c in p.callbacks if c.depth == 1]
+    assert len(inner) == done.callback("nested")["count"] > 0 and not any(c.unterminated for c in inner)

@@ -17,6 +17,8 @@
  *   exec PROG ARG  one callback, then exec PROG ARG (the child's environment keeps the preload)
  *   many N         N callbacks on the main thread
  *   bench N        N empty callbacks (start + end), prints ns per pair
+ *   timer N        a 1 ms timer as an executor runs it (clock_nanosleep to the next release, the executor's calls, a
+ *                  callback that publishes), N releases; prints its wake-up latency: `latency_ns p50 p99 max`
  * It prints `calls <name> <n>` for every function the fake counted (when linked with it), then `done`.
  */
 #define _GNU_SOURCE
@@ -114,6 +116,36 @@ static void one(const void *cb) {
     CALL(callback_end, cb);
 }
 
+static int by_value(const void *a, const void *b) {
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+static void timer_loop(long n) {
+    int64_t *late = calloc((size_t)n, sizeof *late);
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    for (long i = 0; late && i < n; i++) {
+        next.tv_nsec += 1000000;
+        if (next.tv_nsec >= 1000000000) next.tv_sec++, next.tv_nsec -= 1000000000;
+        CALL(rclcpp_executor_get_next_ready);
+        CALL(rclcpp_executor_wait_for_work, 1000000);
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL);
+        struct timespec now;
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        late[i] = (now.tv_sec - next.tv_sec) * 1000000000LL + (now.tv_nsec - next.tv_nsec);
+        CALL(rclcpp_executor_get_next_ready);
+        CALL(rclcpp_executor_execute, &timer);
+        CALL(callback_start, &cb_timer, false);
+        publish(realtime());
+        CALL(callback_end, &cb_timer);
+    }
+    if (!late) return;
+    qsort(late, (size_t)n, sizeof *late, by_value);
+    printf("latency_ns %lld %lld %lld\n", (long long)late[n / 2], (long long)late[n * 99 / 100], (long long)late[n - 1]);
+    free(late);
+}
+
 static void *quitter(void *arg) {
     (void)arg;
     pthread_setname_np(pthread_self(), "quitter");
@@ -199,6 +231,8 @@ int main(int argc, char **argv) {
         return 127;
     } else if (!strcmp(mode, "many")) {
         for (long i = 0; i < n; i++) one(&cb_a);
+    } else if (!strcmp(mode, "timer")) {
+        timer_loop(n);
     } else if (!strcmp(mode, "bench")) {
         struct timespec a, b;
         clock_gettime(CLOCK_MONOTONIC, &a);
