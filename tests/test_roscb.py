@@ -266,6 +266,26 @@ def test_a_static_program_runs_unchanged(tmp_path):
         pytest.skip(f"no static C library here (gcc -static: {built.stderr.strip().splitlines()[-1:]})")
     done, capture = _run([binary], tmp_path)
     assert (done.returncode, done.stdout) == (4, "static\n") and capture.processes == ()
+    assert roscb.blocked(binary) == (
+        "hello is statically linked: no dynamic loader reads LD_PRELOAD for it, so its callbacks cannot be measured"
+    )
+    script = tmp_path / "script"
+    script.write_text(f"#!{binary} --flag\n")
+    assert roscb.blocked(str(script)).startswith("hello is statically linked")  # a script is judged by its interpreter
+
+
+def test_programs_the_preload_cannot_enter_are_named_from_their_elf_header(tmp_path):
+    assert roscb.blocked(shutil.which("true") or "/bin/true") == "" and roscb.blocked(str(tmp_path / "missing")) == ""
+    elf32 = tmp_path / "old"
+    elf32.write_bytes(b"\x7fELF\x01\x01\x01" + bytes(57))  # ELFCLASS32: what gcc -m32 makes, where it can
+    assert roscb.blocked(str(elf32)) == "old is a 32-bit program: the dynamic loader cannot load the runner's 64-bit interposer into it"
+    if os.geteuid() != 0:
+        return
+    setuid = tmp_path / "su-like"
+    shutil.copy(shutil.which("true") or "/bin/true", setuid)
+    os.chown(setuid, 65534, 65534)
+    os.chmod(setuid, 0o4755)
+    assert roscb.blocked(str(setuid)).startswith("su-like is set-user-ID or set-group-ID: the dynamic loader ignores LD_PRELOAD")
 
 
 @pytest.mark.parametrize(
@@ -366,7 +386,7 @@ def test_a_command_program_runs_preloaded_and_its_raw_record_holds_the_decoded_c
     raw = run.raw(None, time.monotonic_ns())
     assert raw.exit_code == 0 and raw.callbacks is not None and raw.callbacks.path == path
     (p,) = raw.callbacks.processes
-    assert p.pid == run.pid and len(p.callbacks) == 10 and len(p.publishes) == 5
+    assert p.pid == run.pid and len(p.callbacks) == 10 and len(p.publishes) == 5 and raw.callbacks.blocked == ""
     assert not os.path.exists(path) and _files() == before  # removed at the end
 
 

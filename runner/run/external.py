@@ -257,7 +257,7 @@ class ProgramRun:
             return
         try:
             if self.released_ns is not None:
-                self.callbacks = capture.read()
+                self.callbacks = replace(capture.read(), blocked=roscb.blocked(self.path))
             else:
                 self.callbacks = RosCapture(capture.path, error="the program never started: nothing was recorded")
         finally:

@@ -33,6 +33,7 @@ import importlib.machinery
 import mmap
 import os
 import secrets
+import stat
 import struct
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -223,6 +224,47 @@ def mapped(pid: int) -> Optional[set[str]]:
         if len(parts) == 6 and parts[5].startswith(b"/"):
             out.add(os.fsdecode(parts[5].removesuffix(b" (deleted)")))
     return out
+
+
+ELF_HEAD = struct.Struct("<4sBBBBB7xHHIQQQIHHHHHH")  # a 64-bit little-endian ELF header (e_ident, ..., e_phnum)
+ELF_PHDR = struct.Struct("<II")  # a program header's p_type (and p_flags): PT_INTERP is 3
+PT_INTERP = 3
+
+
+def blocked(path: str, depth: int = 0) -> str:
+    """Why ld.so will not load a preload into the program at `path`, in words; "" when it will (or cannot be told).
+
+    From the file itself, before it runs: a statically linked executable has no dynamic loader to
+    read LD_PRELOAD (no PT_INTERP), a 32-bit one cannot load a 64-bit library (ld.so says "wrong ELF
+    class" and ignores it), and a set-user-ID or set-group-ID one of another owner runs in ld.so's
+    secure mode, which ignores a preload given by path.  A script (`#!`) is judged by its interpreter.
+    """
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+            info = os.fstat(handle.fileno())
+    except OSError:
+        return ""
+    if head.startswith(b"#!") and depth < 2:
+        words = head[2:].split(b"\n", 1)[0].split()
+        return blocked(os.fsdecode(words[0]), depth + 1) if words else ""
+    if not head.startswith(b"\x7fELF") or len(head) < 64:
+        return ""
+    name = os.path.basename(path)
+    if (info.st_mode & stat.S_ISUID and info.st_uid != os.geteuid()) or (info.st_mode & stat.S_ISGID and info.st_gid != os.getegid()):
+        return f"{name} is set-user-ID or set-group-ID: the dynamic loader ignores LD_PRELOAD for it (secure mode)"
+    if head[4] != 2:
+        return f"{name} is a 32-bit program: the dynamic loader cannot load the runner's 64-bit interposer into it"
+    if head[5] != 1:
+        return ""
+    fields = ELF_HEAD.unpack_from(head)
+    phoff, phentsize, phnum = fields[10], fields[14], fields[15]
+    if phoff + phnum * phentsize > len(head) or phentsize < ELF_PHDR.size:
+        return ""  # its program headers are beyond what was read: not told
+    types = [ELF_PHDR.unpack_from(head, phoff + i * phentsize)[0] for i in range(phnum)]
+    if PT_INTERP not in types:
+        return f"{name} is statically linked: no dynamic loader reads LD_PRELOAD for it, so its callbacks cannot be measured"
+    return ""
 
 
 def _text(raw: bytes) -> str:
