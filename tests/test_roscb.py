@@ -419,3 +419,56 @@ def test_the_capture_file_is_removed_when_the_launch_fails(monkeypatch, tmp_path
     run.stop(_Guard())
     callbacks = run.raw(None, time.monotonic_ns()).callbacks
     assert _files() == before and callbacks is not None and callbacks.error.startswith("the program never started")
+
+
+def _synthetic(capacity: int, seqs: range, count: int, buf: bytearray | None = None) -> bytearray:
+    """A capture file of one process (pid 123) and one thread whose ring holds callbacks numbered `seqs`, `count` written."""
+    proc_at = roscb.FILE.size
+    slot_at = proc_at + _probe.ROSCB_PROC_BYTES
+    if buf is None:
+        buf = bytearray(roscb.file_size(1, 1, capacity))
+        buf[: roscb.FILE.size] = roscb.FILE.pack(
+            {"magic": _probe.ROSCB_MAGIC, "version": _probe.ROSCB_VERSION, "header_size": roscb.FILE.size, "max_procs": 1,
+             "max_threads": 1, "capacity": capacity, "record_size": 96, "proc_size": _probe.ROSCB_PROC_BYTES,
+             "slot_size": roscb.SLOT.size + capacity * 96, "next_proc": 1, "next_thread": 1}
+        )  # fmt: skip
+        buf[proc_at : proc_at + roscb.PROC.size] = roscb.PROC.pack({"state": 1, "pid": 123})
+    for n in seqs:
+        at = slot_at + roscb.SLOT.size + (n % capacity) * 96
+        buf[at : at + 96] = roscb.CALLBACK.pack({"type": 1, "seq": n, "cb": 7, "start_ns": n, "end_ns": n + 1})
+    buf[slot_at : slot_at + roscb.SLOT.size] = roscb.SLOT.pack({"state": 1, "tid": 123, "pid": 123, "proc": 0, "count": count})
+    return buf
+
+
+def test_draining_while_the_program_runs_keeps_what_a_ring_alone_would_lose():
+    reader = roscb.Reader()
+    buf = _synthetic(4, range(3), 3)
+    reader.drain(buf)
+    _synthetic(4, range(3, 9), 9, buf)  # six more, the ring holds four: two were overwritten before this drain
+    reader.drain(buf)
+    _synthetic(4, range(9, 11), 11, buf)
+    (p,) = reader.capture(buf).processes
+    assert [c.seq for c in p.callbacks] == [0, 1, 2, 5, 6, 7, 8, 9, 10]
+    assert (p.threads[0].written, p.threads[0].lost) == (11, 2)
+    assert [c.seq for c in roscb.decode(buf).processes[0].callbacks] == [7, 8, 9, 10]  # read once, at the end
+
+
+def test_records_beyond_the_runners_bound_are_counted_lost():
+    reader = roscb.Reader(max_records=5)
+    (p,) = reader.capture(_synthetic(16, range(9), 9)).processes
+    assert len(p.callbacks) == 5 and p.threads[0].lost == 4
+
+
+def test_a_record_overwritten_while_it_was_copied_is_dropped_not_read_torn():
+    class Racing(bytearray):
+        """The thread writes two more records right after the runner copied its ring."""
+
+        def __getitem__(self, index):  # type: ignore[override]
+            out = super().__getitem__(index)
+            if isinstance(index, slice) and index.stop - index.start == 4 * 96:
+                _synthetic(4, range(4, 6), 6, self)
+            return out
+
+    buf = Racing(_synthetic(4, range(4), 4))
+    (p,) = roscb.decode(buf).processes
+    assert [c.seq for c in p.callbacks] == [2, 3] and p.threads[0].lost == 2

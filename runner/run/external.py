@@ -60,7 +60,7 @@ SEEN_BY_LISTING = "listing"
 OpenEvents = Callable[[frozenset[int]], tuple[Optional[ProcEvents], str]]  # subscribes to the events of these processes
 RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
 TAIL_LINES = 10  # lines of a program's output shown when it fails
-MAPS_EVERY_NS = 1_000_000_000  # how often a program's /proc/PID/maps are read for the interposer and the ROS 2 libraries
+MAPS_EVERY_NS = 1_000_000_000  # how often a program's maps are read and its interposer's rings drained (while the cell runs)
 
 
 def sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
@@ -243,12 +243,14 @@ class ProgramRun:
         return self.capture.environment(env)
 
     def look_callbacks(self, every_ns: int = MAPS_EVERY_NS) -> None:
-        """Read its processes' maps (at most once every `every_ns`): whether the interposer is in them, which ROS 2 libraries are."""
+        """At most once every `every_ns`: read its processes' maps (is the interposer in them, which ROS 2 libraries are)
+        and drain the interposer's rings."""
         now = time.monotonic_ns()
         if self.capture is None or not self.pid or now - self._maps_read < every_ns or self.poll():
             return
         self._maps_read = now
         self.capture.look(self.family())
+        self.capture.drain()
 
     def _collect_callbacks(self) -> None:
         """Decode the interposer's file once nothing of the program writes it any more, and remove it (whatever happened)."""

@@ -17,13 +17,12 @@ takes memory only as far as it is written.
 Bounds (what one program's file can hold, whatever the program does):
 - MAX_PROCS processes that reach a hook (later ones are counted as refused),
 - MAX_THREADS threads that reach a hook (likewise),
-- CAPACITY records per thread's ring: a thread that writes more between two reads loses its
-  oldest records, counted as lost (the runner reads at the cell's end: CAPACITY callbacks,
-  publishes and init calls per thread per cell are kept),
+- CAPACITY records per thread's ring: a thread that writes more between two drains (the runner
+  drains once a second while the program runs, and at its end) loses its oldest, counted as lost,
 - a 63.5 KiB string arena per process (names, topics, symbols; a full one is counted).
 So the file is at most MAX_PROCS * 64 KiB + MAX_THREADS * (128 + CAPACITY * 96) bytes
 (98 MiB with the defaults, of which a thread uses 1.5 MiB at most, as far as it writes) and the
-decoded capture at most MAX_THREADS * CAPACITY records (a million).
+records kept at most MAX_RECORDS (a million) for the whole program: beyond, they are counted lost.
 """
 
 from __future__ import annotations
@@ -55,7 +54,8 @@ from runner.run.roscbdata import (
 
 MAX_PROCS = 32
 MAX_THREADS = 64
-CAPACITY = 16384  # 16 s of a 1 kHz timer callback per thread, read at the cell's end
+CAPACITY = 16384  # records per thread between two drains (the runner drains once a second)
+MAX_RECORDS = MAX_THREADS * CAPACITY  # records the runner keeps of one program, all threads together
 FOLDER = "/dev/shm"
 ENV = "RUNNER_ROSCB"
 
@@ -116,6 +116,8 @@ class Capture:
     size: int
     loaded: Optional[bool] = None
     libraries: set[str] = field(default_factory=set)
+    reader: Reader = field(default_factory=lambda: Reader())
+    _map: Optional[mmap.mmap] = None
 
     @classmethod
     def create(
@@ -169,11 +171,20 @@ class Capture:
             self.loaded = bool(self.loaded) or ours
             self.libraries.update(os.path.basename(p) for p in found if is_ros_library(p) or p == LIBRARY)
 
+    def _mapped(self) -> mmap.mmap:
+        if self._map is None:
+            self._map = mmap.mmap(self.fd, 0, mmap.MAP_SHARED, mmap.PROT_READ)
+        return self._map
+
+    def drain(self) -> None:
+        """Take the records the program wrote since the last drain, so a ring never has to hold a whole cell's."""
+        with contextlib.suppress(OSError, ValueError):
+            self.reader.drain(self._mapped())
+
     def read(self) -> RosCapture:
-        """What the file holds now, decoded (a file of another layout: `error` says so)."""
+        """Everything taken from the file, drained once more (a file of another layout: `error` says so)."""
         try:
-            with mmap.mmap(self.fd, 0, mmap.MAP_SHARED, mmap.PROT_READ) as buf:
-                capture = decode(buf)
+            capture = self.reader.capture(self._mapped())
         except (OSError, ValueError) as error:
             capture = RosCapture(error=f"the capture file could not be read: {error}")
         return RosCapture(
@@ -188,6 +199,9 @@ class Capture:
 
     def close(self) -> None:
         """Remove the file (whatever happened to the program) and close the descriptor; a second call does nothing."""
+        if self._map is not None:
+            self._map.close()
+            self._map = None
         if self.fd >= 0:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(self.path)
@@ -271,10 +285,10 @@ def _text(raw: bytes) -> str:
     return raw.split(b"\0", 1)[0].decode(errors="replace")
 
 
-def decode(buf: bytes | mmap.mmap) -> RosCapture:
-    """The records of a capture file, checked against this runner's layout; torn and overwritten records left out."""
+def layout_error(buf: bytes | mmap.mmap) -> str:
+    """Why a capture file is not of this runner's layout, in words; "" when it is."""
     if len(buf) < FILE.size:
-        return RosCapture(error=f"the capture file has {len(buf)} bytes, fewer than its {FILE.size}-byte header")
+        return f"the capture file has {len(buf)} bytes, fewer than its {FILE.size}-byte header"
     head = FILE.unpack(buf)
     expected = {
         "magic": _probe.ROSCB_MAGIC,
@@ -288,58 +302,116 @@ def decode(buf: bytes | mmap.mmap) -> RosCapture:
         wrong.append(f"slot_size {head['slot_size']} for capacity {head['capacity']}")
     if not wrong and file_size(head["max_procs"], head["max_threads"], head["capacity"]) > len(buf):
         wrong.append(f"{len(buf)} bytes, fewer than its header's sizes need")
-    if wrong:
-        return RosCapture(error="the capture file has another layout than this runner's interposer: " + ", ".join(wrong))
-    procs: dict[int, dict] = {}
-    for index in range(min(head["next_proc"], head["max_procs"])):
-        at = FILE.size + index * _probe.ROSCB_PROC_BYTES
-        p = PROC.unpack(buf, at)
-        if p["state"] == 1:
-            procs[index] = {"head": p, "arena": at + PROC.size, "threads": [], "metas": [], "callbacks": [], "publishes": []}
-    slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
-    for index in range(min(head["next_thread"], head["max_threads"])):
-        at = slots_at + index * head["slot_size"]
-        s = SLOT.unpack(buf, at)
-        owner = procs.get(s["proc"])
-        if s["state"] == 0 or owner is None or owner["head"]["pid"] != s["pid"]:
-            continue
-        _read_slot(buf, at, s, head["capacity"], owner)
-    processes = tuple(_process(info, buf) for info in procs.values())
-    return RosCapture(processes=processes, processes_refused=head["procs_refused"], threads_refused=head["threads_refused"])
+    return "the capture file has another layout than this runner's interposer: " + ", ".join(wrong) if wrong else ""
 
 
-def _read_slot(buf: bytes | mmap.mmap, at: int, s: dict, capacity: int, owner: dict) -> None:
-    """One thread's ring: the records still there, re-checked against its count after the copy (a record overwritten
-    while it was copied is dropped, not read torn)."""
-    written = s["count"]
-    ring_at = at + SLOT.size
-    ring = bytes(buf[ring_at : ring_at + capacity * RECORD_SIZE])
-    after = SLOT.get(buf, at, "count")
-    first = max(0, written - capacity, after - capacity)
-    tid = s["tid"]
-    arena = owner["arena"]
-    for n in range(first, written):
-        offset = (n % capacity) * RECORD_SIZE
-        (kind,) = TYPE.unpack_from(ring, offset)
-        if kind == CALLBACK_TYPE:
-            owner["callbacks"].append(_callback(tid, CALLBACK.unpack(ring, offset)))
-        elif kind == PUBLISH_TYPE:
-            owner["publishes"].append(_publish(tid, PUBLISH.unpack(ring, offset)))
-        elif kind in MetaKind._value2member_map_:
-            owner["metas"].append(_meta(tid, META.unpack(ring, offset), buf, arena))
-    open_depth = s["open_depth"]
-    owner["threads"].append(
-        RosThread(
-            tid,
-            _text(bytes(s["comm"])),
-            written,
-            first,
-            s["lost_other"],
-            s["open_cb"] if open_depth else 0,
-            s["open_since_ns"] if open_depth else 0,
-            s["state"] == 2,
-        )
-    )
+@dataclass
+class _Ring:
+    """What the runner has taken of one thread's ring so far."""
+
+    proc: int
+    taken: int = 0  # records up to here were taken (kept, or counted lost)
+    lost: int = 0  # overwritten before they were taken, or beyond MAX_RECORDS
+    metas: list[Meta] = field(default_factory=list)
+    callbacks: list[CallbackRecord] = field(default_factory=list)
+    publishes: list[PublishRecord] = field(default_factory=list)
+
+
+class Reader:
+    """Drains a capture file's rings as the program runs (`drain`) and gives what it holds (`capture`).
+
+    A ring holds CAPACITY records; drained every so often, a thread loses none unless it writes
+    more than that between two drains.  What is taken is kept in memory, MAX_RECORDS at most for
+    the whole file (beyond, records are counted lost on their thread).
+    """
+
+    def __init__(self, max_records: int = MAX_RECORDS) -> None:
+        self.rings: dict[int, _Ring] = {}
+        self.kept = 0
+        self.max_records = max_records
+
+    def drain(self, buf: bytes | mmap.mmap) -> None:
+        """Take every record written since the last drain (a file of another layout: nothing)."""
+        if layout_error(buf):
+            return
+        head = FILE.unpack(buf)
+        slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
+        for index in range(min(head["next_thread"], head["max_threads"])):
+            at = slots_at + index * head["slot_size"]
+            s = SLOT.unpack(buf, at)
+            if s["state"] == 0 or s["proc"] >= head["max_procs"]:
+                continue
+            ring = self.rings.setdefault(index, _Ring(s["proc"]))
+            self._take(buf, at, s, head["capacity"], ring)
+
+    def _take(self, buf: bytes | mmap.mmap, at: int, s: dict, capacity: int, ring: _Ring) -> None:
+        """The records of one ring since `ring.taken`, re-checked against its count after the copy (a record
+        overwritten while it was copied is dropped as lost, not read torn)."""
+        written = s["count"]
+        if written <= ring.taken:
+            return
+        ring_at = at + SLOT.size
+        data = bytes(buf[ring_at : ring_at + capacity * RECORD_SIZE])
+        after = SLOT.get(buf, at, "count")
+        first = max(ring.taken, written - capacity, after - capacity)
+        ring.lost += first - ring.taken
+        tid, arena = s["tid"], FILE.size + ring.proc * _probe.ROSCB_PROC_BYTES + PROC.size
+        for n in range(first, written):
+            if self.kept >= self.max_records:
+                ring.lost += written - n
+                break
+            offset = (n % capacity) * RECORD_SIZE
+            (kind,) = TYPE.unpack_from(data, offset)
+            if kind == CALLBACK_TYPE:
+                ring.callbacks.append(_callback(tid, CALLBACK.unpack(data, offset)))
+            elif kind == PUBLISH_TYPE:
+                ring.publishes.append(_publish(tid, PUBLISH.unpack(data, offset)))
+            elif kind in MetaKind._value2member_map_:
+                ring.metas.append(_meta(tid, META.unpack(data, offset), buf, arena))
+            self.kept += 1
+        ring.taken = written
+
+    def capture(self, buf: bytes | mmap.mmap) -> RosCapture:
+        """Drain once more, then everything taken, by process (a file of another layout: `error` says so)."""
+        error = layout_error(buf)
+        if error:
+            return RosCapture(error=error)
+        self.drain(buf)
+        head = FILE.unpack(buf)
+        procs: dict[int, dict] = {}
+        for index in range(min(head["next_proc"], head["max_procs"])):
+            p = PROC.unpack(buf, FILE.size + index * _probe.ROSCB_PROC_BYTES)
+            if p["state"] == 1:
+                procs[index] = {"head": p, "threads": [], "metas": [], "callbacks": [], "publishes": []}
+        slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
+        for index, ring in sorted(self.rings.items()):
+            s = SLOT.unpack(buf, slots_at + index * head["slot_size"])
+            owner = procs.get(ring.proc)
+            if owner is None or owner["head"]["pid"] != s["pid"]:
+                continue
+            owner["metas"] += ring.metas
+            owner["callbacks"] += ring.callbacks
+            owner["publishes"] += ring.publishes
+            open_depth = s["open_depth"]
+            owner["threads"].append(
+                RosThread(
+                    s["tid"],
+                    _text(bytes(s["comm"])),
+                    s["count"],
+                    ring.lost,
+                    s["lost_other"],
+                    s["open_cb"] if open_depth else 0,
+                    s["open_since_ns"] if open_depth else 0,
+                    s["state"] == 2,
+                )
+            )
+        processes = tuple(_process(info) for info in procs.values())
+        return RosCapture(processes=processes, processes_refused=head["procs_refused"], threads_refused=head["threads_refused"])
+
+
+def decode(buf: bytes | mmap.mmap) -> RosCapture:
+    """The records of a capture file read at once, checked against this runner's layout; torn and overwritten ones left out."""
+    return Reader().capture(buf)
 
 
 def _callback(tid: int, r: dict) -> CallbackRecord:
@@ -405,7 +477,7 @@ def _meta(tid: int, r: dict, buf: bytes | mmap.mmap, arena: int) -> Meta:
     )
 
 
-def _process(info: dict, buf: bytes | mmap.mmap) -> RosProcess:
+def _process(info: dict) -> RosProcess:
     p = info["head"]
     flags = frozenset(flag for bit, flag in PROCESS_FLAGS.items() if p["flags"] & bit)
     return RosProcess(
