@@ -322,6 +322,22 @@ def test_the_capture_file_is_new_private_sparse_and_removed(tmp_path):
     assert not (tmp_path / "elsewhere").exists()
 
 
+def test_files_a_killed_runner_left_are_removed_by_the_next(tmp_path):
+    dead = tmp_path / "runner-roscb-99999999-node-00"  # no process has that PID (above any pid_max)
+    dead.write_bytes(b"")
+    alive = tmp_path / f"runner-roscb-{os.getppid()}-node-00"
+    alive.write_bytes(b"")
+    other = tmp_path / "runner-roscb-notapid"
+    other.write_bytes(b"")
+    link = tmp_path / "runner-roscb-99999998-link"
+    link.symlink_to(tmp_path / "target")
+    (tmp_path / "target").write_bytes(b"kept")
+    capture = roscb.Capture.create("node", folder=str(tmp_path))
+    capture.close()
+    assert not dead.exists() and alive.exists() and other.exists()
+    assert link.is_symlink() and (tmp_path / "target").read_bytes() == b"kept"  # a link is never followed nor removed
+
+
 def test_the_users_preload_comes_first_and_ours_once():
     env = roscb.environment({"LD_PRELOAD": "/a.so /b.so", "X": "1"}, "/dev/shm/f")
     assert env["LD_PRELOAD"] == f"/a.so:/b.so:{roscb.LIBRARY}" and env[roscb.ENV] == "/dev/shm/f" and env["X"] == "1"
@@ -366,7 +382,7 @@ def _program_run(monkeypatch, tmp_path, command: list[str], **extra: object):
 
 
 def _files() -> set[str]:
-    return {name for name in os.listdir(roscb.FOLDER) if name.startswith("runner-roscb-node-")}
+    return {name for name in os.listdir(roscb.FOLDER) if name.startswith(f"runner-roscb-{os.getpid()}-node-")}
 
 
 def test_a_command_program_runs_preloaded_and_its_raw_record_holds_the_decoded_capture(bins, monkeypatch, tmp_path):

@@ -58,6 +58,7 @@ CAPACITY = 16384  # records per thread between two drains (the runner drains onc
 MAX_RECORDS = MAX_THREADS * CAPACITY  # records the runner keeps of one program, all threads together
 FOLDER = "/dev/shm"
 ENV = "RUNNER_ROSCB"
+PREFIX = "runner-roscb-"  # then the runner's PID: a file whose runner is gone is removed by the next (`sweep`)
 
 FILE = RECORDS["roscb_file"]
 PROC = RECORDS["roscb_proc"]
@@ -129,9 +130,11 @@ class Capture:
         max_threads: int = MAX_THREADS,
         capacity: int = CAPACITY,
     ) -> Capture:
-        """A new file `runner-roscb-<name>-<random>` in `folder`, 0600, chowned to `owner` (uid, gid) for a program run as another user."""
+        """A new file `runner-roscb-<runner's pid>-<name>-<random>` in `folder`, 0600, chowned to `owner` (uid, gid) for a
+        program run as another user.  Files a killed runner left there are removed first (`sweep`)."""
+        sweep(folder)
         safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)[:80]
-        path = os.path.join(folder, f"runner-roscb-{safe}-{secrets.token_hex(8)}")
+        path = os.path.join(folder, f"{PREFIX}{os.getpid()}-{safe}-{secrets.token_hex(8)}")
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
         size = file_size(max_procs, max_threads, capacity)
         try:
@@ -207,6 +210,32 @@ class Capture:
                 os.unlink(self.path)
             os.close(self.fd)
             self.fd = -1
+
+
+def sweep(folder: str = FOLDER) -> list[str]:
+    """Remove the capture files of runners that are gone (killed before their cell's end could remove them); their names.
+
+    A file is the sweeper's to remove only when it is a regular file of this user whose name
+    carries the PID of a runner no process has any more; the name is never followed.
+    """
+    removed: list[str] = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    for name in names:
+        pid = name[len(PREFIX) :].split("-", 1)[0]
+        if not name.startswith(PREFIX) or not pid.isdecimal() or os.path.exists(f"/proc/{pid}"):
+            continue
+        path = os.path.join(folder, name)
+        try:
+            info = os.lstat(path)
+            if stat.S_ISREG(info.st_mode) and info.st_uid == os.geteuid():
+                os.unlink(path)
+                removed.append(name)
+        except OSError:
+            continue
+    return removed
 
 
 def environment(env: Mapping[str, str], path: str) -> dict[str, str]:
