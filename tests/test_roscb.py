@@ -338,6 +338,14 @@ def test_files_a_killed_runner_left_are_removed_by_the_next(tmp_path):
     assert link.is_symlink() and (tmp_path / "target").read_bytes() == b"kept"  # a link is never followed nor removed
 
 
+def test_threads_are_named_as_the_monitor_last_saw_them():
+    from runner.run.roscbdata import RosProcess, RosThread
+
+    capture = RosCapture(processes=(RosProcess(1, 0, "node", threads=(RosThread(5, "node", 3, 0), RosThread(6, "mw", 1, 0))),))
+    named = roscb.renamed(capture, {5: "exec0", 7: "other"})
+    assert [t.comm for t in named.processes[0].threads] == ["exec0", "mw"]  # a thread the monitor never saw keeps its own
+
+
 def test_the_users_preload_comes_first_and_ours_once():
     env = roscb.environment({"LD_PRELOAD": "/a.so /b.so", "X": "1"}, "/dev/shm/f")
     assert env["LD_PRELOAD"] == f"/a.so:/b.so:{roscb.LIBRARY}" and env[roscb.ENV] == "/dev/shm/f" and env["X"] == "1"

@@ -43,6 +43,7 @@ from runner.run.rawcell import (
     ApplyErrors,
     OutputCount,
     RawProgram,
+    RawProgramThread,
     Snapshot,
 )
 from runner.run.roscbdata import RosCapture
@@ -466,8 +467,14 @@ class ProgramRun:
             self.halted_ns,
             folded,
             self.output,
-            self.callbacks if self.spec.callbacks and not self.attached else None,
+            self._callbacks(threads),
         )
+
+    def _callbacks(self, threads: tuple[RawProgramThread, ...]) -> Optional[RosCapture]:
+        """What the interposer recorded, its threads named as the monitor last saw them; None for `callbacks: off` and watched ones."""
+        if not self.spec.callbacks or self.attached or self.callbacks is None:
+            return None
+        return roscb.renamed(self.callbacks, {t.tid: t.comm for t in threads})
 
     def _tail(self) -> tuple[str, ...]:
         """The last lines it wrote, stderr's then stdout's, as read from its pipes: past the output limit too."""

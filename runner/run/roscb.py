@@ -22,7 +22,8 @@ Bounds (what one program's file can hold, whatever the program does):
 - a 63.5 KiB string arena per process (names, topics, symbols; a full one is counted).
 So the file is at most MAX_PROCS * 64 KiB + MAX_THREADS * (128 + CAPACITY * 96) bytes
 (98 MiB with the defaults, of which a thread uses 1.5 MiB at most, as far as it writes) and the
-records kept at most MAX_RECORDS (a million) for the whole program: beyond, they are counted lost.
+records kept at most MAX_RECORDS (262,144: about 90 MB decoded) for the whole program: beyond, they
+are counted lost (a 1 kHz timer that publishes keeps 65 s).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import secrets
 import stat
 import struct
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 from runner.run import _probe
@@ -55,7 +56,7 @@ from runner.run.roscbdata import (
 MAX_PROCS = 32
 MAX_THREADS = 64
 CAPACITY = 16384  # records per thread between two drains (the runner drains once a second)
-MAX_RECORDS = MAX_THREADS * CAPACITY  # records the runner keeps of one program, all threads together
+MAX_RECORDS = 1 << 18  # records the runner keeps of one program, all threads together (about 350 B and 5 µs to decode each)
 FOLDER = "/dev/shm"
 ENV = "RUNNER_ROSCB"
 PREFIX = "runner-roscb-"  # then the runner's PID: a file whose runner is gone is removed by the next (`sweep`)
@@ -210,6 +211,17 @@ class Capture:
                 os.unlink(self.path)
             os.close(self.fd)
             self.fd = -1
+
+
+def renamed(capture: RosCapture, names: Mapping[int, str]) -> RosCapture:
+    """The capture with each thread named as the runner's monitor last saw it (by TID), where it saw it.
+
+    A thread's slot keeps its name from its first hook, and programs often name a thread just
+    after creating it (std::thread, then pthread_setname_np from its parent): its first hook can
+    come first.  The monitor follows renames; the library does not (that would be a system call).
+    """
+    processes = tuple(replace(p, threads=tuple(replace(t, comm=names.get(t.tid) or t.comm) for t in p.threads)) for p in capture.processes)
+    return replace(capture, processes=processes)
 
 
 def sweep(folder: str = FOLDER) -> list[str]:
@@ -392,7 +404,7 @@ class Reader:
             offset = (n % capacity) * RECORD_SIZE
             (kind,) = TYPE.unpack_from(data, offset)
             if kind == CALLBACK_TYPE:
-                ring.callbacks.append(_callback(tid, CALLBACK.unpack(data, offset)))
+                ring.callbacks.append(_callback(tid, data, offset))
             elif kind == PUBLISH_TYPE:
                 ring.publishes.append(_publish(tid, PUBLISH.unpack(data, offset)))
             elif kind in MetaKind._value2member_map_:
@@ -443,29 +455,37 @@ def decode(buf: bytes | mmap.mmap) -> RosCapture:
     return Reader().capture(buf)
 
 
-def _callback(tid: int, r: dict) -> CallbackRecord:
-    flags = r["flags"]
+_CB_AT = {name: i for i, name in enumerate(CALLBACK.names)}
+assert CALLBACK.struct.format == "<" + "".join(CALLBACK.fields[n].format for n in CALLBACK.names), "callback: no padding, one value a field"
+
+
+def _callback(tid: int, data: bytes, offset: int) -> CallbackRecord:
+    """A callback record, read positionally in one unpack (a ring is drained by the thousand)."""
+    v = CALLBACK.struct.unpack_from(data, offset)
+    at = _CB_AT
+    flags = v[at["flags"]]
+    take = flags & CB_TAKE
     return CallbackRecord(
-        tid=tid,
-        cb=r["cb"],
-        seq=r["seq"],
-        start_ns=r["start_ns"],
-        end_ns=r["end_ns"],
-        cpu_start=r["cpu_start"],
-        cpu_end=r["cpu_end"],
-        nivcsw=r["nivcsw"],
-        nvcsw=r["nvcsw"],
-        minflt=r["minflt"],
-        majflt=r["majflt"],
-        cpu_ns=r["cpu_us"] * 1000,
-        release_ns=r["release_ns"] if flags & CB_RELEASE else 0,
-        wake_ns=r["wake_ns"],
-        src_ts=r["src_ts"] if flags & CB_TAKE else 0,
-        age_ns=r["age_ns"] if flags & CB_TAKE else 0,
-        take_handle=r["take_handle"] if flags & CB_TAKE else 0,
-        intra=bool(flags & CB_INTRA),
-        depth=r["depth"],
-        unterminated=bool(flags & CB_UNTERMINATED),
+        tid,
+        v[at["cb"]],
+        v[at["seq"]],
+        v[at["start_ns"]],
+        v[at["end_ns"]],
+        v[at["cpu_start"]],
+        v[at["cpu_end"]],
+        v[at["nivcsw"]],
+        v[at["nvcsw"]],
+        v[at["minflt"]],
+        v[at["majflt"]],
+        v[at["cpu_us"]] * 1000,
+        v[at["release_ns"]] if flags & CB_RELEASE else 0,
+        v[at["wake_ns"]],
+        v[at["src_ts"]] if take else 0,
+        v[at["age_ns"]] if take else 0,
+        v[at["take_handle"]] if take else 0,
+        bool(flags & CB_INTRA),
+        v[at["depth"]],
+        bool(flags & CB_UNTERMINATED),
     )
 
 
