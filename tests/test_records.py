@@ -21,9 +21,12 @@ from runner.run.wiring import _EVENT_TYPES, work_tuple
 from runner.scenario.model import EventKind, PeriodicWork
 
 
-def test_the_native_table_names_the_five_records_of_the_buffer() -> None:
+def test_the_native_table_names_the_five_records_of_the_buffer_and_the_interposers_six() -> None:
     table = _probe.records()
-    assert set(table) == {"slot_header", "sample", "lock_wait", "event_stats", "phase_stats"}
+    assert set(table) == {"slot_header", "sample", "lock_wait", "event_stats", "phase_stats"} | {
+        f"roscb_{name}"
+        for name in ("file", "proc", "slot", "callback", "publish", "meta")  # runner/run/roscb.h
+    }
     assert table["slot_header"][0] == _probe.SLOT_HEADER and table["sample"][0] == _probe.SAMPLE_SIZE
     assert table["lock_wait"][0] == _probe.LOCK_WAIT_SIZE
     assert table["event_stats"][0] == _probe.EV_HDR and table["phase_stats"][0] == _probe.PHASE_BYTES
@@ -54,6 +57,8 @@ def _known(record: Record) -> dict[str, Any]:
         values = [100 + 10 * i + k for k in range(f.size // struct.calcsize("<" + f.format.lstrip("0123456789")))]
         if f.format[-1] == "d":
             values = [v + 0.5 for v in values]
+        if f.format[-1] == "B":  # a byte array (a name): its many elements distinct, each a byte
+            values = [v % 256 for v in values]
         out[name] = tuple(values) if isinstance(f.index, slice) else values[0]
     return out
 

@@ -33,6 +33,7 @@
 #include <unistd.h>
 
 #include "interp.h"
+#include "roscb.h"
 
 /* Fill a settings struct from Python values; returns -1 with an exception set.
  * `extra` is None or (dl_runtime, dl_deadline, dl_period, util_min, util_max), -1 for a uclamp left as is. */
@@ -1192,6 +1193,15 @@ PyMODINIT_FUNC PyInit__probe(void) {
     Py_INCREF(&WatchdogType);
     PyModule_AddObject(m, "Watchdog", (PyObject *)&WatchdogType);
     PyModule_AddIntConstant(m, "FILE_HEADER", FILE_HEADER);
+    /* the interposer's file (roscb.h): what runner/run/roscb.py writes in its header and checks when it reads it */
+    PyModule_AddIntConstant(m, "ROSCB_MAGIC", (long)ROSCB_MAGIC);
+    PyModule_AddIntConstant(m, "ROSCB_VERSION", ROSCB_VERSION);
+    PyModule_AddIntConstant(m, "ROSCB_PROC_BYTES", ROSCB_PROC_BYTES);
+    PyModule_AddIntConstant(m, "ROSCB_STRING_MAX", ROSCB_STRING_MAX);
+    PyModule_AddIntConstant(m, "ROSCB_STACK", ROSCB_STACK);
+#define ADD_META(name, code) PyModule_AddIntConstant(m, "ROSCB_META_" #name, code);
+    ROSCB_META_KINDS(ADD_META)
+#undef ADD_META
     PyModule_AddIntConstant(m, "SLOT_GATE_AT", offsetof(struct slot_header, gate_ns));
     PyModule_AddIntConstant(m, "STAGE_CWD", STAGE_CWD);
     PyModule_AddIntConstant(m, "STAGE_EXEC", STAGE_EXEC);

@@ -7,6 +7,11 @@ from collections.abc import Sequence
 from typing import Optional, Union
 
 FILE_HEADER: int
+ROSCB_MAGIC: int
+ROSCB_VERSION: int
+ROSCB_PROC_BYTES: int
+ROSCB_STRING_MAX: int
+ROSCB_STACK: int
 SLOT_GATE_AT: int
 STAGE_CWD: int
 STAGE_EXEC: int

@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Optional
 
-from runner.run import _probe, kernel, memcg
+from runner.run import _probe, kernel, memcg, roscb
 from runner.run.output import FINISH_WAIT_S, CappedOutput
 from runner.run.procevents import Kind, ProcEvents
 from runner.run.programthreads import ThreadRecord, ThreadRegistry
@@ -43,8 +43,10 @@ from runner.run.rawcell import (
     ApplyErrors,
     OutputCount,
     RawProgram,
+    RawProgramThread,
     Snapshot,
 )
+from runner.run.roscbdata import RosCapture
 from runner.scenario.model import Policy, ProgramSpec, Sched
 from runner.scenario.plan import Settings, first_rule
 
@@ -59,6 +61,7 @@ SEEN_BY_LISTING = "listing"
 OpenEvents = Callable[[frozenset[int]], tuple[Optional[ProcEvents], str]]  # subscribes to the events of these processes
 RENAME_WATCH_NS = 1_000_000_000  # a new thread's name is re-read this long (programs name threads after creating them)
 TAIL_LINES = 10  # lines of a program's output shown when it fails
+MAPS_EVERY_NS = 1_000_000_000  # how often a program's maps are read and its interposer's rings drained (while the cell runs)
 
 
 def sched_json(sched: Optional[Sched]) -> Optional[list[Any]]:
@@ -154,6 +157,9 @@ class ProgramRun:
         self.oom_kills: Optional[int] = None
         self.halted_ns: Optional[int] = None  # when it was first seen stopped (SIGSTOP, a debugger)
         self._stopped_seen: Optional[int] = None  # when a tick first found it stopped (one more says it stayed so)
+        self.capture: Optional[roscb.Capture] = None  # the interposer's file while it runs (`callbacks:` on)
+        self.callbacks: Optional[RosCapture] = None  # what that file held once the program was stopped
+        self._maps_read = 0  # when its maps were last read for the interposer (CLOCK_MONOTONIC ns)
 
     def attach(self, pid: int) -> None:
         """Follow a process the runner did not start (`runner watch`): never signalled, never reaped.
@@ -187,7 +193,7 @@ class ProgramRun:
         self.path, self.failure = resolve(self.spec)
         if self.failure:
             return
-        env = _environment(self.spec.env)
+        env = self._with_interposer(_environment(self.spec.env))
         cwd = self.spec.cwd if self.spec.cwd is not None else self.folder
         out = CappedOutput(os.path.join(self.folder, self.stdout), self.spec.output_limit)
         try:
@@ -218,6 +224,47 @@ class ProgramRun:
         if len(data) == 12:
             self.start_errors = ApplyErrors(*struct.unpack("3i", data))
         self._hold(guard, self.spec.memory_max)
+
+    def _with_interposer(self, env: dict[str, str]) -> dict[str, str]:
+        """The program's environment with the libtracetools interposer preloaded and its capture file named (`callbacks:` on).
+
+        Without the built library or a file (no /dev/shm), the program runs as it is and its
+        `callbacks` say why in words.
+        """
+        if not self.spec.callbacks:
+            return env
+        if not roscb.LIBRARY:
+            self.callbacks = RosCapture(error="the libtracetools interposer was not built (pip install the runner with its C core)")
+            return env
+        try:
+            self.capture = roscb.Capture.create(self.spec.name)
+        except OSError as error:
+            self.callbacks = RosCapture(error=f"the interposer's capture file could not be made in {roscb.FOLDER}: {error.strerror}")
+            return env
+        return self.capture.environment(env)
+
+    def look_callbacks(self, every_ns: int = MAPS_EVERY_NS) -> None:
+        """At most once every `every_ns`: read its processes' maps (is the interposer in them, which ROS 2 libraries are)
+        and drain the interposer's rings."""
+        now = time.monotonic_ns()
+        if self.capture is None or not self.pid or now - self._maps_read < every_ns or self.poll():
+            return
+        self._maps_read = now
+        self.capture.look(self.family())
+        self.capture.drain()
+
+    def _collect_callbacks(self) -> None:
+        """Decode the interposer's file once nothing of the program writes it any more, and remove it (whatever happened)."""
+        capture, self.capture = self.capture, None
+        if capture is None:
+            return
+        try:
+            if self.released_ns is not None:
+                self.callbacks = replace(capture.read(), blocked=roscb.blocked(self.path))
+            else:
+                self.callbacks = RosCapture(capture.path, error="the program never started: nothing was recorded")
+        finally:
+            capture.close()
 
     def release(self) -> None:
         """Let it exec; `failure` says why when the exec (or the chdir before it) failed."""
@@ -291,6 +338,7 @@ class ProgramRun:
 
         Only state T counts: a tracer's stop at each system call (t, strace) passes at once.
         """
+        self.look_callbacks()
         if self.halted_ns is not None or not self.pid or self.poll():
             return
         if kernel.process_state(self.pid) != "T":
@@ -309,7 +357,15 @@ class ProgramRun:
         One never released (the cell stopped while it waited at its gate) never ran: its gate is
         closed and what is left of it is killed, and `stopped` stays empty, as nothing of the
         program was stopped (its results would otherwise say it ran the cell and ignored SIGTERM).
+
+        The interposer's file is read once the program is gone, and removed whatever happens here.
         """
+        try:
+            self._stop(guard)
+        finally:
+            self._collect_callbacks()
+
+    def _stop(self, guard: Watcher) -> None:
         if not self.pid or self.attached:
             self._close_pidfd()  # an attached process that outlives the watch is let go of
             self._close_cgroup(guard)
@@ -321,6 +377,7 @@ class ProgramRun:
                 _killpg(self.pid, signal.SIGKILL)
                 self._exited()
         elif not self.poll():
+            self.look_callbacks(every_ns=0)  # what it has mapped, while it still lives
             _killpg(self.pid, signal.SIGTERM)
             self.stopped = "SIGTERM"
             until = time.monotonic() + self.spec.grace / 1e9
@@ -410,7 +467,14 @@ class ProgramRun:
             self.halted_ns,
             folded,
             self.output,
+            self._callbacks(threads),
         )
+
+    def _callbacks(self, threads: tuple[RawProgramThread, ...]) -> Optional[RosCapture]:
+        """What the interposer recorded, its threads named as the monitor last saw them; None for `callbacks: off` and watched ones."""
+        if not self.spec.callbacks or self.attached or self.callbacks is None:
+            return None
+        return roscb.renamed(self.callbacks, {t.tid: t.comm for t in threads})
 
     def _tail(self) -> tuple[str, ...]:
         """The last lines it wrote, stderr's then stdout's, as read from its pipes: past the output limit too."""

@@ -171,3 +171,4 @@ class RosCapture:
     error: str = ""  # the file could not be read or had another layout, in words; "" when it was read
     loaded: bool | None = None  # the library was in the program's maps when last read; None: not known
     libraries: tuple[str, ...] = field(default=())  # ROS libraries in its maps (librclcpp.so, libtracetools.so, ...)
+    blocked: str = ""  # why the preload cannot enter the program's executable (static, 32-bit, setuid), in words; "": it can
