@@ -344,3 +344,34 @@ def test_meta_kinds_with_handles_of_another_process_do_not_leak() -> None:
     results, _ = one(a.process(), b.process())
     assert sorted(r.name for r in results) == [f"minimal_publisher/{LAMBDA}", "other/Other::tick()"]
     assert replace(Meta(kind=MetaKind.NODE, tid=1, t_ns=0), a=1).a == 1
+
+
+def test_a_timer_callback_still_running_at_the_end_misses_every_release_after_it_and_overran() -> None:
+    """An executor stuck in a callback is not a cancelled timer: the releases to the end count as missed, the instance overran."""
+    n = timer_node()
+    for k in range(10):  # releases 0..9 served, each 0.1 ms long
+        n.run(0x30, BASE + 10 * MS + k * 10 * MS)
+    stuck = BASE + 10 * MS + 10 * 10 * MS + MS  # release 10's callback started and never ended
+    threads = (RosThread(tid=100, comm="node", written=10, lost=0, open_cb=0x30, open_since_ns=stuck),)
+    (cb,), _ = one(n.process(threads))
+    due = (END - (BASE + 10 * MS) + 10 * MS - 1) // (10 * MS)  # 99 releases from the first to the end
+    assert cb.figures.callbacks == 10
+    assert cb.figures.missed_releases == due - 10 and cb.figures.releases == due
+    assert cb.figures.overruns == 1
+
+
+def test_a_timer_whose_only_instance_never_ended_is_listed_and_could_not_keep_up() -> None:
+    n = timer_node()
+    threads = (RosThread(tid=100, comm="node", written=0, lost=0, open_cb=0x30, open_since_ns=BASE + 10 * MS + 50_000),)
+    (cb,), _ = one(n.process(threads))
+    assert cb.name == f"minimal_publisher/{LAMBDA}" and cb.pids == [100]
+    assert cb.figures.callbacks == 0 and cb.figures.missed_releases == 99 and cb.figures.overruns == 1
+
+
+def test_a_timer_with_no_callback_after_its_last_and_none_running_is_taken_as_cancelled() -> None:
+    n = timer_node()
+    for k in range(10):
+        n.run(0x30, BASE + 10 * MS + k * 10 * MS)
+    (cb,), _ = one(n.process())
+    assert cb.figures.missed_releases == 0 and cb.figures.overruns == 0
+    assert any("had no callback (the timer was cancelled" in x for x in cb.notes)

@@ -278,6 +278,8 @@ class _Callback:
     notes: list[str] = field(default_factory=list)
     grid: bool = False
     releases_due: int = 0
+    open_at_end: list[tuple[int, int, int]] = field(default_factory=list)  # (pid, tid, since ns): instances still running at the end
+    open_overruns: int = 0  # of them, those past their next release by the end
 
 
 @dataclass
@@ -321,9 +323,15 @@ def _grid(cb: _Callback, end_ns: int) -> None:
         inst.chain_from_ns = inst.release_ns
     # Releases after the last callback are not counted as missed: no tracepoint says when a timer is cancelled (a
     # one-shot timer cancels itself in its callback), so the end of a timer's callbacks is the end of its releases.
+    # Unless an instance was still running at the end: then its timer was not cancelled, it could not be served, and
+    # every release to the end that no callback ended for is missed (and that instance overran, once past its next).
     cb.releases_due = last + 1
-    after = (end_ns - base + period - 1) // period - cb.releases_due if end_ns > base else 0
-    if after > 2:
+    due_to_end = (end_ns - base + period - 1) // period if end_ns > base else 0
+    after = due_to_end - cb.releases_due
+    if cb.open_at_end:
+        cb.releases_due = max(cb.releases_due, due_to_end)
+        cb.open_overruns = sum(1 for _, _, since in cb.open_at_end if end_ns > base + ((since - base) // period + 1) * period)
+    elif after > 2:
         cb.notes.append(
             f"its last callback served its timer's release {last + 1:,}; the {after:,} releases after it to the end of the cell "
             "had no callback (the timer was cancelled, or its executor stopped serving it): not counted as missed"
@@ -442,6 +450,8 @@ def _figures(cb: _Callback) -> tuple[ThreadFigures, ThreadHistograms]:
     }
     if not cb.grid:  # no release said when it was due: no latency, slack, overruns or misses to speak of
         update.update(latency_ns=None, slack_ns=None, overruns=None, missed_consecutive_max=None, releases=0, missed_releases=0)
+    if cb.grid and cb.open_overruns:
+        update["overruns"] = (figs.overruns or 0) + cb.open_overruns
     figs = figs.model_copy(update=update)
     st = slot.stats
     hists = ThreadHistograms(
@@ -608,6 +618,10 @@ def cell_callbacks(programs: Sequence[ProgramCapture], start_ns: int) -> tuple[l
             for t in p.threads:
                 if t.open_cb:
                     ident = resolve(metas, t.open_cb, t.open_since_ns)
+                    key = (p.pid, t.open_cb, ident.registered.t_ns if ident.registered else -1)
+                    callbacks.setdefault((prog.name, *key), _Callback(prog.name, ident, t.open_cb)).open_at_end.append(
+                        (p.pid, t.tid, t.open_since_ns)
+                    )
                     what = _name(ident, t.open_cb)
                     running = units.human_duration(max(0, prog.end_ns - t.open_since_ns))
                     open_words[prog.name].append(
@@ -635,7 +649,7 @@ def _result(cb: _Callback, comms: dict[tuple[int, int], str], start_ns: int) -> 
     ident = cb.identity
     return CallbackResult(
         program=cb.program,
-        pids=sorted({i.pid for i in cb.instances}),
+        pids=sorted({i.pid for i in cb.instances} | {pid for pid, _, _ in cb.open_at_end}),
         node=ident.node,
         kind=ident.kind,
         symbol=ident.symbol,

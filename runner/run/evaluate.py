@@ -121,7 +121,9 @@ def behind(f: ThreadFigures) -> str:
     parts = []
     if f.missed_releases:
         parts.append(f"missed {f.missed_releases:,} of {f.releases:,} releases")
-    if f.overruns:
+    if f.overruns and f.overruns > f.callbacks:  # a ROS 2 callback still running at the end overran too, and never ended
+        parts.append(f"{f.overruns:,} callbacks overran their period ({f.callbacks:,} ended, the others were still running at the end)")
+    elif f.overruns:
         parts.append(f"{f.overruns:,} of {f.callbacks:,} callbacks overran their period")
     worst = f" (worst slack {units.human_duration(f.slack_ns.min)})" if f.slack_ns and parts else ""
     return ", ".join(parts) + worst
