@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import subprocess
 
 import pytest
 import yaml
@@ -99,3 +101,25 @@ def test_the_stand_in_nodes_timer_callback_is_measured_callback_by_callback(ros:
     sub = next(c for c in cell["callbacks"] if c["kind"] == "subscription")
     assert sub["figures"]["callbacks"] == _own(node, "subscription")["count"], "every message the node's subscriber took"
     assert sub["figures"]["message_age_ns"]["count"] == sub["figures"]["callbacks"]
+
+
+def _seed_installed() -> bool:
+    """A ROS 2 host with the ros2-realtime-examples workspace sourced: `ros2 run minimal_scheduling ...` works."""
+    if shutil.which("ros2") is None:
+        return False
+    return subprocess.run(["ros2", "pkg", "prefix", "minimal_scheduling"], capture_output=True, timeout=60).returncode == 0
+
+
+SEED = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios", "ros2")
+
+
+@pytest.mark.skipif(not _seed_installed(), reason="needs a ROS 2 host with minimal_scheduling built and sourced (ros2 run)")
+@pytest.mark.parametrize("name", sorted(f[:-5] for f in os.listdir(SEED)))
+def test_the_seeds_own_program_passes_its_scenario(tmp_path, name: str) -> None:
+    """On a ROS 2 host, each shipped seed scenario holds: its program unmodified, its callbacks judged from inside."""
+    out = tmp_path / "out"
+    done = finish(start_runner(os.path.join(SEED, f"{name}.yaml"), "--out", str(out), cwd=str(tmp_path)), str(out), timeout=120)
+    assert done.results is not None, done.err
+    for cell in done.results["cells"]:
+        assert cell["callbacks"], f"{cell['id']}: no ROS 2 callback seen"
+        assert cell["status"] == "passed", [v for v in cell["expectations"] if not v["passed"]]

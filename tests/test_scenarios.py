@@ -203,3 +203,39 @@ def test_a_programs_callbacks_off_changes_its_spec_hash_and_the_default_does_not
         path.write_text(own.replace("    cpus: 0 ", extra + "    cpus: 0 ", 1))
         written[name] = load_scenario(str(path)).cells[0].spec_hash
     assert written["default"] == written["on"] != written["off"]
+
+
+ROS2 = sorted(glob.glob(os.path.join(SCENARIOS, "ros2", "*.yaml")))
+SEED_EXECUTABLES = {  # ros2-realtime-examples' minimal_scheduling programs, and the nodes whose callbacks each judges
+    "minimal_scheduling_main_thread": {"minimal_publisher"},
+    "minimal_scheduling_middleware_threads": {"minimal_publisher"},
+    "minimal_scheduling_spin_thread": {"minimal_publisher"},
+    "minimal_scheduling_callback_group": {"minimal_sub", "minimal_pub"},
+    "minimal_scheduling_real_time_executor": {"minimal_sub1", "minimal_sub2", "minimal_pub"},
+}
+
+
+def test_every_seed_program_of_minimal_scheduling_ships_as_a_ros2_scenario():
+    assert {os.path.basename(p)[:-5] for p in ROS2} == set(SEED_EXECUTABLES)
+
+
+@pytest.mark.parametrize("path", ROS2, ids=os.path.basename)
+def test_a_ros2_scenario_runs_the_seeds_own_program_and_judges_its_callbacks(path):
+    """`ros2 run minimal_scheduling X` unmodified, measured callback by callback: README's "Your ROS 2 node"."""
+    executable = os.path.basename(path)[:-5]
+    loaded = load_scenario(path)
+    assert not loaded.warnings
+    assert loaded.description.startswith(f"ros2 run minimal_scheduling {executable}")
+    assert run_cli(path, "--list").code == 0
+    for cell in loaded.cells:
+        sc = cell.scenario
+        (program,) = sc.processes
+        assert isinstance(program, ProgramSpec) and program.callbacks
+        assert program.command[:4] == ["ros2", "run", "minimal_scheduling", executable]
+        assert program.sched is None, "the seed applies its own --sched and --priority, as its README runs it"
+        assert sc.background.hogs, "something for SCHED_OTHER to lose against"
+        judged = [sc.expect[i] for i in expectations_for(sc, cell.matrix)]
+        assert judged and all(e.callback and not e.thread for e in judged), "judged by its callbacks, not its threads"
+        assert {e.callback.split("/")[0] for e in judged} <= SEED_EXECUTABLES[executable]
+        switches = [e for e in judged if e.metric.value == "involuntary.per_callback_mean"]
+        assert switches, "the seed's own figure"
