@@ -184,12 +184,20 @@ def test_the_synopsis_of_commands_is_what_help_says():
     assert not wrong, "\n".join(wrong)
 
 
-def test_the_readmes_own_program_is_the_shipped_scenario():
-    """README's "Measure your own program" shows scenarios/own_program.yaml as shipped (its description left out), so a user
-    who copies it gets the file the tests run."""
+def test_the_readmes_own_programs_are_the_shipped_scenarios():
+    """README's "Measure your own program" and "Your ROS 2 node" show scenarios/own_program.yaml and
+    scenarios/ros2/minimal_scheduling_main_thread.yaml as shipped (their descriptions left out), so a user who copies
+    one gets the file the tests check."""
+    import glob
+
     import yaml
 
-    (block,) = [b for b in BLOCKS if b.file == "README.md" and "command:" in b.text]
-    shipped = yaml.safe_load(_read(os.path.join(REPO, "scenarios", "own_program.yaml")))
-    del shipped["description"]
-    assert yaml.safe_load(block.text) == shipped
+    shipped = {}
+    for path in glob.glob(os.path.join(REPO, "scenarios", "**", "*.yaml"), recursive=True):
+        data = yaml.safe_load(_read(path))
+        del data["description"]
+        shipped[data["name"]] = data
+    blocks = [yaml.safe_load(b.text) for b in BLOCKS if b.file == "README.md" and "command:" in b.text]
+    assert [b["name"] for b in blocks] == ["own_program", "ros2_main_thread"]
+    for block in blocks:
+        assert block == shipped[block["name"]]
