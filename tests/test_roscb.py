@@ -250,6 +250,28 @@ def test_a_full_ring_overwrites_its_oldest_records_and_counts_them(bins, tmp_pat
     assert len(p.callbacks) == 64 and [c.seq for c in p.callbacks] == list(range(1000 - 64, 1000))
 
 
+@pytest.fixture
+def small_shm(tmp_path):
+    """A tmpfs of 256 KiB, far smaller than a capture file: a container's /dev/shm, full."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    folder = tmp_path / "shm"
+    folder.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(folder)], capture_output=True).returncode:
+        pytest.skip("no tmpfs mount here")
+    yield folder
+    subprocess.run(["umount", str(folder)], check=True)
+
+
+def test_a_full_dev_shm_refuses_the_thread_and_never_kills_the_program(bins, small_shm):
+    # a ring of 1.5 MiB in a tmpfs of 256 KiB: its first page beyond the room was a SIGBUS in the program
+    done, capture = _run([bins["humble"], "many", "20000"], small_shm)
+    assert done.returncode == 0 and done.stdout.endswith("done\n"), done
+    assert capture.threads_refused == 1 and not capture.error
+    done, capture = _run([bins["humble"], "many", "2000"], small_shm, capacity=1024)  # a ring that fits is recorded
+    assert done.returncode == 0 and capture.threads_refused == 0 and len(_one(capture).callbacks) == 1024
+
+
 def test_threads_and_processes_beyond_the_file_are_refused_and_counted(bins, tmp_path):
     done, capture = _run([bins["humble"], "thread-exit"], tmp_path, max_threads=1)
     assert done.returncode == 0 and capture.threads_refused == 1 and len(_one(capture).threads) == 1

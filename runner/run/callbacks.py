@@ -542,12 +542,12 @@ def loss_words(capture: RosCapture) -> list[str]:
     if capture.processes_refused:
         out.append(
             f"{capture.processes_refused:,} process{'es' if capture.processes_refused != 1 else ''} of it found every process "
-            "block of the callbacks file taken: their callbacks were not recorded"
+            "block of the callbacks file taken (or /dev/shm had no room for one): their callbacks were not recorded"
         )
     if capture.threads_refused:
         out.append(
             f"{capture.threads_refused:,} thread{'s' if capture.threads_refused != 1 else ''} of it found every thread slot "
-            "taken: their callbacks were not recorded"
+            "taken (or /dev/shm had no room for its ring): their callbacks were not recorded"
         )
     return out
 

@@ -10,7 +10,8 @@
  *   no lock and makes no system call but the clocks (vDSO), sched_getcpu (vDSO/rseq) and getrusage(RUSAGE_THREAD):
  *   thread state is initial-exec TLS, records go to the thread's own ring and a full ring overwrites its oldest
  *   (the runner counts what it missed).  The first hook of a process maps the file and claims a process block; the
- *   first of a thread claims a slot (an atomic add, gettid, its name).
+ *   first of a thread claims a slot (an atomic add, gettid, its name) and backs it with memory (`reserve`: a
+ *   full /dev/shm refuses the thread rather than killing the program with a SIGBUS).
  * - fork: the child forgets the parent's block and slots (pthread_atfork) and claims its own at its first hook;
  *   exec loads the library afresh from the inherited environment.
  * - Not defined on purpose: ros_trace_compile_status (`ros2 run tracetools status` must tell the truth), and every
@@ -23,6 +24,7 @@
 #include "roscb.h"
 
 #include <dlfcn.h>
+#include <errno.h>
 #include <fcntl.h>
 #include <pthread.h>
 #include <sched.h>
@@ -106,6 +108,9 @@ static _Atomic int g_arity; /* rmw_publish's arguments in the real library: 1 or
 static bool g_forked; /* the next block claimed is a forked child's */
 static pthread_key_t g_key;
 static bool g_key_made;
+static char g_path[4096]; /* RUNNER_ROSCB as the file was mapped, and which file it was */
+static dev_t g_dev;
+static ino_t g_ino;
 static _Atomic(uint64_t) g_rosout[32]; /* /rosout publishers (rcl and rmw handles): their publishes are not recorded */
 
 static int64_t now_ns(clockid_t clock) {
@@ -250,6 +255,26 @@ static void thread_gone(void *arg) {
     atomic_store_explicit((_Atomic uint32_t *)&t->slot->state, 2, memory_order_release);
 }
 
+/* Back [at, at + size) of the file's mapping with memory now, or say it cannot be: a page of the sparse file that tmpfs
+ * has no room for (a full /dev/shm; a container's is 64 MiB) is a SIGBUS at the write that first touches it, which
+ * would kill the program because of the runner.  MADV_POPULATE_WRITE (Linux 5.14) faults the pages in or fails; an
+ * older kernel allocates them with fallocate through the file's name, reopened (the descriptor the mapping was made
+ * with is closed: a program may close every descriptor) and checked to be the same file. */
+static bool reserve(void *at, size_t size) {
+#ifndef MADV_POPULATE_WRITE
+#define MADV_POPULATE_WRITE 23
+#endif
+    if (madvise(at, size, MADV_POPULATE_WRITE) == 0) return true;
+    if (errno != EINVAL) return false;
+    int fd = open(g_path, O_RDWR | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0) return false;
+    struct stat st;
+    bool ok = fstat(fd, &st) == 0 && st.st_dev == g_dev && st.st_ino == g_ino &&
+              fallocate(fd, 0, (off_t)((char *)at - (char *)g_file), (off_t)size) == 0;
+    close(fd);
+    return ok;
+}
+
 static void thread_claim(struct tstate *t) {
     unsigned generation = atomic_load(&g_generation);
     t->generation = generation;
@@ -265,6 +290,11 @@ static void thread_claim(struct tstate *t) {
     }
     char *base = (char *)g_file + g_file->header_size + (size_t)g_file->max_procs * g_file->proc_size;
     struct roscb_slot *s = (struct roscb_slot *)(base + (size_t)index * g_file->slot_size);
+    if (!reserve(s, g_file->slot_size)) { /* no room for its ring: refused, as when every slot is taken */
+        atomic_fetch_add((_Atomic uint64_t *)&g_file->threads_refused, 1);
+        t->refused = true;
+        return;
+    }
     s->tid = (int32_t)syscall(SYS_gettid);
     s->pid = (int32_t)getpid();
     s->proc = g_proc_index;
@@ -320,6 +350,9 @@ static void process_init(void) {
             return;
         }
         g_file = f;
+        g_dev = st.st_dev;
+        g_ino = st.st_ino;
+        if (strlen(path) < sizeof g_path) strcpy(g_path, path);
     }
     uint32_t index = atomic_fetch_add((_Atomic uint32_t *)&f->next_proc, 1);
     if (index >= f->max_procs) {
@@ -328,6 +361,11 @@ static void process_init(void) {
         return;
     }
     struct roscb_proc *p = (struct roscb_proc *)((char *)f + f->header_size + (size_t)index * f->proc_size);
+    if (!reserve(p, f->proc_size)) {
+        atomic_fetch_add((_Atomic uint64_t *)&f->procs_refused, 1);
+        atomic_store(&g_state, P_OFF);
+        return;
+    }
     p->pid = (int32_t)getpid();
     p->ppid = (int32_t)getppid();
     p->first_hook_ns = now_ns(CLOCK_MONOTONIC);

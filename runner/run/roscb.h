@@ -15,7 +15,8 @@
  *     then a ring of records, record n at n % capacity; the thread alone writes it and never waits: the runner
  *     finds what it missed from count - capacity
  *   a record is one of struct roscb_callback, roscb_publish, roscb_meta, told apart by its first field, `type`
- * The runner makes the file sparse: only what the program writes takes memory.
+ * The runner makes the file sparse: only the blocks and slots processes and threads claim take memory, backed as
+ * they are claimed (where /dev/shm has no room for one, it is refused: a write to a page tmpfs cannot back is a SIGBUS).
  */
 #ifndef RUNNER_ROSCB_H
 #define RUNNER_ROSCB_H

@@ -21,7 +21,8 @@ Bounds (what one program's file can hold, whatever the program does):
   drains once a second while the program runs, and at its end) loses its oldest, counted as lost,
 - a 63.5 KiB string arena per process (names, topics, symbols; a full one is counted).
 So the file is at most MAX_PROCS * 64 KiB + MAX_THREADS * (128 + CAPACITY * 96) bytes
-(98 MiB with the defaults, of which a thread uses 1.5 MiB at most, as far as it writes) and the
+(98 MiB with the defaults, sparse: each thread that reaches a hook takes its 1.5 MiB ring, a process
+its 64 KiB block; where /dev/shm has no room for one, that thread or process is refused, counted) and the
 records kept at most MAX_RECORDS (262,144: about 90 MB decoded) for the whole program: beyond, they
 are counted lost (a 1 kHz timer that publishes keeps 65 s).
 """

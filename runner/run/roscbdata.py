@@ -166,8 +166,8 @@ class RosCapture:
 
     path: str = ""  # the file, while the cell ran (unlinked at its end)
     processes: tuple[RosProcess, ...] = ()
-    processes_refused: int = 0  # processes that found every process block taken
-    threads_refused: int = 0  # threads that found every thread slot taken
+    processes_refused: int = 0  # processes that found every process block taken, or no room in /dev/shm
+    threads_refused: int = 0  # threads that found every thread slot taken, or no room in /dev/shm
     error: str = ""  # the file could not be read or had another layout, in words; "" when it was read
     loaded: bool | None = None  # the library was in the program's maps when last read; None: not known
     libraries: tuple[str, ...] = field(default=())  # ROS libraries in its maps (librclcpp.so, libtracetools.so, ...)
