@@ -511,10 +511,44 @@ def test_a_record_overwritten_while_it_was_copied_is_dropped_not_read_torn():
 
         def __getitem__(self, index):  # type: ignore[override]
             out = super().__getitem__(index)
-            if isinstance(index, slice) and index.stop - index.start == 4 * 96:
+            if isinstance(index, slice) and len(range(*index.indices(len(self)))) == 4 * 96:
                 _synthetic(4, range(4, 6), 6, self)
             return out
 
     buf = Racing(_synthetic(4, range(4), 4))
     (p,) = roscb.decode(buf).processes
     assert [c.seq for c in p.callbacks] == [2, 3] and p.threads[0].lost == 2
+
+
+def test_a_capture_file_the_program_cut_short_reads_as_zeros_and_never_kills_the_runner(bins, tmp_path):
+    # the file is the program's memory too: cut short under a mapped read, it was a SIGBUS in the runner (run apart here)
+    script = f"""
+import os, subprocess
+from runner.run import roscb
+capture = roscb.Capture.create("cut", folder={str(tmp_path)!r})
+subprocess.run([{bins["humble"]!r}, "basic", "3"], env=capture.environment({{"PATH": os.defpath}}), check=True, capture_output=True)
+capture.drain()  # while it runs: the records so far are the runner's
+os.truncate(capture.path, roscb.FILE.size)
+capture.drain()
+read = capture.read()
+capture.close()
+print(len(read.processes), repr(read.error))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == "0 ''\n"  # its process block reads as zeros: no process
+
+
+def test_a_header_whose_sizes_change_after_the_first_read_is_another_layout():
+    reader = roscb.Reader()
+    buf = _synthetic(4, range(3), 3)
+    reader.drain(buf)
+    at = roscb.FILE.fields["capacity"]
+    buf[at.offset : at.offset + at.struct.size] = at.struct.pack(2)  # the program rewrites the ring's geometry
+    at = roscb.FILE.fields["slot_size"]
+    buf[at.offset : at.offset + at.struct.size] = at.struct.pack(roscb.SLOT.size + 2 * 96)
+    read = reader.capture(buf)
+    assert (
+        read.processes == ()
+        and read.error == "the capture file's header changed while it was read: capacity 4 then 2, slot_size 512 then 320"
+    )

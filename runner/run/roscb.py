@@ -8,6 +8,13 @@ read here by field name from the native core's table, as runner/run/records.py r
 sample buffer).  At the cell's end the runner decodes it into `roscbdata.RosCapture` and
 removes it.
 
+The runner reads the file with pread through the descriptor it made it with, never through a
+mapping: the file is the program's memory too, and a program that truncates it (or a /dev/shm
+with no room for a page a mapped read would allocate) would make a mapped read a SIGBUS that
+kills the runner; pread reads what is gone as zeros.  Nothing read is trusted: sizes are this
+runner's own, every offset is bounded, and a header that changes after the first read is
+another layout.
+
 Why a file in /dev/shm and not an inherited memfd: `ros2 run` starts the node with
 `subprocess.run(..., close_fds=True)`, so a descriptor would not reach it; a path in the
 environment does, through any number of execs and forks.  The file is new (O_EXCL), never
@@ -31,14 +38,13 @@ from __future__ import annotations
 
 import contextlib
 import importlib.machinery
-import mmap
 import os
 import secrets
 import stat
 import struct
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Optional
+from typing import Optional, Union
 
 from runner.run import _probe
 from runner.run.records import RECORDS
@@ -120,7 +126,6 @@ class Capture:
     loaded: Optional[bool] = None
     libraries: set[str] = field(default_factory=set)
     reader: Reader = field(default_factory=lambda: Reader())
-    _map: Optional[mmap.mmap] = None
 
     @classmethod
     def create(
@@ -176,21 +181,16 @@ class Capture:
             self.loaded = bool(self.loaded) or ours
             self.libraries.update(os.path.basename(p) for p in found if is_ros_library(p) or p == LIBRARY)
 
-    def _mapped(self) -> mmap.mmap:
-        if self._map is None:
-            self._map = mmap.mmap(self.fd, 0, mmap.MAP_SHARED, mmap.PROT_READ)
-        return self._map
-
     def drain(self) -> None:
         """Take the records the program wrote since the last drain, so a ring never has to hold a whole cell's."""
-        with contextlib.suppress(OSError, ValueError):
-            self.reader.drain(self._mapped())
+        with contextlib.suppress(OSError, ValueError, struct.error):
+            self.reader.drain(FileView(self.fd, self.size))
 
     def read(self) -> RosCapture:
         """Everything taken from the file, drained once more (a file of another layout: `error` says so)."""
         try:
-            capture = self.reader.capture(self._mapped())
-        except (OSError, ValueError) as error:
+            capture = self.reader.capture(FileView(self.fd, self.size))
+        except (OSError, ValueError, struct.error) as error:
             capture = RosCapture(error=f"the capture file could not be read: {error}")
         return RosCapture(
             self.path,
@@ -204,14 +204,35 @@ class Capture:
 
     def close(self) -> None:
         """Remove the file (whatever happened to the program) and close the descriptor; a second call does nothing."""
-        if self._map is not None:
-            self._map.close()
-            self._map = None
         if self.fd >= 0:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(self.path)
             os.close(self.fd)
             self.fd = -1
+
+
+class FileView:
+    """The first `size` bytes of a file, sliced as bytes are, read with pread (never mapped: see the module's docstring).
+
+    What the file no longer holds (cut short by the program) reads as zeros.
+    """
+
+    def __init__(self, fd: int, size: int) -> None:
+        self.fd = fd
+        self.size = size
+
+    def __len__(self) -> int:
+        return self.size
+
+    def __getitem__(self, index: slice) -> bytes:
+        start, stop, _ = index.indices(self.size)
+        if stop <= start:
+            return b""
+        data = os.pread(self.fd, stop - start, start)
+        return data + bytes(stop - start - len(data))
+
+
+Buffer = Union[bytes, bytearray, FileView]
 
 
 def renamed(capture: RosCapture, names: Mapping[int, str]) -> RosCapture:
@@ -327,11 +348,16 @@ def _text(raw: bytes) -> str:
     return raw.split(b"\0", 1)[0].decode(errors="replace")
 
 
-def layout_error(buf: bytes | mmap.mmap) -> str:
-    """Why a capture file is not of this runner's layout, in words; "" when it is."""
+LAYOUT = ("max_procs", "max_threads", "capacity", "slot_size")  # the header's sizes a reader keeps from its first read
+
+
+def layout_error(buf: Buffer, head: Optional[Mapping[str, int]] = None) -> str:
+    """Why a capture file (whose header is `head`, read from `buf` when not given) is not of this runner's layout, in
+    words; "" when it is."""
     if len(buf) < FILE.size:
         return f"the capture file has {len(buf)} bytes, fewer than its {FILE.size}-byte header"
-    head = FILE.unpack(buf)
+    if head is None:
+        head = FILE.unpack(buf[: FILE.size])
     expected = {
         "magic": _probe.ROSCB_MAGIC,
         "version": _probe.ROSCB_VERSION,
@@ -365,28 +391,51 @@ class Reader:
     A ring holds CAPACITY records; drained every so often, a thread loses none unless it writes
     more than that between two drains.  What is taken is kept in memory, MAX_RECORDS at most for
     the whole file (beyond, records are counted lost on their thread).
+
+    The file is the program's memory: its header is read once a call and its sizes are those of
+    the first read (a header whose sizes changed since is another layout), so no offset read
+    from it can leave the file nor one call read two layouts.
     """
 
     def __init__(self, max_records: int = MAX_RECORDS) -> None:
         self.rings: dict[int, _Ring] = {}
         self.kept = 0
         self.max_records = max_records
+        self.layout: Optional[dict[str, int]] = None
 
-    def drain(self, buf: bytes | mmap.mmap) -> None:
+    def _head(self, buf: Buffer) -> tuple[dict, str]:
+        """The file's header, read once, and why it is not this runner's layout (or not the layout first read)."""
+        if len(buf) < FILE.size:
+            return {}, layout_error(buf)
+        head = FILE.unpack(buf[: FILE.size])
+        error = layout_error(buf, head)
+        if error:
+            return head, error
+        layout = {name: head[name] for name in LAYOUT}
+        if self.layout is None:
+            self.layout = layout
+        elif layout != self.layout:
+            changed = ", ".join(f"{name} {self.layout[name]} then {layout[name]}" for name in LAYOUT if layout[name] != self.layout[name])
+            return head, f"the capture file's header changed while it was read: {changed}"
+        return head, ""
+
+    def drain(self, buf: Buffer) -> None:
         """Take every record written since the last drain (a file of another layout: nothing)."""
-        if layout_error(buf):
-            return
-        head = FILE.unpack(buf)
+        head, error = self._head(buf)
+        if not error:
+            self._drain(buf, head)
+
+    def _drain(self, buf: Buffer, head: Mapping[str, int]) -> None:
         slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
         for index in range(min(head["next_thread"], head["max_threads"])):
             at = slots_at + index * head["slot_size"]
-            s = SLOT.unpack(buf, at)
+            s = SLOT.unpack(buf[at : at + SLOT.size])
             if s["state"] == 0 or s["proc"] >= head["max_procs"]:
                 continue
             ring = self.rings.setdefault(index, _Ring(s["proc"]))
             self._take(buf, at, s, head["capacity"], ring)
 
-    def _take(self, buf: bytes | mmap.mmap, at: int, s: dict, capacity: int, ring: _Ring) -> None:
+    def _take(self, buf: Buffer, at: int, s: dict, capacity: int, ring: _Ring) -> None:
         """The records of one ring since `ring.taken`, re-checked against its count after the copy (a record
         overwritten while it was copied is dropped as lost, not read torn)."""
         written = s["count"]
@@ -394,7 +443,7 @@ class Reader:
             return
         ring_at = at + SLOT.size
         data = bytes(buf[ring_at : ring_at + capacity * RECORD_SIZE])
-        after = SLOT.get(buf, at, "count")
+        after = SLOT.get(buf[at : at + SLOT.size], 0, "count")
         first = max(ring.taken, written - capacity, after - capacity)
         ring.lost += first - ring.taken
         tid, arena = s["tid"], FILE.size + ring.proc * _probe.ROSCB_PROC_BYTES + PROC.size
@@ -413,21 +462,22 @@ class Reader:
             self.kept += 1
         ring.taken = written
 
-    def capture(self, buf: bytes | mmap.mmap) -> RosCapture:
+    def capture(self, buf: Buffer) -> RosCapture:
         """Drain once more, then everything taken, by process (a file of another layout: `error` says so)."""
-        error = layout_error(buf)
+        head, error = self._head(buf)
         if error:
             return RosCapture(error=error)
-        self.drain(buf)
-        head = FILE.unpack(buf)
+        self._drain(buf, head)
         procs: dict[int, dict] = {}
         for index in range(min(head["next_proc"], head["max_procs"])):
-            p = PROC.unpack(buf, FILE.size + index * _probe.ROSCB_PROC_BYTES)
+            at = FILE.size + index * _probe.ROSCB_PROC_BYTES
+            p = PROC.unpack(buf[at : at + PROC.size])
             if p["state"] == 1:
                 procs[index] = {"head": p, "threads": [], "metas": [], "callbacks": [], "publishes": []}
         slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
         for index, ring in sorted(self.rings.items()):
-            s = SLOT.unpack(buf, slots_at + index * head["slot_size"])
+            at = slots_at + index * head["slot_size"]
+            s = SLOT.unpack(buf[at : at + SLOT.size])
             owner = procs.get(ring.proc)
             if owner is None or owner["head"]["pid"] != s["pid"]:
                 continue
@@ -451,7 +501,7 @@ class Reader:
         return RosCapture(processes=processes, processes_refused=head["procs_refused"], threads_refused=head["threads_refused"])
 
 
-def decode(buf: bytes | mmap.mmap) -> RosCapture:
+def decode(buf: Buffer) -> RosCapture:
     """The records of a capture file read at once, checked against this runner's layout; torn and overwritten ones left out."""
     return Reader().capture(buf)
 
@@ -503,13 +553,13 @@ def _publish(tid: int, r: dict) -> PublishRecord:
     )
 
 
-def _string(buf: bytes | mmap.mmap, arena: int, offset: int, length: int) -> str:
+def _string(buf: Buffer, arena: int, offset: int, length: int) -> str:
     if length == 0 or offset + length > ARENA:
         return ""
     return bytes(buf[arena + offset : arena + offset + length]).decode(errors="replace")
 
 
-def _meta(tid: int, r: dict, buf: bytes | mmap.mmap, arena: int) -> Meta:
+def _meta(tid: int, r: dict, buf: Buffer, arena: int) -> Meta:
     clock = r["clock"]
     return Meta(
         kind=MetaKind(r["type"]),
