@@ -189,7 +189,11 @@ static inline struct tstate *thread_on(void) {
     return t->slot ? t : NULL;
 }
 
+/* A record into the ring, then its count (release: a reader that sees the count sees the record).  The fence first
+ * orders the previous count before this record's bytes, which overwrite the oldest record: a reader that copied the
+ * ring and then read count c knows that no record past c had begun to overwrite its copy (roscb.py `_take`). */
 static inline void put(struct tstate *t, const void *record) {
+    atomic_thread_fence(memory_order_release);
     memcpy(t->ring + (t->count % t->capacity) * ROSCB_RECORD, record, ROSCB_RECORD);
     t->count++;
     atomic_store_explicit((_Atomic uint64_t *)&t->slot->count, t->count, memory_order_release);

@@ -187,7 +187,8 @@ class Capture:
             self.reader.drain(FileView(self.fd, self.size))
 
     def read(self) -> RosCapture:
-        """Everything taken from the file, drained once more (a file of another layout: `error` says so)."""
+        """Everything taken from the file, drained once more, once the program is gone (a file of another layout: `error`
+        says so)."""
         try:
             capture = self.reader.capture(FileView(self.fd, self.size))
         except (OSError, ValueError, struct.error) as error:
@@ -420,12 +421,13 @@ class Reader:
         return head, ""
 
     def drain(self, buf: Buffer) -> None:
-        """Take every record written since the last drain (a file of another layout: nothing)."""
+        """Take every record written since the last drain, while the program may still write (a file of another layout:
+        nothing)."""
         head, error = self._head(buf)
         if not error:
-            self._drain(buf, head)
+            self._drain(buf, head, live=True)
 
-    def _drain(self, buf: Buffer, head: Mapping[str, int]) -> None:
+    def _drain(self, buf: Buffer, head: Mapping[str, int], live: bool) -> None:
         slots_at = FILE.size + head["max_procs"] * _probe.ROSCB_PROC_BYTES
         for index in range(min(head["next_thread"], head["max_threads"])):
             at = slots_at + index * head["slot_size"]
@@ -433,18 +435,25 @@ class Reader:
             if s["state"] == 0 or s["proc"] >= head["max_procs"]:
                 continue
             ring = self.rings.setdefault(index, _Ring(s["proc"]))
-            self._take(buf, at, s, head["capacity"], ring)
+            self._take(buf, at, s, head["capacity"], ring, live)
 
-    def _take(self, buf: Buffer, at: int, s: dict, capacity: int, ring: _Ring) -> None:
+    def _take(self, buf: Buffer, at: int, s: dict, capacity: int, ring: _Ring, live: bool) -> None:
         """The records of one ring since `ring.taken`, re-checked against its count after the copy (a record
-        overwritten while it was copied is dropped as lost, not read torn)."""
+        overwritten while it was copied is dropped as lost, not read torn).
+
+        The count is stored after each record, so with `after` read once the copy was made, records
+        up to after - 1 may have overwritten theirs, and record `after` may have been half-written
+        over the copy's (the writer never waits): the oldest record the copy holds whole is
+        after - capacity + 1.  Once nothing of the program writes any more (`live` false: the final
+        read, after it was stopped), the copy is whole from after - capacity.
+        """
         written = s["count"]
         if written <= ring.taken:
             return
         ring_at = at + SLOT.size
         data = bytes(buf[ring_at : ring_at + capacity * RECORD_SIZE])
         after = SLOT.get(buf[at : at + SLOT.size], 0, "count")
-        first = max(ring.taken, written - capacity, after - capacity)
+        first = max(ring.taken, written - capacity, after - capacity + live)
         ring.lost += first - ring.taken
         tid, arena = s["tid"], FILE.size + ring.proc * _probe.ROSCB_PROC_BYTES + PROC.size
         for n in range(first, written):
@@ -463,11 +472,12 @@ class Reader:
         ring.taken = written
 
     def capture(self, buf: Buffer) -> RosCapture:
-        """Drain once more, then everything taken, by process (a file of another layout: `error` says so)."""
+        """Drain once more, nothing of the program writing any more, then everything taken, by process (a file of another
+        layout: `error` says so)."""
         head, error = self._head(buf)
         if error:
             return RosCapture(error=error)
-        self._drain(buf, head)
+        self._drain(buf, head, live=False)
         procs: dict[int, dict] = {}
         for index in range(min(head["next_proc"], head["max_procs"])):
             at = FILE.size + index * _probe.ROSCB_PROC_BYTES
