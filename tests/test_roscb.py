@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from dataclasses import replace
 
 import pytest
 
@@ -571,3 +572,21 @@ def test_a_header_whose_sizes_change_after_the_first_read_is_another_layout():
         read.processes == ()
         and read.error == "the capture file's header changed while it was read: capacity 4 then 2, slot_size 512 then 320"
     )
+
+
+def test_records_that_all_name_one_long_string_hold_no_more_than_their_arena():
+    # the program's memory: a record may point anywhere in its arena, and 64 records at one 1 KiB string were 64 KiB held
+    capacity = 64
+    buf = _synthetic(capacity, range(0), capacity)
+    slot_at = roscb.FILE.size + _probe.ROSCB_PROC_BYTES + roscb.SLOT.size
+    for n in range(capacity):
+        at = slot_at + n * 96
+        buf[at : at + 96] = roscb.META.pack({"type": MetaKind.SYM.value, "a": n + 1, "s1_off": 0, "s1_len": _probe.ROSCB_STRING_MAX})
+    arena_at = roscb.FILE.size + roscb.PROC.size
+    buf[arena_at : arena_at + _probe.ROSCB_STRING_MAX] = b"x" * _probe.ROSCB_STRING_MAX
+    (p,) = roscb.decode(buf).processes
+    assert len(p.metas) == capacity and sum(len(m.s1) for m in p.metas) <= roscb.ARENA
+    assert p.metas[0].s1 == "x" * _probe.ROSCB_STRING_MAX and not p.metas[0].truncated and p.metas[-1].truncated
+    beyond = roscb.META.pack({"type": MetaKind.SYM.value, "a": 1, "s1_off": 0, "s1_len": _probe.ROSCB_STRING_MAX + 1})
+    buf[slot_at : slot_at + 96] = beyond  # longer than the interposer ever writes: left out
+    assert roscb.decode(buf).processes[0].metas[0] == replace(p.metas[0], s1="", truncated=True)

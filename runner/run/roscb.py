@@ -403,6 +403,7 @@ class Reader:
         self.kept = 0
         self.max_records = max_records
         self.layout: Optional[dict[str, int]] = None
+        self.string_bytes: dict[int, int] = {}  # bytes of strings decoded per process block
 
     def _head(self, buf: Buffer) -> tuple[dict, str]:
         """The file's header, read once, and why it is not this runner's layout (or not the layout first read)."""
@@ -455,7 +456,7 @@ class Reader:
         after = SLOT.get(buf[at : at + SLOT.size], 0, "count")
         first = max(ring.taken, written - capacity, after - capacity + live)
         ring.lost += first - ring.taken
-        tid, arena = s["tid"], FILE.size + ring.proc * _probe.ROSCB_PROC_BYTES + PROC.size
+        tid = s["tid"]
         for n in range(first, written):
             if self.kept >= self.max_records:
                 ring.lost += written - n
@@ -467,9 +468,26 @@ class Reader:
             elif kind == PUBLISH_TYPE:
                 ring.publishes.append(_publish(tid, PUBLISH.unpack(data, offset)))
             elif kind in MetaKind._value2member_map_:
-                ring.metas.append(_meta(tid, META.unpack(data, offset), buf, arena))
+                m = META.unpack(data, offset)
+                s1, cut1 = self._string(buf, ring.proc, m["s1_off"], m["s1_len"])
+                s2, cut2 = self._string(buf, ring.proc, m["s2_off"], m["s2_len"])
+                ring.metas.append(_meta(tid, m, s1, s2, cut1 or cut2))
             self.kept += 1
         ring.taken = written
+
+    def _string(self, buf: Buffer, proc: int, offset: int, length: int) -> tuple[str, bool]:
+        """A string of process block `proc`'s arena and whether it was left out ("", True): one the interposer cannot
+        have written (longer than ROSCB_STRING_MAX, or past the arena), or once that process's strings have taken as
+        many bytes as its arena holds (all its strings fit there once: a program that points many records at one long
+        string cannot make the runner hold more)."""
+        if length == 0:
+            return "", False
+        used = self.string_bytes.get(proc, 0)
+        if length > _probe.ROSCB_STRING_MAX or offset + length > ARENA or used + length > ARENA:
+            return "", True
+        self.string_bytes[proc] = used + length
+        at = FILE.size + proc * _probe.ROSCB_PROC_BYTES + PROC.size + offset
+        return bytes(buf[at : at + length]).decode(errors="replace"), False
 
     def capture(self, buf: Buffer) -> RosCapture:
         """Drain once more, nothing of the program writing any more, then everything taken, by process (a file of another
@@ -563,13 +581,7 @@ def _publish(tid: int, r: dict) -> PublishRecord:
     )
 
 
-def _string(buf: Buffer, arena: int, offset: int, length: int) -> str:
-    if length == 0 or offset + length > ARENA:
-        return ""
-    return bytes(buf[arena + offset : arena + offset + length]).decode(errors="replace")
-
-
-def _meta(tid: int, r: dict, buf: Buffer, arena: int) -> Meta:
+def _meta(tid: int, r: dict, s1: str, s2: str, cut: bool) -> Meta:
     clock = r["clock"]
     return Meta(
         kind=MetaKind(r["type"]),
@@ -581,9 +593,9 @@ def _meta(tid: int, r: dict, buf: Buffer, arena: int) -> Meta:
         d=r["d"],
         e=r["e"],
         clock=ClockType(clock) if clock in ClockType._value2member_map_ else ClockType.UNKNOWN,
-        s1=_string(buf, arena, r["s1_off"], r["s1_len"]),
-        s2=_string(buf, arena, r["s2_off"], r["s2_len"]),
-        truncated=bool(r["flags"] & META_TRUNCATED),
+        s1=s1,
+        s2=s2,
+        truncated=cut or bool(r["flags"] & META_TRUNCATED),
     )
 
 
