@@ -375,3 +375,23 @@ def test_a_timer_with_no_callback_after_its_last_and_none_running_is_taken_as_ca
     (cb,), _ = one(n.process())
     assert cb.figures.missed_releases == 0 and cb.figures.overruns == 0
     assert any("had no callback (the timer was cancelled" in x for x in cb.notes)
+
+
+def test_a_timer_whose_callbacks_fell_millions_of_releases_behind_is_measured_in_bounded_memory() -> None:
+    # a 1 µs timer (or a first release far behind) with one callback a second late: a million missed releases, each a
+    # latency; they were a list of a million values (the whole list again for each figure), hundreds of MB for more
+    import tracemalloc
+
+    n = timer_node(period=1000)
+    n.run(0x30, BASE + 10 * MS + 1000 * MS)
+    n.run(0x30, BASE + 10 * MS + 1000 * MS + 1500)
+    tracemalloc.start()
+    try:
+        (cb,), _ = one(n.process(), end=BASE + 1011 * MS)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 * 2**20, peak
+    assert cb.figures.missed_releases == 1_000_000 and cb.figures.releases == 1_000_002
+    assert cb.figures.latency_ns is not None and cb.figures.latency_ns.max == 1000 * MS
+    assert cb.histograms.latency is not None and cb.histograms.latency.count == 1_000_002

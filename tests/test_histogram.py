@@ -126,3 +126,42 @@ def test_nonzero_sees_the_first_and_the_last_counter():
     assert hg.nonzero([0] * hg.BUCKETS) == []
     counts[0], counts[-1] = 0, 256  # a count whose low byte is zero
     assert hg.nonzero(counts) == [(hg.BUCKETS - 1, 256)]
+
+
+@given(
+    st.lists(st.tuples(st.integers(-(10**7), 10**7), st.integers(0, 10**6), st.integers(0, 300)), min_size=1, max_size=6),
+    st.integers(0, 2 * 10**7),
+)
+@settings(max_examples=150, deadline=None)
+def test_latencies_counted_as_runs_are_those_counted_one_by_one(callbacks: list[tuple[int, int, int]], bound: int) -> None:
+    # a callback after m missed releases has m + 1 latencies a period apart: past samples.EXPANDED they are counted as runs
+    from runner.run import samples as sm
+
+    made = [
+        sm.Sample(
+            scheduled_ns=10**9,
+            wake_ns=10**9 + lat,
+            end_ns=10**9 + lat + 10,
+            burn_wall_ns=10,
+            seq=i,
+            nivcsw=0,
+            nvcsw=0,
+            minflt=0,
+            majflt=0,
+            cpu_start=0,
+            cpu_end=0,
+            missed=missed,
+            origin_ns=0,
+            period_ns=period,
+            next_ns=0,
+        )
+        for i, (lat, period, missed) in enumerate(callbacks)
+    ]
+    one_by_one = sm._latencies(made, bound)
+    expanded, sm.EXPANDED = sm.EXPANDED, 0
+    try:
+        runs = sm._latencies(made, bound)
+    finally:
+        sm.EXPANDED = expanded
+    assert runs[0] == one_by_one[0] and runs[1] == one_by_one[1] and runs[4] == one_by_one[4]
+    assert runs[2] == pytest.approx(one_by_one[2], rel=1e-9, abs=1e-3) and runs[3] == pytest.approx(one_by_one[3], rel=1e-6, abs=1)
