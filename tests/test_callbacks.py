@@ -395,3 +395,29 @@ def test_a_timer_whose_callbacks_fell_millions_of_releases_behind_is_measured_in
     assert cb.figures.missed_releases == 1_000_000 and cb.figures.releases == 1_000_002
     assert cb.figures.latency_ns is not None and cb.figures.latency_ns.max == 1000 * MS
     assert cb.histograms.latency is not None and cb.histograms.latency.count == 1_000_002
+
+
+def test_a_timer_made_anew_at_the_same_address_thousands_of_times_is_resolved_in_linear_work() -> None:
+    # a one-shot timer re-created in its callback (a common pattern) reuses its addresses: every lookup of a handle
+    # listed the times of all its registrations again, so 100,000 of them took the runner's end of cell for hours
+    reads = [0]
+
+    class Counted(Meta):
+        def __getattribute__(self, name: str) -> object:
+            if name == "t_ns":
+                reads[0] += 1
+            return super().__getattribute__(name)
+
+    n = Node()
+    n.node(0x10, "talker")
+    count = 1000
+    for i in range(count):
+        n.t = BASE + i * 10 * MS  # made in the callback before
+        n.timer(0x10, 0x20, 0x30, 10 * MS, BASE + (i + 1) * 10 * MS, "f()")
+        n.run(0x30, BASE + (i + 1) * 10 * MS + 1000)
+    p = n.process()
+    p = replace(p, metas=tuple(Counted(**vars(m)) for m in p.metas))
+    results, _ = one(p, end=BASE + (count + 1) * 10 * MS)
+    assert len(results) == count and {r.figures.callbacks for r in results} == {1}  # each timer ran once, on time
+    assert {r.figures.latency_ns.max for r in results if r.figures.latency_ns} == {1000}
+    assert reads[0] < 100 * count, reads[0]

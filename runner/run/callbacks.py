@@ -81,7 +81,11 @@ _KEYS: dict[MetaKind, tuple[str, ...]] = {  # the handles each kind of meta is l
 
 
 class _Metas:
-    """One process's metas by (kind, handle field, handle): which record held for a handle at a given time."""
+    """One process's metas by (kind, handle field, handle): which record held for a handle at a given time.
+
+    The times of each handle's records are listed once: an address reused thousands of times (a
+    one-shot timer made anew in its callback) is looked up at every callback.
+    """
 
     def __init__(self, metas: Sequence[Meta]) -> None:
         self._by: dict[tuple[MetaKind, str, int], list[Meta]] = defaultdict(list)
@@ -90,13 +94,14 @@ class _Metas:
                 handle = getattr(m, name)
                 if handle:
                     self._by[(m.kind, name, handle)].append(m)
+        self._times = {key: [m.t_ns for m in found] for key, found in self._by.items()}
 
     def at(self, kind: MetaKind, name: str, handle: int, t_ns: int) -> Optional[Meta]:
         """The record of `kind` whose `name` field is `handle`, valid at `t_ns`: the latest before it, else the first after."""
         found = self._by.get((kind, name, handle))
         if not found:
             return None
-        i = bisect_right([m.t_ns for m in found], t_ns)
+        i = bisect_right(self._times[(kind, name, handle)], t_ns)
         return found[i - 1] if i else found[0]
 
 
