@@ -421,3 +421,13 @@ def test_a_timer_made_anew_at_the_same_address_thousands_of_times_is_resolved_in
     assert len(results) == count and {r.figures.callbacks for r in results} == {1}  # each timer ran once, on time
     assert {r.figures.latency_ns.max for r in results if r.figures.latency_ns} == {1000}
     assert reads[0] < 100 * count, reads[0]
+
+
+def test_a_timer_of_period_0_is_said_to_be_always_ready_not_unseen() -> None:
+    n = timer_node(period=0)
+    n.run(0x30, BASE + 10 * MS)
+    (cb,), _ = one(n.process())
+    assert cb.figures.latency_ns is None and cb.notes == [
+        "its timer's period is 0 (always ready: it runs at every turn of its executor): no release grid, "
+        "so no latency, missed releases or slack"
+    ]

@@ -118,6 +118,7 @@ class _Identity:
     first_ns: int = 0
     clock: ClockType = ClockType.UNKNOWN
     truncated: bool = False
+    timer_seen: bool = False  # a timer's rcl_timer_init was found (its period may still be 0: always ready)
 
 
 def node_name(meta: Optional[Meta]) -> str:
@@ -177,6 +178,7 @@ def resolve(metas: _Metas, cb: int, t_ns: int) -> _Identity:
             first_ns=timer.e if timer is not None else 0,
             clock=timer.clock if timer is not None else ClockType.UNKNOWN,
             truncated=truncated or bool(node and node.truncated),
+            timer_seen=timer is not None,
         )
     if reg.kind is MetaKind.SUBCB:
         obj = metas.at(MetaKind.SUBOBJ, "b", reg.a, t)
@@ -351,6 +353,11 @@ def _grid(cb: _Callback, end_ns: int) -> None:
 def _no_grid(ident: _Identity) -> str:
     if ident.clock is ClockType.ROS:
         return "a timer on ROS time with no release grid (simulated time, use_sim_time): no latency, missed releases or slack"
+    if ident.timer_seen and ident.period_ns <= 0:
+        return (
+            "its timer's period is 0 (always ready: it runs at every turn of its executor): no release grid, "
+            "so no latency, missed releases or slack"
+        )
     if not ident.period_ns:
         return "its timer's period is unknown (rcl_timer_init was not seen): no latency, missed releases or slack"
     return "its timer's first release is unknown (the interposer could not ask rcl): no latency, missed releases or slack"
