@@ -590,3 +590,12 @@ def test_records_that_all_name_one_long_string_hold_no_more_than_their_arena():
     beyond = roscb.META.pack({"type": MetaKind.SYM.value, "a": 1, "s1_off": 0, "s1_len": _probe.ROSCB_STRING_MAX + 1})
     buf[slot_at : slot_at + 96] = beyond  # longer than the interposer ever writes: left out
     assert roscb.decode(buf).processes[0].metas[0] == replace(p.metas[0], s1="", truncated=True)
+
+
+def test_the_capture_files_name_is_removed_only_while_it_is_the_runners_file(tmp_path):
+    capture = roscb.Capture.create("swap", folder=str(tmp_path))
+    os.rename(capture.path, tmp_path / "moved")  # the program moved it and put a file of its own in its place
+    with open(capture.path, "w") as handle:
+        handle.write("the program's")
+    capture.close()
+    assert open(capture.path).read() == "the program's"

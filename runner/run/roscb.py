@@ -204,10 +204,15 @@ class Capture:
         )
 
     def close(self) -> None:
-        """Remove the file (whatever happened to the program) and close the descriptor; a second call does nothing."""
+        """Remove the file (whatever happened to the program) and close the descriptor; a second call does nothing.
+
+        The name is removed only while it is still this file: a program may have put another file (its
+        own) in its place, which is not the runner's to remove."""
         if self.fd >= 0:
             with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.path)
+                mine, named = os.fstat(self.fd), os.lstat(self.path)
+                if (named.st_dev, named.st_ino) == (mine.st_dev, mine.st_ino):
+                    os.unlink(self.path)
             os.close(self.fd)
             self.fd = -1
 
