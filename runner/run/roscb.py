@@ -18,8 +18,8 @@ another layout.
 Why a file in /dev/shm and not an inherited memfd: `ros2 run` starts the node with
 `subprocess.run(..., close_fds=True)`, so a descriptor would not reach it; a path in the
 environment does, through any number of execs and forks.  The file is new (O_EXCL), never
-reached through a link (O_NOFOLLOW), its owner's alone (0600) and sparse: a thread's ring
-takes memory only as far as it is written.
+reached through a link (O_NOFOLLOW), its owner's alone (0600) and sparse: only the threads
+and processes that reach a hook take memory (their ring or block, backed when they claim it).
 
 Bounds (what one program's file can hold, whatever the program does):
 - MAX_PROCS processes that reach a hook (later ones are counted as refused),
