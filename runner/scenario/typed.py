@@ -354,6 +354,8 @@ def _mismatch(run: _Run, path: Path, what: str, value: Any) -> Any:
     message = f"input should be {what}{_got(value)}"
     if what == "a valid string" and isinstance(value, bool):  # YAML 1.1 reads yes/no/on/off as booleans
         message += "; YAML reads an unquoted yes, no, on, off, true or false as a boolean: quote it ('off') to keep the word"
+    elif what == "a valid boolean":
+        message += "; expected true or false (or on/off, yes/no), unquoted"
     return run.add(path, message)
 
 
